@@ -1,0 +1,64 @@
+#include "depthfuse/source_factory.hpp"
+
+#if DEPTHFUSE_HAVE_REPLAY
+#include "depthfuse/replay/tum_source.hpp"
+#endif
+#if DEPTHFUSE_HAVE_SYNTHETIC
+#include "depthfuse/synthetic/synthetic_source.hpp"
+#endif
+#if DEPTHFUSE_HAVE_KINECT2
+#include "depthfuse/kinect2/kinect2_source.hpp"
+#endif
+#if DEPTHFUSE_HAVE_LCMLOG
+#include "depthfuse/lcmlog/lcmlog_source.hpp"
+#endif
+
+namespace depthfuse {
+
+// Each driver exports open_<driver>_source(argument, config) from its public header; this file
+// only splits the spec and dispatches.
+Result<std::unique_ptr<FrameSource>> open_frame_source(const std::string& spec,
+                                                       const AppConfig& config) {
+  const auto colon = spec.find(':');
+  const std::string kind = spec.substr(0, colon);
+  const std::string arg = colon == std::string::npos ? std::string() : spec.substr(colon + 1);
+  (void)config;
+  (void)arg;
+
+  if (kind == "tum") {
+#if DEPTHFUSE_HAVE_REPLAY
+    return open_tum_source(arg, config);
+#else
+    return unsupported("the replay driver is not built in");
+#endif
+  }
+  if (kind == "synthetic") {
+#if DEPTHFUSE_HAVE_SYNTHETIC
+    return open_synthetic_source(arg, config);
+#else
+    return unsupported("the synthetic driver is not built in");
+#endif
+  }
+  if (kind == "kinect2") {
+#if DEPTHFUSE_HAVE_KINECT2
+    return open_kinect2_source(arg, config);
+#else
+    return unsupported(
+        "the kinect2 source is not built in: libfreenect2 was not found when depthfuse was built. "
+        "Install libfreenect2 (see docs/kinect2.md: build it from source with cmake and "
+        "'make install'), then re-run tools/setup.sh or cmake so that the driver is compiled");
+#endif
+  }
+  if (kind == "lcmlog") {
+#if DEPTHFUSE_HAVE_LCMLOG
+    return open_lcmlog_source(arg, config);
+#else
+    return unsupported("the lcmlog driver is not built in");
+#endif
+  }
+  return invalid_argument("unknown frame source '" + spec +
+                          "': expected tum:<folder>, synthetic:<corner|room|rooms>, "
+                          "kinect2[:serial] or lcmlog:<file>");
+}
+
+}  // namespace depthfuse

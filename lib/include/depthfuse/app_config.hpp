@@ -1,0 +1,78 @@
+// The one configuration file of the appliance (config/depthfuse.toml), as structs. Every daemon
+// and the CLI read the same file; each takes the sections it needs.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "depthfuse/config.hpp"
+#include "depthfuse/status.hpp"
+#include "depthfuse/types.hpp"
+
+namespace depthfuse {
+
+struct LcmConfig {
+  // ttl=0 keeps traffic on this host; recv_buf_size is needed for 512x424 frames (7-14 fragments).
+  std::string url = "udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304";
+};
+
+struct CaptureConfig {
+  std::string source = "synthetic:corner";  // tum:<folder> | synthetic:<corner|room> | kinect2[:serial] | lcmlog:<file>
+  double rate_hz = 30.0;                    // 0 = as fast as possible
+  bool loop = false;
+  // kinect2 only
+  std::string kinect2_pipeline = "cpu";     // cpu | opengl | opencl | cuda
+  double kinect2_min_depth_m = 0.5;
+  double kinect2_max_depth_m = 4.5;
+  bool kinect2_bilateral_filter = true;
+  bool kinect2_edge_aware_filter = true;
+  double kinect2_stall_timeout_s = 2.0;     // no frame for this long = stalled: reset and reopen
+};
+
+struct FusionDaemonConfig {
+  int queue_capacity_frames = 4;            // bounded queue; the oldest frame is dropped when full
+  std::string scan_dir = "/var/lib/depthfuse/scans";  // new scan files, PLY and trajectory on stop
+  double memory_budget_mib = 256.0;         // fused map resident in memory
+  double evict_distance_m = 6.0;            // chunks farther than this from the camera may be evicted
+  double checkpoint_interval_s = 30.0;
+  int keyframe_every_n_frames = 10;         // depth kept for offline refinement
+  double heartbeat_rate_hz = 1.0;
+};
+
+struct MonitorConfig {
+  double stale_after_s = 3.0;               // a daemon without a heartbeat for this long is stale
+  double publish_rate_hz = 1.0;
+};
+
+// Calibration of one Kinect, chosen by serial number.
+struct DeviceCalibration {
+  std::string serial;
+  CameraIntrinsics intrinsics;
+  std::optional<SensorModelConfig> sensor;  // overrides [sensor] for this device when present
+};
+
+struct AppConfig {
+  ReconstructionConfig reconstruction;
+  LcmConfig lcm;
+  CaptureConfig capture;
+  FusionDaemonConfig fusion;
+  MonitorConfig monitor;
+  std::vector<DeviceCalibration> devices;
+  std::string source_path;  // the file it was read from, empty for defaults
+
+  const DeviceCalibration* calibration_for(const std::string& serial) const {
+    for (const auto& d : devices)
+      if (d.serial == serial) return &d;
+    return nullptr;
+  }
+};
+
+// Reads and validates a TOML config. Errors name the file, the line and the key; an unknown key is
+// an error. Keys left out keep their defaults.
+Result<AppConfig> load_app_config(const std::string& path);
+// The same from text (tests); `origin` names it in messages.
+Result<AppConfig> parse_app_config(const std::string& toml_text, const std::string& origin);
+
+}  // namespace depthfuse

@@ -1,0 +1,81 @@
+// One Config struct per module, units in the field names. Defaults are the Kinect V2 values and
+// the paper's; config/depthfuse.toml documents each one and where it comes from.
+#pragma once
+
+#include <string>
+
+namespace depthfuse {
+
+// The paper's measurement covariance, aligned with the line of sight:
+//   C = diag(lambda1 (beta_x z / sqrt 12)^2, lambda1 (beta_y z / sqrt 12)^2,
+//            lambda2 (alpha2 z^2 + alpha1 z + alpha0)^2)
+struct SensorModelConfig {
+  double lambda1 = 3.0;            // lateral variance scale (ellipsoid size), dimensionless
+  double lambda2 = 4.0;            // axial variance scale, dimensionless
+  double beta_x_rad = 0.0;         // pixel width at 1 m; 0 = 1/fx of the frame's intrinsics
+  double beta_y_rad = 0.0;         // pixel height at 1 m; 0 = 1/fy
+  double alpha0_m = 1.5e-3;        // axial std dev polynomial, Fankhauser et al. 2015 (Kinect V2)
+  double alpha1 = -0.5e-3;         // m per m
+  double alpha2_per_m = 0.3e-3;    // m per m^2
+  double min_depth_m = 0.5;        // Kinect V2 operating range
+  double max_depth_m = 4.5;
+};
+
+// Pre-filter: drop a measurement whose distance to its k-th nearest neighbour in the back-projected
+// depth map exceeds gamma * d_r(z), where d_r(z) is the same distance on a fronto-parallel plane.
+struct PrefilterConfig {
+  bool enabled = true;
+  double gamma = 1.83;
+  int neighbour_rank = 4;          // k
+  int window_radius_px = 1;        // neighbours are searched in a (2r+1)^2 pixel window
+};
+
+struct FusionConfig {
+  double chunk_size_m = 0.5;                 // edge of a map chunk (spatial hash cell)
+  double visibility_range_fraction = 0.1;    // |s_e - s_n| < f * s_n, paper eq. (3)
+  int candidate_radius_px = 1;               // existing points looked up in a (2r+1)^2 window
+  int normal_radius_px = 2;                  // normals from central differences over this step
+};
+
+struct PostfilterConfig {
+  bool enabled = true;             // remove points whose violations outnumber their merges
+};
+
+struct RegistrationConfig {
+  bool enabled = true;
+  int iterations = 10;                       // point-to-plane ICP iterations per depth map
+  int subsample_px = 2;                      // use every n-th pixel in u and v
+  double max_correspondence_m = 0.05;        // reject pairs farther apart than this
+  double max_normal_angle_deg = 35.0;        // reject pairs whose normals disagree more
+  double huber_delta_m = 0.005;              // robust loss scale
+  int min_correspondences = 500;             // fewer: keep the initial pose, report failure
+  // Tracking without a pose hint: coarse-to-fine levels (subsample 4, 2, 1 ...), iterations each.
+  int tracking_levels = 3;
+  int tracking_iterations_per_level = 10;
+};
+
+enum class Method { kKyostila13, kYlimaki17, kFull };
+const char* to_string(Method m);
+bool parse_method(const std::string& text, Method* out);
+
+struct PipelineConfig {
+  Method method = Method::kFull;
+  int outer_iterations = 6;                  // fuse, re-register, fuse again: the paper uses 6
+  double converged_translation_m = 2e-4;     // stop early when no pose moves more than this
+  double converged_rotation_deg = 0.01;      // ... and no rotation changes more than this
+};
+
+struct ReconstructionConfig {
+  SensorModelConfig sensor;
+  PrefilterConfig prefilter;
+  FusionConfig fusion;
+  PostfilterConfig postfilter;
+  RegistrationConfig registration;
+  PipelineConfig pipeline;
+
+  // The stages the method switch turns on: kyostila13 = fusion only, ylimaki17 = + pre/post
+  // filters, full = + re-registration.
+  ReconstructionConfig with_method(Method m) const;
+};
+
+}  // namespace depthfuse

@@ -1,0 +1,100 @@
+// The paper's method end to end, in the two shapes depthfuse needs:
+//  - IncrementalReconstructor: one frame at a time into a growing map (the fusion daemon);
+//  - reconstruct_batch: the outer loop over a whole sequence (fuse, re-register, fuse again).
+#pragma once
+
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "depthfuse/config.hpp"
+#include "depthfuse/fusion.hpp"
+#include "depthfuse/measurement.hpp"
+#include "depthfuse/point_map.hpp"
+#include "depthfuse/registration.hpp"
+#include "depthfuse/status.hpp"
+
+namespace depthfuse {
+
+struct FrameReport {
+  uint32_t frame_id = 0;
+  Pose T_world_cam = Pose::Identity();   // the pose the frame was fused with
+  bool registered = false;               // ICP ran and converged
+  RegistrationResult registration;
+  FusionStats fusion;
+  size_t prefiltered = 0;                // measurements the pre-filter removed
+  double prefilter_ms = 0, registration_ms = 0, fusion_ms = 0;
+};
+
+class IncrementalReconstructor {
+ public:
+  explicit IncrementalReconstructor(const ReconstructionConfig& config);
+  ~IncrementalReconstructor();
+
+  // Pre-filter; initial pose (the frame's hint if any, otherwise the given prediction, otherwise
+  // the last refined pose); re-registration against the map (if the method has it and the map is
+  // not empty); fusion. With a hint, ICP refines it; without one, coarse-to-fine tracking runs.
+  Result<FrameReport> process(const Frame& frame,
+                              const std::optional<Pose>& T_world_cam_prediction = std::nullopt);
+
+  // Post-filter the whole map (end of scan).
+  size_t finish();
+
+  PointMap& map() { return *map_; }
+  const PointMap& map() const { return *map_; }
+  // Replaces the map (resume from a checkpoint); frame ids continue from next_frame_id.
+  void reset(std::unique_ptr<PointMap> map, uint32_t next_frame_id,
+             const std::optional<Pose>& last_T_world_cam);
+  const std::optional<Pose>& last_pose() const { return last_T_world_cam_; }
+  uint32_t next_frame_id() const { return next_frame_id_; }
+  const ReconstructionConfig& config() const { return config_; }
+
+ private:
+  ReconstructionConfig config_;
+  std::unique_ptr<PointMap> map_;
+  Fuser fuser_;
+  Registrar registrar_;
+  MeasurementImage scratch_;
+  std::optional<Pose> last_T_world_cam_;
+  uint32_t next_frame_id_ = 1;
+};
+
+// Progress of a long run: stage name, done, total.
+using ProgressFn = std::function<void(const std::string& stage, size_t done, size_t total)>;
+
+struct BatchIterationReport {
+  int iteration = 0;                    // 0 = first fusion with the initial poses
+  size_t points = 0;
+  double max_translation_change_m = 0;  // pose change made by this iteration's re-registration
+  double max_rotation_change_deg = 0;
+  double mean_fitness = 0;
+  double mean_rmse_m = 0;
+  double seconds = 0;
+};
+
+struct BatchResult {
+  std::unique_ptr<PointMap> map;
+  std::vector<Pose> T_world_cam;         // refined poses, one per frame
+  std::vector<BatchIterationReport> iterations;
+  size_t input_measurements = 0;         // valid depth pixels of all frames (before pre-filter)
+  size_t prefiltered = 0;                // removed by the pre-filter (last fusion)
+  size_t postfiltered = 0;               // removed by the post-filter
+  bool converged_early = false;
+};
+
+// The paper's batch pipeline. frames[i] is fused with T_world_cam_initial[i]. With method full it
+// runs config.pipeline.outer_iterations rounds of re-registration + fusion, stopping early when
+// the poses stop moving.
+Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
+                                      const std::vector<Pose>& T_world_cam_initial,
+                                      const ReconstructionConfig& config,
+                                      const ProgressFn& progress = nullptr);
+
+// Poses for a sequence without any: frame-to-model tracking from the first frame (at identity).
+Result<std::vector<Pose>> track_sequence(const std::vector<Frame>& frames,
+                                         const ReconstructionConfig& config,
+                                         const ProgressFn& progress = nullptr);
+
+}  // namespace depthfuse

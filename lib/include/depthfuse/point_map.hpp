@@ -1,0 +1,76 @@
+// The fused map: points grouped into cubic chunks by a spatial hash. A frame only ever touches the
+// chunks its own measurements fall into, so per-frame cost does not grow with the map.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <unordered_map>
+#include <vector>
+
+#include "depthfuse/point_arrays.hpp"
+#include "depthfuse/types.hpp"
+
+namespace depthfuse {
+
+struct ChunkKey {
+  int32_t x = 0, y = 0, z = 0;
+  bool operator==(const ChunkKey& o) const { return x == o.x && y == o.y && z == o.z; }
+  bool operator!=(const ChunkKey& o) const { return !(*this == o); }
+};
+
+struct ChunkKeyHash {
+  size_t operator()(const ChunkKey& k) const {
+    // Teschner et al. 2003 spatial hash primes.
+    return (static_cast<size_t>(static_cast<uint32_t>(k.x)) * 73856093u) ^
+           (static_cast<size_t>(static_cast<uint32_t>(k.y)) * 19349663u) ^
+           (static_cast<size_t>(static_cast<uint32_t>(k.z)) * 83492791u);
+  }
+};
+
+struct Chunk {
+  PointArrays points;
+  uint32_t last_touched_frame = 0;  // for eviction: the newest frame that observed this chunk
+  bool dirty = true;                // changed since it was last written to a checkpoint
+};
+
+class PointMap {
+ public:
+  explicit PointMap(double chunk_size_m = 0.5);
+
+  double chunk_size_m() const { return chunk_size_m_; }
+  ChunkKey key_for(float x_m, float y_m, float z_m) const;
+  ChunkKey key_for(const Eigen::Vector3f& p) const { return key_for(p.x(), p.y(), p.z()); }
+  Eigen::Vector3f chunk_origin_m(const ChunkKey& key) const;
+
+  Chunk* find(const ChunkKey& key);
+  const Chunk* find(const ChunkKey& key) const;
+  Chunk& get_or_create(const ChunkKey& key);
+  // Takes a chunk in (e.g. loaded from a checkpoint), replacing any chunk with that key.
+  void insert(const ChunkKey& key, Chunk chunk);
+  // Removes a chunk and hands it back (e.g. to be written out). Empty optional if absent.
+  bool extract(const ChunkKey& key, Chunk* out);
+  void clear();
+
+  size_t chunk_count() const { return chunks_.size(); }
+  size_t point_count() const;
+  size_t memory_bytes() const;
+
+  void for_each_chunk(const std::function<void(const ChunkKey&, Chunk&)>& fn);
+  void for_each_chunk(const std::function<void(const ChunkKey&, const Chunk&)>& fn) const;
+  std::vector<ChunkKey> keys() const;
+
+  // Every point in one array set (export, evaluation). Chunk order is sorted by key, so the result
+  // is deterministic.
+  PointArrays gather() const;
+
+  // Re-buckets arbitrary points into chunks (e.g. a cloud read from disk).
+  void add_points(const PointArrays& points);
+
+ private:
+  double chunk_size_m_;
+  float inv_chunk_size_;
+  std::unordered_map<ChunkKey, Chunk, ChunkKeyHash> chunks_;
+};
+
+}  // namespace depthfuse

@@ -1,0 +1,39 @@
+// The paper's per-measurement covariance, aligned with the line of sight.
+#pragma once
+
+#include <cmath>
+
+#include <Eigen/Core>
+
+#include "depthfuse/config.hpp"
+#include "depthfuse/types.hpp"
+
+namespace depthfuse {
+
+class SensorModel {
+ public:
+  SensorModel(const SensorModelConfig& config, const CameraIntrinsics& intrinsics);
+
+  // Variances (m^2) along the pixel's x, y and the line of sight, at depth z.
+  double lateral_variance_x_m2(double z_m) const { return kx_ * z_m * z_m; }
+  double lateral_variance_y_m2(double z_m) const { return ky_ * z_m * z_m; }
+  double axial_sigma_m(double z_m) const {
+    return c_.alpha2_per_m * z_m * z_m + c_.alpha1 * z_m + c_.alpha0_m;
+  }
+  double axial_variance_m2(double z_m) const {
+    const double s = axial_sigma_m(z_m);
+    return c_.lambda2 * s * s;
+  }
+
+  // Information matrix (inverse covariance) of a measurement at p_cam_m, in the camera frame: the
+  // ellipsoid's third axis is the ray through the point.
+  Eigen::Matrix3f information_cam(const Eigen::Vector3f& p_cam_m) const;
+
+  const SensorModelConfig& config() const { return c_; }
+
+ private:
+  SensorModelConfig c_;
+  double kx_ = 0.0, ky_ = 0.0;  // lambda1 (beta / sqrt 12)^2
+};
+
+}  // namespace depthfuse

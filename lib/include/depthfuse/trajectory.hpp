@@ -1,0 +1,30 @@
+// TUM trajectory files: "timestamp tx ty tz qx qy qz qw" per line, camera-to-world.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "depthfuse/status.hpp"
+#include "depthfuse/types.hpp"
+
+namespace depthfuse {
+
+// Rejects NaN/inf, non-numeric fields, wrong field counts and non-unit quaternions (|q| off by
+// more than 1e-3) with the file name and line number; normalises the quaternion.
+Result<std::vector<StampedPose>> read_tum_trajectory(const std::string& path);
+Status write_tum_trajectory(const std::string& path, const std::vector<StampedPose>& poses);
+
+// Index of the pose nearest in time to t_s, if within max_dt_s; -1 otherwise. poses sorted by time.
+long nearest_pose(const std::vector<StampedPose>& poses, double t_s, double max_dt_s);
+
+// Absolute trajectory error (RMSE of translation) after the best rigid alignment (Horn/Umeyama
+// without scale), as the TUM benchmark reports it. Also returns the unaligned RMSE.
+struct AteResult {
+  double rmse_m = 0, mean_m = 0, max_m = 0;
+  double unaligned_rmse_m = 0;
+  size_t pairs = 0;
+};
+Result<AteResult> absolute_trajectory_error(const std::vector<Pose>& T_world_cam_estimate,
+                                            const std::vector<Pose>& T_world_cam_truth);
+
+}  // namespace depthfuse

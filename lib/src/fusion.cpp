@@ -1,0 +1,206 @@
+#include "depthfuse/fusion.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "geometry.hpp"
+#include "model_projection.hpp"
+
+namespace depthfuse {
+
+bool merge_measurement(const Eigen::Vector3f& p_e, const Eigen::Matrix3f& L_e,
+                       const Eigen::Vector3f& p_n, const Eigen::Matrix3f& L_n,
+                       Eigen::Vector3f* p_fused, Eigen::Matrix3f* L_fused) {
+  // Product of the two Gaussians: the fused point is pulled towards the more certain one.
+  const Eigen::Matrix3f L = L_e + L_n;
+  Eigen::Matrix3f C;
+  if (!invert_symmetric3(L, &C)) return false;
+  const Eigen::Vector3f delta = p_n - p_e;
+  const Eigen::Vector3f from_e = C * (L_n * delta);  // p' - p_e
+  const Eigen::Vector3f from_n = from_e - delta;     // p' - p_n
+  // Inside both uncertainty ellipsoids (each defined by its own covariance).
+  if (mahalanobis2(from_e, L_e) > 1.0f || mahalanobis2(from_n, L_n) > 1.0f) return false;
+  *p_fused = p_e + from_e;
+  *L_fused = L;
+  return true;
+}
+
+Fuser::Fuser(const SensorModelConfig& sensor, const FusionConfig& fusion)
+    : sensor_config_(sensor), config_(fusion), projection_(std::make_unique<ModelProjection>()) {}
+
+Fuser::~Fuser() = default;
+
+namespace {
+
+inline uint16_t saturating_increment(uint16_t v) {
+  return v == std::numeric_limits<uint16_t>::max() ? v : static_cast<uint16_t>(v + 1);
+}
+
+// Refines existing point i of `a` with a measurement.
+inline void refine_point(PointArrays& a, size_t i, const Eigen::Vector3f& p, const Eigen::Matrix3f& L,
+                         const Eigen::Vector3f& n_new, const uint8_t* rgb, uint32_t frame_id) {
+  a.x[i] = p.x();
+  a.y[i] = p.y();
+  a.z[i] = p.z();
+  set_information(a, i, L);
+  // Normal and colour: running means over all measurements of the point.
+  const float w = static_cast<float>(a.merges[i]) + 1.0f;
+  Eigen::Vector3f n = w * a.normal(i) + n_new;
+  const float len = n.norm();
+  if (len > 1e-6f) n /= len;
+  a.nx[i] = n.x();
+  a.ny[i] = n.y();
+  a.nz[i] = n.z();
+  if (rgb) {
+    a.r[i] = static_cast<uint8_t>(std::lround((w * a.r[i] + rgb[0]) / (w + 1.0f)));
+    a.g[i] = static_cast<uint8_t>(std::lround((w * a.g[i] + rgb[1]) / (w + 1.0f)));
+    a.b[i] = static_cast<uint8_t>(std::lround((w * a.b[i] + rgb[2]) / (w + 1.0f)));
+  }
+  a.merges[i] = saturating_increment(a.merges[i]);
+  a.last_frame[i] = frame_id;
+}
+
+}  // namespace
+
+FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, const Pose& T_world_cam,
+                        uint32_t frame_id, PointMap* map) {
+  FusionStats stats;
+  const CameraIntrinsics& K = m.intrinsics;
+  const bool has_color = color && !color->empty() && color->width == m.width &&
+                         color->height == m.height;
+  const SensorModel model(sensor_config_, K);
+
+  // Existing points near this frame's measurements, rendered into its camera.
+  ModelProjection& proj = *projection_;
+  proj.select_chunks(*map, m, T_world_cam, 0.1f);
+  proj.render(T_world_cam, K);
+
+  const Eigen::Matrix3f R = T_world_cam.linear().cast<float>();
+  const Eigen::Vector3f t = T_world_cam.translation().cast<float>();
+  const Eigen::Vector3f up_w = R.col(1);
+  const int cr = std::max(0, config_.candidate_radius_px);
+  const float range_fraction = static_cast<float>(config_.visibility_range_fraction);
+
+  // Chunk lookups repeat for neighbouring pixels: remember the last one.
+  ChunkKey last_key{std::numeric_limits<int32_t>::min(), 0, 0};
+  Chunk* last_chunk = nullptr;
+
+  for (int v = 0; v < m.height; ++v) {
+    for (int u = 0; u < m.width; ++u) {
+      const size_t i = static_cast<size_t>(v) * m.width + u;
+      if (!m.valid[i]) continue;
+      ++stats.measurements;
+      const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);
+      const Eigen::Vector3f p_w = R * p_c + t;
+      const Eigen::Vector3f n_w = R * Eigen::Vector3f(m.nx[i], m.ny[i], m.nz[i]);
+      const float z = m.z[i];
+      Eigen::Matrix3f L_n;
+      ray_information(p_w - t, up_w, static_cast<float>(1.0 / model.lateral_variance_x_m2(z)),
+                      static_cast<float>(1.0 / model.lateral_variance_y_m2(z)),
+                      static_cast<float>(1.0 / model.axial_variance_m2(z)), &L_n);
+      const uint8_t* rgb = has_color ? &color->rgb[3 * i] : nullptr;
+
+      // The nearest existing point among those rendered around this pixel, not yet merged with
+      // another measurement of this frame.
+      PointArrays* best_a = nullptr;
+      size_t best_i = 0;
+      float best_d2 = std::numeric_limits<float>::infinity();
+      for (int dv = -cr; dv <= cr; ++dv) {
+        const int vv = v + dv;
+        if (vv < 0 || vv >= m.height) continue;
+        for (int du = -cr; du <= cr; ++du) {
+          const int uu = u + du;
+          if (uu < 0 || uu >= m.width) continue;
+          const size_t px = static_cast<size_t>(vv) * m.width + uu;
+          if (proj.empty_at(px)) continue;
+          PointArrays& a = proj.points_at(px);
+          const uint32_t j = proj.index_at(px);
+          if (a.last_frame[j] == frame_id) continue;
+          const float d2 = (a.position(j) - p_w).squaredNorm();
+          if (d2 < best_d2) {
+            best_d2 = d2;
+            best_a = &a;
+            best_i = j;
+          }
+        }
+      }
+
+      if (best_a) {
+        Eigen::Vector3f p_f;
+        Eigen::Matrix3f L_f;
+        if (merge_measurement(best_a->position(best_i), information_matrix(*best_a, best_i), p_w,
+                              L_n, &p_f, &L_f)) {
+          refine_point(*best_a, best_i, p_f, L_f, n_w, rgb, frame_id);
+          ++stats.merged;
+          continue;
+        }
+      }
+
+      // Not merged. A point rendered at this very pixel in front of the measurement, both facing
+      // the camera, and within a tenth of the range: the camera saw through it (paper eq. 2-3).
+      if (!proj.empty_at(i)) {
+        const float z_e = proj.depth_at(i);
+        if (z_e < z) {
+          PointArrays& a = proj.points_at(i);
+          const uint32_t j = proj.index_at(i);
+          const Eigen::Vector3f p_e = a.position(j);
+          const float s_e = (p_e - t).norm(), s_n = p_c.norm();
+          const bool facing_e = a.normal(j).dot(t - p_e) > 0.0f;
+          const bool facing_n = n_w.dot(t - p_w) > 0.0f;
+          if (facing_e && facing_n && std::abs(s_e - s_n) < range_fraction * s_n) {
+            a.violations[j] = saturating_increment(a.violations[j]);
+            ++stats.violations;
+          }
+        }
+      }
+
+      PointRecord rec;
+      rec.position_m = p_w;
+      rec.normal = n_w;
+      rec.information[0] = L_n(0, 0); rec.information[1] = L_n(0, 1);
+      rec.information[2] = L_n(0, 2); rec.information[3] = L_n(1, 1);
+      rec.information[4] = L_n(1, 2); rec.information[5] = L_n(2, 2);
+      if (rgb) { rec.rgb[0] = rgb[0]; rec.rgb[1] = rgb[1]; rec.rgb[2] = rgb[2]; }
+      rec.last_frame = frame_id;
+      const ChunkKey key = map->key_for(p_w);
+      if (!last_chunk || key != last_key) {
+        last_chunk = &map->get_or_create(key);
+        last_chunk->last_touched_frame = frame_id;
+        last_chunk->dirty = true;
+        last_key = key;
+      }
+      last_chunk->points.push_back(rec);
+      ++stats.added;
+    }
+  }
+
+  // The chunks this frame observed: eviction keeps recently seen chunks, checkpoints write
+  // changed ones.
+  for (Chunk* c : proj.chunks()) {
+    c->last_touched_frame = frame_id;
+    c->dirty = true;
+  }
+  return stats;
+}
+
+size_t postfilter(PointMap* map) {
+  size_t removed = 0;
+  std::vector<uint8_t> keep;
+  map->for_each_chunk([&](const ChunkKey&, Chunk& c) {
+    PointArrays& a = c.points;
+    keep.resize(a.size());
+    bool any = false;
+    for (size_t i = 0; i < a.size(); ++i) {
+      keep[i] = a.violations[i] <= a.merges[i];
+      any |= !keep[i];
+    }
+    if (any) {
+      removed += a.compact(keep);
+      c.dirty = true;
+    }
+  });
+  return removed;
+}
+
+}  // namespace depthfuse

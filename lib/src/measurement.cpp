@@ -1,0 +1,205 @@
+#include "depthfuse/measurement.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+
+namespace depthfuse {
+
+size_t MeasurementImage::valid_count() const {
+  size_t n = 0;
+  for (uint8_t v : valid) n += v;
+  return n;
+}
+
+void MeasurementImage::resize(int w, int h) {
+  width = w;
+  height = h;
+  const size_t n = static_cast<size_t>(w) * h;
+  for (auto* v : {&x, &y, &z, &nx, &ny, &nz}) v->assign(n, 0.0f);
+  valid.assign(n, 0);
+}
+
+namespace {
+
+// Normal from two difference vectors, oriented towards the camera (origin).
+inline bool normal_from(const Eigen::Vector3f& du, const Eigen::Vector3f& dv,
+                        const Eigen::Vector3f& p, Eigen::Vector3f* n) {
+  Eigen::Vector3f c = du.cross(dv);
+  const float len = c.norm();
+  if (!(len > 1e-12f)) return false;
+  c /= len;
+  if (c.dot(p) > 0) c = -c;
+  *n = c;
+  return true;
+}
+
+}  // namespace
+
+Status backproject(const Frame& frame, const SensorModelConfig& sensor, const FusionConfig& fusion,
+                   MeasurementImage* out) {
+  const CameraIntrinsics& K = frame.intrinsics;
+  const DepthImage& D = frame.depth;
+  if (!K.valid()) return invalid_argument("frame has invalid intrinsics");
+  if (D.width != K.width || D.height != K.height ||
+      D.depth_m.size() != static_cast<size_t>(D.width) * D.height) {
+    return invalid_argument("depth image is " + std::to_string(D.width) + "x" +
+                            std::to_string(D.height) + " but the intrinsics say " +
+                            std::to_string(K.width) + "x" + std::to_string(K.height));
+  }
+  if (out->width != D.width || out->height != D.height) out->resize(D.width, D.height);
+  out->intrinsics = K;
+
+  const float fx_inv = static_cast<float>(1.0 / K.fx), fy_inv = static_cast<float>(1.0 / K.fy);
+  const float cx = static_cast<float>(K.cx), cy = static_cast<float>(K.cy);
+  const float zmin = static_cast<float>(sensor.min_depth_m), zmax = static_cast<float>(sensor.max_depth_m);
+  const int W = D.width, H = D.height;
+  for (int v = 0; v < H; ++v) {
+    for (int u = 0; u < W; ++u) {
+      const size_t i = static_cast<size_t>(v) * W + u;
+      const float z = D.depth_m[i];
+      const bool ok = std::isfinite(z) && z >= zmin && z <= zmax;
+      out->valid[i] = ok;
+      out->z[i] = ok ? z : 0.0f;
+      out->x[i] = ok ? (u - cx) * z * fx_inv : 0.0f;
+      out->y[i] = ok ? (v - cy) * z * fy_inv : 0.0f;
+    }
+  }
+
+  // Normals by central differences over `r` pixels; one-sided where a neighbour is missing or
+  // lies across a depth discontinuity.
+  const int r = std::max(1, fusion.normal_radius_px);
+  auto P = [&](size_t i) { return Eigen::Vector3f(out->x[i], out->y[i], out->z[i]); };
+  auto usable = [&](int uu, int vv, float z0) {
+    if (uu < 0 || vv < 0 || uu >= W || vv >= H) return false;
+    const size_t j = static_cast<size_t>(vv) * W + uu;
+    return out->valid[j] && std::abs(out->z[j] - z0) < 0.05f * z0 + 0.01f;
+  };
+  for (int v = 0; v < H; ++v) {
+    for (int u = 0; u < W; ++u) {
+      const size_t i = static_cast<size_t>(v) * W + u;
+      out->nx[i] = out->ny[i] = out->nz[i] = 0.0f;
+      if (!out->valid[i]) continue;
+      const float z0 = out->z[i];
+      const bool l = usable(u - r, v, z0), rr = usable(u + r, v, z0);
+      const bool t = usable(u, v - r, z0), b = usable(u, v + r, z0);
+      if (!(l || rr) || !(t || b)) continue;
+      const Eigen::Vector3f p = P(i);
+      const Eigen::Vector3f pu0 = l ? P(i - r) : p, pu1 = rr ? P(i + r) : p;
+      const Eigen::Vector3f pv0 = t ? P(i - static_cast<size_t>(r) * W) : p;
+      const Eigen::Vector3f pv1 = b ? P(i + static_cast<size_t>(r) * W) : p;
+      Eigen::Vector3f n;
+      if (normal_from(pu1 - pu0, pv1 - pv0, p, &n)) {
+        out->nx[i] = n.x();
+        out->ny[i] = n.y();
+        out->nz[i] = n.z();
+      }
+    }
+  }
+  return Status::ok();
+}
+
+namespace {
+
+constexpr int kMaxWindow = 7 * 7;
+
+// Distance from pixel (u, v) to its k-th nearest back-projected neighbour within the window, or
+// +inf when fewer than k neighbours exist.
+inline float kth_neighbour_distance(const MeasurementImage& m, int u, int v, int k, int r) {
+  std::array<float, kMaxWindow> best;  // k smallest squared distances, ascending
+  int count = 0;
+  const size_t i = static_cast<size_t>(v) * m.width + u;
+  const float px = m.x[i], py = m.y[i], pz = m.z[i];
+  for (int dv = -r; dv <= r; ++dv) {
+    const int vv = v + dv;
+    if (vv < 0 || vv >= m.height) continue;
+    for (int du = -r; du <= r; ++du) {
+      const int uu = u + du;
+      if ((du == 0 && dv == 0) || uu < 0 || uu >= m.width) continue;
+      const size_t j = static_cast<size_t>(vv) * m.width + uu;
+      if (!m.valid[j]) continue;
+      const float ex = m.x[j] - px, ey = m.y[j] - py, ez = m.z[j] - pz;
+      const float d2 = ex * ex + ey * ey + ez * ez;
+      if (count < k) {
+        int pos = count++;
+        while (pos > 0 && best[pos - 1] > d2) { best[pos] = best[pos - 1]; --pos; }
+        best[pos] = d2;
+      } else if (d2 < best[k - 1]) {
+        int pos = k - 1;
+        while (pos > 0 && best[pos - 1] > d2) { best[pos] = best[pos - 1]; --pos; }
+        best[pos] = d2;
+      }
+    }
+  }
+  return count < k ? std::numeric_limits<float>::infinity() : std::sqrt(best[k - 1]);
+}
+
+int clamp_radius(int r) { return std::clamp(r, 1, 3); }
+
+}  // namespace
+
+double reference_knn_distance_per_m(const CameraIntrinsics& K, int neighbour_rank,
+                                    int window_radius_px) {
+  // A constant depth map at 1 m, back-projected; average the k-th neighbour distance over a grid
+  // of sample pixels (the image border excluded, where the window is cut).
+  const int r = clamp_radius(window_radius_px);
+  const int k = std::clamp(neighbour_rank, 1, (2 * r + 1) * (2 * r + 1) - 1);
+  MeasurementImage plane;
+  plane.resize(K.width, K.height);
+  for (int v = 0; v < K.height; ++v)
+    for (int u = 0; u < K.width; ++u) {
+      const size_t i = static_cast<size_t>(v) * K.width + u;
+      plane.x[i] = static_cast<float>((u - K.cx) / K.fx);
+      plane.y[i] = static_cast<float>((v - K.cy) / K.fy);
+      plane.z[i] = 1.0f;
+      plane.valid[i] = 1;
+    }
+  double sum = 0;
+  size_t n = 0;
+  for (int v = r; v < K.height - r; v += 7)
+    for (int u = r; u < K.width - r; u += 7) {
+      sum += kth_neighbour_distance(plane, u, v, k, r);
+      ++n;
+    }
+  return n ? sum / n : 0.0;
+}
+
+size_t prefilter(const PrefilterConfig& config, MeasurementImage* m) {
+  if (!config.enabled || m->pixel_count() == 0) return 0;
+  const int r = clamp_radius(config.window_radius_px);
+  const int k = std::clamp(config.neighbour_rank, 1, (2 * r + 1) * (2 * r + 1) - 1);
+  // d_r(z) depends only on the intrinsics and the window: compute it once per camera.
+  struct Cached {
+    CameraIntrinsics K;
+    int k = 0, r = 0;
+    double per_m = 0;
+  };
+  thread_local Cached cache;
+  const CameraIntrinsics& K = m->intrinsics;
+  if (cache.k != k || cache.r != r || cache.K.width != K.width || cache.K.height != K.height ||
+      cache.K.fx != K.fx || cache.K.fy != K.fy || cache.K.cx != K.cx || cache.K.cy != K.cy) {
+    cache = {K, k, r, reference_knn_distance_per_m(K, k, r)};
+  }
+  const float per_m = static_cast<float>(config.gamma * cache.per_m);
+
+  // Decide on the unfiltered map first, then remove: the test of one pixel must not depend on
+  // which of its neighbours were removed before it.
+  thread_local std::vector<uint8_t> remove;
+  remove.assign(m->pixel_count(), 0);
+  size_t removed = 0;
+  for (int v = 0; v < m->height; ++v) {
+    for (int u = 0; u < m->width; ++u) {
+      const size_t i = static_cast<size_t>(v) * m->width + u;
+      if (!m->valid[i]) continue;
+      if (kth_neighbour_distance(*m, u, v, k, r) > per_m * m->z[i]) {
+        remove[i] = 1;
+        ++removed;
+      }
+    }
+  }
+  for (size_t i = 0; i < remove.size(); ++i)
+    if (remove[i]) m->valid[i] = 0;
+  return removed;
+}
+
+}  // namespace depthfuse

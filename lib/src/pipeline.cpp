@@ -1,0 +1,204 @@
+#include "depthfuse/pipeline.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+namespace depthfuse {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+inline double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+// Back-projection, normals and (if the method has it) the pre-filter. Returns removed count.
+Result<size_t> measure(const Frame& frame, const ReconstructionConfig& c, MeasurementImage* m) {
+  DF_RETURN_IF_ERROR(backproject(frame, c.sensor, c.fusion, m));
+  return prefilter(c.prefilter, m);
+}
+
+double rotation_deg(const Pose& a, const Pose& b) {
+  const Eigen::AngleAxisd d(a.linear().transpose() * b.linear());
+  return std::abs(d.angle()) * 180.0 / M_PI;
+}
+
+}  // namespace
+
+IncrementalReconstructor::IncrementalReconstructor(const ReconstructionConfig& config)
+    : config_(config.with_method(config.pipeline.method)),
+      map_(std::make_unique<PointMap>(config.fusion.chunk_size_m)),
+      fuser_(config_.sensor, config_.fusion),
+      registrar_(config_.registration) {}
+
+IncrementalReconstructor::~IncrementalReconstructor() = default;
+
+Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
+                                                      const std::optional<Pose>& prediction) {
+  FrameReport report;
+  report.frame_id = next_frame_id_;
+  auto t0 = Clock::now();
+  Result<size_t> removed = measure(frame, config_, &scratch_);
+  if (!removed) return removed.status();
+  report.prefiltered = *removed;
+  report.prefilter_ms = ms_since(t0);
+
+  Pose T = Pose::Identity();
+  if (frame.T_world_cam_hint) T = *frame.T_world_cam_hint;
+  else if (prediction) T = *prediction;
+  else if (last_T_world_cam_) T = *last_T_world_cam_;
+
+  t0 = Clock::now();
+  if (config_.registration.enabled && map_->point_count() > 0) {
+    report.registration = frame.T_world_cam_hint ? registrar_.refine(scratch_, *map_, T)
+                                                 : registrar_.track(scratch_, *map_, T);
+    report.registered = report.registration.converged;
+    if (report.registered) T = report.registration.T_world_cam;
+  }
+  report.registration_ms = ms_since(t0);
+
+  t0 = Clock::now();
+  report.fusion = fuser_.fuse(scratch_, &frame.color, T, next_frame_id_, map_.get());
+  report.fusion_ms = ms_since(t0);
+  report.T_world_cam = T;
+  last_T_world_cam_ = T;
+  ++next_frame_id_;
+  return report;
+}
+
+size_t IncrementalReconstructor::finish() {
+  return config_.postfilter.enabled ? postfilter(map_.get()) : 0;
+}
+
+void IncrementalReconstructor::reset(std::unique_ptr<PointMap> map, uint32_t next_frame_id,
+                                     const std::optional<Pose>& last_T_world_cam) {
+  map_ = map ? std::move(map) : std::make_unique<PointMap>(config_.fusion.chunk_size_m);
+  next_frame_id_ = std::max<uint32_t>(1, next_frame_id);
+  last_T_world_cam_ = last_T_world_cam;
+}
+
+namespace {
+
+// Fuses every frame with its pose into a fresh map.
+Result<std::unique_ptr<PointMap>> fuse_all(const std::vector<Frame>& frames,
+                                           const std::vector<Pose>& poses,
+                                           const ReconstructionConfig& c, MeasurementImage* m,
+                                           size_t* prefiltered, size_t* measurements,
+                                           const ProgressFn& progress, const std::string& stage) {
+  auto map = std::make_unique<PointMap>(c.fusion.chunk_size_m);
+  Fuser fuser(c.sensor, c.fusion);
+  *prefiltered = 0;
+  *measurements = 0;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    DF_RETURN_IF_ERROR(backproject(frames[i], c.sensor, c.fusion, m)
+                           .with_context("frame " + std::to_string(i)));
+    *measurements += m->valid_count();
+    *prefiltered += prefilter(c.prefilter, m);
+    fuser.fuse(*m, &frames[i].color, poses[i], static_cast<uint32_t>(i + 1), map.get());
+    if (progress) progress(stage, i + 1, frames.size());
+  }
+  return map;
+}
+
+}  // namespace
+
+Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
+                                      const std::vector<Pose>& T_world_cam_initial,
+                                      const ReconstructionConfig& config,
+                                      const ProgressFn& progress) {
+  if (frames.empty()) return invalid_argument("the sequence has no frames");
+  if (frames.size() != T_world_cam_initial.size())
+    return invalid_argument("got " + std::to_string(frames.size()) + " frames but " +
+                            std::to_string(T_world_cam_initial.size()) + " poses");
+  const ReconstructionConfig c = config.with_method(config.pipeline.method);
+
+  BatchResult result;
+  result.T_world_cam = T_world_cam_initial;
+  MeasurementImage m;
+  size_t measurements = 0;
+
+  auto t0 = Clock::now();
+  auto fused = fuse_all(frames, result.T_world_cam, c, &m, &result.prefiltered, &measurements,
+                        progress, "fusion 0");
+  if (!fused) return fused.status();
+  result.map = std::move(fused.value());
+  result.input_measurements = measurements;
+  result.iterations.push_back({0, result.map->point_count(), 0, 0, 0, 0, ms_since(t0) / 1000});
+
+  const int rounds = c.registration.enabled ? std::max(0, c.pipeline.outer_iterations) : 0;
+  Registrar registrar(c.registration);
+  for (int round = 1; round <= rounds; ++round) {
+    t0 = Clock::now();
+    BatchIterationReport rep;
+    rep.iteration = round;
+    std::vector<Pose> refined = result.T_world_cam;
+    size_t registered = 0;
+    for (size_t i = 0; i < frames.size(); ++i) {
+      Result<size_t> r = measure(frames[i], c, &m);
+      if (!r) return r.status();
+      const RegistrationResult reg = registrar.refine(m, *result.map, result.T_world_cam[i]);
+      if (reg.converged) {
+        refined[i] = reg.T_world_cam;
+        rep.max_translation_change_m =
+            std::max(rep.max_translation_change_m,
+                     (reg.T_world_cam.translation() - result.T_world_cam[i].translation()).norm());
+        rep.max_rotation_change_deg = std::max(
+            rep.max_rotation_change_deg, rotation_deg(reg.T_world_cam, result.T_world_cam[i]));
+        rep.mean_fitness += reg.fitness;
+        rep.mean_rmse_m += reg.rmse_m;
+        ++registered;
+      }
+      if (progress) progress("re-registration " + std::to_string(round), i + 1, frames.size());
+    }
+    if (registered) {
+      rep.mean_fitness /= registered;
+      rep.mean_rmse_m /= registered;
+    }
+    result.T_world_cam = refined;
+    fused = fuse_all(frames, result.T_world_cam, c, &m, &result.prefiltered, &measurements,
+                     progress, "fusion " + std::to_string(round));
+    if (!fused) return fused.status();
+    result.map = std::move(fused.value());
+    rep.points = result.map->point_count();
+    rep.seconds = ms_since(t0) / 1000;
+    result.iterations.push_back(rep);
+    if (rep.max_translation_change_m < c.pipeline.converged_translation_m &&
+        rep.max_rotation_change_deg < c.pipeline.converged_rotation_deg) {
+      result.converged_early = round < rounds;
+      break;
+    }
+  }
+  if (c.postfilter.enabled) result.postfiltered = postfilter(result.map.get());
+  return result;
+}
+
+Result<std::vector<Pose>> track_sequence(const std::vector<Frame>& frames,
+                                         const ReconstructionConfig& config,
+                                         const ProgressFn& progress) {
+  if (frames.empty()) return invalid_argument("the sequence has no frames");
+  ReconstructionConfig c = config.with_method(Method::kFull);
+  IncrementalReconstructor rec(c);
+  std::vector<Pose> poses;
+  poses.reserve(frames.size());
+  std::optional<Pose> prediction;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    Frame f = frames[i];
+    f.T_world_cam_hint.reset();
+    // Constant-velocity prediction from the last two poses.
+    if (poses.size() >= 2) {
+      const Pose& a = poses[poses.size() - 2];
+      const Pose& b = poses.back();
+      prediction = b * (a.inverse() * b);
+    } else if (!poses.empty()) {
+      prediction = poses.back();
+    }
+    Result<FrameReport> r = rec.process(f, prediction);
+    if (!r) return r.status().with_context("frame " + std::to_string(i));
+    poses.push_back(r->T_world_cam);
+    if (progress) progress("tracking", i + 1, frames.size());
+  }
+  return poses;
+}
+
+}  // namespace depthfuse

@@ -1,0 +1,90 @@
+#include "depthfuse/point_map.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <tuple>
+
+namespace depthfuse {
+
+PointMap::PointMap(double chunk_size_m)
+    : chunk_size_m_(chunk_size_m), inv_chunk_size_(static_cast<float>(1.0 / chunk_size_m)) {}
+
+ChunkKey PointMap::key_for(float x_m, float y_m, float z_m) const {
+  return {static_cast<int32_t>(std::floor(x_m * inv_chunk_size_)),
+          static_cast<int32_t>(std::floor(y_m * inv_chunk_size_)),
+          static_cast<int32_t>(std::floor(z_m * inv_chunk_size_))};
+}
+
+Eigen::Vector3f PointMap::chunk_origin_m(const ChunkKey& key) const {
+  const float s = static_cast<float>(chunk_size_m_);
+  return {key.x * s, key.y * s, key.z * s};
+}
+
+Chunk* PointMap::find(const ChunkKey& key) {
+  auto it = chunks_.find(key);
+  return it == chunks_.end() ? nullptr : &it->second;
+}
+
+const Chunk* PointMap::find(const ChunkKey& key) const {
+  auto it = chunks_.find(key);
+  return it == chunks_.end() ? nullptr : &it->second;
+}
+
+Chunk& PointMap::get_or_create(const ChunkKey& key) { return chunks_[key]; }
+
+void PointMap::insert(const ChunkKey& key, Chunk chunk) { chunks_[key] = std::move(chunk); }
+
+bool PointMap::extract(const ChunkKey& key, Chunk* out) {
+  auto it = chunks_.find(key);
+  if (it == chunks_.end()) return false;
+  if (out) *out = std::move(it->second);
+  chunks_.erase(it);
+  return true;
+}
+
+void PointMap::clear() { chunks_.clear(); }
+
+size_t PointMap::point_count() const {
+  size_t n = 0;
+  for (const auto& kv : chunks_) n += kv.second.points.size();
+  return n;
+}
+
+size_t PointMap::memory_bytes() const {
+  size_t bytes = chunks_.bucket_count() * sizeof(void*);
+  for (const auto& kv : chunks_) bytes += sizeof(kv) + kv.second.points.memory_bytes();
+  return bytes;
+}
+
+void PointMap::for_each_chunk(const std::function<void(const ChunkKey&, Chunk&)>& fn) {
+  for (auto& kv : chunks_) fn(kv.first, kv.second);
+}
+
+void PointMap::for_each_chunk(const std::function<void(const ChunkKey&, const Chunk&)>& fn) const {
+  for (const auto& kv : chunks_) fn(kv.first, kv.second);
+}
+
+std::vector<ChunkKey> PointMap::keys() const {
+  std::vector<ChunkKey> k;
+  k.reserve(chunks_.size());
+  for (const auto& kv : chunks_) k.push_back(kv.first);
+  std::sort(k.begin(), k.end(), [](const ChunkKey& a, const ChunkKey& b) {
+    return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
+  });
+  return k;
+}
+
+PointArrays PointMap::gather() const {
+  PointArrays all;
+  all.reserve(point_count());
+  for (const ChunkKey& k : keys()) all.append(chunks_.at(k).points);
+  return all;
+}
+
+void PointMap::add_points(const PointArrays& points) {
+  for (size_t i = 0; i < points.size(); ++i) {
+    get_or_create(key_for(points.x[i], points.y[i], points.z[i])).points.push_back(points.get(i));
+  }
+}
+
+}  // namespace depthfuse

@@ -1,0 +1,156 @@
+#include "depthfuse/registration.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/Cholesky>
+
+#include "model_projection.hpp"
+
+namespace depthfuse {
+
+Registrar::Registrar(const RegistrationConfig& config)
+    : config_(config), projection_(std::make_unique<ModelProjection>()) {}
+
+Registrar::~Registrar() = default;
+
+namespace {
+
+// SE(3) exponential of a small twist (rotation part first), applied on the left in the world frame.
+inline Pose twist_to_pose(const Eigen::Matrix<double, 6, 1>& xi) {
+  Pose T = Pose::Identity();
+  const Eigen::Vector3d w = xi.head<3>();
+  const double angle = w.norm();
+  if (angle > 1e-12) T.linear() = Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
+  T.translation() = xi.tail<3>();
+  return T;
+}
+
+// One point-to-plane term: residual n.(p - q) with Jacobian [ (p - c) x n, n ] for a twist about
+// the centre c (conditioning: rotations about the data, not the world origin).
+struct NormalEquations {
+  Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
+  Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
+  double sq_residual = 0;
+  size_t inliers = 0;
+
+  inline void add(const Eigen::Vector3f& p_rel, const Eigen::Vector3f& n, float r, float w) {
+    Eigen::Matrix<double, 6, 1> J;
+    J.head<3>() = p_rel.cross(n).cast<double>();
+    J.tail<3>() = n.cast<double>();
+    H.selfadjointView<Eigen::Upper>().rankUpdate(J, w);
+    b += (w * r) * J;
+    sq_residual += static_cast<double>(r) * r;
+    ++inliers;
+  }
+};
+
+}  // namespace
+
+RegistrationResult Registrar::run(const MeasurementImage& m, const PointMap& map,
+                                  const Pose& initial, int subsample, int iterations,
+                                  double max_corr_m) {
+  RegistrationResult result;
+  result.T_world_cam = initial;
+  const CameraIntrinsics& K = m.intrinsics;
+  ModelProjection& proj = *projection_;
+  // The map is only read; the projection's chunk pointers are non-const for fusion's sake.
+  proj.select_chunks(const_cast<PointMap&>(map), m, initial, static_cast<float>(max_corr_m) + 0.05f);
+  proj.render(initial, K);
+  if (proj.rendered_points() == 0) return result;
+
+  const Pose T_cam0_world = initial.inverse();
+  const float fx = static_cast<float>(K.fx), fy = static_cast<float>(K.fy);
+  const float cx = static_cast<float>(K.cx), cy = static_cast<float>(K.cy);
+  const float cos_max = static_cast<float>(std::cos(config_.max_normal_angle_deg * M_PI / 180.0));
+  const float max_d = static_cast<float>(max_corr_m);
+  const float huber = static_cast<float>(config_.huber_delta_m);
+  const int step = std::max(1, subsample);
+
+  Pose T = initial;
+  size_t sampled = 0;
+  NormalEquations eq;
+  for (int it = 0; it < iterations; ++it) {
+    eq = NormalEquations();
+    sampled = 0;
+    const Eigen::Matrix3f R = T.linear().cast<float>();
+    const Eigen::Vector3f t = T.translation().cast<float>();
+    // Association in the camera the model was rendered from.
+    const Pose T_cam0_cam = T_cam0_world * T;
+    const Eigen::Matrix3f R0 = T_cam0_cam.linear().cast<float>();
+    const Eigen::Vector3f t0 = T_cam0_cam.translation().cast<float>();
+    const Eigen::Vector3f centre = t;
+
+    for (int v = 0; v < m.height; v += step) {
+      for (int u = 0; u < m.width; u += step) {
+        const size_t i = static_cast<size_t>(v) * m.width + u;
+        if (!m.valid[i] || m.nz[i] == 0.0f) continue;
+        ++sampled;
+        const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);
+        const Eigen::Vector3f p0 = R0 * p_c + t0;
+        if (p0.z() <= 1e-3f) continue;
+        const int pu = static_cast<int>(std::lround(fx * p0.x() / p0.z() + cx));
+        const int pv = static_cast<int>(std::lround(fy * p0.y() / p0.z() + cy));
+        if (pu < 0 || pv < 0 || pu >= K.width || pv >= K.height) continue;
+        const size_t px = static_cast<size_t>(pv) * K.width + pu;
+        if (proj.empty_at(px)) continue;
+        const PointArrays& a = proj.points_at(px);
+        const uint32_t j = proj.index_at(px);
+        const Eigen::Vector3f q = a.position(j);
+        const Eigen::Vector3f n_q = a.normal(j);
+        const Eigen::Vector3f p_w = R * p_c + t;
+        const Eigen::Vector3f d = p_w - q;
+        if (d.squaredNorm() > max_d * max_d) continue;
+        const Eigen::Vector3f n_p = R * Eigen::Vector3f(m.nx[i], m.ny[i], m.nz[i]);
+        if (n_p.dot(n_q) < cos_max) continue;
+        const float r = n_q.dot(d);
+        const float w = std::abs(r) <= huber ? 1.0f : huber / std::abs(r);
+        eq.add(p_w - centre, n_q, r, w);
+      }
+    }
+    result.iterations = it + 1;
+    if (eq.inliers < static_cast<size_t>(std::max(6, config_.min_correspondences))) break;
+    Eigen::Matrix<double, 6, 6> H = eq.H.selfadjointView<Eigen::Upper>();
+    H.diagonal().array() += 1e-9 * H.diagonal().maxCoeff() + 1e-12;  // damp degenerate directions
+    const Eigen::Matrix<double, 6, 1> xi = H.ldlt().solve(-eq.b);
+    if (!xi.allFinite()) break;
+    // The twist is about `centre`: T' = Tc * exp(xi) * Tc^-1 * T.
+    Pose Tc = Pose::Identity();
+    Tc.translation() = centre.cast<double>();
+    T = Tc * twist_to_pose(xi) * Tc.inverse() * T;
+    T.linear() = Eigen::Quaterniond(T.linear()).normalized().toRotationMatrix();
+    if (xi.head<3>().norm() < 1e-7 && xi.tail<3>().norm() < 1e-7) break;
+  }
+
+  result.correspondences = eq.inliers;
+  result.fitness = sampled ? static_cast<double>(eq.inliers) / sampled : 0.0;
+  result.rmse_m = eq.inliers ? std::sqrt(eq.sq_residual / eq.inliers) : 0.0;
+  result.converged = eq.inliers >= static_cast<size_t>(std::max(6, config_.min_correspondences));
+  if (result.converged) result.T_world_cam = T;
+  return result;
+}
+
+RegistrationResult Registrar::refine(const MeasurementImage& m, const PointMap& map,
+                                     const Pose& T_world_cam_initial) {
+  return run(m, map, T_world_cam_initial, config_.subsample_px, config_.iterations,
+             config_.max_correspondence_m);
+}
+
+RegistrationResult Registrar::track(const MeasurementImage& m, const PointMap& map,
+                                    const Pose& T_world_cam_initial) {
+  // Coarse to fine: every level halves the pixel step and the correspondence gate.
+  const int levels = std::max(1, config_.tracking_levels);
+  RegistrationResult r;
+  r.T_world_cam = T_world_cam_initial;
+  Pose T = T_world_cam_initial;
+  for (int level = levels - 1; level >= 0; --level) {
+    const int step = std::max(1, config_.subsample_px) << level;
+    const double gate = config_.max_correspondence_m * (1 << level);
+    r = run(m, map, T, step, config_.tracking_iterations_per_level, gate);
+    if (r.converged) T = r.T_world_cam;
+  }
+  r.T_world_cam = T;
+  return r;
+}
+
+}  // namespace depthfuse
