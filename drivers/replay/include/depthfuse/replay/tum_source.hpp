@@ -1,0 +1,76 @@
+// Replays a TUM RGB-D folder: depth.txt / rgb.txt, 16-bit PNG depth, an optional trajectory as the
+// pose source, and the camera from camera.toml, the caller, or the image size.
+#pragma once
+
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "depthfuse/app_config.hpp"
+#include "depthfuse/frame_source.hpp"
+
+namespace depthfuse {
+
+struct CameraFile {
+  CameraIntrinsics intrinsics;
+  double depth_scale = 5000.0;  // PNG value per metre
+};
+
+// Reads a camera.toml ([camera] width height fx fy cx cy depth_scale); errors name key and line.
+Result<CameraFile> read_camera_file(const std::string& path);
+
+struct TumReplayConfig {
+  std::optional<CameraIntrinsics> intrinsics;  // overrides camera.toml and the defaults
+  std::optional<double> depth_scale;           // PNG value per metre; default camera.toml or 5000
+  std::string poses_path;                      // trajectory giving T_world_cam_hint; "" = none
+  bool use_groundtruth = false;                // poses from <folder>/groundtruth.txt if present
+  double max_association_dt_s = 0.02;          // rgb and poses matched to depth within this
+  bool load_color = true;
+  size_t max_frames = 0;                       // 0 = all
+  size_t stride = 1;                           // use every n-th depth frame
+};
+
+class TumSource : public FrameSource {
+ public:
+  static Result<std::unique_ptr<TumSource>> open(const std::string& folder,
+                                                 const TumReplayConfig& config);
+
+  Result<Frame> next() override;
+  std::string describe() const override;
+  std::optional<double> nominal_rate_hz() const override;
+  std::optional<size_t> frame_count() const override { return entries_.size(); }
+  Status rewind() override {
+    next_ = 0;
+    return Status::ok();
+  }
+
+  // Frame i without advancing (batch tools).
+  Result<Frame> load(size_t i) const;
+  const CameraIntrinsics& intrinsics() const { return intrinsics_; }
+  double depth_scale() const { return depth_scale_; }
+  // Where the intrinsics came from: "camera.toml", "caller", "TUM freiburg default", ...
+  const std::string& intrinsics_origin() const { return intrinsics_origin_; }
+  bool has_poses() const { return has_poses_; }
+  double timestamp_s(size_t i) const { return entries_[i].t_depth; }
+
+ private:
+  struct Entry {
+    double t_depth = 0;
+    std::string depth_path;
+    std::string rgb_path;                 // empty: none associated
+    std::optional<Pose> T_world_cam;      // from the trajectory
+  };
+  std::string folder_;
+  std::vector<Entry> entries_;
+  CameraIntrinsics intrinsics_;
+  std::string intrinsics_origin_;
+  double depth_scale_ = 5000.0;
+  bool has_poses_ = false;
+  size_t next_ = 0;
+};
+
+// For the source factory: arg is the folder.
+Result<std::unique_ptr<FrameSource>> open_tum_source(const std::string& arg, const AppConfig& config);
+
+}  // namespace depthfuse

@@ -1,0 +1,258 @@
+#include "depthfuse/replay/tum_source.hpp"
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include <opencv2/imgcodecs.hpp>
+#include <toml++/toml.h>
+
+#include "depthfuse/trajectory.hpp"
+
+namespace fs = std::filesystem;
+
+namespace depthfuse {
+
+namespace {
+
+struct ListEntry {
+  double t = 0;
+  std::string path;
+};
+
+// "timestamp path" lines; '#' comments.
+Result<std::vector<ListEntry>> read_list(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return not_found("cannot open " + path);
+  std::vector<ListEntry> out;
+  std::string line;
+  size_t n = 0;
+  while (std::getline(in, line)) {
+    ++n;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    const size_t first = line.find_first_not_of(" \t");
+    if (first == std::string::npos || line[first] == '#') continue;
+    std::istringstream ls(line);
+    ListEntry e;
+    std::string t;
+    if (!(ls >> t >> e.path))
+      return invalid_argument(path + ":" + std::to_string(n) + ": expected 'timestamp path'");
+    char* end = nullptr;
+    e.t = std::strtod(t.c_str(), &end);
+    if (end == t.c_str() || *end || !std::isfinite(e.t))
+      return invalid_argument(path + ":" + std::to_string(n) + ": bad timestamp '" + t + "'");
+    out.push_back(e);
+  }
+  return out;
+}
+
+// Nearest entry in time within max_dt, or -1.
+long nearest(const std::vector<ListEntry>& v, double t, double max_dt) {
+  long best = -1;
+  double best_dt = max_dt;
+  auto it = std::lower_bound(v.begin(), v.end(), t,
+                             [](const ListEntry& e, double x) { return e.t < x; });
+  for (auto c : {it, it == v.begin() ? it : it - 1}) {
+    if (c == v.end()) continue;
+    const double dt = std::abs(c->t - t);
+    if (dt <= best_dt) {
+      best_dt = dt;
+      best = static_cast<long>(c - v.begin());
+    }
+  }
+  return best;
+}
+
+Result<cv::Mat> read_png(const std::string& path, int flags) {
+  if (!fs::exists(path)) return not_found("missing image " + path);
+  cv::Mat img;
+  try {
+    img = cv::imread(path, flags);
+  } catch (const cv::Exception& e) {
+    return corrupt("cannot decode " + path + ": " + e.what());
+  }
+  if (img.empty()) return corrupt("cannot decode " + path + " (corrupt or not an image)");
+  return img;
+}
+
+}  // namespace
+
+Result<CameraFile> read_camera_file(const std::string& path) {
+  toml::table t;
+  try {
+    t = toml::parse_file(path);
+  } catch (const toml::parse_error& e) {
+    std::ostringstream m;
+    m << path << ":" << e.source().begin.line << ": " << e.description();
+    return invalid_argument(m.str());
+  }
+  const toml::table* cam = t["camera"].as_table();
+  if (!cam) return invalid_argument(path + ": no [camera] table");
+  CameraFile out;
+  for (auto&& [key, node] : *cam) {
+    const std::string k(key.str());
+    const std::string where = path + ":" + std::to_string(node.source().begin.line) + ": camera." + k;
+    const std::optional<double> v = node.value<double>();
+    if (!v) return invalid_argument(where + ": expected a number");
+    if (!(*v > 0) || !std::isfinite(*v)) return invalid_argument(where + ": must be > 0");
+    if (k == "width") out.intrinsics.width = static_cast<int>(*v);
+    else if (k == "height") out.intrinsics.height = static_cast<int>(*v);
+    else if (k == "fx") out.intrinsics.fx = *v;
+    else if (k == "fy") out.intrinsics.fy = *v;
+    else if (k == "cx") out.intrinsics.cx = *v;
+    else if (k == "cy") out.intrinsics.cy = *v;
+    else if (k == "depth_scale") out.depth_scale = *v;
+    else return invalid_argument(where + ": unknown key");
+  }
+  return out;
+}
+
+Result<std::unique_ptr<TumSource>> TumSource::open(const std::string& folder,
+                                                   const TumReplayConfig& config) {
+  if (!fs::is_directory(folder)) return not_found("no such TUM folder: " + folder);
+  auto src = std::unique_ptr<TumSource>(new TumSource());
+  src->folder_ = folder;
+
+  auto depth_list = read_list(folder + "/depth.txt");
+  if (!depth_list) return depth_list.status().with_context("reading the depth list");
+  if (depth_list->empty()) return invalid_argument(folder + "/depth.txt lists no frames: empty sequence");
+  std::vector<ListEntry> rgb_list;
+  if (config.load_color && fs::exists(folder + "/rgb.txt")) {
+    auto r = read_list(folder + "/rgb.txt");
+    if (!r) return r.status();
+    rgb_list = std::move(*r);
+    std::sort(rgb_list.begin(), rgb_list.end(), [](auto& a, auto& b) { return a.t < b.t; });
+  }
+
+  std::vector<StampedPose> poses;
+  std::string poses_path = config.poses_path;
+  if (poses_path.empty() && config.use_groundtruth && fs::exists(folder + "/groundtruth.txt"))
+    poses_path = folder + "/groundtruth.txt";
+  if (!poses_path.empty()) {
+    auto p = read_tum_trajectory(poses_path);
+    if (!p) return p.status();
+    poses = std::move(*p);
+    src->has_poses_ = true;
+  }
+
+  const size_t stride = std::max<size_t>(1, config.stride);
+  for (size_t i = 0; i < depth_list->size(); i += stride) {
+    const ListEntry& d = (*depth_list)[i];
+    Entry e;
+    e.t_depth = d.t;
+    e.depth_path = folder + "/" + d.path;
+    const long c = nearest(rgb_list, d.t, config.max_association_dt_s);
+    if (c >= 0) e.rgb_path = folder + "/" + rgb_list[c].path;
+    if (!poses.empty()) {
+      const long p = nearest_pose(poses, d.t, config.max_association_dt_s);
+      if (p >= 0) e.T_world_cam = poses[p].T_world_cam;
+    }
+    src->entries_.push_back(std::move(e));
+    if (config.max_frames && src->entries_.size() >= config.max_frames) break;
+  }
+
+  // Intrinsics: the caller's, else camera.toml, else defaults for the image's own size.
+  std::optional<CameraFile> cam;
+  if (fs::exists(folder + "/camera.toml")) {
+    auto c = read_camera_file(folder + "/camera.toml");
+    if (!c) return c.status();
+    cam = *c;
+  }
+  src->depth_scale_ = config.depth_scale ? *config.depth_scale : cam ? cam->depth_scale : 5000.0;
+  if (config.intrinsics) {
+    src->intrinsics_ = *config.intrinsics;
+    src->intrinsics_origin_ = "caller";
+  } else if (cam) {
+    src->intrinsics_ = cam->intrinsics;
+    src->intrinsics_origin_ = "camera.toml";
+  } else {
+    auto first = read_png(src->entries_.front().depth_path, cv::IMREAD_UNCHANGED);
+    if (!first) return first.status();
+    const int w = first->cols, h = first->rows;
+    if (w == 640 && h == 480) {
+      // The TUM benchmark's default for its Kinect (v1) depth: fx = fy = 525, centre 319.5, 239.5.
+      src->intrinsics_ = {640, 480, 525.0, 525.0, 319.5, 239.5};
+      src->intrinsics_origin_ = "TUM default for 640x480";
+    } else {
+      CameraIntrinsics k = CameraIntrinsics::kinect_v2();
+      // Scale the Kinect V2 field of view to the folder's own size.
+      const double s = static_cast<double>(w) / k.width;
+      src->intrinsics_ = {w, h, k.fx * s, k.fy * s, (w - 1) / 2.0, (h - 1) / 2.0};
+      src->intrinsics_origin_ = "Kinect V2 default";
+    }
+  }
+  return src;
+}
+
+Result<Frame> TumSource::load(size_t i) const {
+  if (i >= entries_.size()) return end_of_stream();
+  const Entry& e = entries_[i];
+  auto img = read_png(e.depth_path, cv::IMREAD_UNCHANGED);
+  if (!img) return img.status();
+  if (img->type() != CV_16UC1)
+    return corrupt(e.depth_path + ": depth must be a 16-bit single-channel PNG");
+  if (img->cols != intrinsics_.width || img->rows != intrinsics_.height)
+    return invalid_argument(e.depth_path + " is " + std::to_string(img->cols) + "x" +
+                            std::to_string(img->rows) + " but the camera is " +
+                            std::to_string(intrinsics_.width) + "x" +
+                            std::to_string(intrinsics_.height));
+  Frame f;
+  f.utime = static_cast<int64_t>(std::llround(e.t_depth * 1e6));
+  f.sequence = static_cast<uint32_t>(i);
+  f.sensor_serial = "replay";
+  f.intrinsics = intrinsics_;
+  f.depth = DepthImage(img->cols, img->rows);
+  const float inv_scale = static_cast<float>(1.0 / depth_scale_);
+  for (int v = 0; v < img->rows; ++v) {
+    const uint16_t* row = img->ptr<uint16_t>(v);
+    for (int u = 0; u < img->cols; ++u) f.depth.at(u, v) = row[u] * inv_scale;
+  }
+  if (!e.rgb_path.empty()) {
+    auto rgb = read_png(e.rgb_path, cv::IMREAD_COLOR);
+    if (!rgb) return rgb.status();
+    if (rgb->cols == img->cols && rgb->rows == img->rows) {
+      f.color.width = rgb->cols;
+      f.color.height = rgb->rows;
+      f.color.rgb.resize(static_cast<size_t>(rgb->cols) * rgb->rows * 3);
+      for (int v = 0; v < rgb->rows; ++v) {
+        const cv::Vec3b* row = rgb->ptr<cv::Vec3b>(v);
+        for (int u = 0; u < rgb->cols; ++u) {
+          uint8_t* px = &f.color.rgb[(static_cast<size_t>(v) * rgb->cols + u) * 3];
+          px[0] = row[u][2];  // OpenCV is BGR
+          px[1] = row[u][1];
+          px[2] = row[u][0];
+        }
+      }
+    }
+  }
+  f.T_world_cam_hint = e.T_world_cam;
+  return f;
+}
+
+Result<Frame> TumSource::next() {
+  if (next_ >= entries_.size()) return end_of_stream();
+  return load(next_++);
+}
+
+std::string TumSource::describe() const {
+  return "tum:" + folder_ + " (" + std::to_string(entries_.size()) + " frames, " +
+         std::to_string(intrinsics_.width) + "x" + std::to_string(intrinsics_.height) + ")";
+}
+
+std::optional<double> TumSource::nominal_rate_hz() const {
+  if (entries_.size() < 2) return std::nullopt;
+  const double span = entries_.back().t_depth - entries_.front().t_depth;
+  if (span <= 0) return std::nullopt;
+  return (entries_.size() - 1) / span;
+}
+
+Result<std::unique_ptr<FrameSource>> open_tum_source(const std::string& arg, const AppConfig&) {
+  TumReplayConfig c;
+  c.use_groundtruth = true;
+  auto s = TumSource::open(arg, c);
+  if (!s) return s.status();
+  return std::unique_ptr<FrameSource>(std::move(s.value()));
+}
+
+}  // namespace depthfuse

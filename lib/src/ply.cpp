@@ -1,0 +1,213 @@
+#include "depthfuse/ply.hpp"
+
+#include <cerrno>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+
+namespace depthfuse {
+
+namespace {
+
+std::string errno_text() { return std::strerror(errno); }
+
+template <typename T>
+inline void put(char*& p, T v) {
+  std::memcpy(p, &v, sizeof(T));
+  p += sizeof(T);
+}
+
+}  // namespace
+
+PlyWriter::~PlyWriter() {
+  if (file_) std::fclose(file_);
+}
+
+Status PlyWriter::open(const std::string& path, const PlyOptions& options, size_t vertex_count) {
+  if (file_) return internal_error("PlyWriter already open");
+  file_ = std::fopen(path.c_str(), "wb");
+  if (!file_) return io_error("cannot create " + path + ": " + errno_text());
+  path_ = path;
+  options_ = options;
+  announced_ = vertex_count;
+  written_ = 0;
+  std::ostringstream h;
+  h << "ply\nformat binary_little_endian 1.0\ncomment written by depthfuse\n"
+    << "element vertex " << vertex_count << "\n"
+    << "property float x\nproperty float y\nproperty float z\n"
+    << "property float nx\nproperty float ny\nproperty float nz\n";
+  if (options.with_color) h << "property uchar red\nproperty uchar green\nproperty uchar blue\n";
+  if (options.with_fusion_stats)
+    h << "property ushort merges\nproperty ushort violations\nproperty float uncertainty_m\n";
+  h << "end_header\n";
+  const std::string header = h.str();
+  if (std::fwrite(header.data(), 1, header.size(), file_) != header.size())
+    return io_error("cannot write " + path + ": " + errno_text());
+  return Status::ok();
+}
+
+Status PlyWriter::write(const PointArrays& a, const std::vector<uint8_t>* keep) {
+  if (!file_) return internal_error("PlyWriter not open");
+  const size_t stride = 24 + (options_.with_color ? 3 : 0) + (options_.with_fusion_stats ? 8 : 0);
+  constexpr size_t kBatch = 4096;
+  char buf[kBatch * 48];
+  size_t i = 0;
+  while (i < a.size()) {
+    char* p = buf;
+    size_t in_batch = 0;
+    for (; i < a.size() && in_batch < kBatch; ++i) {
+      if (keep && !(*keep)[i]) continue;
+      put(p, a.x[i]); put(p, a.y[i]); put(p, a.z[i]);
+      put(p, a.nx[i]); put(p, a.ny[i]); put(p, a.nz[i]);
+      if (options_.with_color) { put(p, a.r[i]); put(p, a.g[i]); put(p, a.b[i]); }
+      if (options_.with_fusion_stats) {
+        put(p, a.merges[i]); put(p, a.violations[i]); put(p, uncertainty_m(a, i));
+      }
+      ++in_batch;
+    }
+    const size_t bytes = in_batch * stride;
+    if (std::fwrite(buf, 1, bytes, file_) != bytes)
+      return io_error("cannot write " + path_ + ": " + errno_text());
+    written_ += in_batch;
+  }
+  return Status::ok();
+}
+
+Status PlyWriter::close() {
+  if (!file_) return internal_error("PlyWriter not open");
+  const bool flushed = std::fflush(file_) == 0;
+  const bool closed = std::fclose(file_) == 0;
+  file_ = nullptr;
+  if (!flushed || !closed) return io_error("cannot finish " + path_ + ": " + errno_text());
+  if (written_ != announced_)
+    return internal_error(path_ + ": announced " + std::to_string(announced_) +
+                          " vertices but wrote " + std::to_string(written_));
+  return Status::ok();
+}
+
+Status write_ply(const std::string& path, const PointArrays& points, const PlyOptions& options) {
+  PlyWriter w;
+  DF_RETURN_IF_ERROR(w.open(path, options, points.size()));
+  DF_RETURN_IF_ERROR(w.write(points));
+  return w.close();
+}
+
+// ---- reading --------------------------------------------------------------------------------
+
+namespace {
+
+struct PlyProperty {
+  std::string name, type;
+  size_t size = 0;
+};
+
+size_t type_size(const std::string& t) {
+  if (t == "char" || t == "uchar" || t == "int8" || t == "uint8") return 1;
+  if (t == "short" || t == "ushort" || t == "int16" || t == "uint16") return 2;
+  if (t == "int" || t == "uint" || t == "float" || t == "int32" || t == "uint32" || t == "float32") return 4;
+  if (t == "double" || t == "float64") return 8;
+  return 0;
+}
+
+double read_scalar(const char* p, const std::string& t) {
+  auto get = [p](auto v) { std::memcpy(&v, p, sizeof(v)); return static_cast<double>(v); };
+  if (t == "char" || t == "int8") return get(int8_t{});
+  if (t == "uchar" || t == "uint8") return get(uint8_t{});
+  if (t == "short" || t == "int16") return get(int16_t{});
+  if (t == "ushort" || t == "uint16") return get(uint16_t{});
+  if (t == "int" || t == "int32") return get(int32_t{});
+  if (t == "uint" || t == "uint32") return get(uint32_t{});
+  if (t == "float" || t == "float32") return get(float{});
+  return get(double{});
+}
+
+}  // namespace
+
+Result<PointArrays> read_ply(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return not_found("cannot open " + path);
+  std::string line;
+  if (!std::getline(in, line) || line.rfind("ply", 0) != 0) return corrupt(path + ": not a PLY file");
+  std::string format;
+  size_t count = 0;
+  bool in_vertex = false, seen_vertex = false;
+  std::vector<PlyProperty> props;
+  while (std::getline(in, line)) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    std::istringstream ls(line);
+    std::string word;
+    ls >> word;
+    if (word == "format") ls >> format;
+    else if (word == "element") {
+      std::string name;
+      ls >> name;
+      in_vertex = name == "vertex";
+      if (in_vertex) {
+        if (!(ls >> count)) return corrupt(path + ": bad vertex count");
+        seen_vertex = true;
+      } else if (!seen_vertex) {
+        return unsupported(path + ": elements before 'vertex' are not supported");
+      }
+    } else if (word == "property" && in_vertex) {
+      PlyProperty p;
+      ls >> p.type;
+      if (p.type == "list") return unsupported(path + ": list properties in vertex element");
+      ls >> p.name;
+      p.size = type_size(p.type);
+      if (!p.size) return corrupt(path + ": unknown property type '" + p.type + "'");
+      props.push_back(p);
+    } else if (word == "end_header") {
+      break;
+    }
+  }
+  if (!seen_vertex) return corrupt(path + ": no vertex element");
+  if (format != "binary_little_endian" && format != "ascii")
+    return unsupported(path + ": PLY format '" + format + "' (binary_little_endian or ascii only)");
+  auto find = [&](const char* n) -> int {
+    for (size_t i = 0; i < props.size(); ++i)
+      if (props[i].name == n) return static_cast<int>(i);
+    return -1;
+  };
+  const int ix = find("x"), iy = find("y"), iz = find("z");
+  if (ix < 0 || iy < 0 || iz < 0) return corrupt(path + ": vertices have no x, y, z");
+  const int inx = find("nx"), iny = find("ny"), inz = find("nz");
+  const int ir = find("red"), ig = find("green"), ib = find("blue");
+  const int im = find("merges"), iv = find("violations");
+
+  PointArrays a;
+  a.reserve(count);
+  std::vector<double> vals(props.size());
+  size_t stride = 0;
+  for (const auto& p : props) stride += p.size;
+  std::vector<char> row(stride);
+  for (size_t n = 0; n < count; ++n) {
+    if (format == "ascii") {
+      for (size_t k = 0; k < props.size(); ++k)
+        if (!(in >> vals[k])) return corrupt(path + ": truncated at vertex " + std::to_string(n));
+    } else {
+      if (!in.read(row.data(), static_cast<std::streamsize>(stride)))
+        return corrupt(path + ": truncated at vertex " + std::to_string(n) + " of " +
+                       std::to_string(count));
+      size_t off = 0;
+      for (size_t k = 0; k < props.size(); ++k) {
+        vals[k] = read_scalar(row.data() + off, props[k].type);
+        off += props[k].size;
+      }
+    }
+    PointRecord r;
+    r.position_m = {static_cast<float>(vals[ix]), static_cast<float>(vals[iy]), static_cast<float>(vals[iz])};
+    if (inx >= 0 && iny >= 0 && inz >= 0)
+      r.normal = {static_cast<float>(vals[inx]), static_cast<float>(vals[iny]), static_cast<float>(vals[inz])};
+    if (ir >= 0 && ig >= 0 && ib >= 0) {
+      r.rgb[0] = static_cast<uint8_t>(vals[ir]);
+      r.rgb[1] = static_cast<uint8_t>(vals[ig]);
+      r.rgb[2] = static_cast<uint8_t>(vals[ib]);
+    }
+    if (im >= 0) r.merges = static_cast<uint16_t>(vals[im]);
+    if (iv >= 0) r.violations = static_cast<uint16_t>(vals[iv]);
+    a.push_back(r);
+  }
+  return a;
+}
+
+}  // namespace depthfuse
