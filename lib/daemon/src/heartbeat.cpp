@@ -1,0 +1,47 @@
+#include "depthfuse/daemon/heartbeat.hpp"
+
+namespace depthfuse::daemon {
+
+depthfuse::heartbeat_t HeartbeatBase::make(int8_t state) const {
+  depthfuse::heartbeat_t hb{};
+  hb.protocol_version = depthfuse::heartbeat_t::PROTOCOL_VERSION;
+  hb.utime = wall_utime();
+  hb.name = name_;
+  hb.host = host_;
+  hb.pid = process_id();
+  hb.state = state;
+  hb.uptime_s = uptime_.seconds();
+  hb.rss_bytes = resident_memory_bytes();
+  hb.last_command_result = depthfuse::heartbeat_t::COMMAND_RESULT_NONE;
+  hb.num_counters = 0;
+  return hb;
+}
+
+void add_counter(depthfuse::heartbeat_t* hb, const std::string& key, double value) {
+  depthfuse::key_value_t kv;
+  kv.key = key;
+  kv.value = value;
+  hb->counters.push_back(kv);
+  hb->num_counters = static_cast<int32_t>(hb->counters.size());
+}
+
+double counter_value(const depthfuse::heartbeat_t& hb, const std::string& key, double fallback) {
+  for (const auto& kv : hb.counters)
+    if (kv.key == key) return kv.value;
+  return fallback;
+}
+
+const char* state_name(int8_t state) {
+  switch (state) {
+    case depthfuse::heartbeat_t::STATE_STARTING: return "starting";
+    case depthfuse::heartbeat_t::STATE_IDLE: return "idle";
+    case depthfuse::heartbeat_t::STATE_RUNNING: return "running";
+    case depthfuse::heartbeat_t::STATE_PAUSED: return "paused";
+    case depthfuse::heartbeat_t::STATE_STOPPING: return "stopping";
+    case depthfuse::heartbeat_t::STATE_ERROR: return "error";
+    case depthfuse::heartbeat_t::STATE_FINISHED: return "finished";
+  }
+  return "unknown";
+}
+
+}  // namespace depthfuse::daemon

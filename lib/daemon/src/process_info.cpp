@@ -1,0 +1,31 @@
+#include "depthfuse/daemon/process_info.hpp"
+
+#include <unistd.h>
+
+#include <chrono>
+#include <fstream>
+
+namespace depthfuse::daemon {
+
+std::string host_name() {
+  char name[256] = {0};
+  if (::gethostname(name, sizeof(name) - 1) != 0) return "unknown";
+  return name;
+}
+
+int process_id() { return static_cast<int>(::getpid()); }
+
+int64_t resident_memory_bytes() {
+  std::ifstream in("/proc/self/statm");
+  int64_t size_pages = 0, resident_pages = 0;
+  if (!(in >> size_pages >> resident_pages)) return -1;
+  return resident_pages * static_cast<int64_t>(::sysconf(_SC_PAGESIZE));
+}
+
+int64_t wall_utime() {
+  return std::chrono::duration_cast<std::chrono::microseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+}  // namespace depthfuse::daemon

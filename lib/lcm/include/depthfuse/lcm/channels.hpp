@@ -1,0 +1,17 @@
+// The LCM channels of the appliance. docs/protocol.md lists them with their types.
+#pragma once
+
+namespace depthfuse::lcmio {
+
+inline constexpr const char* kDepthChannel = "DEPTHFUSE_DEPTH";          // depth_frame_t
+inline constexpr const char* kColorChannel = "DEPTHFUSE_COLOR";          // color_frame_t
+inline constexpr const char* kPoseChannel = "DEPTHFUSE_POSE";            // pose_t
+inline constexpr const char* kHeartbeatChannel = "DEPTHFUSE_HEARTBEAT";  // heartbeat_t
+inline constexpr const char* kStatusChannel = "DEPTHFUSE_STATUS";        // status_t
+inline constexpr const char* kCommandChannel = "DEPTHFUSE_COMMAND";      // command_t
+
+// The protocol version every message of this build carries (the PROTOCOL_VERSION constants of the
+// message types agree with it; a test checks that).
+inline constexpr int kProtocolVersion = 1;
+
+}  // namespace depthfuse::lcmio

@@ -1,0 +1,93 @@
+// Decoding raw LCM payloads into depthfuse messages without ever trusting them: a truncated or
+// corrupt payload, another LCM type on one of our channels (fingerprint mismatch) and a protocol
+// version this build does not know are told apart and counted, never crash the receiver.
+#pragma once
+
+#include <atomic>
+#include <cstddef>
+#include <cstdint>
+#include <exception>
+#include <string>
+#include <vector>
+
+namespace depthfuse::lcmio {
+
+enum class DecodeResult {
+  kOk,
+  kMalformed,   // truncated, corrupt, or failing the type's own checks
+  kBadVersion,  // our type, but a protocol_version this build does not understand
+  kForeign,     // another LCM type on our channel (fingerprint mismatch)
+};
+const char* to_string(DecodeResult r);
+
+// The first 8 bytes of every LCM message: the type's fingerprint, big-endian. 0 if too short.
+uint64_t payload_fingerprint(const void* data, size_t size);
+
+// Decodes `data` as Msg (an lcm-gen type with a protocol_version field and PROTOCOL_VERSION).
+template <typename Msg>
+DecodeResult decode_message(const void* data, size_t size, Msg* out) {
+  if (data == nullptr || size < 8) return DecodeResult::kMalformed;
+  if (payload_fingerprint(data, size) != static_cast<uint64_t>(Msg::getHash()))
+    return DecodeResult::kForeign;
+  if (size > static_cast<size_t>(INT32_MAX)) return DecodeResult::kMalformed;
+  try {
+    const int used = out->decode(data, 0, static_cast<int>(size));
+    if (used < 0) return DecodeResult::kMalformed;
+    // Trailing bytes do not belong to any message of ours: someone truncated or glued payloads.
+    if (static_cast<size_t>(used) != size) return DecodeResult::kMalformed;
+  } catch (const std::exception&) {
+    return DecodeResult::kMalformed;
+  }
+  if (out->protocol_version != Msg::PROTOCOL_VERSION) return DecodeResult::kBadVersion;
+  return DecodeResult::kOk;
+}
+
+template <typename Msg>
+std::vector<uint8_t> encode_message(const Msg& msg) {
+  std::vector<uint8_t> buf(static_cast<size_t>(msg.getEncodedSize()));
+  msg.encode(buf.data(), 0, static_cast<int>(buf.size()));
+  return buf;
+}
+
+// What a receiver could not use, by reason. Thread-safe; copied into heartbeats.
+struct ReceiveCounters {
+  std::atomic<int64_t> received{0};      // decoded and accepted
+  std::atomic<int64_t> malformed{0};
+  std::atomic<int64_t> bad_version{0};
+  std::atomic<int64_t> foreign{0};
+  std::atomic<int64_t> lost{0};          // sequence gaps
+  std::atomic<int64_t> out_of_order{0};  // sequence went back (or repeated)
+
+  void count(DecodeResult r) {
+    switch (r) {
+      case DecodeResult::kOk: ++received; break;
+      case DecodeResult::kMalformed: ++malformed; break;
+      case DecodeResult::kBadVersion: ++bad_version; break;
+      case DecodeResult::kForeign: ++foreign; break;
+    }
+  }
+};
+
+// Follows a stream's sequence numbers: a jump forward by n means n-1 frames were lost; going back
+// (or a repeat) is out of order. A jump back by more than `restart_gap` is taken as the sender
+// restarting (e.g. --loop, a new capture process) and resynchronises instead of counting forever.
+class SequenceTracker {
+ public:
+  explicit SequenceTracker(int64_t restart_gap = 1000) : restart_gap_(restart_gap) {}
+
+  enum class Verdict { kFirst, kInOrder, kGap, kOutOfOrder, kRestart };
+  struct Observation {
+    Verdict verdict = Verdict::kFirst;
+    int64_t lost = 0;  // frames missing before this one
+  };
+  Observation observe(int64_t sequence);
+  void reset() { have_last_ = false; }
+  int64_t last() const { return last_; }
+
+ private:
+  int64_t restart_gap_;
+  bool have_last_ = false;
+  int64_t last_ = 0;
+};
+
+}  // namespace depthfuse::lcmio

@@ -1,0 +1,56 @@
+// Frame <-> depth_frame_t / color_frame_t, and poses <-> pose_t arrays. Depth goes over the wire as
+// uint16 counts of depth_unit_m (lossless for depth quantised to that unit: Kinect V2 and TUM data),
+// raw or zstd-compressed; colour raw, zstd or JPEG.
+#pragma once
+
+#include <cstdint>
+
+#include "depthfuse/color_frame_t.hpp"
+#include "depthfuse/depth_frame_t.hpp"
+#include "depthfuse/pose_t.hpp"
+#include "depthfuse/status.hpp"
+#include "depthfuse/types.hpp"
+
+namespace depthfuse::lcmio {
+
+struct DepthEncodeOptions {
+  bool compress = true;         // zstd; ~3x smaller for Kinect depth at level 1
+  int zstd_level = 1;           // 1 is fastest; higher levels cost CPU on the capture board
+  double depth_unit_m = 0.001;  // one count; 65535 counts = 65.5 m at 1 mm
+};
+
+enum class ColorEncoding { kRaw, kZstd, kJpeg };
+struct ColorEncodeOptions {
+  ColorEncoding encoding = ColorEncoding::kZstd;
+  int zstd_level = 1;
+  int jpeg_quality = 90;        // 0..100, only for kJpeg (lossy)
+};
+
+// Where the time of one encode/decode went, for the benchmark (milliseconds).
+struct CodecTiming {
+  double convert_ms = 0;   // float metres <-> uint16 counts
+  double compress_ms = 0;  // zstd or JPEG
+  double serialize_ms = 0; // filled by callers that encode the LCM message themselves
+};
+
+// Depth in metres -> counts: round(d / unit); depth <= 0, NaN or beyond 65535 counts becomes 0.
+// `publish_utime` is stamped by the caller just before publishing.
+Status encode_depth_frame(const Frame& frame, const DepthEncodeOptions& options,
+                          depthfuse::depth_frame_t* out, CodecTiming* timing = nullptr);
+
+// Checks the message (sizes, intrinsics, encoding, decompressed length) and fills the frame's
+// utime, sequence, serial, intrinsics, depth and pose hint. Colour is left untouched.
+Status decode_depth_frame(const depthfuse::depth_frame_t& msg, Frame* out,
+                          CodecTiming* timing = nullptr);
+
+// Fails on a frame without colour or whose colour size differs from its depth size.
+Status encode_color_frame(const Frame& frame, const ColorEncodeOptions& options,
+                          depthfuse::color_frame_t* out, CodecTiming* timing = nullptr);
+Status decode_color_frame(const depthfuse::color_frame_t& msg, ColorImage* out,
+                          CodecTiming* timing = nullptr);
+
+void pose_to_arrays(const Pose& T, double position_m[3], double orientation_wxyz[4]);
+// Normalises the quaternion; fails when it is not finite or has (near) zero norm.
+Result<Pose> pose_from_arrays(const double position_m[3], const double orientation_wxyz[4]);
+
+}  // namespace depthfuse::lcmio

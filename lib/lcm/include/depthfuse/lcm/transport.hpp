@@ -1,0 +1,107 @@
+// Opening LCM with a diagnosis instead of LCM's bare self-test failure, publishing and receiving
+// raw messages. One LcmTransport per process is typical; publish() may be called from any thread,
+// handle() from one thread at a time.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "depthfuse/status.hpp"
+
+typedef struct _lcm_t lcm_t;
+
+namespace depthfuse::lcmio {
+
+// The parts of an LCM URL that matter for the diagnosis. Only udpm is inspected; other providers
+// (memq, file, tcpq) are passed to LCM unchanged.
+struct LcmUrl {
+  std::string text;              // as given
+  std::string provider;          // "udpm", "memq", ...
+  std::string multicast_group;   // udpm: "239.255.76.67"
+  int port = 0;                  // udpm: 7667
+  int ttl = 0;                   // udpm: 0 keeps traffic on this host
+  int64_t recv_buf_size = -1;    // udpm: bytes asked for in the URL, -1 when absent
+};
+
+Result<LcmUrl> parse_lcm_url(const std::string& url);
+
+// The default URL of the appliance (same as LcmConfig::url).
+std::string default_lcm_url();
+
+// The URL with a udpm port chosen from a number (a process id), for tests that must not hear each
+// other: "udpm://239.255.76.67:<port>?ttl=0&recv_buf_size=4194304".
+std::string loopback_test_url(int seed);
+
+// net.core.rmem_max in bytes (/proc/sys/net/core/rmem_max), -1 when it cannot be read.
+int64_t read_rmem_max();
+
+// What udpm needs from the host, checked before LCM is asked:
+//  - a route to the multicast group (`ip route get <group>`): without one LCM's self-test fails;
+//  - net.core.rmem_max at least the recv_buf_size of the URL, else the kernel caps the buffer and
+//    large frames (7-14 UDP fragments each) are lost.
+struct LcmDiagnosis {
+  Status route;                        // ok, or why there is none and how to add one
+  std::vector<std::string> warnings;   // receive buffer problems
+};
+LcmDiagnosis diagnose_lcm_url(const LcmUrl& url);
+
+class LcmTransport {
+ public:
+  // channel, payload, size, receive time (microseconds, LCM's clock = wall clock)
+  using Handler = std::function<void(const std::string& channel, const uint8_t* data, size_t size,
+                                     int64_t recv_utime)>;
+
+  // Opens LCM. On failure the status says why and how to fix it (route, URL syntax, ...).
+  // Warnings (receive buffer) go to *warnings when given.
+  static Result<std::unique_ptr<LcmTransport>> open(const std::string& url,
+                                                    std::vector<std::string>* warnings = nullptr);
+  ~LcmTransport();
+  LcmTransport(const LcmTransport&) = delete;
+  LcmTransport& operator=(const LcmTransport&) = delete;
+
+  const std::string& url() const { return url_; }
+
+  Status publish(const std::string& channel, const void* data, size_t size);
+
+  // Encodes an lcm-gen message and publishes it. Thread-safe.
+  template <typename Msg>
+  Status publish_message(const std::string& channel, const Msg& msg) {
+    std::lock_guard<std::mutex> lock(encode_mutex_);
+    const int size = msg.getEncodedSize();
+    if (size < 0) return internal_error("cannot size a message for " + channel);
+    encode_buffer_.resize(static_cast<size_t>(size));
+    if (msg.encode(encode_buffer_.data(), 0, size) != size)
+      return internal_error("cannot encode a message for " + channel);
+    return publish(channel, encode_buffer_.data(), encode_buffer_.size());
+  }
+
+  // channel_regex as in lcm_subscribe ("DEPTHFUSE_.*"). Call before handle() runs.
+  void subscribe(const std::string& channel_regex, Handler handler);
+
+  // Waits up to timeout_ms for one message and dispatches it. Returns true when one was handled,
+  // false on timeout.
+  Result<bool> handle(int timeout_ms);
+  // Dispatches messages until `budget_ms` has passed.
+  Status handle_for(int budget_ms);
+
+  int fileno() const;
+  lcm_t* raw() { return lcm_; }
+
+ private:
+  LcmTransport(lcm_t* lcm, std::string url) : lcm_(lcm), url_(std::move(url)) {}
+  static void dispatch(const void* rbuf, const char* channel, void* user);
+
+  lcm_t* lcm_ = nullptr;
+  std::string url_;
+  std::mutex publish_mutex_;
+  std::mutex encode_mutex_;
+  std::vector<uint8_t> encode_buffer_;
+  std::vector<std::unique_ptr<Handler>> handlers_;
+};
+
+}  // namespace depthfuse::lcmio

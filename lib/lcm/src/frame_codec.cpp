@@ -1,0 +1,303 @@
+#include "depthfuse/lcm/frame_codec.hpp"
+
+#include <zstd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+namespace depthfuse::lcmio {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+constexpr int kMaxImageSide = 8192;
+
+inline uint16_t depth_to_count(float depth_m, double inv_unit) {
+  if (!(depth_m > 0.0f)) return 0;  // also NaN
+  const double c = std::nearbyint(static_cast<double>(depth_m) * inv_unit);
+  return c >= 1.0 && c <= 65535.0 ? static_cast<uint16_t>(c) : 0;
+}
+
+inline float count_to_depth(uint16_t count, double unit_m) {
+  return static_cast<float>(count * unit_m);
+}
+
+// uint16 to little-endian bytes (the wire layout on every host).
+void store_le16(const std::vector<uint16_t>& in, uint8_t* out) {
+  for (size_t i = 0; i < in.size(); ++i) {
+    out[2 * i] = static_cast<uint8_t>(in[i] & 0xff);
+    out[2 * i + 1] = static_cast<uint8_t>(in[i] >> 8);
+  }
+}
+
+Status zstd_compress(const uint8_t* src, size_t size, int level, std::vector<uint8_t>* out) {
+  out->resize(ZSTD_compressBound(size));
+  const size_t n = ZSTD_compress(out->data(), out->size(), src, size, level);
+  if (ZSTD_isError(n)) return internal_error(std::string("zstd: ") + ZSTD_getErrorName(n));
+  out->resize(n);
+  return Status::ok();
+}
+
+// Inflates exactly `expected` bytes or fails: the declared content size must match too.
+Status zstd_decompress(const uint8_t* src, size_t size, size_t expected, std::vector<uint8_t>* out,
+                       const char* what) {
+  const unsigned long long declared = ZSTD_getFrameContentSize(src, size);
+  if (declared == ZSTD_CONTENTSIZE_ERROR)
+    return corrupt(std::string(what) + ": the zstd data is not a zstd frame");
+  if (declared != ZSTD_CONTENTSIZE_UNKNOWN && declared != expected)
+    return corrupt(std::string(what) + ": zstd data inflates to " + std::to_string(declared) +
+                   " bytes, the image needs " + std::to_string(expected));
+  out->resize(expected);
+  const size_t n = ZSTD_decompress(out->data(), expected, src, size);
+  if (ZSTD_isError(n))
+    return corrupt(std::string(what) + ": zstd: " + ZSTD_getErrorName(n));
+  if (n != expected)
+    return corrupt(std::string(what) + ": zstd data inflated to " + std::to_string(n) +
+                   " bytes, the image needs " + std::to_string(expected));
+  return Status::ok();
+}
+
+bool finite_all(const double* v, int n) {
+  for (int i = 0; i < n; ++i)
+    if (!std::isfinite(v[i])) return false;
+  return true;
+}
+
+}  // namespace
+
+void pose_to_arrays(const Pose& T, double position_m[3], double orientation_wxyz[4]) {
+  const Eigen::Vector3d t = T.translation();
+  const Eigen::Quaterniond q(T.rotation());
+  for (int i = 0; i < 3; ++i) position_m[i] = t[i];
+  orientation_wxyz[0] = q.w();
+  orientation_wxyz[1] = q.x();
+  orientation_wxyz[2] = q.y();
+  orientation_wxyz[3] = q.z();
+}
+
+Result<Pose> pose_from_arrays(const double position_m[3], const double orientation_wxyz[4]) {
+  if (!finite_all(position_m, 3) || !finite_all(orientation_wxyz, 4))
+    return corrupt("pose has non-finite values");
+  Eigen::Quaterniond q(orientation_wxyz[0], orientation_wxyz[1], orientation_wxyz[2],
+                       orientation_wxyz[3]);
+  if (q.norm() < 1e-6) return corrupt("pose orientation is not a rotation (zero quaternion)");
+  q.normalize();
+  Pose T = Pose::Identity();
+  T.linear() = q.toRotationMatrix();
+  T.translation() = Eigen::Vector3d(position_m[0], position_m[1], position_m[2]);
+  return T;
+}
+
+Status encode_depth_frame(const Frame& frame, const DepthEncodeOptions& options,
+                          depthfuse::depth_frame_t* out, CodecTiming* timing) {
+  const DepthImage& d = frame.depth;
+  if (d.width <= 0 || d.height <= 0 || d.depth_m.size() != static_cast<size_t>(d.width) * d.height)
+    return invalid_argument("depth image is empty or its size does not match its dimensions");
+  if (!(options.depth_unit_m > 0.0) || !std::isfinite(options.depth_unit_m))
+    return invalid_argument("depth_unit_m must be positive");
+
+  out->protocol_version = depthfuse::depth_frame_t::PROTOCOL_VERSION;
+  out->utime = frame.utime;
+  out->publish_utime = 0;
+  out->sequence = frame.sequence;
+  out->sensor_serial = frame.sensor_serial;
+  out->intrinsics.width = frame.intrinsics.width;
+  out->intrinsics.height = frame.intrinsics.height;
+  out->intrinsics.fx = frame.intrinsics.fx;
+  out->intrinsics.fy = frame.intrinsics.fy;
+  out->intrinsics.cx = frame.intrinsics.cx;
+  out->intrinsics.cy = frame.intrinsics.cy;
+  out->depth_unit_m = options.depth_unit_m;
+
+  auto t0 = Clock::now();
+  const size_t n = d.depth_m.size();
+  thread_local std::vector<uint16_t> counts;
+  thread_local std::vector<uint8_t> raw;
+  counts.resize(n);
+  const double inv_unit = 1.0 / options.depth_unit_m;
+  for (size_t i = 0; i < n; ++i) counts[i] = depth_to_count(d.depth_m[i], inv_unit);
+  if (timing) timing->convert_ms += ms_since(t0);
+
+  t0 = Clock::now();
+  if (options.compress) {
+    raw.resize(2 * n);
+    store_le16(counts, raw.data());
+    DF_RETURN_IF_ERROR(zstd_compress(raw.data(), raw.size(), options.zstd_level, &out->data));
+    out->encoding = depthfuse::depth_frame_t::ENCODING_ZSTD_UINT16;
+  } else {
+    out->data.resize(2 * n);
+    store_le16(counts, out->data.data());
+    out->encoding = depthfuse::depth_frame_t::ENCODING_RAW_UINT16;
+  }
+  out->data_size = static_cast<int32_t>(out->data.size());
+  if (timing && options.compress) timing->compress_ms += ms_since(t0);
+
+  out->has_pose_hint = frame.T_world_cam_hint.has_value();
+  if (frame.T_world_cam_hint) {
+    pose_to_arrays(*frame.T_world_cam_hint, out->hint_position_m, out->hint_orientation_wxyz);
+  } else {
+    for (double& v : out->hint_position_m) v = 0;
+    out->hint_orientation_wxyz[0] = 1;
+    out->hint_orientation_wxyz[1] = out->hint_orientation_wxyz[2] = out->hint_orientation_wxyz[3] = 0;
+  }
+  return Status::ok();
+}
+
+Status decode_depth_frame(const depthfuse::depth_frame_t& msg, Frame* out, CodecTiming* timing) {
+  const auto& in = msg.intrinsics;
+  const std::string what = "depth frame " + std::to_string(msg.sequence);
+  if (in.width <= 0 || in.height <= 0 || in.width > kMaxImageSide || in.height > kMaxImageSide)
+    return corrupt(what + ": image size " + std::to_string(in.width) + "x" +
+                   std::to_string(in.height) + " is out of range");
+  const double k[4] = {in.fx, in.fy, in.cx, in.cy};
+  if (!finite_all(k, 4) || !(in.fx > 0) || !(in.fy > 0))
+    return corrupt(what + ": intrinsics are not valid (fx, fy must be positive)");
+  if (!(msg.depth_unit_m > 0.0) || !std::isfinite(msg.depth_unit_m))
+    return corrupt(what + ": depth_unit_m is not positive");
+  if (msg.sequence < 0 || msg.sequence > std::numeric_limits<uint32_t>::max())
+    return corrupt(what + ": sequence number out of range");
+  if (static_cast<size_t>(msg.data_size) != msg.data.size())
+    return corrupt(what + ": data_size disagrees with the data");
+
+  const size_t n = static_cast<size_t>(in.width) * in.height;
+  const uint8_t* bytes = nullptr;
+  thread_local std::vector<uint8_t> inflated;
+  auto t0 = Clock::now();
+  if (msg.encoding == depthfuse::depth_frame_t::ENCODING_RAW_UINT16) {
+    if (msg.data.size() != 2 * n)
+      return corrupt(what + ": " + std::to_string(msg.data.size()) + " bytes of raw depth, " +
+                     std::to_string(in.width) + "x" + std::to_string(in.height) + " needs " +
+                     std::to_string(2 * n));
+    bytes = msg.data.data();
+  } else if (msg.encoding == depthfuse::depth_frame_t::ENCODING_ZSTD_UINT16) {
+    DF_RETURN_IF_ERROR(zstd_decompress(msg.data.data(), msg.data.size(), 2 * n, &inflated,
+                                       what.c_str()));
+    bytes = inflated.data();
+    if (timing) timing->compress_ms += ms_since(t0);
+  } else {
+    return corrupt(what + ": unknown depth encoding " + std::to_string(msg.encoding));
+  }
+  Pose hint = Pose::Identity();
+  if (msg.has_pose_hint) {
+    auto p = pose_from_arrays(msg.hint_position_m, msg.hint_orientation_wxyz);
+    if (!p) return p.status().with_context(what + ": pose hint");
+    hint = *p;
+  }
+
+  t0 = Clock::now();
+  out->utime = msg.utime;
+  out->sequence = static_cast<uint32_t>(msg.sequence);
+  out->sensor_serial = msg.sensor_serial;
+  out->intrinsics.width = in.width;
+  out->intrinsics.height = in.height;
+  out->intrinsics.fx = in.fx;
+  out->intrinsics.fy = in.fy;
+  out->intrinsics.cx = in.cx;
+  out->intrinsics.cy = in.cy;
+  out->depth.width = in.width;
+  out->depth.height = in.height;
+  out->depth.depth_m.resize(n);
+  const double unit = msg.depth_unit_m;
+  float* dst = out->depth.depth_m.data();
+  for (size_t i = 0; i < n; ++i) {
+    const uint16_t c = static_cast<uint16_t>(bytes[2 * i] | (bytes[2 * i + 1] << 8));
+    dst[i] = count_to_depth(c, unit);
+  }
+  if (msg.has_pose_hint)
+    out->T_world_cam_hint = hint;
+  else
+    out->T_world_cam_hint.reset();
+  if (timing) timing->convert_ms += ms_since(t0);
+  return Status::ok();
+}
+
+Status encode_color_frame(const Frame& frame, const ColorEncodeOptions& options,
+                          depthfuse::color_frame_t* out, CodecTiming* timing) {
+  const ColorImage& c = frame.color;
+  if (c.empty()) return invalid_argument("frame has no colour image");
+  if (c.width <= 0 || c.height <= 0 || c.rgb.size() != static_cast<size_t>(c.width) * c.height * 3)
+    return invalid_argument("colour image size does not match its dimensions");
+  out->protocol_version = depthfuse::color_frame_t::PROTOCOL_VERSION;
+  out->utime = frame.utime;
+  out->sequence = frame.sequence;
+  out->sensor_serial = frame.sensor_serial;
+  out->width = c.width;
+  out->height = c.height;
+  auto t0 = Clock::now();
+  switch (options.encoding) {
+    case ColorEncoding::kRaw:
+      out->encoding = depthfuse::color_frame_t::ENCODING_RAW_RGB8;
+      out->data = c.rgb;
+      break;
+    case ColorEncoding::kZstd:
+      out->encoding = depthfuse::color_frame_t::ENCODING_ZSTD_RGB8;
+      DF_RETURN_IF_ERROR(zstd_compress(c.rgb.data(), c.rgb.size(), options.zstd_level, &out->data));
+      break;
+    case ColorEncoding::kJpeg: {
+      out->encoding = depthfuse::color_frame_t::ENCODING_JPEG;
+      cv::Mat rgb(c.height, c.width, CV_8UC3, const_cast<uint8_t*>(c.rgb.data()));
+      cv::Mat bgr;
+      cv::cvtColor(rgb, bgr, cv::COLOR_RGB2BGR);
+      std::vector<uchar> jpeg;
+      if (!cv::imencode(".jpg", bgr, jpeg, {cv::IMWRITE_JPEG_QUALITY, options.jpeg_quality}))
+        return internal_error("JPEG encoding of the colour image failed");
+      out->data.assign(jpeg.begin(), jpeg.end());
+      break;
+    }
+  }
+  out->data_size = static_cast<int32_t>(out->data.size());
+  if (timing) timing->compress_ms += ms_since(t0);
+  return Status::ok();
+}
+
+Status decode_color_frame(const depthfuse::color_frame_t& msg, ColorImage* out,
+                          CodecTiming* timing) {
+  const std::string what = "colour frame " + std::to_string(msg.sequence);
+  if (msg.width <= 0 || msg.height <= 0 || msg.width > kMaxImageSide || msg.height > kMaxImageSide)
+    return corrupt(what + ": image size out of range");
+  if (static_cast<size_t>(msg.data_size) != msg.data.size())
+    return corrupt(what + ": data_size disagrees with the data");
+  const size_t bytes = static_cast<size_t>(msg.width) * msg.height * 3;
+  auto t0 = Clock::now();
+  if (msg.encoding == depthfuse::color_frame_t::ENCODING_RAW_RGB8) {
+    if (msg.data.size() != bytes) return corrupt(what + ": raw RGB8 data has the wrong size");
+    out->rgb = msg.data;
+  } else if (msg.encoding == depthfuse::color_frame_t::ENCODING_ZSTD_RGB8) {
+    DF_RETURN_IF_ERROR(zstd_decompress(msg.data.data(), msg.data.size(), bytes, &out->rgb,
+                                       what.c_str()));
+  } else if (msg.encoding == depthfuse::color_frame_t::ENCODING_JPEG) {
+    cv::Mat bgr;
+    try {
+      bgr = cv::imdecode(cv::Mat(1, static_cast<int>(msg.data.size()), CV_8UC1,
+                                 const_cast<uint8_t*>(msg.data.data())),
+                         cv::IMREAD_COLOR);
+    } catch (const cv::Exception&) {
+      bgr.release();
+    }
+    if (bgr.empty()) return corrupt(what + ": the JPEG data does not decode");
+    if (bgr.cols != msg.width || bgr.rows != msg.height)
+      return corrupt(what + ": the JPEG is " + std::to_string(bgr.cols) + "x" +
+                     std::to_string(bgr.rows) + ", the message says " + std::to_string(msg.width) +
+                     "x" + std::to_string(msg.height));
+    cv::Mat rgb;
+    cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
+    out->rgb.assign(rgb.data, rgb.data + bytes);
+  } else {
+    return corrupt(what + ": unknown colour encoding " + std::to_string(msg.encoding));
+  }
+  out->width = msg.width;
+  out->height = msg.height;
+  if (timing) timing->compress_ms += ms_since(t0);
+  return Status::ok();
+}
+
+}  // namespace depthfuse::lcmio
