@@ -1,0 +1,359 @@
+// Loads config/depthfuse.toml (see the file itself for what every key means and where the default
+// comes from). The rules here are the ranges a daemon can run with; anything else is an error with
+// its file, line and key, and an unknown key is an error too (a typo must not be silently ignored).
+#include "depthfuse/app_config.hpp"
+
+#include <sys/stat.h>
+
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <exception>
+#include <fstream>
+#include <sstream>
+
+#include "app_config_reader.hpp"
+#include "app_config_trace.hpp"
+
+namespace depthfuse {
+namespace {
+
+using app_config_detail::at_least;
+using app_config_detail::closed;
+using app_config_detail::Diagnostics;
+using app_config_detail::format_number;
+using app_config_detail::KeyTrace;
+using app_config_detail::non_empty;
+using app_config_detail::non_negative;
+using app_config_detail::one_of;
+using app_config_detail::open_closed;
+using app_config_detail::positive;
+using app_config_detail::StringRule;
+using app_config_detail::TableReader;
+
+// A config file is a few kilobytes; anything this large is not one.
+constexpr std::streamoff kMaxConfigBytes = 1 << 20;
+
+// Reports `hi_key` when it does not exceed `lo_key`.
+void require_greater(TableReader& r, const char* hi_key, double hi, const char* lo_key, double lo) {
+  if (!(hi > lo)) {
+    r.fail(hi_key, std::string("must be > ") + lo_key + " (" + format_number(lo) + "), got " +
+                       format_number(hi));
+  }
+}
+
+void read_sensor(TableReader& r, SensorModelConfig* s) {
+  r.read("lambda1", &s->lambda1, positive());
+  r.read("lambda2", &s->lambda2, positive());
+  r.read("beta_x_rad", &s->beta_x_rad, non_negative());
+  r.read("beta_y_rad", &s->beta_y_rad, non_negative());
+  r.read("alpha0_m", &s->alpha0_m, app_config_detail::any_number());
+  r.read("alpha1", &s->alpha1, app_config_detail::any_number());
+  r.read("alpha2_per_m", &s->alpha2_per_m, app_config_detail::any_number());
+  r.read("min_depth_m", &s->min_depth_m, positive());
+  r.read("max_depth_m", &s->max_depth_m, positive());
+  r.reject_unknown();
+  if (!r.clean()) return;  // the rules below assume each value is sane
+
+  require_greater(r, "max_depth_m", s->max_depth_m, "min_depth_m", s->min_depth_m);
+  // The axial standard deviation alpha2 z^2 + alpha1 z + alpha0 must stay positive over the
+  // working range, or the covariance (and with it the fusion weights) degenerates. Its minimum on
+  // [min, max] is at an end or at the vertex of the parabola.
+  auto sigma = [s](double z) { return s->alpha2_per_m * z * z + s->alpha1 * z + s->alpha0_m; };
+  double z_worst = s->min_depth_m;
+  for (double z : {s->max_depth_m, s->alpha2_per_m != 0.0 ? -s->alpha1 / (2.0 * s->alpha2_per_m)
+                                                          : s->min_depth_m}) {
+    if (z >= s->min_depth_m && z <= s->max_depth_m && sigma(z) < sigma(z_worst)) z_worst = z;
+  }
+  if (!(sigma(z_worst) > 0.0)) {
+    r.fail("alpha0_m", "the axial noise alpha2_per_m z^2 + alpha1 z + alpha0_m must be > 0 over "
+                       "[min_depth_m, max_depth_m], but it is " + format_number(sigma(z_worst)) +
+                       " m at z = " + format_number(z_worst) + " m");
+  }
+}
+
+void read_prefilter(TableReader& r, PrefilterConfig* p) {
+  r.read("enabled", &p->enabled);
+  r.read("gamma", &p->gamma, positive());
+  r.read("neighbour_rank", &p->neighbour_rank, at_least(1));
+  r.read("window_radius_px", &p->window_radius_px, at_least(1));
+  r.reject_unknown();
+  if (!r.clean()) return;
+  const int side = 2 * p->window_radius_px + 1;
+  const int neighbours = side * side - 1;
+  if (p->neighbour_rank > neighbours) {
+    r.fail("neighbour_rank", "must be <= " + std::to_string(neighbours) +
+                                 " (the neighbours in a window of radius window_radius_px = " +
+                                 std::to_string(p->window_radius_px) + "), got " +
+                                 std::to_string(p->neighbour_rank));
+  }
+}
+
+void read_fusion(TableReader& r, FusionConfig* f) {
+  r.read("chunk_size_m", &f->chunk_size_m, positive());
+  r.read("visibility_range_fraction", &f->visibility_range_fraction, open_closed(0.0, 1.0));
+  r.read("candidate_radius_px", &f->candidate_radius_px, non_negative());
+  r.read("normal_radius_px", &f->normal_radius_px, at_least(1));
+  r.reject_unknown();
+}
+
+void read_postfilter(TableReader& r, PostfilterConfig* p) {
+  r.read("enabled", &p->enabled);
+  r.reject_unknown();
+}
+
+void read_registration(TableReader& r, RegistrationConfig* g) {
+  r.read("enabled", &g->enabled);
+  r.read("iterations", &g->iterations, non_negative());
+  r.read("subsample_px", &g->subsample_px, at_least(1));
+  r.read("max_correspondence_m", &g->max_correspondence_m, positive());
+  r.read("max_normal_angle_deg", &g->max_normal_angle_deg, open_closed(0.0, 180.0));
+  r.read("huber_delta_m", &g->huber_delta_m, positive());
+  // A rigid pose has 6 degrees of freedom: fewer pairs cannot determine it.
+  r.read("min_correspondences", &g->min_correspondences, at_least(6));
+  r.read("tracking_levels", &g->tracking_levels, closed(1, 8));  // pixel steps grow as 2^level
+  r.read("tracking_iterations_per_level", &g->tracking_iterations_per_level, non_negative());
+  r.reject_unknown();
+}
+
+void read_pipeline(TableReader& r, PipelineConfig* p) {
+  std::string method = to_string(p->method);
+  r.read("method", &method, [](const std::string& s) -> std::optional<std::string> {
+    Method m;
+    if (parse_method(s, &m)) return std::nullopt;
+    return "must be one of \"full\", \"ylimaki17\", \"kyostila13\", got \"" + s + "\"";
+  });
+  Method parsed;
+  if (parse_method(method, &parsed)) p->method = parsed;
+  r.read("outer_iterations", &p->outer_iterations, non_negative());
+  r.read("converged_translation_m", &p->converged_translation_m, non_negative());
+  r.read("converged_rotation_deg", &p->converged_rotation_deg, non_negative());
+  r.reject_unknown();
+}
+
+// An LCM URL is "<provider>://<address>[?options]".
+std::optional<std::string> check_lcm_url(const std::string& url) {
+  if (url.empty()) return std::string("must not be empty");
+  const size_t sep = url.find("://");
+  if (sep == std::string::npos || sep == 0) {
+    return "must look like \"udpm://239.255.76.67:7667?ttl=0\", got \"" + url + "\"";
+  }
+  return std::nullopt;
+}
+
+void read_lcm(TableReader& r, LcmConfig* l) {
+  r.read("url", &l->url, check_lcm_url);
+  r.reject_unknown();
+}
+
+// The frame source specs that open_frame_source understands (drivers/include/.../source_factory.hpp).
+std::optional<std::string> check_source(const std::string& spec) {
+  const size_t colon = spec.find(':');
+  const std::string kind = spec.substr(0, colon);
+  const std::string arg = colon == std::string::npos ? "" : spec.substr(colon + 1);
+  if (kind == "kinect2") return std::nullopt;  // the serial is optional
+  if (kind == "tum" || kind == "synthetic" || kind == "lcmlog") {
+    if (!arg.empty()) return std::nullopt;
+    return "\"" + kind + ":\" needs an argument after the colon, got \"" + spec + "\"";
+  }
+  return "must be tum:<folder>, synthetic:<scene>, kinect2[:<serial>] or lcmlog:<file>, got \"" +
+         spec + "\"";
+}
+
+void read_capture(TableReader& r, CaptureConfig* c) {
+  r.read("source", &c->source, check_source);
+  r.read("rate_hz", &c->rate_hz, non_negative());
+  r.read("loop", &c->loop);
+  r.read("kinect2_pipeline", &c->kinect2_pipeline, one_of({"cpu", "opengl", "opencl", "cuda"}));
+  r.read("kinect2_min_depth_m", &c->kinect2_min_depth_m, positive());
+  r.read("kinect2_max_depth_m", &c->kinect2_max_depth_m, positive());
+  r.read("kinect2_bilateral_filter", &c->kinect2_bilateral_filter);
+  r.read("kinect2_edge_aware_filter", &c->kinect2_edge_aware_filter);
+  r.read("kinect2_stall_timeout_s", &c->kinect2_stall_timeout_s, positive());
+  r.reject_unknown();
+  if (!r.clean()) return;
+  require_greater(r, "kinect2_max_depth_m", c->kinect2_max_depth_m, "kinect2_min_depth_m",
+                  c->kinect2_min_depth_m);
+}
+
+void read_fusion_daemon(TableReader& r, FusionDaemonConfig* f) {
+  r.read("queue_capacity_frames", &f->queue_capacity_frames, at_least(1));
+  r.read("scan_dir", &f->scan_dir, non_empty());
+  r.read("memory_budget_mib", &f->memory_budget_mib, positive());
+  r.read("evict_distance_m", &f->evict_distance_m, positive());
+  r.read("checkpoint_interval_s", &f->checkpoint_interval_s, positive());
+  r.read("keyframe_every_n_frames", &f->keyframe_every_n_frames, at_least(1));
+  r.read("heartbeat_rate_hz", &f->heartbeat_rate_hz, positive());
+  r.reject_unknown();
+}
+
+void read_monitor(TableReader& r, MonitorConfig* m) {
+  r.read("stale_after_s", &m->stale_after_s, positive());
+  r.read("publish_rate_hz", &m->publish_rate_hz, positive());
+  r.reject_unknown();
+}
+
+void read_device(TableReader& r, const SensorModelConfig& sensor_defaults, DeviceCalibration* d) {
+  r.require("serial");
+  r.read("serial", &d->serial, non_empty());
+  CameraIntrinsics& k = d->intrinsics;
+  r.read("width", &k.width, at_least(1));
+  r.read("height", &k.height, at_least(1));
+  r.read("fx", &k.fx, positive());
+  r.read("fy", &k.fy, positive());
+  r.read("cx", &k.cx, non_negative());
+  r.read("cy", &k.cy, non_negative());
+  if (const toml::table* t = r.table("sensor")) {
+    TableReader sensor(t, r.full_key("sensor"), t->source(), r.diagnostics(), r.trace());
+    SensorModelConfig s = sensor_defaults;  // [device.sensor] overrides [sensor] key by key
+    read_sensor(sensor, &s);
+    d->sensor = s;
+  }
+  r.reject_unknown();
+  if (!r.clean()) return;
+  // The principal point lies on the image.
+  if (k.cx > k.width - 1) {
+    r.fail("cx", "must be <= width - 1 (" + std::to_string(k.width - 1) + "), got " + format_number(k.cx));
+  }
+  if (k.cy > k.height - 1) {
+    r.fail("cy", "must be <= height - 1 (" + std::to_string(k.height - 1) + "), got " + format_number(k.cy));
+  }
+}
+
+void read_devices(TableReader& top, AppConfig* config) {
+  const toml::array* devices = top.array_of_tables("device");
+  if (devices == nullptr) return;
+  for (size_t i = 0; i < devices->size(); ++i) {
+    const toml::table* t = (*devices)[i].as_table();
+    const std::string path = "device[" + std::to_string(i) + "]";
+    if (t == nullptr) continue;  // array_of_tables() already reported it
+    TableReader r(t, path, t->source(), top.diagnostics(), top.trace());
+    DeviceCalibration d;
+    d.intrinsics = CameraIntrinsics::kinect_v2();
+    read_device(r, config->reconstruction.sensor, &d);
+    if (!d.serial.empty()) {
+      for (size_t j = 0; j < config->devices.size(); ++j) {
+        if (config->devices[j].serial == d.serial) {
+          r.fail("serial", "duplicate serial \"" + d.serial + "\" (also in device[" +
+                               std::to_string(j) + "])");
+        }
+      }
+    }
+    config->devices.push_back(std::move(d));
+  }
+}
+
+Status syntax_error(const std::string& origin, const toml::source_region& where,
+                    std::string_view description) {
+  std::string m = origin;
+  if (where.begin.line > 0) m += ":" + std::to_string(where.begin.line);
+  m += ": TOML syntax error";
+  if (where.begin.column > 0) m += " at column " + std::to_string(where.begin.column);
+  m += ": " + std::string(description);
+  return invalid_argument(m);
+}
+
+Result<AppConfig> parse(const std::string& text, const std::string& origin,
+                        std::vector<KeyTrace>* trace) {
+  toml::table doc;
+#if TOML_EXCEPTIONS
+  try {
+    doc = toml::parse(text, origin);
+  } catch (const toml::parse_error& e) {
+    return syntax_error(origin, e.source(), e.description());
+  }
+#else
+  toml::parse_result parsed = toml::parse(text, origin);
+  if (!parsed) return syntax_error(origin, parsed.error().source(), parsed.error().description());
+  doc = std::move(parsed).table();
+#endif
+
+  AppConfig config;
+  Diagnostics diagnostics(origin);
+  TableReader top(&doc, "", doc.source(), &diagnostics, trace);
+  // Each section is read from its table, or keeps its defaults when the table is absent.
+  auto section = [&](const char* name, auto&& read) {
+    const toml::table* t = top.table(name);
+    TableReader r(t, name, t != nullptr ? t->source() : doc.source(), &diagnostics, trace);
+    read(r);
+  };
+  ReconstructionConfig& rc = config.reconstruction;
+  section("sensor", [&](TableReader& r) { read_sensor(r, &rc.sensor); });
+  section("prefilter", [&](TableReader& r) { read_prefilter(r, &rc.prefilter); });
+  section("fusion", [&](TableReader& r) { read_fusion(r, &rc.fusion); });
+  section("postfilter", [&](TableReader& r) { read_postfilter(r, &rc.postfilter); });
+  section("registration", [&](TableReader& r) { read_registration(r, &rc.registration); });
+  section("pipeline", [&](TableReader& r) { read_pipeline(r, &rc.pipeline); });
+  section("lcm", [&](TableReader& r) { read_lcm(r, &config.lcm); });
+  section("capture", [&](TableReader& r) { read_capture(r, &config.capture); });
+  section("fusion_daemon", [&](TableReader& r) { read_fusion_daemon(r, &config.fusion); });
+  section("monitor", [&](TableReader& r) { read_monitor(r, &config.monitor); });
+  read_devices(top, &config);
+  top.reject_unknown();
+
+  // A daemon is stale when its heartbeat is late; a threshold below the heartbeat period would
+  // flag a healthy daemon all the time.
+  if (diagnostics.ok()) {
+    const double heartbeat_period_s = 1.0 / config.fusion.heartbeat_rate_hz;
+    if (!(config.monitor.stale_after_s > heartbeat_period_s)) {
+      const toml::table* monitor = doc["monitor"].as_table();
+      TableReader r(monitor, "monitor", doc.source(), &diagnostics, nullptr);
+      r.fail("stale_after_s", "must be > the heartbeat period 1 / fusion_daemon.heartbeat_rate_hz (" +
+                                  format_number(heartbeat_period_s) + " s), got " +
+                                  format_number(config.monitor.stale_after_s));
+    }
+  }
+  DF_RETURN_IF_ERROR(diagnostics.status());
+  return config;
+}
+
+Result<AppConfig> parse_guarded(const std::string& text, const std::string& origin,
+                                std::vector<KeyTrace>* trace) {
+  // Nothing may escape the API: an allocation failure or a parser bug becomes a Status.
+  try {
+    return parse(text, origin, trace);
+  } catch (const std::exception& e) {
+    return internal_error(origin + ": reading the config failed: " + e.what());
+  } catch (...) {
+    return internal_error(origin + ": reading the config failed");
+  }
+}
+
+}  // namespace
+
+namespace app_config_detail {
+Result<AppConfig> parse_app_config_traced(const std::string& toml_text, const std::string& origin,
+                                          std::vector<KeyTrace>* trace) {
+  return parse_guarded(toml_text, origin, trace);
+}
+}  // namespace app_config_detail
+
+Result<AppConfig> parse_app_config(const std::string& toml_text, const std::string& origin) {
+  return parse_guarded(toml_text, origin, nullptr);
+}
+
+Result<AppConfig> load_app_config(const std::string& path) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0) {
+    const int err = errno;
+    const std::string why = std::strerror(err);
+    if (err == ENOENT) return not_found("cannot read config " + path + ": " + why);
+    return io_error("cannot read config " + path + ": " + why);
+  }
+  if (!S_ISREG(st.st_mode)) return invalid_argument("config " + path + " is not a regular file");
+  if (st.st_size > kMaxConfigBytes) {
+    return invalid_argument("config " + path + " is " + std::to_string(st.st_size) +
+                            " bytes; a config file is at most " + std::to_string(kMaxConfigBytes));
+  }
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return io_error("cannot open config " + path + ": " + std::strerror(errno));
+  std::ostringstream text;
+  text << in.rdbuf();
+  if (in.bad()) return io_error("reading config " + path + " failed");
+
+  Result<AppConfig> config = parse_app_config(text.str(), path);
+  if (config.is_ok()) config->source_path = path;
+  return config;
+}
+
+}  // namespace depthfuse
