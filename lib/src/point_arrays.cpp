@@ -1,6 +1,9 @@
 #include "depthfuse/point_arrays.hpp"
 
 #include <cmath>
+#include <limits>
+
+#include <Eigen/LU>
 
 namespace depthfuse {
 

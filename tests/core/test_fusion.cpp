@@ -1,0 +1,116 @@
+// Fusion against analytic expectations: the merge rule, uncertainty, violations, post-filter.
+#include <gtest/gtest.h>
+
+#include "analytic.hpp"
+#include "depthfuse/fusion.hpp"
+
+using namespace depthfuse;
+
+namespace {
+
+Eigen::Matrix3f iso_information(float sigma_m) {
+  return Eigen::Matrix3f::Identity() / (sigma_m * sigma_m);
+}
+
+struct Fixture {
+  SensorModelConfig sensor;
+  FusionConfig fusion;
+  PointMap map{0.5};
+  Fuser fuser{sensor, fusion};
+  MeasurementImage m;
+  uint32_t frame_id = 1;
+
+  FusionStats fuse(const Frame& f, const Pose& T) {
+    EXPECT_TRUE(backproject(f, sensor, fusion, &m).is_ok());
+    return fuser.fuse(m, nullptr, T, frame_id++, &map);
+  }
+};
+
+double mean_uncertainty(const PointMap& map) {
+  const PointArrays a = map.gather();
+  double s = 0;
+  for (size_t i = 0; i < a.size(); ++i) s += uncertainty_m(a, i);
+  return s / a.size();
+}
+
+}  // namespace
+
+TEST(MergeRule, EqualCertaintyMeetsHalfwayAndShrinks) {
+  const Eigen::Vector3f a(0, 0, 2), b(0, 0, 2.002f);
+  Eigen::Vector3f p;
+  Eigen::Matrix3f L;
+  ASSERT_TRUE(merge_measurement(a, iso_information(0.003f), b, iso_information(0.003f), &p, &L));
+  EXPECT_NEAR(p.z(), 2.001f, 1e-6f);
+  // Two equal measurements: the variance halves.
+  EXPECT_NEAR(L(0, 0), 2.0f / (0.003f * 0.003f), 1.0f);
+}
+
+TEST(MergeRule, WeightsTowardsTheMoreCertain) {
+  const Eigen::Vector3f e(0, 0, 2), n(0, 0, 2.003f);
+  Eigen::Vector3f p;
+  Eigen::Matrix3f L;
+  ASSERT_TRUE(merge_measurement(e, iso_information(0.001f), n, iso_information(0.004f), &p, &L));
+  const float d_e = (p - e).norm(), d_n = (p - n).norm();
+  EXPECT_LT(d_e, d_n);
+  EXPECT_NEAR(d_e / (d_e + d_n), 1.0f / 17.0f, 1e-3f);  // variance ratio 1:16
+}
+
+TEST(MergeRule, FarApartDoNotMerge) {
+  Eigen::Vector3f p;
+  Eigen::Matrix3f L;
+  EXPECT_FALSE(merge_measurement({0, 0, 2}, iso_information(0.003f), {0, 0, 2.05f},
+                                 iso_information(0.003f), &p, &L));
+  EXPECT_FALSE(merge_measurement({0, 0, 2}, iso_information(0.003f), {0.05f, 0, 2},
+                                 iso_information(0.003f), &p, &L));
+}
+
+TEST(Fuser, SecondViewOfTheSameSurfaceMerges) {
+  Fixture fx;
+  const Frame f = test::render_plane(Pose::Identity(), Eigen::Vector3d::UnitZ(), 2.0);
+  const FusionStats first = fx.fuse(f, Pose::Identity());
+  EXPECT_EQ(first.added, first.measurements);
+  const size_t points = fx.map.point_count();
+  const double u1 = mean_uncertainty(fx.map);
+  const FusionStats second = fx.fuse(f, Pose::Identity());
+  EXPECT_GT(second.merged, second.measurements * 99 / 100);
+  EXPECT_LT(fx.map.point_count(), points + points / 100);
+  EXPECT_LT(mean_uncertainty(fx.map), u1 / std::sqrt(2.0) * 1.01);
+}
+
+TEST(Fuser, ShiftedViewStillMergesOnThePlane) {
+  // A second view 5 cm to the side: its samples fall between the first view's; they still merge.
+  Fixture fx;
+  const Frame a = test::render_plane(Pose::Identity(), Eigen::Vector3d::UnitZ(), 2.0);
+  Pose T = Pose::Identity();
+  T.translation() = Eigen::Vector3d(0.05, 0.0, 0.0);
+  const Frame b = test::render_plane(T, Eigen::Vector3d::UnitZ(), 2.0);
+  fx.fuse(a, Pose::Identity());
+  const FusionStats s = fx.fuse(b, T);
+  EXPECT_GT(s.merged, s.measurements * 8 / 10);
+  // Fused points stay on the plane.
+  const PointArrays pts = fx.map.gather();
+  for (size_t i = 0; i < pts.size(); i += 97) EXPECT_NEAR(pts.z[i], 2.0f, 1e-4f);
+}
+
+TEST(Fuser, SeenThroughPointCountsViolationAndPostfilterRemovesIt) {
+  Fixture fx;
+  const Frame near = test::render_plane(Pose::Identity(), Eigen::Vector3d::UnitZ(), 2.0);
+  const Frame far = test::render_plane(Pose::Identity(), Eigen::Vector3d::UnitZ(), 2.1);
+  fx.fuse(near, Pose::Identity());
+  const size_t first = fx.map.point_count();
+  const FusionStats s = fx.fuse(far, Pose::Identity());
+  EXPECT_EQ(s.merged, 0u);
+  EXPECT_GT(s.violations, first * 9 / 10);
+  EXPECT_EQ(postfilter(&fx.map), s.violations);  // the seen-through plane goes, the far one stays
+  EXPECT_EQ(fx.map.point_count(), s.added);
+}
+
+TEST(Fuser, DistantSurfaceBehindIsNoViolation) {
+  // 50 % farther: outside |s_e - s_n| < 0.1 s_n, e.g. a surface seen past an occluder edge.
+  Fixture fx;
+  fx.fuse(test::render_plane(Pose::Identity(), Eigen::Vector3d::UnitZ(), 2.0), Pose::Identity());
+  const FusionStats s =
+      fx.fuse(test::render_plane(Pose::Identity(), Eigen::Vector3d::UnitZ(), 3.0), Pose::Identity());
+  EXPECT_EQ(s.violations, 0u);
+  EXPECT_EQ(s.merged, 0u);
+}
