@@ -1,0 +1,413 @@
+// depthfuse-capture: reads a FrameSource (Kinect V2, TUM folder, synthetic scene, LCM log) and
+// publishes its depth (and colour) frames on LCM with sequence numbers, plus a heartbeat at 1 Hz.
+// Obeys pause/resume/stop/start addressed to it ("capture" by default). Clean exit on SIGINT/SIGTERM.
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <mutex>
+#include <string>
+#include <thread>
+
+#include "depthfuse/app_config.hpp"
+#include "depthfuse/command_t.hpp"
+#include "depthfuse/daemon/heartbeat.hpp"
+#include "depthfuse/daemon/rate_meter.hpp"
+#include "depthfuse/daemon/signals.hpp"
+#include "depthfuse/daemon/systemd_notify.hpp"
+#include "depthfuse/lcm/channels.hpp"
+#include "depthfuse/lcm/codec.hpp"
+#include "depthfuse/lcm/frame_codec.hpp"
+#include "depthfuse/lcm/transport.hpp"
+#include "depthfuse/source_factory.hpp"
+
+namespace {
+
+using depthfuse::heartbeat_t;
+using Clock = std::chrono::steady_clock;
+namespace lcmio = depthfuse::lcmio;
+namespace dd = depthfuse::daemon;
+
+void usage(FILE* out) {
+  std::fprintf(out,
+      "usage: depthfuse-capture [--source SPEC] [--rate HZ|max|recorded] [--loop] [--lcm URL]\n"
+      "                         [--config FILE] [--name NAME] [--color zstd|raw|jpeg|none]\n"
+      "                         [--depth-encoding zstd|raw] [--linger]\n"
+      "  --source SPEC   tum:<folder> | synthetic:<corner|room>[?frames=N&...] | kinect2[:serial]\n"
+      "                  | lcmlog:<file>   (default: the config's capture.source)\n"
+      "  --rate          frames per second; 'max' as fast as possible; 'recorded' the pace of the\n"
+      "                  frame timestamps (default for lcmlog). Default: the source's own rate,\n"
+      "                  else the config's capture.rate_hz\n"
+      "  --loop          rewind a finite source at its end\n"
+      "  --lcm URL       LCM URL (default: the config's lcm.url)\n"
+      "  --name NAME     heartbeat name and command target (default: capture)\n"
+      "  --linger        keep running (heartbeat state 'finished') when a finite source ends\n");
+}
+
+struct Options {
+  std::string source;
+  std::string rate;  // "", number, "max", "recorded"
+  bool loop = false;
+  bool loop_set = false;
+  std::string lcm_url;
+  std::string config_path;
+  std::string name = "capture";
+  std::string color = "zstd";
+  std::string depth_encoding = "zstd";
+  bool linger = false;
+};
+
+bool parse_args(int argc, char** argv, Options* o) {
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto value = [&](std::string* dst) {
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "depthfuse-capture: %s needs a value\n", a.c_str());
+        return false;
+      }
+      *dst = argv[++i];
+      return true;
+    };
+    if (a == "--help" || a == "-h") {
+      usage(stdout);
+      std::exit(0);
+    } else if (a == "--source") {
+      if (!value(&o->source)) return false;
+    } else if (a == "--rate") {
+      if (!value(&o->rate)) return false;
+    } else if (a == "--loop") {
+      o->loop = o->loop_set = true;
+    } else if (a == "--lcm") {
+      if (!value(&o->lcm_url)) return false;
+    } else if (a == "--config") {
+      if (!value(&o->config_path)) return false;
+    } else if (a == "--name") {
+      if (!value(&o->name)) return false;
+    } else if (a == "--color") {
+      if (!value(&o->color)) return false;
+    } else if (a == "--depth-encoding") {
+      if (!value(&o->depth_encoding)) return false;
+    } else if (a == "--linger") {
+      o->linger = true;
+    } else {
+      std::fprintf(stderr, "depthfuse-capture: unknown option '%s'\n", a.c_str());
+      return false;
+    }
+  }
+  return true;
+}
+
+enum class Pacing { kFixed, kMax, kRecorded };
+
+// Shared between the capture loop, the command thread and the heartbeat.
+struct State {
+  std::atomic<int8_t> state{heartbeat_t::STATE_STARTING};
+  std::atomic<bool> publishing{true};  // false after pause/stop
+  std::atomic<int64_t> frames_in{0}, frames_out{0}, source_errors{0};
+  std::atomic<int64_t> bytes_out{0};
+  std::atomic<int64_t> encode_us{0};
+  lcmio::ReceiveCounters command_counters;
+  dd::RateMeter read_rate, publish_rate;
+  std::mutex mutex;  // guards the strings below
+  std::string last_error;
+  int64_t last_command_id = 0;
+  int8_t last_command_result = heartbeat_t::COMMAND_RESULT_NONE;
+  std::string last_command_message;
+};
+
+void publish_heartbeat(lcmio::LcmTransport& lcm, const dd::HeartbeatBase& base, State& s) {
+  heartbeat_t hb = base.make(s.state.load());
+  hb.input_rate_hz = s.read_rate.rate_hz();
+  hb.output_rate_hz = s.publish_rate.rate_hz();
+  hb.frames_in = s.frames_in.load();
+  hb.frames_out = s.frames_out.load();
+  hb.messages_malformed = s.command_counters.malformed.load();
+  hb.messages_bad_version = s.command_counters.bad_version.load();
+  hb.messages_foreign = s.command_counters.foreign.load();
+  {
+    std::lock_guard<std::mutex> lock(s.mutex);
+    hb.last_error = s.last_error;
+    hb.last_command_id = s.last_command_id;
+    hb.last_command_result = s.last_command_result;
+    hb.last_command_message = s.last_command_message;
+  }
+  const double out = static_cast<double>(std::max<int64_t>(1, hb.frames_out));
+  dd::add_counter(&hb, "source_errors", static_cast<double>(s.source_errors.load()));
+  dd::add_counter(&hb, "bytes_per_frame", static_cast<double>(s.bytes_out.load()) / out);
+  dd::add_counter(&hb, "encode_publish_ms_mean", s.encode_us.load() * 1e-3 / out);
+  (void)lcm.publish_message(lcmio::kHeartbeatChannel, hb);
+}
+
+void handle_command(const depthfuse::command_t& cmd, const std::string& name, State& s) {
+  if (!cmd.target.empty() && cmd.target != name) return;
+  std::string message;
+  int8_t result = heartbeat_t::COMMAND_RESULT_OK;
+  switch (cmd.action) {
+    case depthfuse::command_t::ACTION_PAUSE:
+    case depthfuse::command_t::ACTION_STOP:
+      s.publishing = false;
+      message = "publishing paused";
+      break;
+    case depthfuse::command_t::ACTION_RESUME:
+    case depthfuse::command_t::ACTION_START:
+      s.publishing = true;
+      message = "publishing";
+      break;
+    default:
+      // new scan / checkpoint are the fusion daemon's; only reject when addressed to us.
+      if (cmd.target.empty()) return;
+      result = heartbeat_t::COMMAND_RESULT_REJECTED;
+      message = "capture does not handle this command";
+  }
+  std::lock_guard<std::mutex> lock(s.mutex);
+  s.last_command_id = cmd.command_id;
+  s.last_command_result = result;
+  s.last_command_message = message;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Options opt;
+  if (!parse_args(argc, argv, &opt)) {
+    usage(stderr);
+    return 2;
+  }
+  auto& shutdown = dd::ShutdownSignal::install();
+
+  depthfuse::AppConfig config;
+  if (!opt.config_path.empty()) {
+    auto loaded = depthfuse::load_app_config(opt.config_path);
+    if (!loaded) {
+      std::fprintf(stderr, "depthfuse-capture: %s\n", loaded.status().to_string().c_str());
+      return 2;
+    }
+    config = std::move(loaded).value();
+  }
+  const std::string source_spec = opt.source.empty() ? config.capture.source : opt.source;
+  const std::string url = opt.lcm_url.empty() ? config.lcm.url : opt.lcm_url;
+  const bool loop = opt.loop_set ? opt.loop : config.capture.loop;
+
+  lcmio::DepthEncodeOptions depth_options;
+  if (opt.depth_encoding == "raw") {
+    depth_options.compress = false;
+  } else if (opt.depth_encoding != "zstd") {
+    std::fprintf(stderr, "depthfuse-capture: --depth-encoding must be zstd or raw\n");
+    return 2;
+  }
+  lcmio::ColorEncodeOptions color_options;
+  bool send_color = true;
+  if (opt.color == "raw") color_options.encoding = lcmio::ColorEncoding::kRaw;
+  else if (opt.color == "jpeg") color_options.encoding = lcmio::ColorEncoding::kJpeg;
+  else if (opt.color == "none") send_color = false;
+  else if (opt.color != "zstd") {
+    std::fprintf(stderr, "depthfuse-capture: --color must be zstd, raw, jpeg or none\n");
+    return 2;
+  }
+
+  std::vector<std::string> warnings;
+  auto opened = lcmio::LcmTransport::open(url, &warnings);
+  for (const auto& w : warnings) std::fprintf(stderr, "depthfuse-capture: warning: %s\n", w.c_str());
+  if (!opened) {
+    std::fprintf(stderr, "depthfuse-capture: %s\n", opened.status().to_string().c_str());
+    return 1;
+  }
+  auto lcm = std::move(opened).value();
+
+  auto source_r = depthfuse::open_frame_source(source_spec, config);
+  if (!source_r) {
+    std::fprintf(stderr, "depthfuse-capture: cannot open source '%s': %s\n", source_spec.c_str(),
+                 source_r.status().to_string().c_str());
+    return 1;
+  }
+  auto source = std::move(source_r).value();
+
+  Pacing pacing = Pacing::kFixed;
+  double rate_hz = config.capture.rate_hz;
+  const bool is_log = source_spec.rfind("lcmlog:", 0) == 0;
+  if (opt.rate == "max") {
+    pacing = Pacing::kMax;
+  } else if (opt.rate == "recorded" || (opt.rate.empty() && is_log)) {
+    pacing = Pacing::kRecorded;
+  } else if (!opt.rate.empty()) {
+    char* end = nullptr;
+    rate_hz = std::strtod(opt.rate.c_str(), &end);
+    if (*end != '\0' || !(rate_hz > 0) || !std::isfinite(rate_hz)) {
+      std::fprintf(stderr, "depthfuse-capture: --rate '%s' is not a positive number, max or recorded\n",
+                   opt.rate.c_str());
+      return 2;
+    }
+  } else if (auto nominal = source->nominal_rate_hz()) {
+    rate_hz = *nominal;
+  }
+  if (pacing == Pacing::kFixed && !(rate_hz > 0)) pacing = Pacing::kMax;  // rate_hz = 0 in config
+
+  State s;
+  dd::HeartbeatBase hb_base(opt.name);
+  const std::string name = opt.name;
+  lcm->subscribe(lcmio::kCommandChannel, [&](const std::string&, const uint8_t* data, size_t size,
+                                             int64_t) {
+    depthfuse::command_t cmd;
+    const auto r = lcmio::decode_message(data, size, &cmd);
+    s.command_counters.count(r);
+    if (r != lcmio::DecodeResult::kOk) return;
+    handle_command(cmd, name, s);
+    if (cmd.target == name) publish_heartbeat(*lcm, hb_base, s);  // the acknowledgement
+  });
+
+  std::thread service([&] {
+    auto next_hb = Clock::now();
+    dd::WatchdogPetter watchdog;
+    while (!shutdown.stop_requested()) {
+      auto r = lcm->handle(50);
+      if (!r) {
+        std::lock_guard<std::mutex> lock(s.mutex);
+        s.last_error = r.status().message();
+      }
+      if (Clock::now() >= next_hb) {
+        publish_heartbeat(*lcm, hb_base, s);
+        next_hb += std::chrono::seconds(1);
+        if (next_hb < Clock::now()) next_hb = Clock::now() + std::chrono::seconds(1);
+        watchdog.pet();
+        dd::notify_status(std::string(dd::state_name(s.state.load())) + ", " +
+                          std::to_string(s.frames_out.load()) + " frames published");
+      }
+    }
+  });
+
+  std::fprintf(stderr, "depthfuse-capture: %s -> %s (%s)\n", source->describe().c_str(),
+               url.c_str(),
+               pacing == Pacing::kMax ? "max rate"
+               : pacing == Pacing::kRecorded ? "recorded pace"
+                                             : (std::to_string(rate_hz) + " Hz").c_str());
+  s.state = heartbeat_t::STATE_RUNNING;
+  dd::notify_ready("publishing " + source->describe());
+
+  depthfuse::depth_frame_t depth_msg;
+  depthfuse::color_frame_t color_msg;
+  uint32_t sequence = 0;
+  int exit_code = 0;
+  const auto period = pacing == Pacing::kFixed
+                          ? std::chrono::duration_cast<Clock::duration>(
+                                std::chrono::duration<double>(1.0 / rate_hz))
+                          : Clock::duration::zero();
+  auto next_tick = Clock::now();
+  int64_t prev_utime = 0;
+  bool have_prev = false;
+  while (!shutdown.stop_requested()) {
+    if (!s.publishing.load()) {
+      s.state = heartbeat_t::STATE_PAUSED;
+      shutdown.sleep_for(0.05);
+      next_tick = Clock::now();
+      have_prev = false;
+      continue;
+    }
+    s.state = heartbeat_t::STATE_RUNNING;
+    auto frame_r = source->next();
+    if (!frame_r) {
+      const auto code = frame_r.status().code();
+      if (code == depthfuse::StatusCode::kEndOfStream) {
+        if (loop && source->rewind().is_ok()) {
+          have_prev = false;
+          continue;
+        }
+        std::fprintf(stderr, "depthfuse-capture: %s ended after %lld frames\n",
+                     source->describe().c_str(), static_cast<long long>(s.frames_out.load()));
+        s.state = heartbeat_t::STATE_FINISHED;
+        if (!opt.linger) break;
+        while (!shutdown.sleep_for(0.2)) {
+        }
+        break;
+      }
+      ++s.source_errors;
+      {
+        std::lock_guard<std::mutex> lock(s.mutex);
+        s.last_error = frame_r.status().to_string();
+      }
+      if (code == depthfuse::StatusCode::kUnavailable) {  // a live device is gone for now
+        s.state = heartbeat_t::STATE_ERROR;
+        shutdown.sleep_for(0.5);
+        continue;
+      }
+      std::fprintf(stderr, "depthfuse-capture: %s\n", frame_r.status().to_string().c_str());
+      s.state = heartbeat_t::STATE_ERROR;
+      exit_code = 1;
+      break;
+    }
+    depthfuse::Frame frame = std::move(frame_r).value();
+    ++s.frames_in;
+    s.read_rate.add();
+
+    // Pace before publishing, so the publish time is the frame's due time.
+    if (pacing == Pacing::kFixed) {
+      next_tick += period;
+      const auto now = Clock::now();
+      if (next_tick > now) {
+        if (shutdown.sleep_for(std::chrono::duration<double>(next_tick - now).count())) break;
+      } else if (now - next_tick > 10 * period) {
+        next_tick = now;  // far behind (slow source): do not burst to catch up
+      }
+    } else if (pacing == Pacing::kRecorded) {
+      if (have_prev) {
+        const double dt_s = (frame.utime - prev_utime) * 1e-6;
+        if (dt_s > 0 && dt_s < 5.0) {
+          next_tick += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(dt_s));
+          const auto now = Clock::now();
+          if (next_tick > now &&
+              shutdown.sleep_for(std::chrono::duration<double>(next_tick - now).count()))
+            break;
+        } else {
+          next_tick = Clock::now();
+        }
+      } else {
+        next_tick = Clock::now();
+      }
+      prev_utime = frame.utime;
+      have_prev = true;
+    }
+
+    // Our own sequence numbers: receivers count gaps per publisher, whatever the source numbers.
+    frame.sequence = sequence++;
+    const auto t0 = Clock::now();
+    int64_t bytes = 0;
+    if (send_color && !frame.color.empty()) {
+      // Colour first: the fusion daemon pairs it with the depth frame that follows.
+      auto st = lcmio::encode_color_frame(frame, color_options, &color_msg);
+      if (st.is_ok()) {
+        st = lcm->publish_message(lcmio::kColorChannel, color_msg);
+        bytes += color_msg.getEncodedSize();
+      }
+      if (!st.is_ok()) {
+        std::lock_guard<std::mutex> lock(s.mutex);
+        s.last_error = "colour: " + st.to_string();
+      }
+    }
+    auto st = lcmio::encode_depth_frame(frame, depth_options, &depth_msg);
+    if (st.is_ok()) {
+      depth_msg.publish_utime = dd::wall_utime();
+      depth_msg.source = source_spec;
+      st = lcm->publish_message(lcmio::kDepthChannel, depth_msg);
+      bytes += depth_msg.getEncodedSize();
+    }
+    if (!st.is_ok()) {
+      std::lock_guard<std::mutex> lock(s.mutex);
+      s.last_error = "depth frame " + std::to_string(frame.sequence) + ": " + st.to_string();
+      continue;
+    }
+    s.encode_us += std::chrono::duration_cast<std::chrono::microseconds>(Clock::now() - t0).count();
+    s.bytes_out += bytes;
+    ++s.frames_out;
+    s.publish_rate.add();
+  }
+
+  s.state = heartbeat_t::STATE_STOPPING;
+  dd::notify_stopping();
+  publish_heartbeat(*lcm, hb_base, s);
+  shutdown.request_stop();
+  service.join();
+  std::fprintf(stderr, "depthfuse-capture: published %lld frames, exiting\n",
+               static_cast<long long>(s.frames_out.load()));
+  return exit_code;
+}

@@ -1,0 +1,77 @@
+// Replays a session recorded with lcm-logger: depth_frame_t on DEPTHFUSE_DEPTH, with the
+// color_frame_t of the same sequence number from DEPTHFUSE_COLOR when there is one.
+//   lcmlog:<file>[?depth_channel=NAME&color_channel=NAME]
+// The log is indexed when opened; a truncated log ends at its last complete event, corrupt bytes
+// are skipped up to the next event marker, and events that do not decode (malformed, foreign
+// type, unknown protocol version) are counted and skipped, never fatal.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "depthfuse/app_config.hpp"
+#include "depthfuse/frame_source.hpp"
+
+namespace depthfuse {
+
+struct LcmLogStats {
+  size_t events = 0;             // complete events in the log
+  size_t depth_frames = 0;       // usable depth frames
+  size_t color_frames = 0;
+  size_t malformed = 0;          // failed to decode or failed their checks
+  size_t bad_version = 0;
+  size_t foreign = 0;            // another type on a depthfuse channel
+  size_t corrupt_regions = 0;    // damaged event headers skipped
+  bool truncated = false;        // the last event was cut off
+};
+
+class LcmLogSource : public FrameSource {
+ public:
+  struct Options {
+    std::string depth_channel = "DEPTHFUSE_DEPTH";
+    std::string color_channel = "DEPTHFUSE_COLOR";
+  };
+  static Result<std::unique_ptr<LcmLogSource>> open(const std::string& path, const Options& options);
+  ~LcmLogSource() override;
+
+  Result<Frame> next() override;
+  std::string describe() const override;
+  std::optional<double> nominal_rate_hz() const override;
+  std::optional<size_t> frame_count() const override { return depth_.size(); }
+  Status rewind() override {
+    next_ = 0;
+    return Status::ok();
+  }
+
+  const LcmLogStats& stats() const { return stats_; }
+  // Frame i without advancing.
+  Result<Frame> load(size_t i);
+  // Log time (lcm-logger's receive clock, microseconds) of depth frame i.
+  int64_t log_utime(size_t i) const { return depth_[i].log_utime; }
+
+ private:
+  struct Event {
+    long offset = 0;
+    int64_t log_utime = 0;
+  };
+  LcmLogSource() = default;
+  Status index();
+  Result<std::vector<uint8_t>> read_payload(long offset);
+
+  std::string path_;
+  Options options_;
+  void* log_ = nullptr;  // lcm_eventlog_t
+  std::vector<Event> depth_;
+  std::unordered_map<int64_t, Event> color_by_sequence_;
+  LcmLogStats stats_;
+  size_t next_ = 0;
+};
+
+// The factory's entry point: arg is "<file>[?depth_channel=..&color_channel=..]".
+Result<std::unique_ptr<FrameSource>> open_lcmlog_source(const std::string& arg,
+                                                        const AppConfig& config);
+
+}  // namespace depthfuse
