@@ -1,0 +1,220 @@
+// depthfuse status [--watch] [--json] [--lcm URL] [--timeout S]: the monitor's status, from any
+// host on the LCM network.
+#if __has_include("depthfuse/status_t.hpp")
+#include <chrono>
+#include <cinttypes>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <string>
+
+#include "command.hpp"
+#include "depthfuse/app_config.hpp"
+#include "depthfuse/lcm/channels.hpp"
+#include "depthfuse/lcm/codec.hpp"
+#include "depthfuse/lcm/transport.hpp"
+#include "depthfuse/status_t.hpp"
+
+namespace {
+
+namespace lcmio = depthfuse::lcmio;
+using depthfuse::heartbeat_t;
+
+const char* state_text(int8_t s) {
+  switch (s) {
+    case heartbeat_t::STATE_STARTING: return "starting";
+    case heartbeat_t::STATE_IDLE: return "idle";
+    case heartbeat_t::STATE_RUNNING: return "running";
+    case heartbeat_t::STATE_PAUSED: return "paused";
+    case heartbeat_t::STATE_STOPPING: return "stopping";
+    case heartbeat_t::STATE_ERROR: return "error";
+    case heartbeat_t::STATE_FINISHED: return "finished";
+  }
+  return "unknown";
+}
+
+std::string json_escape(const std::string& s) {
+  std::string out;
+  for (const unsigned char c : s) {
+    switch (c) {
+      case '"': out += "\\\""; break;
+      case '\\': out += "\\\\"; break;
+      case '\n': out += "\\n"; break;
+      case '\r': out += "\\r"; break;
+      case '\t': out += "\\t"; break;
+      default:
+        if (c < 0x20) {
+          char buf[8];
+          std::snprintf(buf, sizeof(buf), "\\u%04x", c);
+          out += buf;
+        } else {
+          out += static_cast<char>(c);
+        }
+    }
+  }
+  return out;
+}
+
+std::string json_number(double v) {
+  if (!std::isfinite(v)) return "null";
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), "%.6g", v);
+  return buf;
+}
+
+void print_json(const depthfuse::status_t& st) {
+  std::printf("{\"protocol_version\": %d, \"utime\": %" PRId64 ", \"monitor_host\": \"%s\", "
+              "\"stale_after_s\": %s, \"messages_malformed\": %" PRId64
+              ", \"messages_bad_version\": %" PRId64 ", \"messages_foreign\": %" PRId64
+              ", \"daemons\": [",
+              st.protocol_version, st.utime, json_escape(st.monitor_host).c_str(),
+              json_number(st.stale_after_s).c_str(), st.messages_malformed,
+              st.messages_bad_version, st.messages_foreign);
+  for (size_t i = 0; i < st.daemons.size(); ++i) {
+    const auto& d = st.daemons[i];
+    const auto& h = d.last;
+    std::printf("%s{\"name\": \"%s\", \"alive\": %s, \"heartbeat_age_s\": %s, \"heartbeats\": %" PRId64
+                ", \"host\": \"%s\", \"pid\": %d, \"state\": \"%s\", \"uptime_s\": %s, "
+                "\"input_rate_hz\": %s, \"output_rate_hz\": %s, \"frames_in\": %" PRId64
+                ", \"frames_out\": %" PRId64 ", \"frames_dropped\": %" PRId64
+                ", \"frames_lost\": %" PRId64 ", \"messages_malformed\": %" PRId64
+                ", \"messages_bad_version\": %" PRId64 ", \"messages_foreign\": %" PRId64
+                ", \"frames_out_of_order\": %" PRId64 ", \"queue_depth\": %d, \"queue_capacity\": %d"
+                ", \"point_count\": %" PRId64 ", \"rss_bytes\": %" PRId64
+                ", \"scan_id\": \"%s\", \"last_error\": \"%s\", \"last_command_id\": %" PRId64
+                ", \"last_command_result\": %d, \"last_command_message\": \"%s\", \"counters\": {",
+                i ? ", " : "", json_escape(d.name).c_str(), d.alive ? "true" : "false",
+                json_number(d.heartbeat_age_s).c_str(), d.heartbeats, json_escape(h.host).c_str(),
+                h.pid, state_text(h.state), json_number(h.uptime_s).c_str(),
+                json_number(h.input_rate_hz).c_str(), json_number(h.output_rate_hz).c_str(),
+                h.frames_in, h.frames_out, h.frames_dropped, h.frames_lost, h.messages_malformed,
+                h.messages_bad_version, h.messages_foreign, h.frames_out_of_order, h.queue_depth,
+                h.queue_capacity, h.point_count, h.rss_bytes, json_escape(h.scan_id).c_str(),
+                json_escape(h.last_error).c_str(), h.last_command_id, h.last_command_result,
+                json_escape(h.last_command_message).c_str());
+    for (size_t k = 0; k < h.counters.size(); ++k)
+      std::printf("%s\"%s\": %s", k ? ", " : "", json_escape(h.counters[k].key).c_str(),
+                  json_number(h.counters[k].value).c_str());
+    std::printf("}}");
+  }
+  std::printf("]}\n");
+  std::fflush(stdout);
+}
+
+void print_table(const depthfuse::status_t& st) {
+  std::printf("monitor on %s, stale after %.1f s", st.monitor_host.c_str(), st.stale_after_s);
+  if (st.messages_malformed + st.messages_bad_version + st.messages_foreign)
+    std::printf(" (heartbeats unreadable: %" PRId64 " malformed, %" PRId64 " unknown version, %" PRId64
+                " foreign)", st.messages_malformed, st.messages_bad_version, st.messages_foreign);
+  std::printf("\n%-10s %-6s %-9s %-16s %8s %8s %8s %8s %8s %6s %10s %8s  %s\n", "daemon", "alive",
+              "state", "host:pid", "in Hz", "out Hz", "dropped", "lost", "bad msg", "queue",
+              "points", "RSS MiB", "scan / last error");
+  for (const auto& d : st.daemons) {
+    const auto& h = d.last;
+    const std::string where = h.host + ":" + std::to_string(h.pid);
+    const int64_t bad = h.messages_malformed + h.messages_bad_version + h.messages_foreign +
+                        h.frames_out_of_order;
+    char queue[32];
+    if (h.queue_capacity > 0)
+      std::snprintf(queue, sizeof(queue), "%d/%d", h.queue_depth, h.queue_capacity);
+    else
+      std::snprintf(queue, sizeof(queue), "-");
+    std::string tail = h.scan_id.empty() ? "" : "scan " + h.scan_id;
+    if (!h.last_error.empty()) tail += (tail.empty() ? "" : "; ") + std::string("error: ") + h.last_error;
+    char alive[16];
+    if (d.alive)
+      std::snprintf(alive, sizeof(alive), "yes");
+    else
+      std::snprintf(alive, sizeof(alive), "STALE");
+    std::printf("%-10s %-6s %-9s %-16s %8.1f %8.1f %8" PRId64 " %8" PRId64 " %8" PRId64
+                " %6s %10" PRId64 " %8.1f  %s\n",
+                d.name.c_str(), alive, state_text(h.state), where.c_str(), h.input_rate_hz,
+                h.output_rate_hz, h.frames_dropped, h.frames_lost, bad, queue, h.point_count,
+                h.rss_bytes / (1024.0 * 1024.0), tail.c_str());
+  }
+  std::fflush(stdout);
+}
+
+int cmd_status(int argc, char** argv) {
+  bool watch = false, json = false;
+  std::string url, config_path;
+  double timeout_s = 3.0;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a == "--watch") watch = true;
+    else if (a == "--json") json = true;
+    else if (a == "--lcm" && i + 1 < argc) url = argv[++i];
+    else if (a == "--config" && i + 1 < argc) config_path = argv[++i];
+    else if (a == "--timeout" && i + 1 < argc) timeout_s = std::atof(argv[++i]);
+    else if (a == "--help" || a == "-h") {
+      std::printf("usage: depthfuse status [--watch] [--json] [--lcm URL] [--config FILE] [--timeout S]\n"
+                  "Prints the appliance status published by depthfuse-monitor. --watch keeps\n"
+                  "printing each update; --json prints one JSON object per status.\n");
+      return 0;
+    } else {
+      std::fprintf(stderr, "depthfuse status: bad option '%s'\n", a.c_str());
+      return 2;
+    }
+  }
+  depthfuse::AppConfig config;
+  if (!config_path.empty()) {
+    auto loaded = depthfuse::load_app_config(config_path);
+    if (!loaded) {
+      std::fprintf(stderr, "depthfuse status: %s\n", loaded.status().to_string().c_str());
+      return 2;
+    }
+    config = std::move(loaded).value();
+  }
+  if (url.empty()) url = config.lcm.url;
+  auto opened = lcmio::LcmTransport::open(url);
+  if (!opened) {
+    std::fprintf(stderr, "depthfuse status: %s\n", opened.status().to_string().c_str());
+    return 1;
+  }
+  auto lcm = std::move(opened).value();
+  bool got = false;
+  lcmio::ReceiveCounters counters;
+  lcm->subscribe(lcmio::kStatusChannel, [&](const std::string&, const uint8_t* data, size_t size,
+                                            int64_t) {
+    depthfuse::status_t st;
+    const auto r = lcmio::decode_message(data, size, &st);
+    counters.count(r);
+    if (r != lcmio::DecodeResult::kOk) {
+      std::fprintf(stderr, "depthfuse status: unreadable status message (%s)\n", lcmio::to_string(r));
+      return;
+    }
+    if (got && !watch) return;
+    got = true;
+    if (json)
+      print_json(st);
+    else {
+      if (watch) std::printf("\n");
+      print_table(st);
+    }
+  });
+  using Clock = std::chrono::steady_clock;
+  auto deadline = Clock::now() + std::chrono::duration_cast<Clock::duration>(
+                                     std::chrono::duration<double>(timeout_s));
+  while (watch || !got) {
+    if (!got && Clock::now() > deadline) {
+      std::fprintf(stderr,
+                   "depthfuse status: no status on %s within %.1f s: is depthfuse-monitor running "
+                   "on the same LCM URL (and multicast reaching this host)?\n",
+                   url.c_str(), timeout_s);
+      return 1;
+    }
+    auto r = lcm->handle(100);
+    if (!r) {
+      std::fprintf(stderr, "depthfuse status: %s\n", r.status().to_string().c_str());
+      return 1;
+    }
+  }
+  return 0;
+}
+
+}  // namespace
+
+DF_REGISTER_COMMAND(status, "status", "status [--watch] [--json] [--lcm URL]",
+                    "print the live appliance's status (from depthfuse-monitor)", cmd_status);
+#endif
