@@ -1,0 +1,65 @@
+// The seam between the fusion daemon and durable storage: the daemon tells a CheckpointSink when
+// a scan begins, after every fused frame, when a checkpoint is due (periodic, or the operator's
+// 'checkpoint now') and when the scan ends. The SQLite scan store plugs in here by implementing
+// this interface (make_checkpoint_sink picks it when it is built in); until then NullCheckpointSink
+// keeps nothing and the scan is saved as PLY + TUM trajectory on stop only.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "depthfuse/app_config.hpp"
+#include "depthfuse/pipeline.hpp"
+#include "depthfuse/status.hpp"
+#include "depthfuse/types.hpp"
+
+namespace depthfuse::fusiond {
+
+struct ScanContext {
+  std::string scan_id;
+  std::string scan_dir;          // where this scan's files go
+  int64_t created_utime = 0;
+  const AppConfig* config = nullptr;
+};
+
+// The daemon's counters at the time of a checkpoint.
+struct FusionProgress {
+  uint64_t frames_received = 0;
+  uint64_t frames_fused = 0;
+  uint64_t frames_dropped = 0;
+};
+
+class CheckpointSink {
+ public:
+  virtual ~CheckpointSink() = default;
+  // "none", "sqlite:/var/lib/depthfuse/scans/x.dfscan", ... for heartbeats and logs.
+  virtual std::string describe() const = 0;
+  virtual Status begin_scan(const ScanContext& scan) = 0;
+  // After each fused frame (poses, keyframes every fusion_daemon.keyframe_every_n_frames).
+  virtual Status frame_fused(const Frame& frame, const FrameReport& report) = 0;
+  // reason: "periodic", "command", "sigterm", "final".
+  virtual Status checkpoint(const std::string& reason, IncrementalReconstructor& reconstructor,
+                            const FusionProgress& progress) = 0;
+  // The scan is over (its PLY and trajectory are written by the daemon itself).
+  virtual Status end_scan(IncrementalReconstructor& reconstructor, const FusionProgress& progress) = 0;
+  // True when checkpoint() actually stores something (false: the periodic timer is not run).
+  virtual bool durable() const = 0;
+};
+
+class NullCheckpointSink : public CheckpointSink {
+ public:
+  std::string describe() const override { return "none"; }
+  Status begin_scan(const ScanContext&) override { return Status::ok(); }
+  Status frame_fused(const Frame&, const FrameReport&) override { return Status::ok(); }
+  Status checkpoint(const std::string&, IncrementalReconstructor&, const FusionProgress&) override {
+    return Status::ok();
+  }
+  Status end_scan(IncrementalReconstructor&, const FusionProgress&) override { return Status::ok(); }
+  bool durable() const override { return false; }
+};
+
+// The sink this build has: the scan store when it is built in and wired, else NullCheckpointSink.
+std::unique_ptr<CheckpointSink> make_checkpoint_sink(const AppConfig& config);
+
+}  // namespace depthfuse::fusiond

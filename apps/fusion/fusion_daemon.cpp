@@ -1,0 +1,486 @@
+#include "fusion_daemon.hpp"
+
+#include <cctype>
+#include <cstdio>
+#include <ctime>
+#include <filesystem>
+
+#include "depthfuse/color_frame_t.hpp"
+#include "depthfuse/daemon/process_info.hpp"
+#include "depthfuse/daemon/systemd_notify.hpp"
+#include "depthfuse/depth_frame_t.hpp"
+#include "depthfuse/lcm/channels.hpp"
+#include "depthfuse/lcm/frame_codec.hpp"
+#include "depthfuse/ply.hpp"
+#include "depthfuse/pose_t.hpp"
+#include "depthfuse/trajectory.hpp"
+
+namespace depthfuse::fusiond {
+
+namespace {
+
+using depthfuse::command_t;
+using depthfuse::heartbeat_t;
+using Clock = std::chrono::steady_clock;
+
+constexpr size_t kPendingColorFrames = 8;
+constexpr double kMeanWeight = 0.1;  // exponential moving averages over ~10 frames
+
+void ewma(double* mean, double value) { *mean += kMeanWeight * (value - *mean); }
+
+std::string generated_scan_name() {
+  const std::time_t t = std::time(nullptr);
+  std::tm tm{};
+  localtime_r(&t, &tm);
+  char buf[64];
+  std::strftime(buf, sizeof(buf), "scan-%Y%m%d-%H%M%S", &tm);
+  return buf;
+}
+
+// A scan name becomes a file name: keep it to [A-Za-z0-9._-], no leading dot.
+bool valid_scan_name(const std::string& s) {
+  if (s.empty() || s.size() > 100 || s[0] == '.') return false;
+  for (const char c : s)
+    if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '_' || c == '-'))
+      return false;
+  return true;
+}
+
+const char* action_name(int8_t a) {
+  switch (a) {
+    case command_t::ACTION_START: return "start";
+    case command_t::ACTION_STOP: return "stop";
+    case command_t::ACTION_PAUSE: return "pause";
+    case command_t::ACTION_RESUME: return "resume";
+    case command_t::ACTION_NEW_SCAN: return "new scan";
+    case command_t::ACTION_CHECKPOINT_NOW: return "checkpoint";
+  }
+  return "unknown";
+}
+
+}  // namespace
+
+FusionDaemon::FusionDaemon(const AppConfig& config, const DaemonOptions& options,
+                           std::unique_ptr<lcmio::LcmTransport> lcm,
+                           std::unique_ptr<CheckpointSink> sink)
+    : config_(config),
+      options_(options),
+      lcm_(std::move(lcm)),
+      sink_(std::move(sink)),
+      hb_base_(options.name),
+      queue_(static_cast<size_t>(std::max(1, config.fusion.queue_capacity_frames))),
+      state_(heartbeat_t::STATE_IDLE) {
+  lcm_->subscribe(lcmio::kDepthChannel, [this](const std::string&, const uint8_t* d, size_t n,
+                                               int64_t) { on_depth(d, n); });
+  lcm_->subscribe(lcmio::kColorChannel, [this](const std::string&, const uint8_t* d, size_t n,
+                                               int64_t) { on_color(d, n); });
+  lcm_->subscribe(lcmio::kCommandChannel, [this](const std::string&, const uint8_t* d, size_t n,
+                                                 int64_t) { on_command(d, n); });
+}
+
+FusionDaemon::~FusionDaemon() {
+  stopping_ = true;
+  queue_.wake();
+  if (worker_.joinable()) worker_.join();
+}
+
+void FusionDaemon::set_error(const std::string& e) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  last_error_ = e;
+}
+
+// ---------------------------------------------------------------- receive thread
+
+void FusionDaemon::on_color(const uint8_t* data, size_t size) {
+  depthfuse::color_frame_t msg;
+  const auto r = lcmio::decode_message(data, size, &msg);
+  if (r != lcmio::DecodeResult::kOk) {
+    counters_.count(r);
+    return;
+  }
+  if (state_.load() != heartbeat_t::STATE_RUNNING) return;
+  ColorImage color;
+  if (auto st = lcmio::decode_color_frame(msg, &color); !st.is_ok()) {
+    ++counters_.malformed;
+    set_error(st.message());
+    return;
+  }
+  pending_color_[msg.sequence] = std::move(color);
+  while (pending_color_.size() > kPendingColorFrames) pending_color_.erase(pending_color_.begin());
+}
+
+void FusionDaemon::on_depth(const uint8_t* data, size_t size) {
+  depthfuse::depth_frame_t msg;
+  const auto r = lcmio::decode_message(data, size, &msg);
+  if (r != lcmio::DecodeResult::kOk) {
+    counters_.count(r);
+    return;
+  }
+  QueuedFrame item;
+  if (auto st = lcmio::decode_depth_frame(msg, &item.frame); !st.is_ok()) {
+    ++counters_.malformed;
+    set_error(st.message());
+    return;
+  }
+  const auto seen = sequence_.observe(msg.sequence);
+  if (seen.verdict == lcmio::SequenceTracker::Verdict::kOutOfOrder) {
+    // A late frame: its pose would be predicted from a newer one. Counted, not fused.
+    ++counters_.out_of_order;
+    return;
+  }
+  counters_.lost += seen.lost;
+  ++counters_.received;
+  ++frames_in_;
+  in_rate_.add();
+  if (state_.load() != heartbeat_t::STATE_RUNNING) {
+    ++frames_ignored_;
+    return;
+  }
+  auto color = pending_color_.find(msg.sequence);
+  if (color != pending_color_.end()) {
+    if (color->second.width == item.frame.depth.width &&
+        color->second.height == item.frame.depth.height)
+      item.frame.color = std::move(color->second);
+    pending_color_.erase(pending_color_.begin(), std::next(color));
+  }
+  item.publish_utime = msg.publish_utime;
+  queue_.push(std::move(item));  // drops (and counts) the oldest frame when full
+}
+
+void FusionDaemon::on_command(const uint8_t* data, size_t size) {
+  depthfuse::command_t cmd;
+  const auto r = lcmio::decode_message(data, size, &cmd);
+  if (r != lcmio::DecodeResult::kOk) {
+    counters_.count(r);
+    return;
+  }
+  if (!cmd.target.empty() && cmd.target != options_.name) return;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    // A resent command (the client repeats until acknowledged) is acknowledged, not redone.
+    if (cmd.command_id == ack_.id) {
+      ;
+    } else {
+      for (const auto& queued : commands_)
+        if (queued.command_id == cmd.command_id) return;
+      commands_.push_back(cmd);
+      queue_.wake();
+      return;
+    }
+  }
+  publish_heartbeat();
+}
+
+// ---------------------------------------------------------------- worker thread
+
+Status FusionDaemon::start_scan(const std::string& requested_name, std::string* message) {
+  std::string name = requested_name.empty() || requested_name == "-" ? generated_scan_name()
+                                                                     : requested_name;
+  if (!valid_scan_name(name))
+    return invalid_argument("scan name '" + name + "' must be 1-100 characters of A-Z a-z 0-9 . _ -");
+  std::error_code ec;
+  std::filesystem::create_directories(config_.fusion.scan_dir, ec);
+  if (ec)
+    return io_error("cannot create the scan directory '" + config_.fusion.scan_dir + "': " +
+                    ec.message() + " (set fusion_daemon.scan_dir in the config)");
+  scan_ = ScanContext{name, config_.fusion.scan_dir, daemon::wall_utime(), &config_};
+  DF_RETURN_IF_ERROR(sink_->begin_scan(scan_).with_context("checkpoint store"));
+  reconstructor_ = std::make_unique<IncrementalReconstructor>(config_.reconstruction);
+  trajectory_.clear();
+  point_count_ = 0;
+  last_checkpoint_ = Clock::now();
+  queue_.clear();  // frames that arrived before the scan are not part of it
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    scan_id_ = name;
+  }
+  state_ = heartbeat_t::STATE_RUNNING;
+  *message = "scan " + name + " started";
+  std::fprintf(stderr, "depthfuse-fusion: %s\n", message->c_str());
+  return Status::ok();
+}
+
+Status FusionDaemon::stop_scan(const std::string& reason, std::string* message) {
+  if (!reconstructor_) return invalid_argument("no scan is running");
+  state_ = heartbeat_t::STATE_STOPPING;
+  queue_.clear();
+  const size_t removed = reconstructor_->finish();
+  const FusionProgress progress{static_cast<uint64_t>(frames_in_.load()),
+                                static_cast<uint64_t>(frames_fused_.load()),
+                                static_cast<uint64_t>(queue_.dropped())};
+  Status sink_status = sink_->checkpoint(reason, *reconstructor_, progress);
+  if (sink_status.is_ok()) sink_status = sink_->end_scan(*reconstructor_, progress);
+
+  const PointArrays cloud = reconstructor_->map().gather();
+  const std::string base = (std::filesystem::path(scan_.scan_dir) / scan_.scan_id).string();
+  const std::string ply_path = base + ".ply";
+  const std::string tum_path = base + "-trajectory.txt";
+  Status st = write_ply(ply_path, cloud, PlyOptions{});
+  if (st.is_ok()) st = write_tum_trajectory(tum_path, trajectory_);
+  const std::string id = scan_.scan_id;
+  reconstructor_.reset();
+  point_count_ = 0;
+  state_ = heartbeat_t::STATE_IDLE;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    scan_id_.clear();
+    if (st.is_ok()) last_saved_cloud_ = ply_path;
+  }
+  if (!st.is_ok()) return st.with_context("saving scan " + id);
+  *message = "scan " + id + " saved: " + std::to_string(cloud.size()) + " points (" +
+             std::to_string(removed) + " removed by the post-filter) in " + ply_path + ", " +
+             std::to_string(trajectory_.size()) + " poses in " + tum_path;
+  if (!sink_status.is_ok()) {
+    *message += "; checkpoint store: " + sink_status.to_string();
+    set_error(sink_status.to_string());
+  }
+  std::fprintf(stderr, "depthfuse-fusion: %s\n", message->c_str());
+  return Status::ok();
+}
+
+void FusionDaemon::execute(const command_t& cmd) {
+  std::string message;
+  Status st = Status::ok();
+  const int8_t state = state_.load();
+  const bool in_scan = reconstructor_ != nullptr;
+  switch (cmd.action) {
+    case command_t::ACTION_START:
+      if (!in_scan) {
+        st = start_scan(cmd.argument, &message);
+      } else if (state == heartbeat_t::STATE_PAUSED) {
+        state_ = heartbeat_t::STATE_RUNNING;
+        message = "scan " + scan_.scan_id + " resumed";
+      } else {
+        message = "scan " + scan_.scan_id + " is already running";
+      }
+      break;
+    case command_t::ACTION_STOP:
+      st = stop_scan("final", &message);
+      break;
+    case command_t::ACTION_PAUSE:
+      if (!in_scan) {
+        st = invalid_argument("no scan is running");
+      } else {
+        state_ = heartbeat_t::STATE_PAUSED;
+        queue_.clear();
+        message = "scan " + scan_.scan_id + " paused";
+      }
+      break;
+    case command_t::ACTION_RESUME:
+      if (!in_scan) {
+        st = invalid_argument("no scan is running");
+      } else {
+        state_ = heartbeat_t::STATE_RUNNING;
+        message = "scan " + scan_.scan_id + " resumed";
+      }
+      break;
+    case command_t::ACTION_NEW_SCAN: {
+      std::string saved;
+      if (in_scan) st = stop_scan("final", &saved);
+      if (st.is_ok()) st = start_scan(cmd.argument, &message);
+      if (st.is_ok() && !saved.empty()) message = saved + "; " + message;
+      break;
+    }
+    case command_t::ACTION_CHECKPOINT_NOW:
+      if (!in_scan) {
+        st = invalid_argument("no scan is running");
+      } else {
+        const FusionProgress progress{static_cast<uint64_t>(frames_in_.load()),
+                                      static_cast<uint64_t>(frames_fused_.load()),
+                                      static_cast<uint64_t>(queue_.dropped())};
+        st = sink_->checkpoint("command", *reconstructor_, progress);
+        last_checkpoint_ = Clock::now();
+        message = sink_->durable() ? "checkpoint written (" + sink_->describe() + ")"
+                                   : "checkpoint: no checkpoint store in this build (nothing written)";
+      }
+      break;
+    default:
+      st = invalid_argument("unknown action " + std::to_string(cmd.action));
+  }
+  std::fprintf(stderr, "depthfuse-fusion: command %s from %s: %s\n", action_name(cmd.action),
+               cmd.sender.c_str(), st.is_ok() ? message.c_str() : st.to_string().c_str());
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    ack_.id = cmd.command_id;
+    ack_.result = st.is_ok() ? heartbeat_t::COMMAND_RESULT_OK : heartbeat_t::COMMAND_RESULT_REJECTED;
+    ack_.message = st.is_ok() ? message : st.to_string();
+    if (!st.is_ok() && st.code() != StatusCode::kInvalidArgument) last_error_ = st.to_string();
+  }
+  publish_heartbeat();  // the acknowledgement, at once
+}
+
+void FusionDaemon::fuse(QueuedFrame& item) {
+  auto report = reconstructor_->process(item.frame);
+  if (!report) {
+    ++process_errors_;
+    set_error("frame " + std::to_string(item.frame.sequence) + ": " + report.status().to_string());
+    return;
+  }
+  const FrameReport& rep = *report;
+  trajectory_.push_back({item.frame.utime * 1e-6, rep.T_world_cam});
+  const int64_t points = static_cast<int64_t>(reconstructor_->map().point_count());
+  point_count_ = points;
+  ++frames_fused_;
+  out_rate_.add();
+  if (rep.registered) ++registered_;
+  else if (trajectory_.size() > 1) ++icp_failures_;
+
+  depthfuse::pose_t pose;
+  pose.protocol_version = depthfuse::pose_t::PROTOCOL_VERSION;
+  pose.utime = item.frame.utime;
+  pose.sequence = item.frame.sequence;
+  pose.frame_publish_utime = item.publish_utime;
+  pose.scan_id = scan_.scan_id;
+  lcmio::pose_to_arrays(rep.T_world_cam, pose.position_m, pose.orientation_wxyz);
+  pose.registered = rep.registered;
+  pose.icp_fitness = rep.registration.fitness;
+  pose.icp_rmse_m = rep.registration.rmse_m;
+  pose.icp_correspondences = static_cast<int32_t>(rep.registration.correspondences);
+  pose.icp_iterations = rep.registration.iterations;
+  pose.measurements = static_cast<int32_t>(rep.fusion.measurements);
+  pose.prefiltered = static_cast<int32_t>(rep.prefiltered);
+  pose.merged = static_cast<int32_t>(rep.fusion.merged);
+  pose.added = static_cast<int32_t>(rep.fusion.added);
+  pose.map_points = points;
+  pose.prefilter_ms = static_cast<float>(rep.prefilter_ms);
+  pose.registration_ms = static_cast<float>(rep.registration_ms);
+  pose.fusion_ms = static_cast<float>(rep.fusion_ms);
+  pose.publish_utime = daemon::wall_utime();
+  if (auto st = lcm_->publish_message(lcmio::kPoseChannel, pose); !st.is_ok()) set_error(st.message());
+
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (item.publish_utime > 0) ewma(&mean_latency_ms_, (pose.publish_utime - item.publish_utime) * 1e-3);
+    ewma(&mean_prefilter_ms_, rep.prefilter_ms);
+    ewma(&mean_registration_ms_, rep.registration_ms);
+    ewma(&mean_fusion_ms_, rep.fusion_ms);
+    if (rep.registered) {
+      ewma(&mean_fitness_, rep.registration.fitness);
+      ewma(&mean_rmse_m_, rep.registration.rmse_m);
+    }
+  }
+  if (auto st = sink_->frame_fused(item.frame, rep); !st.is_ok())
+    set_error("checkpoint store: " + st.to_string());
+}
+
+void FusionDaemon::worker_loop() {
+  for (;;) {
+    std::deque<command_t> commands;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      commands.swap(commands_);
+    }
+    for (const auto& cmd : commands) execute(cmd);
+    if (stopping_.load()) break;
+
+    auto item = queue_.pop(std::chrono::milliseconds(50));
+    if (item && state_.load() == heartbeat_t::STATE_RUNNING && reconstructor_) fuse(*item);
+
+    if (reconstructor_ && sink_->durable() && state_.load() == heartbeat_t::STATE_RUNNING &&
+        Clock::now() - last_checkpoint_ >
+            std::chrono::duration<double>(config_.fusion.checkpoint_interval_s)) {
+      const FusionProgress progress{static_cast<uint64_t>(frames_in_.load()),
+                                    static_cast<uint64_t>(frames_fused_.load()),
+                                    static_cast<uint64_t>(queue_.dropped())};
+      if (auto st = sink_->checkpoint("periodic", *reconstructor_, progress); !st.is_ok())
+        set_error("checkpoint: " + st.to_string());
+      last_checkpoint_ = Clock::now();
+    }
+  }
+  // Shutting down (SIGTERM): a running scan is saved, not lost.
+  if (reconstructor_) {
+    std::string message;
+    if (auto st = stop_scan("sigterm", &message); !st.is_ok()) {
+      std::fprintf(stderr, "depthfuse-fusion: %s\n", st.to_string().c_str());
+      set_error(st.to_string());
+    }
+  }
+}
+
+// ---------------------------------------------------------------- heartbeat
+
+void FusionDaemon::publish_heartbeat() {
+  heartbeat_t hb = hb_base_.make(state_.load());
+  hb.input_rate_hz = in_rate_.rate_hz();
+  hb.output_rate_hz = out_rate_.rate_hz();
+  hb.frames_in = frames_in_.load();
+  hb.frames_out = frames_fused_.load();
+  hb.frames_dropped = queue_.dropped();
+  hb.frames_lost = counters_.lost.load();
+  hb.messages_malformed = counters_.malformed.load();
+  hb.messages_bad_version = counters_.bad_version.load();
+  hb.messages_foreign = counters_.foreign.load();
+  hb.frames_out_of_order = counters_.out_of_order.load();
+  hb.queue_depth = static_cast<int32_t>(queue_.size());
+  hb.queue_capacity = static_cast<int32_t>(queue_.capacity());
+  hb.point_count = point_count_.load();
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    hb.scan_id = scan_id_;
+    hb.last_error = last_error_;
+    hb.last_command_id = ack_.id;
+    hb.last_command_result = ack_.result;
+    hb.last_command_message = ack_.message;
+    daemon::add_counter(&hb, "latency_ms_mean", mean_latency_ms_);
+    daemon::add_counter(&hb, "prefilter_ms_mean", mean_prefilter_ms_);
+    daemon::add_counter(&hb, "registration_ms_mean", mean_registration_ms_);
+    daemon::add_counter(&hb, "fusion_ms_mean", mean_fusion_ms_);
+    daemon::add_counter(&hb, "icp_fitness_mean", mean_fitness_);
+    daemon::add_counter(&hb, "icp_rmse_mm_mean", mean_rmse_m_ * 1e3);
+  }
+  daemon::add_counter(&hb, "frames_ignored", static_cast<double>(frames_ignored_.load()));
+  daemon::add_counter(&hb, "frames_registered", static_cast<double>(registered_.load()));
+  daemon::add_counter(&hb, "icp_failures", static_cast<double>(icp_failures_.load()));
+  daemon::add_counter(&hb, "process_errors", static_cast<double>(process_errors_.load()));
+  if (auto st = lcm_->publish_message(lcmio::kHeartbeatChannel, hb); !st.is_ok())
+    set_error(st.message());
+}
+
+int FusionDaemon::run(const std::function<bool()>& stop_requested) {
+  worker_ = std::thread([this] { worker_loop(); });
+  if (!options_.autostart_scan.empty()) {
+    command_t cmd;
+    cmd.protocol_version = command_t::PROTOCOL_VERSION;
+    cmd.command_id = -1;  // never collides with an operator's (positive) id
+    cmd.target = options_.name;
+    cmd.action = command_t::ACTION_START;
+    cmd.argument = options_.autostart_scan;
+    cmd.sender = "--autostart";
+    std::lock_guard<std::mutex> lock(mutex_);
+    commands_.push_back(cmd);
+  }
+  daemon::notify_ready("listening on " + lcm_->url() + ", checkpoints: " + sink_->describe());
+  daemon::WatchdogPetter watchdog;
+  const auto hb_period = std::chrono::duration_cast<Clock::duration>(
+      std::chrono::duration<double>(1.0 / config_.fusion.heartbeat_rate_hz));
+  auto next_hb = Clock::now();
+  int exit_code = 0;
+  while (!stop_requested()) {
+    auto r = lcm_->handle(20);
+    if (!r) {
+      set_error(r.status().to_string());
+      std::fprintf(stderr, "depthfuse-fusion: %s\n", r.status().to_string().c_str());
+      exit_code = 1;
+      break;
+    }
+    const auto now = Clock::now();
+    if (now >= next_hb) {
+      publish_heartbeat();
+      watchdog.pet();
+      daemon::notify_status(std::string(daemon::state_name(state_.load())) + ", " +
+                            std::to_string(frames_fused_.load()) + " frames fused, " +
+                            std::to_string(point_count_.load()) + " points");
+      next_hb += hb_period;
+      if (next_hb < now) next_hb = now + hb_period;
+    }
+  }
+  daemon::notify_stopping();
+  stopping_ = true;
+  queue_.wake();
+  if (worker_.joinable()) worker_.join();
+  state_ = heartbeat_t::STATE_STOPPING;
+  publish_heartbeat();
+  return exit_code;
+}
+
+}  // namespace depthfuse::fusiond

@@ -1,0 +1,104 @@
+// The fusion daemon: LCM depth frames in, refined poses out, one scan at a time.
+//  - the receive thread (run()) decodes and checks messages, counts what it cannot use, and pushes
+//    frames into a bounded queue that drops the oldest frame when fusion falls behind; it never
+//    waits on fusion work;
+//  - the worker thread runs IncrementalReconstructor::process per frame (pre-filter, initial pose
+//    from the hint or the last pose, re-registration against the map, fusion), publishes the
+//    refined pose, and carries out the operator's commands between frames.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <deque>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "checkpoint_sink.hpp"
+#include "depthfuse/app_config.hpp"
+#include "depthfuse/command_t.hpp"
+#include "depthfuse/daemon/bounded_queue.hpp"
+#include "depthfuse/daemon/heartbeat.hpp"
+#include "depthfuse/daemon/rate_meter.hpp"
+#include "depthfuse/lcm/codec.hpp"
+#include "depthfuse/lcm/transport.hpp"
+#include "depthfuse/pipeline.hpp"
+
+namespace depthfuse::fusiond {
+
+struct DaemonOptions {
+  std::string name = "fusion";    // heartbeat name and command target
+  std::string autostart_scan;     // non-empty: start this scan at once ("-" = a generated name)
+};
+
+class FusionDaemon {
+ public:
+  FusionDaemon(const AppConfig& config, const DaemonOptions& options,
+               std::unique_ptr<lcmio::LcmTransport> lcm, std::unique_ptr<CheckpointSink> sink);
+  ~FusionDaemon();
+
+  // Receives until stop_requested() turns true; then ends the worker (saving an open scan).
+  int run(const std::function<bool()>& stop_requested);
+
+ private:
+  struct QueuedFrame {
+    Frame frame;
+    int64_t publish_utime = 0;  // the capture's publish time (latency)
+  };
+  struct Ack {
+    int64_t id = 0;
+    int8_t result = 0;
+    std::string message;
+  };
+
+  void on_depth(const uint8_t* data, size_t size);
+  void on_color(const uint8_t* data, size_t size);
+  void on_command(const uint8_t* data, size_t size);
+  void worker_loop();
+  void execute(const depthfuse::command_t& cmd);
+  Status start_scan(const std::string& requested_name, std::string* message);
+  Status stop_scan(const std::string& reason, std::string* message);
+  void fuse(QueuedFrame& item);
+  void publish_heartbeat();
+  void set_error(const std::string& e);
+
+  AppConfig config_;
+  DaemonOptions options_;
+  std::unique_ptr<lcmio::LcmTransport> lcm_;
+  std::unique_ptr<CheckpointSink> sink_;
+  daemon::HeartbeatBase hb_base_;
+  daemon::BoundedQueue<QueuedFrame> queue_;
+
+  // Receive thread only.
+  lcmio::SequenceTracker sequence_;
+  std::map<int64_t, ColorImage> pending_color_;  // by sequence, the last few
+
+  // Shared.
+  std::atomic<int8_t> state_;
+  std::atomic<bool> stopping_{false};
+  lcmio::ReceiveCounters counters_;             // all our channels together
+  std::atomic<int64_t> frames_in_{0}, frames_fused_{0}, frames_ignored_{0};
+  std::atomic<int64_t> process_errors_{0}, icp_failures_{0}, registered_{0};
+  std::atomic<int64_t> point_count_{0};
+  daemon::RateMeter in_rate_, out_rate_;
+  std::mutex mutex_;                            // guards the fields below
+  std::string scan_id_, last_error_;
+  Ack ack_;
+  std::deque<depthfuse::command_t> commands_;
+  double mean_latency_ms_ = 0, mean_prefilter_ms_ = 0, mean_registration_ms_ = 0,
+         mean_fusion_ms_ = 0, mean_fitness_ = 0, mean_rmse_m_ = 0;
+  std::string last_saved_cloud_;
+
+  // Worker only.
+  std::unique_ptr<IncrementalReconstructor> reconstructor_;
+  std::vector<StampedPose> trajectory_;
+  ScanContext scan_;
+  std::chrono::steady_clock::time_point last_checkpoint_;
+  std::thread worker_;
+};
+
+}  // namespace depthfuse::fusiond
