@@ -1,0 +1,101 @@
+// depthfuse export: a scan file's cloud to PLY or PCD, streamed chunk by chunk (bounded memory),
+// from the last checkpoint; works while the fusion daemon is writing the file.
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+
+#include "cli_util.hpp"
+#include "command.hpp"
+#include "depthfuse/store/export.hpp"
+#include "depthfuse/store/scan_store.hpp"
+
+using namespace depthfuse;
+
+namespace {
+
+constexpr const char* kCmd = "export";
+constexpr const char* kUsage =
+    "depthfuse export <scan.db> -o out.ply|out.pcd [--min-merges N]\n"
+    "         [--bbox x0,y0,z0,x1,y1,z1] [--no-color] [--no-stats] [--trajectory FILE]\n"
+    "         [--skip-damaged]";
+
+bool parse_bbox(const std::string& text, Eigen::AlignedBox3f* out, std::string* err) {
+  double v[6];
+  std::istringstream in(text);
+  std::string field;
+  int n = 0;
+  while (std::getline(in, field, ',')) {
+    char* end = nullptr;
+    if (n >= 6) break;
+    v[n] = std::strtod(field.c_str(), &end);
+    if (field.empty() || *end || !std::isfinite(v[n])) {
+      *err = "--bbox: '" + field + "' is not a number";
+      return false;
+    }
+    ++n;
+  }
+  if (n != 6 || in.rdbuf()->in_avail() > 0) {
+    *err = "--bbox expects six comma-separated numbers x0,y0,z0,x1,y1,z1, got '" + text + "'";
+    return false;
+  }
+  if (v[0] > v[3] || v[1] > v[4] || v[2] > v[5]) {
+    *err = "--bbox: the first corner must be the minimum (x0 <= x1, y0 <= y1, z0 <= z1)";
+    return false;
+  }
+  out->min() = Eigen::Vector3f(v[0], v[1], v[2]);
+  out->max() = Eigen::Vector3f(v[3], v[4], v[5]);
+  return true;
+}
+
+int run(int argc, char** argv) {
+  cli::Args args(argc, argv, {"no-color", "no-stats", "skip-damaged", "help"});
+  if (args.has("help")) return std::printf("usage: %s\n", kUsage), 0;
+  if (!args.ok()) return cli::fail(kCmd, args.error());
+  const std::string bad = args.unknown(
+      {"output", "min-merges", "bbox", "no-color", "no-stats", "trajectory", "skip-damaged"});
+  if (!bad.empty()) return cli::fail(kCmd, "unknown option " + bad + "\nusage: " + kUsage);
+  if (args.positional().size() != 1 || !args.has("output"))
+    return cli::fail(kCmd, std::string("expected one scan file and -o out.ply|out.pcd\nusage: ") + kUsage);
+
+  store::ExportOptions options;
+  long min_merges = 0;
+  std::string err;
+  if (!args.get_int("min-merges", &min_merges, &err)) return cli::fail(kCmd, err);
+  if (min_merges < 0 || min_merges > 65535) return cli::fail(kCmd, "--min-merges must be 0..65535");
+  options.min_merges = static_cast<uint32_t>(min_merges);
+  if (args.has("bbox")) {
+    Eigen::AlignedBox3f box;
+    if (!parse_bbox(args.get("bbox"), &box, &err)) return cli::fail(kCmd, err);
+    options.bbox_m = box;
+  }
+  options.with_color = !args.has("no-color");
+  options.with_fusion_stats = !args.has("no-stats");
+  options.skip_damaged = args.has("skip-damaged");
+  const std::string out = args.get("output");
+  if (auto format = store::cloud_format_for(out); !format) return cli::fail(kCmd, format.status().message());
+
+  auto opened = store::ScanStore::open(args.positional()[0], store::OpenMode::kReadOnly);
+  if (!opened) return cli::fail(kCmd, opened.status().message());
+  store::ScanStore& scan = **opened;
+  auto report = store::export_cloud(scan, out, options);
+  if (!report) return cli::fail(kCmd, report.status().message());
+  for (const std::string& d : report->damaged) std::fprintf(stderr, "depthfuse export: skipped: %s\n", d.c_str());
+  if (args.has("trajectory")) {
+    const Status st = store::export_trajectory(scan, args.get("trajectory"));
+    if (!st) return cli::fail(kCmd, st.message());
+  }
+  std::printf("wrote %llu points from %zu chunks to %s", static_cast<unsigned long long>(report->points_written),
+              report->chunks_read, out.c_str());
+  if (report->points_filtered) std::printf(" (%llu filtered out)", static_cast<unsigned long long>(report->points_filtered));
+  std::printf("\n");
+  if (!report->damaged.empty()) {
+    std::fprintf(stderr, "depthfuse export: %zu damaged chunks were left out\n", report->damaged.size());
+    return 1;
+  }
+  return 0;
+}
+
+}  // namespace
+
+DF_REGISTER_COMMAND(export_cmd, kCmd, kUsage,
+                    "write a scan file's cloud to PLY or PCD (streaming, works during a scan)", run);

@@ -1,0 +1,136 @@
+// depthfuse inspect: what a scan file holds, and whether it is intact.
+#include <cinttypes>
+#include <cstdio>
+#include <ctime>
+
+#include "cli_util.hpp"
+#include "command.hpp"
+#include "depthfuse/store/scan_store.hpp"
+
+using namespace depthfuse;
+
+namespace {
+
+constexpr const char* kCmd = "inspect";
+constexpr const char* kUsage =
+    "depthfuse inspect <scan.db> [--quick] [--checkpoints] [--chunks] [--upgrade]\n"
+    "  --quick        SQLite's integrity check only, blobs are not decoded\n"
+    "  --checkpoints  list every checkpoint\n"
+    "  --chunks       list every chunk (key, points, bounds)\n"
+    "  --upgrade      migrate an older schema in place (opens the file for writing)";
+
+std::string format_time(int64_t utime) {
+  if (utime <= 0) return "-";
+  const std::time_t t = static_cast<std::time_t>(utime / 1000000);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[64];
+  std::strftime(buf, sizeof(buf), "%Y-%m-%d %H:%M:%S UTC", &tm);
+  return buf;
+}
+
+std::string mib(uint64_t bytes) {
+  char buf[32];
+  std::snprintf(buf, sizeof(buf), "%.1f MiB", bytes / (1024.0 * 1024.0));
+  return buf;
+}
+
+int run(int argc, char** argv) {
+  cli::Args args(argc, argv, {"quick", "checkpoints", "chunks", "upgrade", "help"});
+  if (args.has("help")) return std::printf("usage: %s\n", kUsage), 0;
+  if (!args.ok()) return cli::fail(kCmd, args.error());
+  const std::string bad = args.unknown({"quick", "checkpoints", "chunks", "upgrade"});
+  if (!bad.empty()) return cli::fail(kCmd, "unknown option " + bad + "\nusage: " + kUsage);
+  if (args.positional().size() != 1) return cli::fail(kCmd, std::string("expected one scan file\nusage: ") + kUsage);
+  const std::string path = args.positional()[0];
+
+  if (args.has("upgrade")) {
+    auto rw = store::ScanStore::open(path, store::OpenMode::kReadWrite);
+    if (!rw) return cli::fail(kCmd, rw.status().message());
+    const auto& rep = (*rw)->open_report();
+    std::printf("%s: schema %d%s\n", path.c_str(), rep.found_schema_version,
+                rep.migrated ? (" migrated to " + std::to_string(store::kSchemaVersion)).c_str()
+                             : " is current");
+  }
+  auto opened = store::ScanStore::open(path, store::OpenMode::kReadOnly);
+  if (!opened) return cli::fail(kCmd, opened.status().message());
+  store::ScanStore& scan = **opened;
+
+  auto sum = scan.summary();
+  if (!sum) {
+    // Damaged beyond a summary: still say what the integrity check finds.
+    std::fprintf(stderr, "depthfuse inspect: %s\n", sum.status().message().c_str());
+    auto integrity = scan.integrity_check(!args.has("quick"));
+    if (integrity)
+      for (const auto& p : integrity->problems) std::fprintf(stderr, "depthfuse inspect: %s\n", p.c_str());
+    std::printf("integrity      DAMAGED\n");
+    return 1;
+  }
+  const store::StoreSummary& s = *sum;
+  std::printf("scan file      %s\n", s.path.c_str());
+  std::printf("schema version %d\n", s.schema_version);
+  std::printf("scan id        %s\n", s.metadata.scan_id.empty() ? "-" : s.metadata.scan_id.c_str());
+  std::printf("created        %s\n", format_time(s.metadata.created_utime).c_str());
+  std::printf("sensor         %s\n", s.metadata.sensor_serial.empty() ? "-" : s.metadata.sensor_serial.c_str());
+  std::printf("method         %s\n", s.metadata.method.empty() ? "-" : s.metadata.method.c_str());
+  std::printf("configuration  %s\n", s.has_config ? "stored" : "none");
+  std::printf("frames         %" PRIu64 " received, %" PRIu64 " fused, %" PRIu64 " dropped; %zu poses, %zu keyframes (%s)\n",
+              s.metadata.frames_received, s.metadata.frames_fused, s.metadata.frames_dropped,
+              s.pose_count, s.keyframe_count, mib(s.keyframe_bytes).c_str());
+  std::printf("points         %" PRIu64 " in %zu chunks of %.3g m (%s)\n", s.point_count, s.chunk_count,
+              s.metadata.chunk_size_m, mib(s.chunk_bytes).c_str());
+  if (s.extent_m.isEmpty()) {
+    std::printf("extent         -\n");
+  } else {
+    const Eigen::Vector3f size = s.extent_m.sizes();
+    std::printf("extent         [%.3f, %.3f, %.3f] .. [%.3f, %.3f, %.3f] m (%.2f x %.2f x %.2f m)\n",
+                s.extent_m.min().x(), s.extent_m.min().y(), s.extent_m.min().z(), s.extent_m.max().x(),
+                s.extent_m.max().y(), s.extent_m.max().z(), size.x(), size.y(), size.z());
+  }
+  if (s.last_checkpoint) {
+    std::printf("checkpoints    %zu, last #%" PRId64 " at %s (%s, frame %u)\n", s.checkpoint_count,
+                s.last_checkpoint->id, format_time(s.last_checkpoint->utime).c_str(),
+                s.last_checkpoint->reason.c_str(), s.last_checkpoint->last_frame_id);
+  } else {
+    std::printf("checkpoints    none\n");
+  }
+  if (s.staged_chunk_count)
+    std::printf("staged         %zu evicted chunks not yet in a checkpoint (a writer is active or crashed)\n",
+                s.staged_chunk_count);
+  std::printf("file size      %s (+ %s WAL)\n", mib(s.file_bytes).c_str(), mib(s.wal_bytes).c_str());
+
+  if (args.has("checkpoints")) {
+    auto cps = scan.checkpoints();
+    if (!cps) return cli::fail(kCmd, cps.status().message());
+    for (const auto& c : *cps)
+      std::printf("  checkpoint #%" PRId64 "  %s  %-8s frame %u  %" PRIu64 " points  %" PRIu64 " chunks\n", c.id,
+                  format_time(c.utime).c_str(), c.reason.c_str(), c.last_frame_id, c.point_count, c.chunk_count);
+  }
+  if (args.has("chunks")) {
+    auto chunks = scan.list_chunks(true);
+    if (!chunks) return cli::fail(kCmd, chunks.status().message());
+    for (const auto& c : *chunks)
+      std::printf("  chunk %-16s %7u points  %8zu bytes  %s\n", store::to_string(c.key).c_str(), c.point_count,
+                  c.blob_bytes, c.checkpoint_id ? ("checkpoint " + std::to_string(c.checkpoint_id)).c_str() : "staged");
+  }
+
+  auto integrity = scan.integrity_check(!args.has("quick"));
+  if (!integrity) return cli::fail(kCmd, integrity.status().message());
+  if (integrity->ok()) {
+    std::printf("integrity      ok (sqlite integrity_check%s)\n",
+                args.has("quick") ? "; blobs not checked (--quick)"
+                                  : ("; " + std::to_string(integrity->chunks_checked) + " chunk, " +
+                                     std::to_string(integrity->keyframes_checked) + " keyframe and " +
+                                     std::to_string(integrity->poses_checked) + " pose records decoded and checksummed")
+                                        .c_str());
+    return 0;
+  }
+  std::printf("integrity      DAMAGED: %zu problems\n", integrity->problems.size());
+  for (const auto& p : integrity->problems) std::fprintf(stderr, "depthfuse inspect: %s\n", p.c_str());
+  return 1;
+}
+
+}  // namespace
+
+DF_REGISTER_COMMAND(inspect, kCmd, kUsage,
+                    "summarise a scan file and check its integrity", run);

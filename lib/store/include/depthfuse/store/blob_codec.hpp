@@ -1,0 +1,92 @@
+// The blobs of the scan file: a chunk's points, a keyframe's depth and colour, a pose. Each blob is
+// self-describing and checked: a header with its own CRC-32, the columns' element sizes and a
+// CRC-32 of every column's raw bytes, then one zstd frame. Decoding names what is damaged
+// ("column 'nx': checksum mismatch"). Lossless: decode(encode(x)) is bit-identical to x.
+// Layout: docs/checkpoint-format.md ("Blob encoding").
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "depthfuse/point_arrays.hpp"
+#include "depthfuse/status.hpp"
+#include "depthfuse/types.hpp"
+
+struct ZSTD_CCtx_s;
+struct ZSTD_DCtx_s;
+
+namespace depthfuse::store {
+
+enum class BlobKind : uint8_t { kPoints = 1, kDepth = 2, kColor = 3 };
+
+// How a keyframe's depth is stored. The encoder picks the first uint16 format that reproduces
+// every pixel bit for bit (depth from a Kinect or a TUM PNG), and raw float32 otherwise.
+enum class DepthFormat : uint8_t {
+  kFloat32 = 0,        // IEEE float metres
+  kU16DivBy1000 = 1,   // millimetres: depth_m = float(v) / 1000.0f
+  kU16Times1e3 = 2,    //              depth_m = float(v) * 0.001f
+  kU16DivBy5000 = 3,   // TUM PNG units: depth_m = float(v) / 5000.0f
+  kU16Times2e4 = 4,    //              depth_m = float(v) * 0.0002f
+};
+const char* to_string(DepthFormat f);
+
+// What a blob holds, without decoding the payload (inspect, integrity checks).
+struct BlobHeader {
+  BlobKind kind = BlobKind::kPoints;
+  uint32_t element_count = 0;
+  uint32_t width = 0, height = 0;     // images only
+  uint32_t raw_bytes = 0, compressed_bytes = 0;
+  uint8_t first_column_id = 0;        // for depth: the DepthFormat
+};
+
+// Encoder/decoder with reusable zstd contexts and scratch buffers. Not thread-safe; one per thread.
+class BlobCodec {
+ public:
+  explicit BlobCodec(int compression_level = 3);
+  ~BlobCodec();
+  BlobCodec(const BlobCodec&) = delete;
+  BlobCodec& operator=(const BlobCodec&) = delete;
+
+  Status encode_points(const PointArrays& points, std::vector<uint8_t>* blob);
+  // `what` names the blob in errors, e.g. "chunk (1,2,-3)".
+  Status decode_points(const void* blob, size_t size, const std::string& what, PointArrays* out);
+
+  Status encode_depth(const DepthImage& depth, std::vector<uint8_t>* blob,
+                      DepthFormat* chosen = nullptr);
+  Status decode_depth(const void* blob, size_t size, const std::string& what, DepthImage* out);
+
+  Status encode_color(const ColorImage& color, std::vector<uint8_t>* blob);
+  Status decode_color(const void* blob, size_t size, const std::string& what, ColorImage* out);
+
+  // Validates magic, header checksum and sizes (not the payload).
+  static Result<BlobHeader> read_header(const void* blob, size_t size, const std::string& what);
+
+ private:
+  struct Column {
+    uint8_t id;
+    uint8_t element_size;
+    uint8_t transform;
+    const void* data;     // encode: source
+    void* out;            // decode: destination (element_count * element_size bytes)
+    const char* name;
+  };
+  Status encode(BlobKind kind, uint32_t count, uint32_t width, uint32_t height,
+                const std::vector<Column>& columns, std::vector<uint8_t>* blob);
+  // Decodes into columns[i].out after checking the header agrees with `columns` (ids, sizes).
+  Status decode(const void* blob, size_t size, const std::string& what, BlobKind kind,
+                const BlobHeader& header, std::vector<Column>& columns);
+
+  int level_;
+  ZSTD_CCtx_s* cctx_ = nullptr;
+  ZSTD_DCtx_s* dctx_ = nullptr;
+  std::vector<uint8_t> raw_;     // transformed columns, concatenated
+  std::vector<uint16_t> u16_;    // depth scratch
+};
+
+// Poses are stored as the top three rows of the 4x4 matrix, 12 little-endian doubles row-major.
+std::vector<uint8_t> encode_pose(const Pose& T);
+Status decode_pose(const void* blob, size_t size, const std::string& what, Pose* out);
+
+}  // namespace depthfuse::store

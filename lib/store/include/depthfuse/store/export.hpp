@@ -1,0 +1,44 @@
+// Exports the cloud of a scan file to PLY or PCD, chunk by chunk: memory holds one chunk at a
+// time. Both passes (count, then write) run in one read snapshot, so the export is consistent
+// while the daemon keeps writing, and it shows the last checkpoint.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "depthfuse/status.hpp"
+#include "depthfuse/store/scan_store.hpp"
+
+namespace depthfuse::store {
+
+enum class CloudFormat { kPly, kPcd };
+// From the file name: .ply or .pcd (case-insensitive).
+Result<CloudFormat> cloud_format_for(const std::string& path);
+
+struct ExportOptions {
+  uint32_t min_merges = 0;                   // keep points merged at least this often
+  std::optional<Eigen::AlignedBox3f> bbox_m; // keep points inside this box (world frame)
+  bool with_color = true;
+  bool with_fusion_stats = true;             // merges, violations, uncertainty_m
+  bool skip_damaged = false;                 // salvage: leave out chunks that fail their checks
+};
+
+struct ExportReport {
+  uint64_t points_written = 0;
+  uint64_t points_filtered = 0;              // in the chunks read, removed by the filters
+  size_t chunks_read = 0;
+  std::vector<std::string> damaged;          // skipped chunks (skip_damaged only)
+};
+
+// On failure the partly written output file is removed.
+Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
+                                  const ExportOptions& options = {});
+
+// The poses of the last checkpoint as a TUM trajectory (timestamps from utime).
+Status export_trajectory(ScanStore& store, const std::string& path);
+
+}  // namespace depthfuse::store

@@ -1,0 +1,110 @@
+// What the fusion daemon needs from the store, in one object: a new or resumed scan file, the pose
+// of every fused frame, a keyframe every n frames, bounded memory through the MapPager, and
+// checkpoints (periodic, on command, on SIGTERM, final). Errors are returned and also kept in
+// status() for the heartbeat; a failed checkpoint leaves the previous one intact and everything it
+// would have written stays pending for the next attempt.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "depthfuse/pipeline.hpp"
+#include "depthfuse/point_map.hpp"
+#include "depthfuse/status.hpp"
+#include "depthfuse/store/map_pager.hpp"
+#include "depthfuse/store/scan_store.hpp"
+
+namespace depthfuse::store {
+
+struct RecorderConfig {
+  bool bounded_memory = true;        // run the MapPager
+  MapPagerConfig pager;
+  int keyframe_every_n_frames = 10;  // 0 = no keyframes
+  bool keyframe_color = true;        // store the registered colour image with the depth
+  StoreOptions store;
+};
+
+// Frame counters the daemon keeps (queue drops happen before the recorder sees a frame).
+struct FrameCounters {
+  uint64_t received = 0;
+  uint64_t dropped = 0;
+};
+
+struct RecorderStatus {
+  std::string path;
+  uint64_t frames_recorded = 0;
+  uint64_t keyframes_written = 0;
+  size_t pending_poses = 0;                  // recorded since the last checkpoint
+  uint64_t checkpoints_written = 0;          // by this process
+  std::optional<CheckpointRecord> last_checkpoint;
+  double last_checkpoint_seconds = 0.0;      // how long the last checkpoint took
+  PagerStats pager;
+  StatusCode last_error_code = StatusCode::kOk;
+  std::string last_error;                    // the latest failure, cleared by the next success
+};
+
+// Where a resumed scan continues.
+struct ResumePoint {
+  std::unique_ptr<PointMap> map;             // chunks near the last camera position (or all)
+  uint32_t next_frame_id = 1;
+  std::optional<Pose> last_T_world_cam;
+  ScanMetadata metadata;
+  std::optional<CheckpointRecord> checkpoint;
+  OpenReport open_report;                    // what was discarded (work after the checkpoint)
+};
+
+class ScanRecorder {
+ public:
+  // A new scan file (fails if `path` exists). Stores the metadata and the configuration text.
+  static Result<std::unique_ptr<ScanRecorder>> create(const std::string& path,
+                                                      const ScanMetadata& metadata,
+                                                      const std::string& config_toml,
+                                                      const std::string& config_source,
+                                                      const RecorderConfig& config);
+  // An existing scan: reopens it, discards what came after its last checkpoint and returns the
+  // map (near the last camera position when memory is bounded), the next frame id and the pose.
+  static Result<std::unique_ptr<ScanRecorder>> resume(const std::string& path,
+                                                      const RecorderConfig& config,
+                                                      ResumePoint* resume);
+  ~ScanRecorder();
+
+  // After IncrementalReconstructor::process: buffers the pose, writes a keyframe every n frames,
+  // and lets the pager load and evict chunks around the camera.
+  Status record_frame(const Frame& frame, const FrameReport& report, PointMap* map);
+
+  // One transaction: changed resident chunks, chunks removed from the map, chunks evicted since
+  // the last checkpoint, buffered poses and the counters.
+  Result<CheckpointRecord> checkpoint(PointMap* map, const std::string& reason,
+                                      const FrameCounters& counters = {});
+
+  // End of scan, after IncrementalReconstructor::finish() post-filtered the resident map: applies
+  // the same post-filter to evicted chunks (one at a time) and writes a final checkpoint.
+  Result<CheckpointRecord> finish(PointMap* map, const FrameCounters& counters = {},
+                                  const std::string& reason = "final");
+
+  const RecorderStatus& status() const { return status_; }
+  ScanStore& store() { return *store_; }
+  MapPager* pager() { return pager_.get(); }
+  uint32_t last_frame_id() const { return last_frame_id_; }
+
+ private:
+  ScanRecorder(std::unique_ptr<ScanStore> store, const RecorderConfig& config);
+  Status note(Status st);
+  Result<CheckpointRecord> write_checkpoint(PointMap* map, const std::string& reason,
+                                            const FrameCounters& counters, bool postfilter_evicted);
+
+  std::unique_ptr<ScanStore> store_;
+  RecorderConfig config_;
+  std::unique_ptr<MapPager> pager_;
+  std::vector<PoseRecord> pending_poses_;
+  uint32_t last_frame_id_ = 0;
+  std::optional<Pose> last_pose_;
+  uint64_t frames_fused_ = 0;                // including those before a resume
+  uint64_t frames_since_keyframe_ = 0;
+  RecorderStatus status_;
+};
+
+}  // namespace depthfuse::store

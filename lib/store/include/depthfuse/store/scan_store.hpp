@@ -1,0 +1,251 @@
+// The scan file: one SQLite database per scan holding the fused cloud by chunk, the poses, the
+// keyframes (losslessly compressed depth for offline refinement), scan metadata and the
+// configuration in use. Format, versions and durability: docs/checkpoint-format.md.
+//
+// Writing happens in checkpoints, each one transaction (WAL, committed with synchronous=FULL): after
+// a crash or power loss the file holds exactly the last committed checkpoint. Between checkpoints
+// the memory pager may stage evicted chunks and keyframes in the file; those are promoted by the
+// next checkpoint, and discarded when a writer reopens the file after a crash (they belong to
+// frames after the last checkpoint). Readers (export, inspect) see the last checkpoint only, and can
+// run while the daemon writes.
+//
+// One writer per file (an advisory lock, so a second writer gets kUnavailable); any number of
+// readers. A ScanStore is used from one thread.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "depthfuse/point_map.hpp"
+#include "depthfuse/status.hpp"
+#include "depthfuse/types.hpp"
+
+namespace depthfuse::store {
+
+constexpr int kSchemaVersion = 2;                 // PRAGMA user_version of files written now
+constexpr int32_t kApplicationId = 0x44465343;    // PRAGMA application_id: "DFSC"
+
+enum class OpenMode {
+  kCreate,     // a new file; fails if it exists
+  kReadWrite,  // an existing file: migrates an older schema, discards work after the last checkpoint
+  kReadOnly,   // never writes; works while a writer is active
+};
+
+struct StoreOptions {
+  int compression_level = 3;     // zstd level of chunk and keyframe blobs
+  int busy_timeout_ms = 5000;    // wait this long for a lock held by another connection
+};
+
+struct ScanMetadata {
+  std::string scan_id;
+  int64_t created_utime = 0;     // microseconds since the Unix epoch
+  std::string sensor_serial;
+  std::string method;            // to_string(Method)
+  double chunk_size_m = 0.5;     // of the PointMap the chunks come from
+  std::string software_version;
+  uint64_t frames_received = 0;
+  uint64_t frames_fused = 0;
+  uint64_t frames_dropped = 0;
+};
+
+// One fused frame's pose and how well it registered.
+struct PoseRecord {
+  uint32_t frame_id = 0;
+  int64_t utime = 0;
+  Pose T_world_cam = Pose::Identity();
+  bool registered = false;       // ICP converged
+  double fitness = 0.0;
+  double rmse_m = 0.0;
+  uint32_t correspondences = 0;
+};
+
+// A frame kept for offline refinement: depth (lossless), optional colour, intrinsics and pose.
+struct Keyframe {
+  uint32_t frame_id = 0;
+  int64_t utime = 0;
+  std::string sensor_serial;
+  CameraIntrinsics intrinsics;
+  Pose T_world_cam = Pose::Identity();
+  DepthImage depth;
+  ColorImage color;              // empty when not stored
+
+  static Keyframe from_frame(const Frame& frame, uint32_t frame_id, const Pose& T_world_cam,
+                             bool keep_color);
+  // A Frame for the pipeline; the stored pose becomes the frame's pose hint.
+  Frame to_frame() const;
+};
+
+struct KeyframeInfo {
+  uint32_t frame_id = 0;
+  int64_t utime = 0;
+  int width = 0, height = 0;
+  Pose T_world_cam = Pose::Identity();
+  size_t depth_bytes = 0, color_bytes = 0;   // stored (compressed) sizes
+};
+
+struct ChunkInfo {
+  ChunkKey key;
+  uint32_t point_count = 0;
+  Eigen::AlignedBox3f bounds_m;              // of the points; empty for an empty chunk
+  uint32_t last_touched_frame = 0;
+  int64_t checkpoint_id = 0;                 // the checkpoint that wrote it (0 = staged)
+  size_t blob_bytes = 0;
+};
+
+struct StoredChunk {
+  ChunkInfo info;
+  Chunk chunk;                               // dirty = false: it is what the file holds
+};
+
+// What a checkpoint records besides the chunks, poses and keyframes written into it.
+struct CheckpointInfo {
+  std::string reason = "periodic";           // periodic | command | sigterm | final | refine | ...
+  uint32_t last_frame_id = 0;                // every frame up to this one is in the checkpoint
+  std::optional<Pose> T_world_cam;           // camera at the checkpoint (where a resume starts)
+  uint64_t frames_received = 0, frames_fused = 0, frames_dropped = 0;
+};
+
+struct CheckpointRecord {
+  int64_t id = 0;                            // 1, 2, 3 ...
+  int64_t utime = 0;                         // wall clock at commit
+  std::string reason;
+  uint32_t last_frame_id = 0;
+  uint64_t frames_fused = 0;
+  uint64_t point_count = 0, chunk_count = 0;
+  std::optional<Pose> T_world_cam;
+};
+
+// What opening read-write did to the file.
+struct OpenReport {
+  int found_schema_version = 0;
+  bool migrated = false;
+  size_t discarded_staged_chunks = 0;        // staged after the last checkpoint (crash)
+  size_t discarded_poses = 0, discarded_keyframes = 0;
+};
+
+struct StoreSummary {
+  std::string path;
+  int schema_version = 0;
+  ScanMetadata metadata;
+  bool has_config = false;
+  size_t chunk_count = 0;
+  uint64_t point_count = 0;
+  Eigen::AlignedBox3f extent_m;              // empty without points
+  size_t pose_count = 0, keyframe_count = 0;
+  size_t checkpoint_count = 0;
+  std::optional<CheckpointRecord> last_checkpoint;
+  size_t staged_chunk_count = 0;             // evicted since the last checkpoint
+  uint64_t chunk_bytes = 0, keyframe_bytes = 0;  // stored blob sizes
+  uint64_t file_bytes = 0, wal_bytes = 0;
+};
+
+struct IntegrityReport {
+  bool ok() const { return problems.empty(); }
+  std::vector<std::string> problems;         // each names the table/row/column at fault
+  size_t chunks_checked = 0, keyframes_checked = 0, poses_checked = 0;
+};
+
+// Chunk iteration options.
+struct ChunkFilter {
+  // Only chunks whose bounds intersect this box (SQL-side, nothing else is decoded).
+  std::optional<Eigen::AlignedBox3f> bbox_m;
+  // When set, a chunk whose blob fails its checks is reported here and skipped (salvage);
+  // otherwise iteration stops with that error.
+  std::function<void(const Status&)> on_damaged;
+};
+
+class ScanStore {
+ public:
+  static Result<std::unique_ptr<ScanStore>> open(const std::string& path, OpenMode mode,
+                                                 const StoreOptions& options = {});
+  ~ScanStore();
+  ScanStore(const ScanStore&) = delete;
+  ScanStore& operator=(const ScanStore&) = delete;
+
+  const std::string& path() const;
+  bool read_only() const;
+  int schema_version() const;
+  const OpenReport& open_report() const;
+
+  // ---- Metadata and configuration (inside a checkpoint, or each its own transaction).
+  Status set_metadata(const ScanMetadata& meta);
+  Result<ScanMetadata> metadata();
+  Status set_config(const std::string& toml_text, const std::string& source_path);
+  // Empty optional when the scan has none.
+  Result<std::optional<std::string>> config_toml();
+
+  // ---- Checkpoints: begin, write, commit. Nothing is visible to readers before commit; a failed
+  // write or commit rolls the whole checkpoint back and the previous one stays intact.
+  Status begin_checkpoint();
+  // An empty chunk deletes the key. Replaces a staged copy of the same key.
+  Status write_chunk(const ChunkKey& key, const Chunk& chunk);
+  Status delete_chunk(const ChunkKey& key);
+  Status delete_all_chunks();                       // e.g. refine replaces the cloud
+  Status write_pose(const PoseRecord& pose);        // insert or replace by frame id
+  Status update_keyframe_pose(uint32_t frame_id, const Pose& T_world_cam);
+  // Promotes staged chunks, records the checkpoint, commits with a full sync.
+  Result<CheckpointRecord> commit_checkpoint(const CheckpointInfo& info);
+  void rollback_checkpoint();
+  bool in_checkpoint() const;
+
+  // Inside a checkpoint it joins it; outside, its own (not fsynced) transaction. Keyframes newer
+  // than the last checkpoint are discarded when a writer reopens after a crash.
+  Status write_keyframe(const Keyframe& keyframe);
+
+  // ---- Staging for the memory pager: one transaction for the batch; not allowed inside a
+  // checkpoint (a rollback would lose chunks already dropped from memory).
+  Status stage_chunks(const std::vector<std::pair<ChunkKey, const Chunk*>>& chunks);
+
+  // ---- Reading. Each call is consistent on its own; wrap several in begin_read/end_read to see
+  // one snapshot (export counts and then writes the same points).
+  Status begin_read();
+  void end_read();
+
+  // The newest copy: a staged chunk if there is one (pager), else the committed one.
+  Result<StoredChunk> read_chunk(const ChunkKey& key, bool include_staged = false);
+  Result<std::vector<ChunkInfo>> list_chunks(bool include_staged = false);
+  // Committed chunks in key order, one decoded at a time. The callback may move the points.
+  Status for_each_chunk(const std::function<Status(const ChunkInfo&, PointArrays&)>& fn,
+                        const ChunkFilter& filter = {});
+  Result<std::vector<PoseRecord>> read_poses();
+  Result<std::vector<KeyframeInfo>> list_keyframes();
+  Result<Keyframe> read_keyframe(uint32_t frame_id);
+  Result<std::optional<CheckpointRecord>> last_checkpoint();
+  Result<std::vector<CheckpointRecord>> checkpoints();
+  Result<StoreSummary> summary();
+  // A compact copy of the file as of now (VACUUM INTO); `path` must not exist. Works read-only.
+  Status copy_to(const std::string& path);
+  // PRAGMA integrity_check plus decoding and checking every blob (`check_blobs`).
+  Result<IntegrityReport> integrity_check(bool check_blobs = true);
+
+  struct Impl;
+
+ private:
+  explicit ScanStore(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+// Begins a read snapshot and ends it when it goes out of scope.
+class ScopedRead {
+ public:
+  explicit ScopedRead(ScanStore& store) : store_(store), status_(store.begin_read()) {}
+  ~ScopedRead() {
+    if (status_.is_ok()) store_.end_read();
+  }
+  const Status& status() const { return status_; }
+
+ private:
+  ScanStore& store_;
+  Status status_;
+};
+
+std::string to_string(const ChunkKey& key);  // "(1,-2,3)"
+
+}  // namespace depthfuse::store

@@ -1,0 +1,421 @@
+#include "depthfuse/store/blob_codec.hpp"
+
+#include <zstd.h>
+
+#include <cinttypes>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+
+#include "depthfuse/store/checksum.hpp"
+
+namespace depthfuse::store {
+
+static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__,
+              "the scan file stores raw little-endian column bytes");
+
+namespace {
+
+constexpr char kMagic[4] = {'D', 'F', 'B', '1'};
+constexpr size_t kFixedHeader = 28;   // up to the column table
+constexpr size_t kColumnEntry = 8;
+
+enum Transform : uint8_t { kNone = 0, kBytePlanes = 1, kDelta16Planes = 2 };
+
+template <typename T>
+void put(uint8_t* p, T v) { std::memcpy(p, &v, sizeof(T)); }
+template <typename T>
+T get(const uint8_t* p) { T v; std::memcpy(&v, p, sizeof(T)); return v; }
+
+std::string hex32(uint32_t v) {
+  char buf[16];
+  std::snprintf(buf, sizeof(buf), "0x%08" PRIx32, v);
+  return buf;
+}
+
+// Splits n elements of k bytes into k planes (all first bytes, then all second bytes, ...): float
+// exponents and high bytes line up, which zstd compresses far better.
+void to_planes(const uint8_t* in, size_t n, size_t k, uint8_t* out) {
+  for (size_t p = 0; p < k; ++p) {
+    uint8_t* o = out + p * n;
+    const uint8_t* s = in + p;
+    for (size_t i = 0; i < n; ++i) o[i] = s[i * k];
+  }
+}
+
+void from_planes(const uint8_t* in, size_t n, size_t k, uint8_t* out) {
+  for (size_t p = 0; p < k; ++p) {
+    const uint8_t* s = in + p * n;
+    uint8_t* o = out + p;
+    for (size_t i = 0; i < n; ++i) o[i * k] = s[i];
+  }
+}
+
+const char* kind_name(BlobKind k) {
+  switch (k) {
+    case BlobKind::kPoints: return "points";
+    case BlobKind::kDepth: return "depth";
+    case BlobKind::kColor: return "color";
+  }
+  return "unknown";
+}
+
+// The PointArrays columns in blob order; ids are positions in this list.
+template <typename A, typename Fn>
+void point_columns(A& a, Fn&& fn) {
+  fn("x", a.x); fn("y", a.y); fn("z", a.z);
+  fn("nx", a.nx); fn("ny", a.ny); fn("nz", a.nz);
+  fn("info_xx", a.info_xx); fn("info_xy", a.info_xy); fn("info_xz", a.info_xz);
+  fn("info_yy", a.info_yy); fn("info_yz", a.info_yz); fn("info_zz", a.info_zz);
+  fn("r", a.r); fn("g", a.g); fn("b", a.b);
+  fn("merges", a.merges); fn("violations", a.violations);
+  fn("last_frame", a.last_frame);
+}
+
+struct DepthCodeInfo {
+  DepthFormat format;
+  float scale;    // units per metre
+  bool multiply;  // depth = v * (1/scale) as float, else v / scale
+};
+constexpr DepthCodeInfo kU16Formats[] = {
+    {DepthFormat::kU16DivBy1000, 1000.0f, false},
+    {DepthFormat::kU16Times1e3, 1000.0f, true},
+    {DepthFormat::kU16DivBy5000, 5000.0f, false},
+    {DepthFormat::kU16Times2e4, 5000.0f, true},
+};
+
+inline float u16_to_depth(uint16_t v, const DepthCodeInfo& f) {
+  return f.multiply ? static_cast<float>(v) * (1.0f / f.scale) : static_cast<float>(v) / f.scale;
+}
+
+bool try_u16(const DepthImage& d, const DepthCodeInfo& f, std::vector<uint16_t>* out) {
+  out->resize(d.depth_m.size());
+  for (size_t i = 0; i < d.depth_m.size(); ++i) {
+    const float m = d.depth_m[i];
+    const double units = std::nearbyint(static_cast<double>(m) * f.scale);
+    if (!(units >= 0.0 && units <= 65535.0)) return false;  // also rejects NaN
+    const auto v = static_cast<uint16_t>(units);
+    const float back = u16_to_depth(v, f);
+    if (std::memcmp(&back, &m, sizeof(float)) != 0) return false;  // must be bit-exact
+    (*out)[i] = v;
+  }
+  return true;
+}
+
+}  // namespace
+
+const char* to_string(DepthFormat f) {
+  switch (f) {
+    case DepthFormat::kFloat32: return "float32 m";
+    case DepthFormat::kU16DivBy1000: return "uint16 mm (/1000)";
+    case DepthFormat::kU16Times1e3: return "uint16 mm (*0.001)";
+    case DepthFormat::kU16DivBy5000: return "uint16 1/5000 m (/5000)";
+    case DepthFormat::kU16Times2e4: return "uint16 1/5000 m (*0.0002)";
+  }
+  return "unknown";
+}
+
+BlobCodec::BlobCodec(int compression_level)
+    : level_(compression_level), cctx_(ZSTD_createCCtx()), dctx_(ZSTD_createDCtx()) {}
+
+BlobCodec::~BlobCodec() {
+  ZSTD_freeCCtx(cctx_);
+  ZSTD_freeDCtx(dctx_);
+}
+
+Result<BlobHeader> BlobCodec::read_header(const void* blob, size_t size, const std::string& what) {
+  const auto* p = static_cast<const uint8_t*>(blob);
+  if (size < kFixedHeader + 4)
+    return corrupt(what + ": blob too short for a header (" + std::to_string(size) + " bytes)");
+  if (std::memcmp(p, kMagic, 4) != 0) return corrupt(what + ": not a depthfuse blob (bad magic)");
+  const size_t columns = p[5];
+  const size_t header_bytes = kFixedHeader + columns * kColumnEntry + 4;
+  if (size < header_bytes)
+    return corrupt(what + ": blob truncated inside its header (" + std::to_string(size) + " of " +
+                   std::to_string(header_bytes) + " bytes)");
+  const uint32_t stored = get<uint32_t>(p + header_bytes - 4);
+  const uint32_t computed = crc32(p, header_bytes - 4);
+  if (stored != computed)
+    return corrupt(what + ": blob header checksum mismatch (stored " + hex32(stored) +
+                   ", computed " + hex32(computed) + ")");
+  BlobHeader h;
+  h.kind = static_cast<BlobKind>(p[4]);
+  h.element_count = get<uint32_t>(p + 8);
+  h.width = get<uint32_t>(p + 12);
+  h.height = get<uint32_t>(p + 16);
+  h.raw_bytes = get<uint32_t>(p + 20);
+  h.compressed_bytes = get<uint32_t>(p + 24);
+  h.first_column_id = columns > 0 ? p[kFixedHeader] : 0;
+  if (size != header_bytes + h.compressed_bytes)
+    return corrupt(what + ": blob is " + std::to_string(size) + " bytes, its header announces " +
+                   std::to_string(header_bytes + h.compressed_bytes) +
+                   (size < header_bytes + h.compressed_bytes ? " (truncated)" : ""));
+  return h;
+}
+
+Status BlobCodec::encode(BlobKind kind, uint32_t count, uint32_t width, uint32_t height,
+                         const std::vector<Column>& columns, std::vector<uint8_t>* blob) {
+  if (!cctx_ || !dctx_) return internal_error("zstd contexts could not be created");
+  size_t raw_bytes = 0;
+  for (const Column& c : columns) raw_bytes += static_cast<size_t>(count) * c.element_size;
+  if (raw_bytes > UINT32_MAX) return invalid_argument("blob too large: " + std::to_string(raw_bytes));
+  raw_.resize(raw_bytes);
+  const size_t header_bytes = kFixedHeader + columns.size() * kColumnEntry + 4;
+  blob->resize(header_bytes + ZSTD_compressBound(raw_bytes));
+  uint8_t* h = blob->data();
+  std::memcpy(h, kMagic, 4);
+  h[4] = static_cast<uint8_t>(kind);
+  h[5] = static_cast<uint8_t>(columns.size());
+  put<uint16_t>(h + 6, 0);
+  put<uint32_t>(h + 8, count);
+  put<uint32_t>(h + 12, width);
+  put<uint32_t>(h + 16, height);
+  put<uint32_t>(h + 20, static_cast<uint32_t>(raw_bytes));
+
+  size_t offset = 0;
+  for (size_t ci = 0; ci < columns.size(); ++ci) {
+    const Column& c = columns[ci];
+    const size_t bytes = static_cast<size_t>(count) * c.element_size;
+    const auto* src = static_cast<const uint8_t*>(c.data);
+    uint8_t* e = h + kFixedHeader + ci * kColumnEntry;
+    e[0] = c.id;
+    e[1] = c.element_size;
+    e[2] = c.transform;
+    e[3] = 0;
+    put<uint32_t>(e + 4, bytes ? crc32(src, bytes) : crc32(nullptr, 0));
+    uint8_t* dst = raw_.data() + offset;
+    if (c.transform == kBytePlanes && c.element_size > 1) {
+      to_planes(src, count, c.element_size, dst);
+    } else if (c.transform == kDelta16Planes) {
+      // Difference to the previous element (wrapping), then planes: smooth depth becomes small.
+      uint16_t prev = 0;
+      std::vector<uint8_t> tmp(bytes);
+      for (size_t i = 0; i < count; ++i) {
+        const uint16_t v = get<uint16_t>(src + 2 * i);
+        put<uint16_t>(tmp.data() + 2 * i, static_cast<uint16_t>(v - prev));
+        prev = v;
+      }
+      to_planes(tmp.data(), count, 2, dst);
+    } else if (bytes) {
+      std::memcpy(dst, src, bytes);
+    }
+    offset += bytes;
+  }
+  const size_t z = ZSTD_compressCCtx(cctx_, blob->data() + header_bytes,
+                                     blob->size() - header_bytes, raw_.data(), raw_bytes, level_);
+  if (ZSTD_isError(z)) return internal_error(std::string("zstd compression failed: ") +
+                                             ZSTD_getErrorName(z));
+  h = blob->data();
+  put<uint32_t>(h + 24, static_cast<uint32_t>(z));
+  put<uint32_t>(h + header_bytes - 4, crc32(h, header_bytes - 4));
+  blob->resize(header_bytes + z);
+  return Status::ok();
+}
+
+// `size` was validated against the header by read_header.
+Status BlobCodec::decode(const void* blob, size_t /*size*/, const std::string& what, BlobKind kind,
+                         const BlobHeader& header, std::vector<Column>& columns) {
+  if (!cctx_ || !dctx_) return internal_error("zstd contexts could not be created");
+  const auto* p = static_cast<const uint8_t*>(blob);
+  if (header.kind != kind)
+    return corrupt(what + ": expected a " + kind_name(kind) + " blob, found kind " +
+                   std::to_string(static_cast<int>(header.kind)));
+  if (p[5] != columns.size())
+    return corrupt(what + ": " + std::to_string(p[5]) + " columns, expected " +
+                   std::to_string(columns.size()));
+  const size_t count = header.element_count;
+  size_t raw_bytes = 0;
+  for (size_t ci = 0; ci < columns.size(); ++ci) {
+    const uint8_t* e = p + kFixedHeader + ci * kColumnEntry;
+    if (e[0] != columns[ci].id || e[1] != columns[ci].element_size || e[2] > kDelta16Planes)
+      return corrupt(what + ": column " + std::to_string(ci) + " has id " + std::to_string(e[0]) +
+                     " size " + std::to_string(e[1]) + ", expected '" + columns[ci].name + "'");
+    columns[ci].transform = e[2];
+    raw_bytes += count * columns[ci].element_size;
+  }
+  if (raw_bytes != header.raw_bytes)
+    return corrupt(what + ": header sizes disagree (" + std::to_string(count) + " elements but " +
+                   std::to_string(header.raw_bytes) + " raw bytes)");
+  const size_t header_bytes = kFixedHeader + columns.size() * kColumnEntry + 4;
+  raw_.resize(raw_bytes);
+  const size_t n = ZSTD_decompressDCtx(dctx_, raw_.data(), raw_bytes, p + header_bytes,
+                                       header.compressed_bytes);
+  if (ZSTD_isError(n))
+    return corrupt(what + ": compressed payload is damaged (zstd: " + ZSTD_getErrorName(n) + ")");
+  if (n != raw_bytes)
+    return corrupt(what + ": payload decompressed to " + std::to_string(n) + " bytes, expected " +
+                   std::to_string(raw_bytes));
+  size_t offset = 0;
+  for (size_t ci = 0; ci < columns.size(); ++ci) {
+    Column& c = columns[ci];
+    const size_t bytes = count * c.element_size;
+    const uint8_t* src = raw_.data() + offset;
+    auto* dst = static_cast<uint8_t*>(c.out);
+    if (c.transform == kBytePlanes && c.element_size > 1) {
+      from_planes(src, count, c.element_size, dst);
+    } else if (c.transform == kDelta16Planes) {
+      if (c.element_size != 2) return corrupt(what + ": delta transform on a non-16-bit column");
+      from_planes(src, count, 2, dst);
+      uint16_t prev = 0;
+      for (size_t i = 0; i < count; ++i) {
+        prev = static_cast<uint16_t>(prev + get<uint16_t>(dst + 2 * i));
+        put<uint16_t>(dst + 2 * i, prev);
+      }
+    } else if (bytes) {
+      std::memcpy(dst, src, bytes);
+    }
+    const uint32_t stored = get<uint32_t>(p + kFixedHeader + ci * kColumnEntry + 4);
+    const uint32_t computed = crc32(dst, bytes);
+    if (stored != computed)
+      return corrupt(what + ": column '" + c.name + "' checksum mismatch (stored " + hex32(stored) +
+                     ", computed " + hex32(computed) + ")");
+    offset += bytes;
+  }
+  return Status::ok();
+}
+
+Status BlobCodec::encode_points(const PointArrays& a, std::vector<uint8_t>* blob) {
+  const size_t n = a.size();
+  if (n > UINT32_MAX) return invalid_argument("chunk has too many points");
+  std::vector<Column> cols;
+  cols.reserve(18);
+  uint8_t id = 0;
+  bool sizes_ok = true;
+  point_columns(a, [&](const char* name, const auto& v) {
+    using T = typename std::decay_t<decltype(v)>::value_type;
+    sizes_ok = sizes_ok && v.size() == n;
+    cols.push_back({id++, static_cast<uint8_t>(sizeof(T)),
+                    static_cast<uint8_t>(sizeof(T) > 1 ? kBytePlanes : kNone), v.data(), nullptr,
+                    name});
+  });
+  if (!sizes_ok) return invalid_argument("PointArrays columns have different lengths");
+  return encode(BlobKind::kPoints, static_cast<uint32_t>(n), 0, 0, cols, blob);
+}
+
+Status BlobCodec::decode_points(const void* blob, size_t size, const std::string& what,
+                                PointArrays* out) {
+  auto header = read_header(blob, size, what);
+  if (!header) return header.status();
+  const size_t n = header->element_count;
+  std::vector<Column> cols;
+  cols.reserve(18);
+  uint8_t id = 0;
+  // Size check before allocating: a damaged count must not become a huge allocation.
+  if (n > static_cast<size_t>(header->raw_bytes) / PointArrays::kBytesPerPoint + 1)
+    return corrupt(what + ": header announces " + std::to_string(n) + " points in " +
+                   std::to_string(header->raw_bytes) + " bytes");
+  point_columns(*out, [&](const char* name, auto& v) {
+    using T = typename std::decay_t<decltype(v)>::value_type;
+    v.resize(n);
+    cols.push_back({id++, static_cast<uint8_t>(sizeof(T)), 0, nullptr, v.data(), name});
+  });
+  Status st = decode(blob, size, what, BlobKind::kPoints, *header, cols);
+  if (!st) out->clear();
+  return st;
+}
+
+Status BlobCodec::encode_depth(const DepthImage& depth, std::vector<uint8_t>* blob,
+                               DepthFormat* chosen) {
+  if (depth.width <= 0 || depth.height <= 0 ||
+      depth.depth_m.size() != static_cast<size_t>(depth.width) * depth.height)
+    return invalid_argument("depth image size " + std::to_string(depth.width) + "x" +
+                            std::to_string(depth.height) + " does not match its data");
+  const auto n = static_cast<uint32_t>(depth.depth_m.size());
+  const auto w = static_cast<uint32_t>(depth.width), h = static_cast<uint32_t>(depth.height);
+  for (const DepthCodeInfo& f : kU16Formats) {
+    if (try_u16(depth, f, &u16_)) {
+      if (chosen) *chosen = f.format;
+      return encode(BlobKind::kDepth, n, w, h,
+                    {{static_cast<uint8_t>(f.format), 2, kDelta16Planes, u16_.data(), nullptr,
+                      "depth"}},
+                    blob);
+    }
+  }
+  if (chosen) *chosen = DepthFormat::kFloat32;
+  return encode(BlobKind::kDepth, n, w, h,
+                {{static_cast<uint8_t>(DepthFormat::kFloat32), 4, kBytePlanes,
+                  depth.depth_m.data(), nullptr, "depth"}},
+                blob);
+}
+
+Status BlobCodec::decode_depth(const void* blob, size_t size, const std::string& what,
+                               DepthImage* out) {
+  auto header = read_header(blob, size, what);
+  if (!header) return header.status();
+  const BlobHeader& h = *header;
+  if (static_cast<uint64_t>(h.width) * h.height != h.element_count || h.width == 0 ||
+      h.width > 100000 || h.height > 100000)
+    return corrupt(what + ": depth size " + std::to_string(h.width) + "x" +
+                   std::to_string(h.height) + " disagrees with " +
+                   std::to_string(h.element_count) + " pixels");
+  const auto format = static_cast<DepthFormat>(h.first_column_id);
+  out->width = static_cast<int>(h.width);
+  out->height = static_cast<int>(h.height);
+  out->depth_m.assign(h.element_count, 0.0f);
+  if (format == DepthFormat::kFloat32) {
+    std::vector<Column> cols{{0, 4, 0, nullptr, out->depth_m.data(), "depth"}};
+    return decode(blob, size, what, BlobKind::kDepth, h, cols);
+  }
+  for (const DepthCodeInfo& f : kU16Formats) {
+    if (f.format != format) continue;
+    u16_.resize(h.element_count);
+    std::vector<Column> cols{{static_cast<uint8_t>(f.format), 2, 0, nullptr, u16_.data(), "depth"}};
+    DF_RETURN_IF_ERROR(decode(blob, size, what, BlobKind::kDepth, h, cols));
+    for (size_t i = 0; i < u16_.size(); ++i) out->depth_m[i] = u16_to_depth(u16_[i], f);
+    return Status::ok();
+  }
+  return corrupt(what + ": unknown depth format " + std::to_string(h.first_column_id));
+}
+
+Status BlobCodec::encode_color(const ColorImage& color, std::vector<uint8_t>* blob) {
+  if (color.width <= 0 || color.height <= 0 ||
+      color.rgb.size() != static_cast<size_t>(color.width) * color.height * 3)
+    return invalid_argument("colour image size does not match its data");
+  const auto n = static_cast<uint32_t>(color.width * color.height);
+  return encode(BlobKind::kColor, n, static_cast<uint32_t>(color.width),
+                static_cast<uint32_t>(color.height),
+                {{0, 3, kBytePlanes, color.rgb.data(), nullptr, "rgb"}}, blob);
+}
+
+Status BlobCodec::decode_color(const void* blob, size_t size, const std::string& what,
+                               ColorImage* out) {
+  auto header = read_header(blob, size, what);
+  if (!header) return header.status();
+  const BlobHeader& h = *header;
+  if (static_cast<uint64_t>(h.width) * h.height != h.element_count || h.width == 0 ||
+      h.width > 100000 || h.height > 100000)
+    return corrupt(what + ": colour size disagrees with its pixel count");
+  out->width = static_cast<int>(h.width);
+  out->height = static_cast<int>(h.height);
+  out->rgb.assign(static_cast<size_t>(h.element_count) * 3, 0);
+  std::vector<Column> cols{{0, 3, 0, nullptr, out->rgb.data(), "rgb"}};
+  return decode(blob, size, what, BlobKind::kColor, h, cols);
+}
+
+std::vector<uint8_t> encode_pose(const Pose& T) {
+  std::vector<uint8_t> out(12 * sizeof(double));
+  const Eigen::Matrix4d m = T.matrix();
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 4; ++c) put<double>(out.data() + (r * 4 + c) * sizeof(double), m(r, c));
+  return out;
+}
+
+Status decode_pose(const void* blob, size_t size, const std::string& what, Pose* out) {
+  if (!blob || size != 12 * sizeof(double))
+    return corrupt(what + ": pose blob is " + std::to_string(size) + " bytes, expected 96");
+  const auto* p = static_cast<const uint8_t*>(blob);
+  Eigen::Matrix4d m = Eigen::Matrix4d::Identity();
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 4; ++c) {
+      m(r, c) = get<double>(p + (r * 4 + c) * sizeof(double));
+      if (!std::isfinite(m(r, c))) return corrupt(what + ": pose has a non-finite entry");
+    }
+  }
+  const double orthogonality = (m.topLeftCorner<3, 3>().transpose() * m.topLeftCorner<3, 3>() -
+                                Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
+  if (orthogonality > 1e-6) return corrupt(what + ": pose rotation is not orthonormal");
+  out->matrix() = m;
+  return Status::ok();
+}
+
+}  // namespace depthfuse::store

@@ -1,0 +1,121 @@
+#include "depthfuse/store/export.hpp"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <cctype>
+
+#include "depthfuse/ply.hpp"
+#include "depthfuse/store/pcd_writer.hpp"
+#include "depthfuse/trajectory.hpp"
+
+namespace depthfuse::store {
+
+Result<CloudFormat> cloud_format_for(const std::string& path) {
+  const auto dot = path.find_last_of('.');
+  std::string ext = dot == std::string::npos ? "" : path.substr(dot + 1);
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  if (ext == "ply") return CloudFormat::kPly;
+  if (ext == "pcd") return CloudFormat::kPcd;
+  return invalid_argument("output '" + path + "' must end in .ply or .pcd");
+}
+
+namespace {
+
+// Marks the points that pass the filters; returns how many.
+size_t select_points(const PointArrays& a, const ExportOptions& o, std::vector<uint8_t>* keep) {
+  keep->assign(a.size(), 1);
+  if (o.min_merges == 0 && !o.bbox_m) return a.size();
+  size_t n = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    bool k = a.merges[i] >= o.min_merges;
+    if (k && o.bbox_m) k = o.bbox_m->contains(Eigen::Vector3f(a.x[i], a.y[i], a.z[i]));
+    (*keep)[i] = k;
+    n += k;
+  }
+  return n;
+}
+
+// Either writer behind one interface.
+struct CloudWriter {
+  CloudFormat format;
+  PlyWriter ply;
+  PcdWriter pcd;
+  Status open(const std::string& path, const ExportOptions& o, size_t n) {
+    if (format == CloudFormat::kPly) return ply.open(path, PlyOptions{o.with_color, o.with_fusion_stats}, n);
+    return pcd.open(path, PcdOptions{o.with_color, o.with_fusion_stats}, n);
+  }
+  Status write(const PointArrays& a, const std::vector<uint8_t>* keep) {
+    return format == CloudFormat::kPly ? ply.write(a, keep) : pcd.write(a, keep);
+  }
+  Status close() { return format == CloudFormat::kPly ? ply.close() : pcd.close(); }
+};
+
+}  // namespace
+
+Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
+                                  const ExportOptions& options) {
+  auto format = cloud_format_for(path);
+  if (!format) return format.status();
+  ScopedRead snapshot(store);
+  DF_RETURN_IF_ERROR(snapshot.status());
+
+  ExportReport report;
+  ChunkFilter filter;
+  filter.bbox_m = options.bbox_m;
+  if (options.skip_damaged)
+    filter.on_damaged = [&](const Status& st) { report.damaged.push_back(st.message()); };
+
+  // Pass 1: count what will be written (the header needs it). Without filters the rows' counts
+  // suffice; pass 2 still checks every blob against its row.
+  uint64_t count = 0;
+  std::vector<uint8_t> keep;
+  if (options.min_merges == 0 && !options.bbox_m && !options.skip_damaged) {
+    auto chunks = store.list_chunks();
+    if (!chunks) return chunks.status();
+    for (const ChunkInfo& c : *chunks) count += c.point_count;
+  } else {
+    DF_RETURN_IF_ERROR(store.for_each_chunk(
+        [&](const ChunkInfo&, PointArrays& a) {
+          count += select_points(a, options, &keep);
+          return Status::ok();
+        },
+        filter));
+    report.damaged.clear();  // pass 2 reports them again
+  }
+
+  CloudWriter writer{*format, {}, {}};
+  Status st = writer.open(path, options, count);
+  if (st) {
+    st = store.for_each_chunk(
+        [&](const ChunkInfo&, PointArrays& a) {
+          const size_t n = select_points(a, options, &keep);
+          ++report.chunks_read;
+          report.points_written += n;
+          report.points_filtered += a.size() - n;
+          if (report.points_written > count)
+            return internal_error(store.path() + " changed during the export");
+          return writer.write(a, &keep);
+        },
+        filter);
+  }
+  Status closed = writer.close();
+  if (st) st = closed;
+  if (!st) {
+    ::unlink(path.c_str());
+    return st.with_context("exporting " + store.path() + " to " + path);
+  }
+  return report;
+}
+
+Status export_trajectory(ScanStore& store, const std::string& path) {
+  auto poses = store.read_poses();
+  if (!poses) return poses.status();
+  std::vector<StampedPose> out;
+  out.reserve(poses->size());
+  for (const PoseRecord& p : *poses) out.push_back({p.utime * 1e-6, p.T_world_cam});
+  return write_tum_trajectory(path, out);
+}
+
+}  // namespace depthfuse::store

@@ -1,0 +1,154 @@
+#include "schema.hpp"
+
+#include <string>
+
+#include "depthfuse/store/scan_store.hpp"
+
+namespace depthfuse::store::schema {
+
+const char* const kTables[] = {"meta", "checkpoints", "chunks", "chunk_staging", "poses",
+                               "keyframes", nullptr};
+
+namespace {
+
+// Schema 2 (current). Blob columns come last in each row: SQLite stores a row's columns in order
+// and a big blob spills into overflow pages, so the small columns stay cheap to read.
+constexpr const char* kChunksV2 = R"sql(
+CREATE TABLE chunks (
+  x INTEGER NOT NULL,
+  y INTEGER NOT NULL,
+  z INTEGER NOT NULL,
+  point_count INTEGER NOT NULL,
+  min_x REAL, min_y REAL, min_z REAL,
+  max_x REAL, max_y REAL, max_z REAL,
+  last_touched_frame INTEGER NOT NULL,
+  checkpoint_id INTEGER NOT NULL,
+  data BLOB NOT NULL,
+  PRIMARY KEY (x, y, z)
+);
+)sql";
+
+constexpr const char* kRestV2 = R"sql(
+CREATE TABLE checkpoints (
+  id INTEGER PRIMARY KEY,
+  utime INTEGER NOT NULL,
+  reason TEXT NOT NULL,
+  last_frame_id INTEGER NOT NULL,
+  frames_fused INTEGER NOT NULL,
+  point_count INTEGER NOT NULL,
+  chunk_count INTEGER NOT NULL,
+  T_world_cam BLOB
+);
+CREATE TABLE chunk_staging (
+  x INTEGER NOT NULL,
+  y INTEGER NOT NULL,
+  z INTEGER NOT NULL,
+  point_count INTEGER NOT NULL,
+  min_x REAL, min_y REAL, min_z REAL,
+  max_x REAL, max_y REAL, max_z REAL,
+  last_touched_frame INTEGER NOT NULL,
+  staged_utime INTEGER NOT NULL,
+  data BLOB NOT NULL,
+  PRIMARY KEY (x, y, z)
+);
+)sql";
+
+constexpr const char* kCreateV2 = R"sql(
+CREATE TABLE meta (
+  key TEXT PRIMARY KEY NOT NULL,
+  value TEXT NOT NULL
+);
+CREATE TABLE poses (
+  frame_id INTEGER PRIMARY KEY,
+  utime INTEGER NOT NULL,
+  T_world_cam BLOB NOT NULL,
+  registered INTEGER NOT NULL DEFAULT 0,
+  fitness REAL,
+  rmse_m REAL,
+  correspondences INTEGER
+);
+CREATE TABLE keyframes (
+  frame_id INTEGER PRIMARY KEY,
+  utime INTEGER NOT NULL,
+  sensor_serial TEXT NOT NULL DEFAULT '',
+  width INTEGER NOT NULL,
+  height INTEGER NOT NULL,
+  fx REAL NOT NULL,
+  fy REAL NOT NULL,
+  cx REAL NOT NULL,
+  cy REAL NOT NULL,
+  T_world_cam BLOB NOT NULL,
+  depth BLOB NOT NULL,
+  color BLOB
+);
+)sql";
+
+// Schema 1 -> 2:
+//  - checkpoints get a table of their own (v1 kept only the last one, in meta keys
+//    checkpoint_count / checkpoint_utime / checkpoint_last_frame_id);
+//  - chunks record the checkpoint that wrote them (the table is rebuilt so that the new column
+//    sits before the blob);
+//  - chunk_staging holds chunks the memory pager evicted between checkpoints;
+//  - poses carry the ICP result, keyframes an optional colour image.
+Status migrate_1_to_2(sql::Database& db) {
+  const std::string ctx = "migrating schema 1 to 2";
+  DF_RETURN_IF_ERROR(db.exec(kRestV2, ctx));
+  DF_RETURN_IF_ERROR(db.exec(R"sql(
+INSERT INTO checkpoints (id, utime, reason, last_frame_id, frames_fused, point_count, chunk_count,
+                         T_world_cam)
+SELECT CAST(c.value AS INTEGER),
+       COALESCE((SELECT CAST(value AS INTEGER) FROM meta WHERE key = 'checkpoint_utime'), 0),
+       'migrated from schema 1',
+       COALESCE((SELECT CAST(value AS INTEGER) FROM meta WHERE key = 'checkpoint_last_frame_id'), 0),
+       (SELECT COUNT(*) FROM poses),
+       (SELECT COALESCE(SUM(point_count), 0) FROM chunks),
+       (SELECT COUNT(*) FROM chunks),
+       (SELECT T_world_cam FROM poses ORDER BY frame_id DESC LIMIT 1)
+FROM meta AS c WHERE c.key = 'checkpoint_count' AND CAST(c.value AS INTEGER) > 0;
+)sql", ctx));
+  DF_RETURN_IF_ERROR(db.exec("ALTER TABLE chunks RENAME TO chunks_v1;", ctx));
+  DF_RETURN_IF_ERROR(db.exec(kChunksV2, ctx));
+  DF_RETURN_IF_ERROR(db.exec(R"sql(
+INSERT INTO chunks (x, y, z, point_count, min_x, min_y, min_z, max_x, max_y, max_z,
+                    last_touched_frame, checkpoint_id, data)
+SELECT x, y, z, point_count, min_x, min_y, min_z, max_x, max_y, max_z, last_touched_frame,
+       (SELECT COALESCE(MAX(id), 0) FROM checkpoints), data
+FROM chunks_v1;
+DROP TABLE chunks_v1;
+ALTER TABLE poses ADD COLUMN registered INTEGER NOT NULL DEFAULT 0;
+ALTER TABLE poses ADD COLUMN fitness REAL;
+ALTER TABLE poses ADD COLUMN rmse_m REAL;
+ALTER TABLE poses ADD COLUMN correspondences INTEGER;
+ALTER TABLE keyframes ADD COLUMN color BLOB;
+DELETE FROM meta WHERE key IN ('checkpoint_count', 'checkpoint_utime', 'checkpoint_last_frame_id');
+PRAGMA user_version = 2;
+)sql", ctx));
+  return Status::ok();
+}
+
+}  // namespace
+
+Status create_current(sql::Database& db) {
+  const std::string ctx = "creating the scan schema";
+  DF_RETURN_IF_ERROR(db.exec(kCreateV2, ctx));
+  DF_RETURN_IF_ERROR(db.exec(kChunksV2, ctx));
+  DF_RETURN_IF_ERROR(db.exec(kRestV2, ctx));
+  DF_RETURN_IF_ERROR(db.exec("PRAGMA application_id = " + std::to_string(kApplicationId) + ";", ctx));
+  DF_RETURN_IF_ERROR(db.exec("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";", ctx));
+  return Status::ok();
+}
+
+Status migrate(sql::Database& db, int from_version) {
+  static_assert(kSchemaVersion == 2, "add the migration step to the new version here");
+  int v = from_version;
+  if (v == 1) {
+    DF_RETURN_IF_ERROR(migrate_1_to_2(db));
+    v = 2;
+  }
+  if (v != kSchemaVersion)
+    return unsupported(db.path() + ": no migration from schema version " +
+                       std::to_string(from_version));
+  return Status::ok();
+}
+
+}  // namespace depthfuse::store::schema
