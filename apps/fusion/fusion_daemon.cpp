@@ -457,7 +457,7 @@ int FusionDaemon::run(const std::function<bool()>& stop_requested) {
   int exit_code = 0;
   while (!stop_requested()) {
     auto r = lcm_->handle(20);
-    if (!r) {
+    if (!r && !stop_requested()) {
       set_error(r.status().to_string());
       std::fprintf(stderr, "depthfuse-fusion: %s\n", r.status().to_string().c_str());
       exit_code = 1;

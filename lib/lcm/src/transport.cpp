@@ -204,8 +204,11 @@ void LcmTransport::subscribe(const std::string& channel_regex, Handler handler) 
 }
 
 Result<bool> LcmTransport::handle(int timeout_ms) {
+  errno = 0;
   const int rc = lcm_handle_timeout(lcm_, timeout_ms);
-  if (rc < 0) return io_error("LCM receive failed on '" + url_ + "'");
+  // A signal (SIGTERM, SIGINT) interrupts the wait: not an error, the caller checks its flag.
+  if (rc < 0 && errno == EINTR) return false;
+  if (rc < 0) return io_error("LCM receive failed on '" + url_ + "': " + std::strerror(errno));
   return rc > 0;
 }
 

@@ -1,0 +1,353 @@
+// Frame <-> message conversion is lossless, and no byte sequence makes a decoder crash: truncated,
+// corrupt, foreign and wrong-version payloads are each recognised.
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cstring>
+#include <random>
+
+#include "depthfuse/color_frame_t.hpp"
+#include "depthfuse/command_t.hpp"
+#include "depthfuse/daemon/process_info.hpp"
+#include "depthfuse/depth_frame_t.hpp"
+#include "depthfuse/heartbeat_t.hpp"
+#include "depthfuse/lcm/channels.hpp"
+#include "depthfuse/lcm/codec.hpp"
+#include "depthfuse/lcm/frame_codec.hpp"
+#include "depthfuse/pose_t.hpp"
+#include "depthfuse/status_t.hpp"
+
+namespace depthfuse {
+namespace {
+
+using lcmio::DecodeResult;
+
+// Depth quantised to whole millimetres the way a Kinect V2 delivers it, with holes, plus colour.
+Frame make_frame(int w, int h, uint32_t seed, bool with_color = true) {
+  Frame f;
+  f.utime = 1'700'000'000'000'000 + seed;
+  f.sequence = seed;
+  f.sensor_serial = "012345678912";
+  f.intrinsics.width = w;
+  f.intrinsics.height = h;
+  f.intrinsics.fx = 365.1;
+  f.intrinsics.fy = 364.9;
+  f.intrinsics.cx = w / 2.0 - 0.5;
+  f.intrinsics.cy = h / 2.0 - 0.5;
+  f.depth = DepthImage(w, h);
+  std::mt19937 rng(seed);
+  std::uniform_int_distribution<int> mm(500, 4500);
+  for (int v = 0; v < h; ++v)
+    for (int u = 0; u < w; ++u) {
+      const bool hole = (u * 7 + v * 13 + static_cast<int>(seed)) % 17 == 0;
+      f.depth.at(u, v) = hole ? 0.0f : static_cast<float>(mm(rng) * 0.001);
+    }
+  if (with_color) {
+    f.color.width = w;
+    f.color.height = h;
+    f.color.rgb.resize(static_cast<size_t>(w) * h * 3);
+    for (size_t i = 0; i < f.color.rgb.size(); ++i) f.color.rgb[i] = static_cast<uint8_t>((i * 31 + seed) & 0xff);
+  }
+  Pose hint = Pose::Identity();
+  hint.linear() = Eigen::AngleAxisd(0.3, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+  hint.translation() = Eigen::Vector3d(1.5, -0.25, 0.75);
+  f.T_world_cam_hint = hint;
+  return f;
+}
+
+TEST(DepthFrameCodec, RoundTripIsLosslessRawAndZstd) {
+  const Frame f = make_frame(512, 424, 7);
+  for (const bool compress : {false, true}) {
+    lcmio::DepthEncodeOptions opt;
+    opt.compress = compress;
+    depthfuse::depth_frame_t msg;
+    ASSERT_TRUE(lcmio::encode_depth_frame(f, opt, &msg).is_ok());
+    EXPECT_EQ(msg.protocol_version, lcmio::kProtocolVersion);
+    // Through the wire format, not just the struct.
+    const auto bytes = lcmio::encode_message(msg);
+    depthfuse::depth_frame_t back_msg;
+    ASSERT_EQ(lcmio::decode_message(bytes.data(), bytes.size(), &back_msg), DecodeResult::kOk);
+    Frame back;
+    ASSERT_TRUE(lcmio::decode_depth_frame(back_msg, &back).is_ok());
+    EXPECT_EQ(back.utime, f.utime);
+    EXPECT_EQ(back.sequence, f.sequence);
+    EXPECT_EQ(back.sensor_serial, f.sensor_serial);
+    EXPECT_EQ(back.intrinsics.width, 512);
+    EXPECT_DOUBLE_EQ(back.intrinsics.fx, f.intrinsics.fx);
+    EXPECT_DOUBLE_EQ(back.intrinsics.cy, f.intrinsics.cy);
+    ASSERT_EQ(back.depth.depth_m.size(), f.depth.depth_m.size());
+    size_t differ = 0;
+    for (size_t i = 0; i < f.depth.depth_m.size(); ++i) differ += back.depth.depth_m[i] != f.depth.depth_m[i];
+    EXPECT_EQ(differ, 0u) << "compress=" << compress;
+    ASSERT_TRUE(back.T_world_cam_hint.has_value());
+    EXPECT_TRUE(back.T_world_cam_hint->isApprox(*f.T_world_cam_hint, 1e-12));
+    // Encoding the decoded frame again gives the same bytes: nothing drifts on re-publishing.
+    depthfuse::depth_frame_t again;
+    ASSERT_TRUE(lcmio::encode_depth_frame(back, opt, &again).is_ok());
+    EXPECT_EQ(again.data, msg.data);
+    if (compress) {
+      EXPECT_LT(msg.data.size(), 512u * 424u * 2u);
+    }
+  }
+}
+
+TEST(DepthFrameCodec, ContinuousDepthIsQuantisedToHalfAUnit) {
+  Frame f = make_frame(64, 48, 3, false);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> d(0.3f, 6.0f);
+  for (auto& v : f.depth.depth_m) v = d(rng);
+  f.depth.depth_m[0] = -1.0f;                      // invalid -> 0
+  f.depth.depth_m[1] = std::nanf("");              // invalid -> 0
+  f.depth.depth_m[2] = 70.0f;                      // beyond 65535 mm -> 0
+  depthfuse::depth_frame_t msg;
+  ASSERT_TRUE(lcmio::encode_depth_frame(f, {}, &msg).is_ok());
+  Frame back;
+  ASSERT_TRUE(lcmio::decode_depth_frame(msg, &back).is_ok());
+  EXPECT_EQ(back.depth.depth_m[0], 0.0f);
+  EXPECT_EQ(back.depth.depth_m[1], 0.0f);
+  EXPECT_EQ(back.depth.depth_m[2], 0.0f);
+  for (size_t i = 3; i < f.depth.depth_m.size(); ++i)
+    ASSERT_NEAR(back.depth.depth_m[i], f.depth.depth_m[i], 0.0005 + 1e-6) << i;
+}
+
+TEST(DepthFrameCodec, FinerUnitKeepsTumPrecision) {
+  // TUM PNGs count 1/5000 m: with depth_unit_m = 0.0002 those values survive exactly.
+  Frame f = make_frame(32, 24, 9, false);
+  for (size_t i = 0; i < f.depth.depth_m.size(); ++i)
+    f.depth.depth_m[i] = static_cast<float>((2500 + 3 * i) * 0.0002);
+  lcmio::DepthEncodeOptions opt;
+  opt.depth_unit_m = 0.0002;
+  depthfuse::depth_frame_t msg;
+  ASSERT_TRUE(lcmio::encode_depth_frame(f, opt, &msg).is_ok());
+  Frame back;
+  ASSERT_TRUE(lcmio::decode_depth_frame(msg, &back).is_ok());
+  EXPECT_EQ(back.depth.depth_m, f.depth.depth_m);
+}
+
+TEST(DepthFrameCodec, RejectsInconsistentMessages) {
+  const Frame f = make_frame(64, 48, 1, false);
+  depthfuse::depth_frame_t good;
+  ASSERT_TRUE(lcmio::encode_depth_frame(f, {}, &good).is_ok());
+  Frame out;
+  auto expect_corrupt = [&](depthfuse::depth_frame_t m, const char* what) {
+    const Status st = lcmio::decode_depth_frame(m, &out);
+    EXPECT_EQ(st.code(), StatusCode::kCorrupt) << what << ": " << st.to_string();
+  };
+  auto m = good;
+  m.intrinsics.width = 0;
+  expect_corrupt(m, "zero width");
+  m = good;
+  m.intrinsics.height = 100000;
+  expect_corrupt(m, "huge height");
+  m = good;
+  m.intrinsics.fx = -1;
+  expect_corrupt(m, "negative fx");
+  m = good;
+  m.depth_unit_m = 0;
+  expect_corrupt(m, "zero unit");
+  m = good;
+  m.encoding = 9;
+  expect_corrupt(m, "unknown encoding");
+  m = good;
+  m.data.resize(m.data.size() / 2);
+  m.data_size = static_cast<int32_t>(m.data.size());
+  expect_corrupt(m, "truncated zstd");
+  m = good;
+  m.intrinsics.width = 32;  // inflates to the wrong size
+  expect_corrupt(m, "size mismatch");
+  m = good;
+  for (auto& b : m.data) b ^= 0x5a;
+  expect_corrupt(m, "scrambled zstd");
+  m = good;
+  m.encoding = depthfuse::depth_frame_t::ENCODING_RAW_UINT16;
+  expect_corrupt(m, "raw with wrong length");
+  m = good;
+  m.has_pose_hint = true;
+  for (double& q : m.hint_orientation_wxyz) q = 0;
+  expect_corrupt(m, "zero quaternion");
+}
+
+TEST(ColorFrameCodec, RawAndZstdAreExactJpegIsClose) {
+  const Frame f = make_frame(64, 48, 2);
+  for (auto enc : {lcmio::ColorEncoding::kRaw, lcmio::ColorEncoding::kZstd, lcmio::ColorEncoding::kJpeg}) {
+    lcmio::ColorEncodeOptions opt;
+    opt.encoding = enc;
+    depthfuse::color_frame_t msg;
+    ASSERT_TRUE(lcmio::encode_color_frame(f, opt, &msg).is_ok());
+    const auto bytes = lcmio::encode_message(msg);
+    depthfuse::color_frame_t back_msg;
+    ASSERT_EQ(lcmio::decode_message(bytes.data(), bytes.size(), &back_msg), DecodeResult::kOk);
+    ColorImage back;
+    ASSERT_TRUE(lcmio::decode_color_frame(back_msg, &back).is_ok());
+    ASSERT_EQ(back.width, 64);
+    ASSERT_EQ(back.height, 48);
+    ASSERT_EQ(back.rgb.size(), f.color.rgb.size());
+    if (enc != lcmio::ColorEncoding::kJpeg) {
+      EXPECT_EQ(back.rgb, f.color.rgb);
+    }
+  }
+  // A smooth image survives JPEG within a few levels.
+  Frame smooth = f;
+  for (int v = 0; v < 48; ++v)
+    for (int u = 0; u < 64; ++u)
+      for (int c = 0; c < 3; ++c) smooth.color.rgb[(v * 64 + u) * 3 + c] = static_cast<uint8_t>(u * 2 + v + c * 40);
+  lcmio::ColorEncodeOptions opt;
+  opt.encoding = lcmio::ColorEncoding::kJpeg;
+  opt.jpeg_quality = 95;
+  depthfuse::color_frame_t msg;
+  ASSERT_TRUE(lcmio::encode_color_frame(smooth, opt, &msg).is_ok());
+  ColorImage back;
+  ASSERT_TRUE(lcmio::decode_color_frame(msg, &back).is_ok());
+  double err = 0;
+  for (size_t i = 0; i < back.rgb.size(); ++i) err += std::abs(int(back.rgb[i]) - int(smooth.color.rgb[i]));
+  EXPECT_LT(err / back.rgb.size(), 4.0);
+  // Garbage JPEG is an error, not a crash.
+  msg.data.assign(100, 0xff);
+  msg.data_size = 100;
+  EXPECT_EQ(lcmio::decode_color_frame(msg, &back).code(), StatusCode::kCorrupt);
+}
+
+TEST(MessageDecoding, EveryTruncationIsMalformed) {
+  const Frame f = make_frame(40, 30, 4);
+  depthfuse::depth_frame_t msg;
+  ASSERT_TRUE(lcmio::encode_depth_frame(f, {}, &msg).is_ok());
+  const auto bytes = lcmio::encode_message(msg);
+  for (size_t n = 0; n < bytes.size(); ++n) {
+    depthfuse::depth_frame_t out;
+    ASSERT_EQ(lcmio::decode_message(bytes.data(), n, &out), DecodeResult::kMalformed) << n;
+  }
+  // Trailing bytes: two payloads glued together, or garbage after one.
+  auto longer = bytes;
+  longer.push_back(0);
+  depthfuse::depth_frame_t out;
+  EXPECT_EQ(lcmio::decode_message(longer.data(), longer.size(), &out), DecodeResult::kMalformed);
+}
+
+TEST(MessageDecoding, RandomCorruptionNeverCrashes) {
+  depthfuse::heartbeat_t hb{};
+  hb.protocol_version = depthfuse::heartbeat_t::PROTOCOL_VERSION;
+  hb.name = "fusion";
+  hb.host = "host";
+  hb.last_error = "none";
+  hb.counters.resize(3);
+  hb.num_counters = 3;
+  for (auto& kv : hb.counters) kv.key = "k";
+  const auto bytes = lcmio::encode_message(hb);
+  std::mt19937 rng(11);
+  int ok = 0, malformed = 0, other = 0;
+  for (int trial = 0; trial < 20000; ++trial) {
+    auto b = bytes;
+    const int flips = 1 + static_cast<int>(rng() % 4);
+    for (int k = 0; k < flips; ++k) b[8 + rng() % (b.size() - 8)] = static_cast<uint8_t>(rng());
+    depthfuse::heartbeat_t out;
+    const auto r = lcmio::decode_message(b.data(), b.size(), &out);
+    if (r == DecodeResult::kOk) ++ok;
+    else if (r == DecodeResult::kMalformed) ++malformed;
+    else ++other;
+  }
+  EXPECT_GT(malformed, 0);
+  EXPECT_EQ(ok + malformed + other, 20000);
+}
+
+TEST(MessageDecoding, HugeArrayLengthIsRejectedWithoutAllocating) {
+  // data_size is the int32 right before the payload bytes: claim 2^31-1 bytes in a tiny message.
+  Frame f = make_frame(8, 8, 1, false);
+  depthfuse::depth_frame_t msg;
+  ASSERT_TRUE(lcmio::encode_depth_frame(f, {}, &msg).is_ok());
+  auto bytes = lcmio::encode_message(msg);
+  const size_t data_pos = bytes.size() - (1 + 8 * 3 + 8 * 4) - msg.data.size() - 4;
+  for (int32_t claim : {INT32_MAX, -1, INT32_MIN, 1 << 30}) {
+    auto b = bytes;
+    for (int k = 0; k < 4; ++k) b[data_pos + k] = static_cast<uint8_t>(uint32_t(claim) >> (24 - 8 * k));
+    const int64_t rss_before = daemon::resident_memory_bytes();
+    const auto t0 = std::chrono::steady_clock::now();
+    depthfuse::depth_frame_t out;
+    EXPECT_EQ(lcmio::decode_message(b.data(), b.size(), &out), DecodeResult::kMalformed) << claim;
+    const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    // Not a timing requirement: zeroing a 2 GiB vector would take ~1 s and show in the RSS.
+    EXPECT_LT(daemon::resident_memory_bytes() - rss_before, 64 << 20) << claim;
+    (void)ms;
+  }
+  // A string length of zero or below (std::string::assign would throw) is malformed too.
+  depthfuse::command_t cmd{};
+  cmd.protocol_version = 1;
+  cmd.target = "fusion";
+  auto cb = lcmio::encode_message(cmd);
+  const size_t target_len_pos = 8 + 2 + 8 + 8;
+  for (int32_t claim : {0, -5}) {
+    auto b = cb;
+    for (int k = 0; k < 4; ++k) b[target_len_pos + k] = static_cast<uint8_t>(uint32_t(claim) >> (24 - 8 * k));
+    depthfuse::command_t out;
+    EXPECT_EQ(lcmio::decode_message(b.data(), b.size(), &out), DecodeResult::kMalformed) << claim;
+  }
+}
+
+TEST(MessageDecoding, ForeignTypeAndWrongVersionAreToldApart) {
+  depthfuse::heartbeat_t hb{};
+  hb.protocol_version = depthfuse::heartbeat_t::PROTOCOL_VERSION;
+  const auto hb_bytes = lcmio::encode_message(hb);
+  depthfuse::depth_frame_t depth;
+  EXPECT_EQ(lcmio::decode_message(hb_bytes.data(), hb_bytes.size(), &depth), DecodeResult::kForeign);
+
+  hb.protocol_version = 2;
+  const auto v2 = lcmio::encode_message(hb);
+  depthfuse::heartbeat_t out;
+  EXPECT_EQ(lcmio::decode_message(v2.data(), v2.size(), &out), DecodeResult::kBadVersion);
+
+  EXPECT_EQ(lcmio::decode_message(nullptr, 0, &out), DecodeResult::kMalformed);
+  const uint8_t few[3] = {1, 2, 3};
+  EXPECT_EQ(lcmio::decode_message(few, sizeof(few), &out), DecodeResult::kMalformed);
+
+  lcmio::ReceiveCounters c;
+  c.count(DecodeResult::kOk);
+  c.count(DecodeResult::kForeign);
+  c.count(DecodeResult::kBadVersion);
+  c.count(DecodeResult::kMalformed);
+  c.count(DecodeResult::kMalformed);
+  EXPECT_EQ(c.received.load(), 1);
+  EXPECT_EQ(c.foreign.load(), 1);
+  EXPECT_EQ(c.bad_version.load(), 1);
+  EXPECT_EQ(c.malformed.load(), 2);
+}
+
+TEST(MessageDecoding, EveryTypeCarriesTheProtocolVersion) {
+  EXPECT_EQ(depthfuse::depth_frame_t::PROTOCOL_VERSION, lcmio::kProtocolVersion);
+  EXPECT_EQ(depthfuse::color_frame_t::PROTOCOL_VERSION, lcmio::kProtocolVersion);
+  EXPECT_EQ(depthfuse::pose_t::PROTOCOL_VERSION, lcmio::kProtocolVersion);
+  EXPECT_EQ(depthfuse::heartbeat_t::PROTOCOL_VERSION, lcmio::kProtocolVersion);
+  EXPECT_EQ(depthfuse::status_t::PROTOCOL_VERSION, lcmio::kProtocolVersion);
+  EXPECT_EQ(depthfuse::command_t::PROTOCOL_VERSION, lcmio::kProtocolVersion);
+}
+
+TEST(SequenceTracker, CountsGapsOutOfOrderAndRestarts) {
+  lcmio::SequenceTracker t(100);
+  using V = lcmio::SequenceTracker::Verdict;
+  EXPECT_EQ(t.observe(10).verdict, V::kFirst);
+  EXPECT_EQ(t.observe(11).verdict, V::kInOrder);
+  auto gap = t.observe(15);
+  EXPECT_EQ(gap.verdict, V::kGap);
+  EXPECT_EQ(gap.lost, 3);
+  EXPECT_EQ(t.observe(13).verdict, V::kOutOfOrder);
+  EXPECT_EQ(t.observe(15).verdict, V::kOutOfOrder);  // a repeat
+  EXPECT_EQ(t.observe(16).verdict, V::kInOrder);     // the late one did not move the reference
+  EXPECT_EQ(t.observe(0).verdict, V::kOutOfOrder);   // 16 back: within the restart gap
+  EXPECT_EQ(t.observe(5000).verdict, V::kGap);
+  EXPECT_EQ(t.observe(1).verdict, V::kRestart);      // far back: the sender restarted
+  EXPECT_EQ(t.observe(2).verdict, V::kInOrder);
+}
+
+TEST(PoseArrays, RoundTripAndRejectGarbage) {
+  Pose T = Pose::Identity();
+  T.linear() = Eigen::AngleAxisd(2.5, Eigen::Vector3d(0.2, -1, 0.4).normalized()).toRotationMatrix();
+  T.translation() = Eigen::Vector3d(-3, 2, 0.5);
+  double p[3], q[4];
+  lcmio::pose_to_arrays(T, p, q);
+  auto back = lcmio::pose_from_arrays(p, q);
+  ASSERT_TRUE(back.is_ok());
+  EXPECT_TRUE(back->isApprox(T, 1e-12));
+  q[0] = std::nan("");
+  EXPECT_FALSE(lcmio::pose_from_arrays(p, q).is_ok());
+}
+
+}  // namespace
+}  // namespace depthfuse

@@ -1,0 +1,186 @@
+// Helpers for the LCM tests: a per-process loopback URL, child processes, a background listener.
+#pragma once
+
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <map>
+#include <mutex>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "depthfuse/lcm/transport.hpp"
+
+namespace depthfuse::testing {
+
+inline std::string bin(const std::string& name) { return std::string(DEPTHFUSE_BIN_DIR) + "/" + name; }
+
+// Each test process gets its own udpm port, so tests running side by side do not hear each other.
+inline std::string test_url() { return lcmio::loopback_test_url(static_cast<int>(::getpid())); }
+
+// Fails the test with the route diagnosis when multicast cannot work on this host.
+inline void require_multicast_route(const std::string& url) {
+  auto parsed = lcmio::parse_lcm_url(url);
+  ASSERT_TRUE(parsed.is_ok()) << parsed.status().to_string();
+  const auto d = lcmio::diagnose_lcm_url(*parsed);
+  ASSERT_TRUE(d.route.is_ok())
+      << "these tests need LCM multicast on loopback: " << d.route.message()
+      << " (tools/setup.sh and tools/lcm/route add the route)";
+}
+
+inline std::string temp_dir(const std::string& tag) {
+  auto dir = std::filesystem::temp_directory_path() /
+             ("depthfuse-" + tag + "-" + std::to_string(::getpid()));
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  return dir.string();
+}
+
+inline std::string read_text(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+// A child process with stdout+stderr in a log file; SIGTERM and reaped when destroyed.
+class Process {
+ public:
+  Process(std::vector<std::string> argv, std::string log_path)
+      : argv_(std::move(argv)), log_path_(std::move(log_path)) {
+    pid_ = ::fork();
+    if (pid_ == 0) {
+      const int fd = ::open(log_path_.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+      if (fd >= 0) {
+        ::dup2(fd, 1);
+        ::dup2(fd, 2);
+      }
+      std::vector<char*> args;
+      for (auto& a : argv_) args.push_back(a.data());
+      args.push_back(nullptr);
+      ::execv(args[0], args.data());
+      std::perror("execv");
+      ::_exit(127);
+    }
+  }
+  ~Process() {
+    if (running()) {
+      signal(SIGTERM);
+      if (!wait(std::chrono::seconds(60))) {
+        signal(SIGKILL);
+        wait(std::chrono::seconds(5));
+      }
+    }
+  }
+  Process(const Process&) = delete;
+  Process& operator=(const Process&) = delete;
+
+  pid_t pid() const { return pid_; }
+  bool running() {
+    if (exited_ || pid_ <= 0) return false;
+    int status = 0;
+    const pid_t r = ::waitpid(pid_, &status, WNOHANG);
+    if (r == pid_) {
+      record(status);
+      return false;
+    }
+    return true;
+  }
+  void signal(int sig) {
+    if (!exited_ && pid_ > 0) ::kill(pid_, sig);
+  }
+  // True when it exited within the timeout.
+  bool wait(std::chrono::milliseconds timeout) {
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    while (running()) {
+      if (std::chrono::steady_clock::now() > deadline) return false;
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    return true;
+  }
+  // Exit code, or 128 + signal; -1 while running.
+  int exit_code() const { return exit_code_; }
+  std::string log() const { return read_text(log_path_); }
+
+ private:
+  void record(int status) {
+    exited_ = true;
+    exit_code_ = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  }
+  std::vector<std::string> argv_;
+  std::string log_path_;
+  pid_t pid_ = -1;
+  bool exited_ = false;
+  int exit_code_ = -1;
+};
+
+// Runs a command to completion; returns its exit code and its output.
+inline int run_command(std::vector<std::string> argv, const std::string& log_path, std::string* output,
+                       std::chrono::seconds timeout = std::chrono::seconds(60)) {
+  Process p(std::move(argv), log_path);
+  if (!p.wait(timeout)) {
+    p.signal(SIGKILL);
+    p.wait(std::chrono::seconds(5));
+  }
+  if (output) *output = p.log();
+  return p.exit_code();
+}
+
+// Polls `pred` until true or the timeout; returns pred's last value.
+inline bool eventually(const std::function<bool()>& pred, std::chrono::milliseconds timeout,
+                       std::chrono::milliseconds step = std::chrono::milliseconds(50)) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (!pred()) {
+    if (std::chrono::steady_clock::now() > deadline) return pred();
+    std::this_thread::sleep_for(step);
+  }
+  return true;
+}
+
+// Receives in a background thread; handlers run there.
+class Listener {
+ public:
+  explicit Listener(const std::string& url) {
+    auto opened = lcmio::LcmTransport::open(url);
+    if (!opened) {
+      error_ = opened.status().to_string();
+      return;
+    }
+    lcm_ = std::move(opened).value();
+  }
+  ~Listener() { stop(); }
+  const std::string& error() const { return error_; }
+  lcmio::LcmTransport* lcm() { return lcm_.get(); }
+  void subscribe(const std::string& channel, lcmio::LcmTransport::Handler h) {
+    lcm_->subscribe(channel, std::move(h));
+  }
+  void start() {
+    thread_ = std::thread([this] {
+      while (!stop_) (void)lcm_->handle(20);
+    });
+  }
+  void stop() {
+    stop_ = true;
+    if (thread_.joinable()) thread_.join();
+  }
+
+ private:
+  std::unique_ptr<lcmio::LcmTransport> lcm_;
+  std::string error_;
+  std::atomic<bool> stop_{false};
+  std::thread thread_;
+};
+
+}  // namespace depthfuse::testing
