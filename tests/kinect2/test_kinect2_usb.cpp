@@ -123,6 +123,7 @@ TEST_P(Kinect2UsbMonitor, StartsReportsNoKinectAndStopsPromptly) {
   UsbHotplugConfig config;
   config.force_polling = GetParam();
   config.poll_interval_s = 0.05;
+  config.rescan_interval_s = 0.05;  // exercise the safety-net rescan of the hotplug mode too
   auto monitor = UsbHotplugMonitor::start(config);
   if (!monitor.is_ok()) {
     ASSERT_EQ(monitor.status().code(), StatusCode::kUnavailable) << monitor.status().to_string();
@@ -157,6 +158,9 @@ TEST(Kinect2UsbMonitorConfig, RejectsNonsense) {
   UsbHotplugConfig no_interval;
   no_interval.poll_interval_s = 0.0;
   EXPECT_EQ(UsbHotplugMonitor::start(no_interval).status().code(), StatusCode::kInvalidArgument);
+  UsbHotplugConfig no_rescan;
+  no_rescan.rescan_interval_s = -1.0;
+  EXPECT_EQ(UsbHotplugMonitor::start(no_rescan).status().code(), StatusCode::kInvalidArgument);
 }
 
 TEST(Kinect2UsbReset, WithoutADeviceItSaysWhatItLookedFor) {

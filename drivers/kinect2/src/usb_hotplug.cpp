@@ -90,13 +90,33 @@ struct UsbHotplugMonitor::Impl {
   }
 
   void event_loop() {
+    using Clock = std::chrono::steady_clock;
+    const auto rescan_interval = std::chrono::duration_cast<Clock::duration>(
+        std::chrono::duration<double>(config.rescan_interval_s));
+    auto next_rescan = Clock::now() + rescan_interval;
     while (!stop) {
-      timeval timeout{1, 0};  // woken early by libusb_interrupt_event_handler on shutdown
+      // Sleeps in libusb until an event, the next rescan or 1 s; libusb_interrupt_event_handler
+      // wakes it early on shutdown.
+      const auto until_rescan = std::chrono::duration_cast<std::chrono::microseconds>(
+          next_rescan - Clock::now());
+      const int64_t wait_us =
+          std::clamp<int64_t>(until_rescan.count(), 0, int64_t{1000000});
+      timeval timeout{static_cast<time_t>(wait_us / 1000000),
+                      static_cast<suseconds_t>(wait_us % 1000000)};
       const int r = libusb_handle_events_timeout_completed(context, &timeout, nullptr);
       if (r < 0 && r != LIBUSB_ERROR_INTERRUPTED) {
         presence.set_watch_error("libusb event handling failed: " + libusb_message(r));
         std::unique_lock<std::mutex> lock(stop_mutex);
         stop_cv.wait_for(lock, std::chrono::seconds(1), [&] { return stop.load(); });
+        continue;
+      }
+      if (Clock::now() >= next_rescan) {
+        // Callbacks run on this thread too, so a snapshot never races with an event.
+        std::string error;
+        const auto devices = snapshot(&error);
+        if (error.empty()) presence.replace_all(devices);
+        presence.set_watch_error(error);  // also clears an earlier event-loop error
+        next_rescan = Clock::now() + rescan_interval;
       }
     }
   }
@@ -126,6 +146,9 @@ Result<std::unique_ptr<UsbHotplugMonitor>> UsbHotplugMonitor::start(
   if (!(config.poll_interval_s > 0.0))
     return invalid_argument("USB hotplug monitor: poll_interval_s must be > 0, got " +
                             std::to_string(config.poll_interval_s));
+  if (!(config.rescan_interval_s > 0.0))
+    return invalid_argument("USB hotplug monitor: rescan_interval_s must be > 0, got " +
+                            std::to_string(config.rescan_interval_s));
 
   auto impl = std::make_unique<Impl>();
   impl->config = config;

@@ -16,6 +16,10 @@ namespace depthfuse::kinect2 {
 struct UsbHotplugConfig {
   std::vector<UsbId> ids = kinect2_usb_ids();
   double poll_interval_s = 1.0;  // only without hotplug support (or when forced below)
+  // With hotplug events, the bus is also rescanned this often: a safety net should an event be
+  // lost (e.g. no udev or netlink events inside a container). Rescans that find no change are
+  // silent.
+  double rescan_interval_s = 5.0;
   bool force_polling = false;    // tests and odd platforms: skip hotplug callbacks
 };
 
