@@ -1,0 +1,617 @@
+// ScanStore on real SQLite files: bit-exact round trips, checkpoint atomicity and isolation,
+// staging and crash recovery, the writer lock, schema migration, and damaged files.
+#include <gtest/gtest.h>
+#include <sqlite3.h>
+#include <sys/stat.h>
+
+#include <filesystem>
+#include <fstream>
+#include <random>
+
+#include "depthfuse/store/blob_codec.hpp"
+#include "depthfuse/store/scan_store.hpp"
+#include "store_test_util.hpp"
+
+using namespace depthfuse;
+using namespace depthfuse::store;
+using test::bit_equal;
+using test::make_points;
+using test::TempDir;
+
+namespace {
+
+std::unique_ptr<ScanStore> open_or_die(const std::string& path, OpenMode mode) {
+  auto s = ScanStore::open(path, mode);
+  EXPECT_TRUE(s) << s.status().to_string();
+  return s ? std::move(s).value() : nullptr;
+}
+
+Chunk chunk_of(const PointArrays& a, uint32_t touched = 7) {
+  Chunk c;
+  c.points = a;
+  c.last_touched_frame = touched;
+  return c;
+}
+
+Pose some_pose(double t) {
+  Pose T = Pose::Identity();
+  T.linear() = Eigen::AngleAxisd(t, Eigen::Vector3d(0.2, 1, 0.3).normalized()).toRotationMatrix();
+  T.translation() = Eigen::Vector3d(t, -t / 3.0, 1.0 + t * t);
+  return T;
+}
+
+Keyframe some_keyframe(uint32_t id) {
+  Keyframe k;
+  k.frame_id = id;
+  k.utime = 1000 + id;
+  k.sensor_serial = "014845";
+  k.intrinsics = test::small_camera();
+  k.T_world_cam = some_pose(id * 0.1);
+  k.depth = DepthImage(k.intrinsics.width, k.intrinsics.height);
+  k.color.width = k.intrinsics.width;
+  k.color.height = k.intrinsics.height;
+  for (int i = 0; i < k.intrinsics.width * k.intrinsics.height; ++i) {
+    k.depth.depth_m[i] = i % 5 ? 0.5f + 0.0001f * static_cast<float>((i * 7919) % 30000) : 0.0f;
+    for (int c = 0; c < 3; ++c) k.color.rgb.push_back(static_cast<uint8_t>(i * (c + 3)));
+  }
+  return k;
+}
+
+void expect_same_pose(const Pose& a, const Pose& b) {
+  EXPECT_EQ(std::memcmp(a.matrix().data(), b.matrix().data(), sizeof(double) * 16), 0);
+}
+
+// Runs one checkpoint writing the given chunks.
+CheckpointRecord checkpoint(ScanStore& s, const std::vector<std::pair<ChunkKey, PointArrays>>& chunks,
+                            uint32_t last_frame) {
+  EXPECT_TRUE(s.begin_checkpoint());
+  for (const auto& [k, a] : chunks) EXPECT_TRUE(s.write_chunk(k, chunk_of(a)));
+  CheckpointInfo info;
+  info.last_frame_id = last_frame;
+  info.T_world_cam = some_pose(last_frame);
+  auto rec = s.commit_checkpoint(info);
+  EXPECT_TRUE(rec) << rec.status().to_string();
+  return rec ? *rec : CheckpointRecord{};
+}
+
+}  // namespace
+
+TEST(ScanStore, RoundTripIsBitExact) {
+  TempDir dir;
+  const std::string path = dir.file("scan.db");
+  std::vector<std::pair<ChunkKey, PointArrays>> chunks;
+  for (int i = 0; i < 20; ++i) {
+    const ChunkKey k{i - 10, i % 3 - 1, -i};
+    chunks.emplace_back(k, make_points(k, 1, 50 + 37 * i));
+  }
+  chunks[3].second.x[0] = -0.0f;
+  chunks[4].second.nz[1] = std::numeric_limits<float>::quiet_NaN();
+  ScanMetadata meta;
+  meta.scan_id = "room-17";
+  meta.created_utime = 1700000000123456;
+  meta.sensor_serial = "014845";
+  meta.method = "full";
+  meta.chunk_size_m = 0.5;
+  meta.software_version = "0.1.0";
+  const std::string toml = "[fusion]\nchunk_size_m = 0.5\n# ünïcødé\n";
+  std::vector<PoseRecord> poses;
+  {
+    auto s = open_or_die(path, OpenMode::kCreate);
+    ASSERT_TRUE(s);
+    ASSERT_TRUE(s->set_metadata(meta));
+    ASSERT_TRUE(s->set_config(toml, "/etc/depthfuse.toml"));
+    ASSERT_TRUE(s->write_keyframe(some_keyframe(10)));
+    ASSERT_TRUE(s->begin_checkpoint());
+    for (const auto& [k, a] : chunks) ASSERT_TRUE(s->write_chunk(k, chunk_of(a, 40 + k.x)));
+    for (uint32_t f = 1; f <= 12; ++f) {
+      PoseRecord p;
+      p.frame_id = f;
+      p.utime = 1000 + f;
+      p.T_world_cam = some_pose(f * 0.1);
+      p.registered = f % 2;
+      p.fitness = 0.9 + f * 1e-3;
+      p.rmse_m = 1.0 / (f + 3);
+      p.correspondences = 1000 + f;
+      poses.push_back(p);
+      ASSERT_TRUE(s->write_pose(p));
+    }
+    CheckpointInfo info;
+    info.reason = "command";
+    info.last_frame_id = 12;
+    info.T_world_cam = some_pose(1.2);
+    info.frames_received = 15;
+    info.frames_fused = 12;
+    info.frames_dropped = 3;
+    auto rec = s->commit_checkpoint(info);
+    ASSERT_TRUE(rec) << rec.status().to_string();
+    EXPECT_EQ(rec->id, 1);
+    EXPECT_EQ(rec->chunk_count, chunks.size());
+  }
+  auto s = open_or_die(path, OpenMode::kReadOnly);
+  ASSERT_TRUE(s);
+  EXPECT_EQ(s->schema_version(), kSchemaVersion);
+  size_t total = 0;
+  for (const auto& [k, a] : chunks) {
+    auto c = s->read_chunk(k);
+    ASSERT_TRUE(c) << c.status().to_string();
+    EXPECT_TRUE(bit_equal(c->chunk.points, a)) << to_string(k);
+    EXPECT_EQ(c->chunk.last_touched_frame, static_cast<uint32_t>(40 + k.x));
+    EXPECT_FALSE(c->chunk.dirty);
+    total += a.size();
+  }
+  // Streaming iteration visits every chunk once, in key order.
+  size_t visited = 0, streamed = 0;
+  ChunkKey prev{INT32_MIN, 0, 0};
+  ASSERT_TRUE(s->for_each_chunk([&](const ChunkInfo& info, PointArrays& a) {
+    EXPECT_TRUE(std::tie(prev.x, prev.y, prev.z) < std::tie(info.key.x, info.key.y, info.key.z));
+    prev = info.key;
+    ++visited;
+    streamed += a.size();
+    return Status::ok();
+  }));
+  EXPECT_EQ(visited, chunks.size());
+  EXPECT_EQ(streamed, total);
+  auto read_poses = s->read_poses();
+  ASSERT_TRUE(read_poses);
+  ASSERT_EQ(read_poses->size(), poses.size());
+  for (size_t i = 0; i < poses.size(); ++i) {
+    const PoseRecord& a = poses[i];
+    const PoseRecord& b = (*read_poses)[i];
+    EXPECT_EQ(a.frame_id, b.frame_id);
+    EXPECT_EQ(a.utime, b.utime);
+    expect_same_pose(a.T_world_cam, b.T_world_cam);
+    EXPECT_EQ(a.registered, b.registered);
+    EXPECT_EQ(a.fitness, b.fitness);
+    EXPECT_EQ(a.rmse_m, b.rmse_m);
+    EXPECT_EQ(a.correspondences, b.correspondences);
+  }
+  auto kf = s->read_keyframe(10);
+  ASSERT_TRUE(kf) << kf.status().to_string();
+  const Keyframe ref = some_keyframe(10);
+  EXPECT_TRUE(test::same_bits(kf->depth.depth_m, ref.depth.depth_m));
+  EXPECT_EQ(kf->color.rgb, ref.color.rgb);
+  EXPECT_EQ(kf->sensor_serial, ref.sensor_serial);
+  EXPECT_EQ(kf->intrinsics.fx, ref.intrinsics.fx);
+  expect_same_pose(kf->T_world_cam, ref.T_world_cam);
+  const Frame f = kf->to_frame();
+  ASSERT_TRUE(f.T_world_cam_hint.has_value());
+  expect_same_pose(*f.T_world_cam_hint, ref.T_world_cam);
+  auto m = s->metadata();
+  ASSERT_TRUE(m);
+  EXPECT_EQ(m->scan_id, meta.scan_id);
+  EXPECT_EQ(m->created_utime, meta.created_utime);
+  EXPECT_EQ(m->sensor_serial, meta.sensor_serial);
+  EXPECT_EQ(m->frames_received, 15u);
+  EXPECT_EQ(m->frames_dropped, 3u);
+  auto config = s->config_toml();
+  ASSERT_TRUE(config && config->has_value());
+  EXPECT_EQ(**config, toml);
+  auto sum = s->summary();
+  ASSERT_TRUE(sum) << sum.status().to_string();
+  EXPECT_EQ(sum->point_count, total);
+  EXPECT_EQ(sum->chunk_count, chunks.size());
+  EXPECT_EQ(sum->pose_count, 12u);
+  EXPECT_EQ(sum->keyframe_count, 1u);
+  EXPECT_EQ(sum->checkpoint_count, 1u);
+  ASSERT_TRUE(sum->last_checkpoint);
+  EXPECT_EQ(sum->last_checkpoint->reason, "command");
+  expect_same_pose(*sum->last_checkpoint->T_world_cam, some_pose(1.2));
+  auto integrity = s->integrity_check();
+  ASSERT_TRUE(integrity);
+  EXPECT_TRUE(integrity->ok()) << integrity->problems.front();
+  EXPECT_EQ(integrity->chunks_checked, chunks.size());
+}
+
+TEST(ScanStore, RolledBackCheckpointLeavesThePreviousOne) {
+  TempDir dir;
+  const std::string path = dir.file("scan.db");
+  const ChunkKey a{0, 0, 0}, b{1, 0, 0}, c{2, 0, 0};
+  auto s = open_or_die(path, OpenMode::kCreate);
+  ASSERT_TRUE(s);
+  checkpoint(*s, {{a, make_points(a, 1, 100)}, {b, make_points(b, 1, 100)}}, 10);
+
+  ASSERT_TRUE(s->begin_checkpoint());
+  ASSERT_TRUE(s->write_chunk(a, chunk_of(make_points(a, 2, 120))));
+  ASSERT_TRUE(s->delete_chunk(b));
+  ASSERT_TRUE(s->write_chunk(c, chunk_of(make_points(c, 2, 10))));
+  // A reader in another connection sees the last checkpoint while this one is open.
+  {
+    auto reader = open_or_die(path, OpenMode::kReadOnly);
+    ASSERT_TRUE(reader);
+    auto ra = reader->read_chunk(a);
+    ASSERT_TRUE(ra);
+    EXPECT_TRUE(bit_equal(ra->chunk.points, make_points(a, 1, 100)));
+    EXPECT_TRUE(reader->read_chunk(b));
+    EXPECT_EQ(reader->read_chunk(c).status().code(), StatusCode::kNotFound);
+  }
+  // A write that fails mid-checkpoint: the caller rolls back.
+  PointArrays broken = make_points(c, 3, 5);
+  broken.nx.pop_back();
+  EXPECT_EQ(s->write_chunk(c, chunk_of(broken)).code(), StatusCode::kInvalidArgument);
+  s->rollback_checkpoint();
+  s.reset();
+
+  s = open_or_die(path, OpenMode::kReadOnly);
+  auto ra = s->read_chunk(a);
+  ASSERT_TRUE(ra);
+  EXPECT_TRUE(bit_equal(ra->chunk.points, make_points(a, 1, 100)));
+  EXPECT_TRUE(s->read_chunk(b));
+  EXPECT_EQ(s->read_chunk(c).status().code(), StatusCode::kNotFound);
+  auto cps = s->checkpoints();
+  ASSERT_TRUE(cps);
+  EXPECT_EQ(cps->size(), 1u);
+}
+
+TEST(ScanStore, ReadSnapshotIsStableWhileTheWriterCommits) {
+  TempDir dir;
+  const std::string path = dir.file("scan.db");
+  const ChunkKey a{0, 0, 0}, b{0, 1, 0};
+  auto w = open_or_die(path, OpenMode::kCreate);
+  ASSERT_TRUE(w);
+  checkpoint(*w, {{a, make_points(a, 1, 100)}}, 1);
+  auto r = open_or_die(path, OpenMode::kReadOnly);
+  ASSERT_TRUE(r);
+  {
+    ScopedRead snapshot(*r);
+    ASSERT_TRUE(snapshot.status());
+    checkpoint(*w, {{a, make_points(a, 2, 90)}, {b, make_points(b, 2, 30)}}, 2);
+    // The writer committed; the snapshot still shows checkpoint 1 throughout.
+    auto list = r->list_chunks();
+    ASSERT_TRUE(list);
+    EXPECT_EQ(list->size(), 1u);
+    auto ra = r->read_chunk(a);
+    ASSERT_TRUE(ra);
+    EXPECT_TRUE(bit_equal(ra->chunk.points, make_points(a, 1, 100)));
+  }
+  auto list = r->list_chunks();
+  ASSERT_TRUE(list);
+  EXPECT_EQ(list->size(), 2u);
+}
+
+TEST(ScanStore, StagedChunksArePromotedByACheckpointAndDroppedAfterACrash) {
+  TempDir dir;
+  const std::string path = dir.file("scan.db");
+  const ChunkKey a{0, 0, 0}, d{5, 5, 5}, e{6, 6, 6};
+  {
+    auto s = open_or_die(path, OpenMode::kCreate);
+    ASSERT_TRUE(s);
+    checkpoint(*s, {{a, make_points(a, 1, 100)}}, 10);
+    Chunk cd = chunk_of(make_points(d, 1, 40));
+    ASSERT_TRUE(s->stage_chunks({{d, &cd}}));
+    auto staged = s->read_chunk(d, /*include_staged=*/true);
+    ASSERT_TRUE(staged);
+    EXPECT_TRUE(bit_equal(staged->chunk.points, cd.points));
+    EXPECT_EQ(s->read_chunk(d).status().code(), StatusCode::kNotFound);  // not committed yet
+    // Staging a chunk over a committed one, and an emptied chunk (a deletion).
+    Chunk ca = chunk_of(make_points(a, 2, 70));
+    ASSERT_TRUE(s->stage_chunks({{a, &ca}}));
+    checkpoint(*s, {}, 20);
+    auto promoted = s->read_chunk(d);
+    ASSERT_TRUE(promoted);
+    EXPECT_TRUE(bit_equal(promoted->chunk.points, cd.points));
+    EXPECT_TRUE(bit_equal(s->read_chunk(a)->chunk.points, ca.points));
+    Chunk empty;
+    ASSERT_TRUE(s->stage_chunks({{a, &empty}}));
+    checkpoint(*s, {}, 30);
+    EXPECT_EQ(s->read_chunk(a).status().code(), StatusCode::kNotFound);
+
+    // Work after the last checkpoint: a staged chunk, a keyframe; then the process "dies".
+    Chunk ce = chunk_of(make_points(e, 1, 40));
+    ASSERT_TRUE(s->stage_chunks({{e, &ce}}));
+    ASSERT_TRUE(s->write_keyframe(some_keyframe(31)));
+    ASSERT_TRUE(s->write_keyframe(some_keyframe(30)));
+    EXPECT_FALSE(s->begin_checkpoint() && s->stage_chunks({{e, &ce}}));  // not inside a checkpoint
+    s->rollback_checkpoint();
+  }
+  {
+    // A reader does not see work after the last checkpoint.
+    auto r = open_or_die(path, OpenMode::kReadOnly);
+    auto kfs = r->list_keyframes();
+    ASSERT_TRUE(kfs);
+    ASSERT_EQ(kfs->size(), 1u);
+    EXPECT_EQ((*kfs)[0].frame_id, 30u);
+  }
+  auto s = open_or_die(path, OpenMode::kReadWrite);
+  ASSERT_TRUE(s);
+  EXPECT_EQ(s->open_report().discarded_staged_chunks, 1u);
+  EXPECT_EQ(s->open_report().discarded_keyframes, 1u);
+  EXPECT_EQ(s->read_chunk(e, true).status().code(), StatusCode::kNotFound);
+  EXPECT_TRUE(s->read_keyframe(30));
+  EXPECT_EQ(s->read_keyframe(31).status().code(), StatusCode::kNotFound);
+}
+
+TEST(ScanStore, OneWriterAtATime) {
+  TempDir dir;
+  const std::string path = dir.file("scan.db");
+  auto w = open_or_die(path, OpenMode::kCreate);
+  ASSERT_TRUE(w);
+  auto second = ScanStore::open(path, OpenMode::kReadWrite);
+  ASSERT_FALSE(second);
+  EXPECT_EQ(second.status().code(), StatusCode::kUnavailable);
+  EXPECT_NE(second.status().message().find("another process is writing"), std::string::npos);
+  EXPECT_TRUE(ScanStore::open(path, OpenMode::kReadOnly));  // readers are welcome
+  auto again = ScanStore::open(path, OpenMode::kCreate);
+  ASSERT_FALSE(again);
+  EXPECT_NE(again.status().message().find("already exists"), std::string::npos);
+  w.reset();
+  EXPECT_TRUE(ScanStore::open(path, OpenMode::kReadWrite));
+}
+
+namespace {
+
+void sql(sqlite3* db, const std::string& text) {
+  char* err = nullptr;
+  ASSERT_EQ(sqlite3_exec(db, text.c_str(), nullptr, nullptr, &err), SQLITE_OK) << (err ? err : "");
+}
+
+// A scan file as schema 1 wrote it: no checkpoints table (the last checkpoint lived in meta keys),
+// no staging, poses without ICP results, keyframes without colour.
+void write_schema1_file(const std::string& path, const PointArrays& points, const ChunkKey& key) {
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+  sql(db, "PRAGMA journal_mode = WAL;");
+  sql(db, R"sql(
+BEGIN;
+CREATE TABLE meta (key TEXT PRIMARY KEY NOT NULL, value TEXT NOT NULL);
+CREATE TABLE chunks (
+  x INTEGER NOT NULL, y INTEGER NOT NULL, z INTEGER NOT NULL,
+  point_count INTEGER NOT NULL,
+  min_x REAL, min_y REAL, min_z REAL, max_x REAL, max_y REAL, max_z REAL,
+  last_touched_frame INTEGER NOT NULL,
+  data BLOB NOT NULL,
+  PRIMARY KEY (x, y, z));
+CREATE TABLE poses (frame_id INTEGER PRIMARY KEY, utime INTEGER NOT NULL, T_world_cam BLOB NOT NULL);
+CREATE TABLE keyframes (
+  frame_id INTEGER PRIMARY KEY, utime INTEGER NOT NULL, sensor_serial TEXT NOT NULL DEFAULT '',
+  width INTEGER NOT NULL, height INTEGER NOT NULL,
+  fx REAL NOT NULL, fy REAL NOT NULL, cx REAL NOT NULL, cy REAL NOT NULL,
+  T_world_cam BLOB NOT NULL, depth BLOB NOT NULL);
+INSERT INTO meta VALUES ('scan_id', 'old-scan'), ('created_utime', '1600000000000000'),
+  ('chunk_size_m', '0.5'), ('method', 'full'),
+  ('checkpoint_count', '3'), ('checkpoint_utime', '1600000000500000'),
+  ('checkpoint_last_frame_id', '20');
+PRAGMA application_id = 1145459523;
+PRAGMA user_version = 1;
+COMMIT;
+)sql");
+  BlobCodec codec;
+  std::vector<uint8_t> blob;
+  ASSERT_TRUE(codec.encode_points(points, &blob));
+  sqlite3_stmt* st = nullptr;
+  ASSERT_EQ(sqlite3_prepare_v2(db,
+                               "INSERT INTO chunks VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 19, ?);",
+                               -1, &st, nullptr),
+            SQLITE_OK);
+  Eigen::AlignedBox3f box;
+  for (size_t i = 0; i < points.size(); ++i) box.extend(points.position(i));
+  sqlite3_bind_int(st, 1, key.x);
+  sqlite3_bind_int(st, 2, key.y);
+  sqlite3_bind_int(st, 3, key.z);
+  sqlite3_bind_int64(st, 4, static_cast<int64_t>(points.size()));
+  for (int a = 0; a < 3; ++a) {
+    sqlite3_bind_double(st, 5 + a, box.min()[a]);
+    sqlite3_bind_double(st, 8 + a, box.max()[a]);
+  }
+  sqlite3_bind_blob(st, 11, blob.data(), static_cast<int>(blob.size()), SQLITE_STATIC);
+  ASSERT_EQ(sqlite3_step(st), SQLITE_DONE);
+  sqlite3_finalize(st);
+  for (int f = 1; f <= 20; ++f) {
+    const auto pose = encode_pose(some_pose(f * 0.1));
+    ASSERT_EQ(sqlite3_prepare_v2(db, "INSERT INTO poses VALUES (?, ?, ?);", -1, &st, nullptr), SQLITE_OK);
+    sqlite3_bind_int(st, 1, f);
+    sqlite3_bind_int64(st, 2, 1000 + f);
+    sqlite3_bind_blob(st, 3, pose.data(), static_cast<int>(pose.size()), SQLITE_TRANSIENT);
+    ASSERT_EQ(sqlite3_step(st), SQLITE_DONE);
+    sqlite3_finalize(st);
+  }
+  const Keyframe k = some_keyframe(20);
+  std::vector<uint8_t> depth;
+  ASSERT_TRUE(codec.encode_depth(k.depth, &depth));
+  const auto pose = encode_pose(k.T_world_cam);
+  ASSERT_EQ(sqlite3_prepare_v2(db, "INSERT INTO keyframes VALUES (20, 1020, '014845', ?, ?, ?, ?, ?, ?, ?, ?);",
+                               -1, &st, nullptr),
+            SQLITE_OK);
+  sqlite3_bind_int(st, 1, k.intrinsics.width);
+  sqlite3_bind_int(st, 2, k.intrinsics.height);
+  sqlite3_bind_double(st, 3, k.intrinsics.fx);
+  sqlite3_bind_double(st, 4, k.intrinsics.fy);
+  sqlite3_bind_double(st, 5, k.intrinsics.cx);
+  sqlite3_bind_double(st, 6, k.intrinsics.cy);
+  sqlite3_bind_blob(st, 7, pose.data(), static_cast<int>(pose.size()), SQLITE_TRANSIENT);
+  sqlite3_bind_blob(st, 8, depth.data(), static_cast<int>(depth.size()), SQLITE_TRANSIENT);
+  ASSERT_EQ(sqlite3_step(st), SQLITE_DONE);
+  sqlite3_finalize(st);
+  sqlite3_close(db);
+}
+
+}  // namespace
+
+TEST(ScanStore, MigratesASchema1File) {
+  TempDir dir;
+  const std::string path = dir.file("old.db");
+  const ChunkKey key{0, 0, 0};
+  const PointArrays points = make_points(key, 1, 77);
+  write_schema1_file(path, points, key);
+
+  // Read-only cannot migrate and says how.
+  auto ro = ScanStore::open(path, OpenMode::kReadOnly);
+  ASSERT_FALSE(ro);
+  EXPECT_EQ(ro.status().code(), StatusCode::kUnsupported);
+  EXPECT_NE(ro.status().message().find("schema version 1"), std::string::npos) << ro.status().message();
+
+  {
+    auto s = open_or_die(path, OpenMode::kReadWrite);
+    ASSERT_TRUE(s);
+    EXPECT_TRUE(s->open_report().migrated);
+    EXPECT_EQ(s->open_report().found_schema_version, 1);
+    EXPECT_EQ(s->schema_version(), 2);
+  }
+  auto s = open_or_die(path, OpenMode::kReadOnly);
+  ASSERT_TRUE(s);
+  auto c = s->read_chunk(key);
+  ASSERT_TRUE(c) << c.status().to_string();
+  EXPECT_TRUE(bit_equal(c->chunk.points, points));
+  EXPECT_EQ(c->info.checkpoint_id, 3);
+  EXPECT_EQ(c->chunk.last_touched_frame, 19u);
+  auto last = s->last_checkpoint();
+  ASSERT_TRUE(last && last->has_value());
+  EXPECT_EQ((*last)->id, 3);
+  EXPECT_EQ((*last)->last_frame_id, 20u);
+  EXPECT_EQ((*last)->utime, 1600000000500000);
+  EXPECT_EQ((*last)->point_count, 77u);
+  EXPECT_EQ((*last)->reason, "migrated from schema 1");
+  ASSERT_TRUE((*last)->T_world_cam);
+  expect_same_pose(*(*last)->T_world_cam, some_pose(2.0));
+  auto poses = s->read_poses();
+  ASSERT_TRUE(poses);
+  ASSERT_EQ(poses->size(), 20u);
+  EXPECT_FALSE((*poses)[0].registered);
+  auto kf = s->read_keyframe(20);
+  ASSERT_TRUE(kf) << kf.status().to_string();
+  EXPECT_TRUE(kf->color.empty());
+  EXPECT_TRUE(test::same_bits(kf->depth.depth_m, some_keyframe(20).depth.depth_m));
+  auto m = s->metadata();
+  ASSERT_TRUE(m);
+  EXPECT_EQ(m->scan_id, "old-scan");
+  auto integrity = s->integrity_check();
+  ASSERT_TRUE(integrity);
+  EXPECT_TRUE(integrity->ok()) << integrity->problems.front();
+  s.reset();
+  // The migrated file takes new checkpoints, and a second open has nothing to migrate.
+  auto w = open_or_die(path, OpenMode::kReadWrite);
+  ASSERT_TRUE(w);
+  EXPECT_FALSE(w->open_report().migrated);
+  auto rec = checkpoint(*w, {{{1, 0, 0}, make_points({1, 0, 0}, 4, 10)}}, 21);
+  EXPECT_EQ(rec.id, 4);
+  EXPECT_EQ(rec.point_count, 87u);
+}
+
+TEST(ScanStore, RejectsForeignAndNewerFiles) {
+  TempDir dir;
+  const std::string foreign = dir.file("foreign.db"), newer = dir.file("newer.db");
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(foreign.c_str(), &db), SQLITE_OK);
+  sql(db, "CREATE TABLE t (a); INSERT INTO t VALUES (1);");
+  sqlite3_close(db);
+  auto f = ScanStore::open(foreign, OpenMode::kReadOnly);
+  ASSERT_FALSE(f);
+  EXPECT_NE(f.status().message().find("not a depthfuse scan"), std::string::npos) << f.status().message();
+
+  { auto s = open_or_die(newer, OpenMode::kCreate); }
+  ASSERT_EQ(sqlite3_open(newer.c_str(), &db), SQLITE_OK);
+  sql(db, "PRAGMA user_version = 99;");
+  sqlite3_close(db);
+  auto n = ScanStore::open(newer, OpenMode::kReadWrite);
+  ASSERT_FALSE(n);
+  EXPECT_EQ(n.status().code(), StatusCode::kUnsupported);
+  EXPECT_NE(n.status().message().find("newer depthfuse"), std::string::npos) << n.status().message();
+}
+
+namespace {
+
+// A closed scan file with enough chunks to span many pages.
+void make_scan(const std::string& path, int chunks, size_t points_each = 400) {
+  auto s = open_or_die(path, OpenMode::kCreate);
+  ASSERT_TRUE(s);
+  std::vector<std::pair<ChunkKey, PointArrays>> list;
+  for (int i = 0; i < chunks; ++i) {
+    const ChunkKey k{i, -i, i % 4};
+    list.emplace_back(k, make_points(k, 1, points_each));
+  }
+  checkpoint(*s, list, 5);
+}
+
+std::vector<long> blob_offsets(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  std::vector<long> out;
+  for (size_t p = bytes.find("DFB1"); p != std::string::npos; p = bytes.find("DFB1", p + 1)) out.push_back(static_cast<long>(p));
+  return out;
+}
+
+}  // namespace
+
+TEST(ScanStore, GarbageEmptyAndTruncatedFilesGetClearErrors) {
+  TempDir dir;
+  const std::string garbage = dir.file("garbage.db"), empty = dir.file("empty.db"), cut = dir.file("cut.db");
+  {
+    std::ofstream g(garbage, std::ios::binary);
+    std::mt19937 rng(1);
+    for (int i = 0; i < 100000; ++i) g.put(static_cast<char>(rng()));
+    std::ofstream e(empty);
+  }
+  auto g = ScanStore::open(garbage, OpenMode::kReadOnly);
+  ASSERT_FALSE(g);
+  EXPECT_EQ(g.status().code(), StatusCode::kCorrupt);
+  EXPECT_NE(g.status().message().find("not a scan file"), std::string::npos) << g.status().message();
+  auto e = ScanStore::open(empty, OpenMode::kReadWrite);
+  ASSERT_FALSE(e);
+  EXPECT_NE(e.status().message().find("empty"), std::string::npos) << e.status().message();
+  auto missing = ScanStore::open(dir.file("missing.db"), OpenMode::kReadOnly);
+  EXPECT_EQ(missing.status().code(), StatusCode::kNotFound);
+
+  make_scan(cut, 200);
+  const auto size = std::filesystem::file_size(cut);
+  std::filesystem::resize_file(cut, size / 2);
+  auto t = ScanStore::open(cut, OpenMode::kReadOnly);
+  ASSERT_FALSE(t);
+  EXPECT_EQ(t.status().code(), StatusCode::kCorrupt);
+  EXPECT_NE(t.status().message().find("truncated"), std::string::npos) << t.status().message();
+}
+
+TEST(ScanStore, AFlippedByteInABlobIsFoundAndNamed) {
+  TempDir dir;
+  const std::string path = dir.file("scan.db");
+  make_scan(path, 30);
+  const auto offsets = blob_offsets(path);
+  ASSERT_GE(offsets.size(), 30u);
+  test::flip_byte(path, offsets[7] + 300);  // inside the compressed payload of one chunk
+
+  auto s = open_or_die(path, OpenMode::kReadOnly);
+  ASSERT_TRUE(s);
+  auto integrity = s->integrity_check();
+  ASSERT_TRUE(integrity);
+  ASSERT_EQ(integrity->problems.size(), 1u);
+  EXPECT_NE(integrity->problems[0].find("chunk ("), std::string::npos) << integrity->problems[0];
+  // Iteration stops at the damaged chunk with the same message...
+  Status st = s->for_each_chunk([](const ChunkInfo&, PointArrays&) { return Status::ok(); });
+  EXPECT_EQ(st.code(), StatusCode::kCorrupt);
+  EXPECT_EQ(st.message(), integrity->problems[0]);
+  // ... or skips it when salvaging.
+  size_t visited = 0, damaged = 0;
+  ChunkFilter salvage;
+  salvage.on_damaged = [&](const Status&) { ++damaged; };
+  ASSERT_TRUE(s->for_each_chunk([&](const ChunkInfo&, PointArrays&) { ++visited; return Status::ok(); }, salvage));
+  EXPECT_EQ(visited, 29u);
+  EXPECT_EQ(damaged, 1u);
+}
+
+TEST(ScanStore, RandomDamageNeverCrashes) {
+  TempDir dir;
+  const std::string clean = dir.file("clean.db");
+  make_scan(clean, 40, 200);
+  const auto size = static_cast<long>(std::filesystem::file_size(clean));
+  std::mt19937 rng(42);
+  int opened = 0, detected = 0;
+  for (int round = 0; round < 60; ++round) {
+    const std::string path = dir.file("damaged-" + std::to_string(round) + ".db");
+    std::filesystem::copy_file(clean, path);
+    // A burst of damage somewhere (page headers, b-tree cells, blobs, the file header).
+    const long at = static_cast<long>(rng() % static_cast<uint32_t>(size - 64));
+    for (int i = 0; i < 16; ++i) test::flip_byte(path, at + i * 3);
+    auto s = ScanStore::open(path, OpenMode::kReadOnly);
+    if (!s) {
+      ++detected;
+      EXPECT_FALSE(s.status().message().empty());
+      continue;
+    }
+    ++opened;
+    auto sum = (*s)->summary();
+    auto integrity = (*s)->integrity_check();
+    Status it = (*s)->for_each_chunk([](const ChunkInfo&, PointArrays&) { return Status::ok(); });
+    if (!sum || !it || !integrity || !integrity->ok()) ++detected;
+    std::filesystem::remove(path);
+  }
+  // Most bursts land in blob payloads or b-tree pages, and they are reported.
+  EXPECT_GT(detected, 40) << opened << " opened";
+}
