@@ -103,8 +103,7 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
 
       // The nearest existing point among those rendered around this pixel, not yet merged with
       // another measurement of this frame.
-      PointArrays* best_a = nullptr;
-      size_t best_i = 0;
+      size_t best_px = 0;
       float best_d2 = std::numeric_limits<float>::infinity();
       for (int dv = -cr; dv <= cr; ++dv) {
         const int vv = v + dv;
@@ -113,25 +112,23 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
           const int uu = u + du;
           if (uu < 0 || uu >= m.width) continue;
           const size_t px = static_cast<size_t>(vv) * m.width + uu;
-          if (proj.empty_at(px)) continue;
-          PointArrays& a = proj.points_at(px);
-          const uint32_t j = proj.index_at(px);
-          if (a.last_frame[j] == frame_id) continue;
-          const float d2 = (a.position(j) - p_w).squaredNorm();
+          if (proj.empty_at(px) || proj.taken_at(px)) continue;
+          const float d2 = (proj.position_at(px) - p_w).squaredNorm();
           if (d2 < best_d2) {
             best_d2 = d2;
-            best_a = &a;
-            best_i = j;
+            best_px = px;
           }
         }
       }
 
-      if (best_a) {
+      if (best_d2 < std::numeric_limits<float>::infinity()) {
+        PointArrays& a = proj.points_at(best_px);
+        const uint32_t j = proj.index_at(best_px);
         Eigen::Vector3f p_f;
         Eigen::Matrix3f L_f;
-        if (merge_measurement(best_a->position(best_i), information_matrix(*best_a, best_i), p_w,
-                              L_n, &p_f, &L_f)) {
-          refine_point(*best_a, best_i, p_f, L_f, n_w, rgb, frame_id);
+        if (merge_measurement(a.position(j), information_matrix(a, j), p_w, L_n, &p_f, &L_f)) {
+          refine_point(a, j, p_f, L_f, n_w, rgb, frame_id);
+          proj.take(best_px);
           ++stats.merged;
           continue;
         }

@@ -182,16 +182,34 @@ size_t prefilter(const PrefilterConfig& config, MeasurementImage* m) {
   }
   const float per_m = static_cast<float>(config.gamma * cache.per_m);
 
-  // Decide on the unfiltered map first, then remove: the test of one pixel must not depend on
-  // which of its neighbours were removed before it.
+  // d_k > gamma d_r(z) exactly when fewer than k neighbours lie within gamma d_r(z): count them
+  // instead of sorting distances. Decide on the unfiltered map first, then remove: the test of
+  // one pixel must not depend on which of its neighbours were removed before it.
   thread_local std::vector<uint8_t> remove;
   remove.assign(m->pixel_count(), 0);
   size_t removed = 0;
-  for (int v = 0; v < m->height; ++v) {
-    for (int u = 0; u < m->width; ++u) {
-      const size_t i = static_cast<size_t>(v) * m->width + u;
+  const int W = m->width, H = m->height;
+  for (int v = 0; v < H; ++v) {
+    for (int u = 0; u < W; ++u) {
+      const size_t i = static_cast<size_t>(v) * W + u;
       if (!m->valid[i]) continue;
-      if (kth_neighbour_distance(*m, u, v, k, r) > per_m * m->z[i]) {
+      const float limit = per_m * m->z[i];
+      const float limit2 = limit * limit;
+      const float px = m->x[i], py = m->y[i], pz = m->z[i];
+      int within = 0;
+      for (int dv = -r; dv <= r && within < k; ++dv) {
+        const int vv = v + dv;
+        if (vv < 0 || vv >= H) continue;
+        for (int du = -r; du <= r; ++du) {
+          const int uu = u + du;
+          if ((du == 0 && dv == 0) || uu < 0 || uu >= W) continue;
+          const size_t j = static_cast<size_t>(vv) * W + uu;
+          if (!m->valid[j]) continue;
+          const float ex = m->x[j] - px, ey = m->y[j] - py, ez = m->z[j] - pz;
+          within += ex * ex + ey * ey + ez * ez <= limit2;
+        }
+      }
+      if (within < k) {
         remove[i] = 1;
         ++removed;
       }

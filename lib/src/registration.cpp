@@ -35,11 +35,13 @@ struct NormalEquations {
   size_t inliers = 0;
 
   inline void add(const Eigen::Vector3f& p_rel, const Eigen::Vector3f& n, float r, float w) {
-    Eigen::Matrix<double, 6, 1> J;
-    J.head<3>() = p_rel.cross(n).cast<double>();
-    J.tail<3>() = n.cast<double>();
-    H.selfadjointView<Eigen::Upper>().rankUpdate(J, w);
-    b += (w * r) * J;
+    const Eigen::Vector3f c = p_rel.cross(n);
+    const float J[6] = {c.x(), c.y(), c.z(), n.x(), n.y(), n.z()};
+    for (int a = 0; a < 6; ++a) {
+      const double wa = static_cast<double>(w) * J[a];
+      for (int b2 = a; b2 < 6; ++b2) H(a, b2) += wa * J[b2];
+      b(a) += wa * r;
+    }
     sq_residual += static_cast<double>(r) * r;
     ++inliers;
   }
@@ -58,6 +60,7 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const PointMap& map
   proj.select_chunks(const_cast<PointMap&>(map), m, initial, static_cast<float>(max_corr_m) + 0.05f);
   proj.render(initial, K);
   if (proj.rendered_points() == 0) return result;
+  proj.average_surface(initial, K, static_cast<float>(config_.model_band_m));
 
   const Pose T_cam0_world = initial.inverse();
   const float fx = static_cast<float>(K.fx), fy = static_cast<float>(K.fy);
@@ -88,16 +91,13 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const PointMap& map
         ++sampled;
         const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);
         const Eigen::Vector3f p0 = R0 * p_c + t0;
-        if (p0.z() <= 1e-3f) continue;
-        const int pu = static_cast<int>(std::lround(fx * p0.x() / p0.z() + cx));
-        const int pv = static_cast<int>(std::lround(fy * p0.y() / p0.z() + cy));
-        if (pu < 0 || pv < 0 || pu >= K.width || pv >= K.height) continue;
+        int pu, pv;
+        if (!project_to_pixel(p0.x(), p0.y(), p0.z(), fx, fy, cx, cy, K.width, K.height, &pu, &pv))
+          continue;
         const size_t px = static_cast<size_t>(pv) * K.width + pu;
-        if (proj.empty_at(px)) continue;
-        const PointArrays& a = proj.points_at(px);
-        const uint32_t j = proj.index_at(px);
-        const Eigen::Vector3f q = a.position(j);
-        const Eigen::Vector3f n_q = a.normal(j);
+        if (!proj.has_surface(px)) continue;
+        const Eigen::Vector3f q = proj.surface_point(px);
+        const Eigen::Vector3f n_q = proj.surface_normal(px);
         const Eigen::Vector3f p_w = R * p_c + t;
         const Eigen::Vector3f d = p_w - q;
         if (d.squaredNorm() > max_d * max_d) continue;

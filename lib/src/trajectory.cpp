@@ -101,6 +101,7 @@ Result<AteResult> absolute_trajectory_error(const std::vector<Pose>& est, const 
   const Eigen::Matrix4d T = Eigen::umeyama(A, B, false);
   AteResult r;
   r.pairs = n;
+  r.T_truth_estimate.matrix() = T;
   double sq = 0, sq_raw = 0, sum = 0;
   for (size_t i = 0; i < n; ++i) {
     const Eigen::Vector3d a = T.topLeftCorner<3, 3>() * A.col(i) + T.topRightCorner<3, 1>();

@@ -23,6 +23,7 @@ struct AteResult {
   double rmse_m = 0, mean_m = 0, max_m = 0;
   double unaligned_rmse_m = 0;
   size_t pairs = 0;
+  Pose T_truth_estimate = Pose::Identity();  // the rigid alignment used (estimate -> truth frame)
 };
 Result<AteResult> absolute_trajectory_error(const std::vector<Pose>& T_world_cam_estimate,
                                             const std::vector<Pose>& T_world_cam_truth);

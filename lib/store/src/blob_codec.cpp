@@ -296,6 +296,9 @@ Status BlobCodec::decode_points(const void* blob, size_t size, const std::string
                                 PointArrays* out) {
   auto header = read_header(blob, size, what);
   if (!header) return header.status();
+  if (header->kind != BlobKind::kPoints)
+    return corrupt(what + ": expected a points blob, found kind " +
+                   std::to_string(static_cast<int>(header->kind)));
   const size_t n = header->element_count;
   std::vector<Column> cols;
   cols.reserve(18);
@@ -343,6 +346,8 @@ Status BlobCodec::decode_depth(const void* blob, size_t size, const std::string&
   auto header = read_header(blob, size, what);
   if (!header) return header.status();
   const BlobHeader& h = *header;
+  if (h.kind != BlobKind::kDepth)
+    return corrupt(what + ": expected a depth blob, found kind " + std::to_string(static_cast<int>(h.kind)));
   if (static_cast<uint64_t>(h.width) * h.height != h.element_count || h.width == 0 ||
       h.width > 100000 || h.height > 100000)
     return corrupt(what + ": depth size " + std::to_string(h.width) + "x" +
@@ -382,6 +387,8 @@ Status BlobCodec::decode_color(const void* blob, size_t size, const std::string&
   auto header = read_header(blob, size, what);
   if (!header) return header.status();
   const BlobHeader& h = *header;
+  if (h.kind != BlobKind::kColor)
+    return corrupt(what + ": expected a colour blob, found kind " + std::to_string(static_cast<int>(h.kind)));
   if (static_cast<uint64_t>(h.width) * h.height != h.element_count || h.width == 0 ||
       h.width > 100000 || h.height > 100000)
     return corrupt(what + ": colour size disagrees with its pixel count");

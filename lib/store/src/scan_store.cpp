@@ -274,6 +274,15 @@ struct ScanStore::Impl {
     return r;
   }
 
+  Status enable_wal() {
+    auto mode = db.prepare("PRAGMA journal_mode = WAL;", "enabling WAL");
+    if (!mode) return mode.status();
+    auto row = mode->step("enabling WAL");
+    if (!row) return row.status();
+    if (!*row || mode->text(0) != "wal")
+      return io_error(path + ": the file system does not support WAL mode");
+    return Status::ok();
+  }
   Status open_existing();
   Status create_new();
   Status recover();
@@ -297,12 +306,7 @@ Status ScanStore::Impl::create_new() {
   DF_RETURN_IF_ERROR(db.open(path, SQLITE_OPEN_READWRITE | SQLITE_OPEN_NOMUTEX));
   sqlite3_busy_timeout(db.handle(), options.busy_timeout_ms);
   // WAL: readers never block the writer and a crash mid-transaction leaves the last commit.
-  auto mode = db.prepare("PRAGMA journal_mode = WAL;", "enabling WAL");
-  if (!mode) return mode.status();
-  auto row = mode->step("enabling WAL");
-  if (!row) return row.status();
-  if (!*row || mode->text(0) != "wal")
-    return io_error(path + ": the file system does not support WAL mode");
+  DF_RETURN_IF_ERROR(enable_wal());
   DF_RETURN_IF_ERROR(db.exec("PRAGMA synchronous = FULL;", "setting synchronous"));
   DF_RETURN_IF_ERROR(db.exec("BEGIN IMMEDIATE;", "creating the scan"));
   Status st = schema::create_current(db);
@@ -375,10 +379,7 @@ Status ScanStore::Impl::open_existing() {
     if (*n != 1) return corrupt(path + ": table '" + *t + "' is missing");
   }
   if (writable()) {
-    auto mode = db.prepare("PRAGMA journal_mode = WAL;", "enabling WAL");
-    if (!mode) return mode.status();
-    auto row = mode->step("enabling WAL");
-    if (!row) return row.status();
+    DF_RETURN_IF_ERROR(enable_wal());
     DF_RETURN_IF_ERROR(recover());
     DF_RETURN_IF_ERROR(db.exec("PRAGMA synchronous = NORMAL;", "setting synchronous"));
   }

@@ -1,5 +1,7 @@
 #include "sqlite_db.hpp"
 
+#include <cstring>
+
 namespace depthfuse::store::sql {
 
 StatusCode status_code_for(int rc) {
@@ -37,6 +39,11 @@ Status make_status(sqlite3* db, int rc, const std::string& path, const std::stri
     msg += "the file is damaged (database disk image is malformed)";
   } else {
     msg += (db && sqlite3_errcode(db) == rc) ? sqlite3_errmsg(db) : sqlite3_errstr(rc);
+  }
+  // The operating system's reason for an I/O error ("File too large", "No space left on device").
+  if (db && (primary == SQLITE_IOERR || primary == SQLITE_FULL || primary == SQLITE_CANTOPEN)) {
+    const int err = sqlite3_system_errno(db);
+    if (err != 0) msg += std::string(" (") + std::strerror(err) + ")";
   }
   msg += " [sqlite " + std::to_string(rc) + ": " + sqlite3_errstr(rc) + "]";
   return Status(status_code_for(rc), msg);

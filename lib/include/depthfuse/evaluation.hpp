@@ -1,0 +1,42 @@
+// The paper's figures for a reconstruction: point-to-truth distances as a cumulative curve, the
+// Jaccard index at several voxel sizes, the compression ratio.
+#pragma once
+
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "depthfuse/point_arrays.hpp"
+#include "depthfuse/status.hpp"
+
+namespace depthfuse {
+
+struct DistanceSummary {
+  size_t points = 0;
+  double mean_m = 0, median_m = 0, p90_m = 0, p95_m = 0, max_m = 0;
+  double within_5mm = 0;  // fraction of points within 5 mm of the truth
+  std::vector<double> sorted_m;  // every distance, ascending (the cumulative curve)
+};
+
+DistanceSummary summarize_distances(std::vector<double> distances_m);
+
+// Distances to the nearest point of a reference cloud, through a voxel hash (no kd-tree over the
+// whole cloud per query): searched up to max_m, farther points report max_m.
+std::vector<double> distances_to_cloud(const PointArrays& points, const PointArrays& reference,
+                                       double max_m = 0.1);
+
+// |A ∩ B| / |A ∪ B| over voxels of edge voxel_m occupied by each cloud.
+double jaccard_index(const PointArrays& reconstruction, const PointArrays& truth, double voxel_m);
+
+// Keeps one point per voxel (the first): for sampling a ground-truth surface at a fixed density.
+PointArrays voxel_downsample(const PointArrays& points, double voxel_m);
+
+// The cumulative curve as CSV ("error_m,fraction") at the given resolution, and as a PNG plot of
+// one or more labelled curves.
+Status write_cumulative_csv(const std::string& path, const DistanceSummary& s, double step_m = 0.0005,
+                            double max_m = 0.02);
+Status write_cumulative_png(const std::string& path,
+                            const std::vector<std::pair<std::string, const DistanceSummary*>>& curves,
+                            double max_m = 0.02);
+
+}  // namespace depthfuse

@@ -1,0 +1,156 @@
+#include "depthfuse/evaluation.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <unordered_map>
+#include <unordered_set>
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "depthfuse/point_map.hpp"
+
+namespace depthfuse {
+
+namespace {
+
+inline ChunkKey voxel(float x, float y, float z, double inv) {
+  return {static_cast<int32_t>(std::floor(x * inv)), static_cast<int32_t>(std::floor(y * inv)),
+          static_cast<int32_t>(std::floor(z * inv))};
+}
+
+std::unordered_set<ChunkKey, ChunkKeyHash> voxel_set(const PointArrays& a, double voxel_m) {
+  std::unordered_set<ChunkKey, ChunkKeyHash> s;
+  s.reserve(a.size() / 4 + 16);
+  const double inv = 1.0 / voxel_m;
+  for (size_t i = 0; i < a.size(); ++i) s.insert(voxel(a.x[i], a.y[i], a.z[i], inv));
+  return s;
+}
+
+}  // namespace
+
+DistanceSummary summarize_distances(std::vector<double> d) {
+  DistanceSummary s;
+  std::sort(d.begin(), d.end());
+  s.points = d.size();
+  if (d.empty()) return s;
+  double sum = 0;
+  size_t within = 0;
+  for (double v : d) {
+    sum += v;
+    within += v <= 0.005;
+  }
+  auto q = [&d](double f) { return d[std::min(d.size() - 1, static_cast<size_t>(f * (d.size() - 1) + 0.5))]; };
+  s.mean_m = sum / d.size();
+  s.median_m = q(0.5);
+  s.p90_m = q(0.9);
+  s.p95_m = q(0.95);
+  s.max_m = d.back();
+  s.within_5mm = static_cast<double>(within) / d.size();
+  s.sorted_m = std::move(d);
+  return s;
+}
+
+std::vector<double> distances_to_cloud(const PointArrays& points, const PointArrays& ref, double max_m) {
+  // Buckets of the reference at cell = max_m / 4; rings of cells searched outwards.
+  const double cell = max_m / 4;
+  const double inv = 1.0 / cell;
+  std::unordered_map<ChunkKey, std::vector<uint32_t>, ChunkKeyHash> grid;
+  grid.reserve(ref.size() / 8 + 16);
+  for (size_t i = 0; i < ref.size(); ++i) grid[voxel(ref.x[i], ref.y[i], ref.z[i], inv)].push_back(static_cast<uint32_t>(i));
+  std::vector<double> out(points.size(), max_m);
+  for (size_t i = 0; i < points.size(); ++i) {
+    const ChunkKey c = voxel(points.x[i], points.y[i], points.z[i], inv);
+    double best2 = max_m * max_m;
+    for (int ring = 0; ring <= 4; ++ring) {
+      // Once a hit closer than the ring's inner distance is found, outer rings cannot beat it.
+      if (ring > 0 && best2 <= std::pow((ring - 1) * cell, 2)) break;
+      for (int dx = -ring; dx <= ring; ++dx)
+        for (int dy = -ring; dy <= ring; ++dy)
+          for (int dz = -ring; dz <= ring; ++dz) {
+            if (std::max({std::abs(dx), std::abs(dy), std::abs(dz)}) != ring) continue;
+            auto it = grid.find({c.x + dx, c.y + dy, c.z + dz});
+            if (it == grid.end()) continue;
+            for (uint32_t j : it->second) {
+              const double ex = points.x[i] - ref.x[j], ey = points.y[i] - ref.y[j], ez = points.z[i] - ref.z[j];
+              best2 = std::min(best2, ex * ex + ey * ey + ez * ez);
+            }
+          }
+    }
+    out[i] = std::sqrt(best2);
+  }
+  return out;
+}
+
+double jaccard_index(const PointArrays& rec, const PointArrays& truth, double voxel_m) {
+  const auto a = voxel_set(rec, voxel_m);
+  const auto b = voxel_set(truth, voxel_m);
+  size_t inter = 0;
+  for (const auto& k : a) inter += b.count(k);
+  const size_t uni = a.size() + b.size() - inter;
+  return uni ? static_cast<double>(inter) / uni : 0.0;
+}
+
+PointArrays voxel_downsample(const PointArrays& a, double voxel_m) {
+  std::unordered_set<ChunkKey, ChunkKeyHash> seen;
+  PointArrays out;
+  const double inv = 1.0 / voxel_m;
+  for (size_t i = 0; i < a.size(); ++i)
+    if (seen.insert(voxel(a.x[i], a.y[i], a.z[i], inv)).second) out.push_back(a.get(i));
+  return out;
+}
+
+static double fraction_below(const DistanceSummary& s, double e) {
+  if (s.sorted_m.empty()) return 0;
+  return static_cast<double>(std::upper_bound(s.sorted_m.begin(), s.sorted_m.end(), e) - s.sorted_m.begin()) /
+         s.sorted_m.size();
+}
+
+Status write_cumulative_csv(const std::string& path, const DistanceSummary& s, double step_m, double max_m) {
+  std::FILE* f = std::fopen(path.c_str(), "w");
+  if (!f) return io_error("cannot create " + path);
+  std::fprintf(f, "error_m,fraction_of_points\n");
+  for (double e = 0; e <= max_m + 1e-12; e += step_m) std::fprintf(f, "%.4f,%.6f\n", e, fraction_below(s, e));
+  if (std::fclose(f) != 0) return io_error("cannot write " + path);
+  return Status::ok();
+}
+
+Status write_cumulative_png(const std::string& path,
+                            const std::vector<std::pair<std::string, const DistanceSummary*>>& curves,
+                            double max_m) {
+  const int W = 800, H = 500, L = 70, R = 20, T = 20, B = 60;
+  cv::Mat img(H, W, CV_8UC3, cv::Scalar(255, 255, 255));
+  auto X = [&](double e) { return static_cast<int>(L + (W - L - R) * e / max_m); };
+  auto Y = [&](double f) { return static_cast<int>(H - B - (H - T - B) * f); };
+  for (int i = 0; i <= 10; ++i) {
+    const double f = i / 10.0, e = max_m * i / 10.0;
+    cv::line(img, {L, Y(f)}, {W - R, Y(f)}, cv::Scalar(230, 230, 230));
+    cv::line(img, {X(e), T}, {X(e), H - B}, cv::Scalar(230, 230, 230));
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.0f%%", f * 100);
+    cv::putText(img, buf, {5, Y(f) + 5}, cv::FONT_HERSHEY_SIMPLEX, 0.4, cv::Scalar(0, 0, 0));
+    std::snprintf(buf, sizeof buf, "%.0f", e * 1000);
+    cv::putText(img, buf, {X(e) - 8, H - B + 18}, cv::FONT_HERSHEY_SIMPLEX, 0.4, cv::Scalar(0, 0, 0));
+  }
+  cv::putText(img, "distance to ground truth [mm]", {W / 2 - 120, H - 15}, cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0));
+  const cv::Scalar colors[] = {{200, 60, 30}, {40, 150, 40}, {30, 30, 200}, {160, 40, 160}, {20, 140, 200}, {90, 90, 90}};
+  for (size_t c = 0; c < curves.size(); ++c) {
+    std::vector<cv::Point> pts;
+    for (int i = 0; i <= 400; ++i) {
+      const double e = max_m * i / 400;
+      pts.push_back({X(e), Y(fraction_below(*curves[c].second, e))});
+    }
+    const cv::Scalar col = colors[c % 6];
+    cv::polylines(img, pts, false, col, 2, cv::LINE_AA);
+    cv::putText(img, curves[c].first, {W - R - 220, H - B - 20 - 22 * static_cast<int>(c)}, cv::FONT_HERSHEY_SIMPLEX, 0.5, col, 1, cv::LINE_AA);
+  }
+  try {
+    if (!cv::imwrite(path, img)) return io_error("cannot write " + path);
+  } catch (const cv::Exception& e) {
+    return io_error("cannot write " + path + ": " + e.what());
+  }
+  return Status::ok();
+}
+
+}  // namespace depthfuse

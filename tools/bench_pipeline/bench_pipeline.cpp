@@ -1,0 +1,114 @@
+// Per-stage timings on the synthetic corner at Kinect V2 resolution, with a map that already holds
+// the previous frames (the steady state of a scan).
+#include <benchmark/benchmark.h>
+
+#include "depthfuse/fusion.hpp"
+#include "depthfuse/measurement.hpp"
+#include "depthfuse/registration.hpp"
+#include "depthfuse/synthetic/synthetic_sequence.hpp"
+
+using namespace depthfuse;
+
+namespace {
+
+struct Scan {
+  synthetic::SyntheticSequence seq;
+  ReconstructionConfig config;
+  std::vector<Frame> frames;
+  PointMap map{0.5};
+
+  static Scan& get() {
+    static Scan* s = [] {
+      synthetic::SyntheticConfig c;
+      c.frames = 30;
+      auto seq = synthetic::SyntheticSequence::create(c);
+      auto* scan = new Scan{std::move(*seq), {}, {}, PointMap(0.5)};
+      for (size_t i = 0; i < scan->seq.size(); ++i) scan->frames.push_back(scan->seq.render(i));
+      // The map of the first 20 frames: a scan in progress.
+      Fuser fuser(scan->config.sensor, scan->config.fusion);
+      MeasurementImage m;
+      for (size_t i = 0; i < 20; ++i) {
+        (void)backproject(scan->frames[i], scan->config.sensor, scan->config.fusion, &m);
+        prefilter(scan->config.prefilter, &m);
+        fuser.fuse(m, nullptr, scan->seq.T_world_cam_true(i), static_cast<uint32_t>(i + 1), &scan->map);
+      }
+      return scan;
+    }();
+    return *s;
+  }
+};
+
+void BM_Backproject(benchmark::State& state) {
+  Scan& s = Scan::get();
+  MeasurementImage m;
+  for (auto _ : state) (void)backproject(s.frames[20], s.config.sensor, s.config.fusion, &m);
+}
+
+void BM_Prefilter(benchmark::State& state) {
+  Scan& s = Scan::get();
+  MeasurementImage m0, m;
+  (void)backproject(s.frames[20], s.config.sensor, s.config.fusion, &m0);
+  for (auto _ : state) {
+    state.PauseTiming();
+    m = m0;
+    state.ResumeTiming();
+    benchmark::DoNotOptimize(prefilter(s.config.prefilter, &m));
+  }
+}
+
+// Steady state of a scan: every iteration fuses the next frame (cycling over frames 20-29) into
+// one growing map that already holds the first 20 frames.
+void BM_Fuse(benchmark::State& state) {
+  Scan& s = Scan::get();
+  std::vector<MeasurementImage> ms(10);
+  for (size_t k = 0; k < ms.size(); ++k) {
+    (void)backproject(s.frames[20 + k], s.config.sensor, s.config.fusion, &ms[k]);
+    prefilter(s.config.prefilter, &ms[k]);
+  }
+  PointMap map = s.map;
+  Fuser fuser(s.config.sensor, s.config.fusion);
+  uint32_t id = 100;
+  size_t k = 0;
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(fuser.fuse(ms[k], nullptr, s.seq.T_world_cam_true(20 + k), id++, &map));
+    k = (k + 1) % ms.size();
+  }
+  state.counters["map_points"] = static_cast<double>(map.point_count());
+}
+
+// The whole per-frame fusion path: back-projection, normals, pre-filter, fusion.
+void BM_PrefilterPlusFusion(benchmark::State& state) {
+  Scan& s = Scan::get();
+  MeasurementImage m;
+  PointMap map = s.map;
+  Fuser fuser(s.config.sensor, s.config.fusion);
+  uint32_t id = 100;
+  size_t k = 0;
+  for (auto _ : state) {
+    (void)backproject(s.frames[20 + k], s.config.sensor, s.config.fusion, &m);
+    prefilter(s.config.prefilter, &m);
+    benchmark::DoNotOptimize(fuser.fuse(m, nullptr, s.seq.T_world_cam_true(20 + k), id++, &map));
+    k = (k + 1) % 10;
+  }
+  state.counters["map_points"] = static_cast<double>(map.point_count());
+}
+
+void BM_Reregistration(benchmark::State& state) {
+  Scan& s = Scan::get();
+  MeasurementImage m;
+  (void)backproject(s.frames[20], s.config.sensor, s.config.fusion, &m);
+  prefilter(s.config.prefilter, &m);
+  Registrar reg(s.config.registration);
+  Pose initial = s.seq.T_world_cam_true(20);
+  initial.translation() += Eigen::Vector3d(0.02, -0.01, 0.01);
+  for (auto _ : state) benchmark::DoNotOptimize(reg.refine(m, s.map, initial));
+}
+
+}  // namespace
+
+BENCHMARK(BM_Backproject)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Prefilter)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Fuse)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_PrefilterPlusFusion)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Reregistration)->Unit(benchmark::kMillisecond);
+BENCHMARK_MAIN();
