@@ -1,1 +1,508 @@
+// The live appliance as real processes on real LCM (udpm on loopback, a port per test process):
+// depthfuse-capture (synthetic corner) -> depthfuse-fusion -> depthfuse-monitor, operated with the
+// `depthfuse` CLI. Asserts the refined trajectory against the synthetic ground truth, the cloud
+// against the analytic surfaces, the status fields, drop counters under overload, the commands,
+// and that hostile input is counted and survived.
 #include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <mutex>
+#include <thread>
+
+#include "depthfuse/color_frame_t.hpp"
+#include "depthfuse/command_t.hpp"
+#include "depthfuse/daemon/heartbeat.hpp"
+#include "depthfuse/depth_frame_t.hpp"
+#include "depthfuse/heartbeat_t.hpp"
+#include "depthfuse/lcm/channels.hpp"
+#include "depthfuse/lcm/codec.hpp"
+#include "depthfuse/lcm/frame_codec.hpp"
+#include "depthfuse/lcmlog/lcmlog_source.hpp"
+#include "depthfuse/ply.hpp"
+#include "depthfuse/pose_t.hpp"
+#include "depthfuse/status_t.hpp"
+#include "depthfuse/synthetic/synthetic_source.hpp"
+#include "depthfuse/trajectory.hpp"
+#include "test_support.hpp"
+
+namespace depthfuse {
+namespace {
+
+using namespace depthfuse::testing;
+using std::chrono::milliseconds;
+using std::chrono::seconds;
+
+// What the test hears on the appliance's channels.
+class Observer {
+ public:
+  explicit Observer(const std::string& url) : listener_(url) {
+    if (!listener_.error().empty()) return;
+    listener_.subscribe(lcmio::kHeartbeatChannel, [this](const std::string&, const uint8_t* d,
+                                                         size_t n, int64_t) {
+      depthfuse::heartbeat_t hb;
+      if (lcmio::decode_message(d, n, &hb) != lcmio::DecodeResult::kOk) return;
+      std::lock_guard<std::mutex> lock(mutex_);
+      heartbeats_[hb.name] = hb;
+      ++heartbeat_count_[hb.name];
+    });
+    listener_.subscribe(lcmio::kStatusChannel, [this](const std::string&, const uint8_t* d,
+                                                      size_t n, int64_t) {
+      depthfuse::status_t st;
+      if (lcmio::decode_message(d, n, &st) != lcmio::DecodeResult::kOk) return;
+      std::lock_guard<std::mutex> lock(mutex_);
+      status_ = st;
+      ++status_count_;
+    });
+    listener_.subscribe(lcmio::kPoseChannel, [this](const std::string&, const uint8_t* d, size_t n,
+                                                    int64_t) {
+      depthfuse::pose_t p;
+      if (lcmio::decode_message(d, n, &p) != lcmio::DecodeResult::kOk) return;
+      std::lock_guard<std::mutex> lock(mutex_);
+      poses_.push_back(p);
+    });
+    listener_.start();
+  }
+  const std::string& error() const { return listener_.error(); }
+  lcmio::LcmTransport* lcm() { return listener_.lcm(); }
+
+  std::optional<depthfuse::heartbeat_t> heartbeat(const std::string& name) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    auto it = heartbeats_.find(name);
+    if (it == heartbeats_.end()) return std::nullopt;
+    return it->second;
+  }
+  int64_t heartbeat_count(const std::string& name) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return heartbeat_count_[name];
+  }
+  // A heartbeat field once it satisfies `pred` (polls), else the last one seen.
+  bool wait_heartbeat(const std::string& name,
+                      const std::function<bool(const depthfuse::heartbeat_t&)>& pred,
+                      milliseconds timeout) {
+    return eventually([&] {
+      auto hb = heartbeat(name);
+      return hb && pred(*hb);
+    }, timeout);
+  }
+  std::optional<depthfuse::status_t> status() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return status_;
+  }
+  std::vector<depthfuse::pose_t> poses() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return poses_;
+  }
+
+ private:
+  Listener listener_;
+  std::mutex mutex_;
+  std::map<std::string, depthfuse::heartbeat_t> heartbeats_;
+  std::map<std::string, int64_t> heartbeat_count_;
+  std::optional<depthfuse::status_t> status_;
+  int64_t status_count_ = 0;
+  std::vector<depthfuse::pose_t> poses_;
+};
+
+const depthfuse::daemon_status_t* find_daemon(const depthfuse::status_t& st, const std::string& name) {
+  for (const auto& d : st.daemons)
+    if (d.name == name) return &d;
+  return nullptr;
+}
+
+class LiveAppliance : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    url_ = test_url();
+    require_multicast_route(url_);
+    dir_ = temp_dir(::testing::UnitTest::GetInstance()->current_test_info()->name());
+    observer_ = std::make_unique<Observer>(url_);
+    ASSERT_TRUE(observer_->error().empty()) << observer_->error();
+  }
+
+  std::unique_ptr<Process> start(const std::string& tag, std::vector<std::string> argv) {
+    return std::make_unique<Process>(std::move(argv), dir_ + "/" + tag + ".log");
+  }
+  std::unique_ptr<Process> start_fusion(std::vector<std::string> extra = {}) {
+    std::vector<std::string> argv = {bin("depthfuse-fusion"), "--lcm", url_, "--scan-dir",
+                                     dir_ + "/scans"};
+    argv.insert(argv.end(), extra.begin(), extra.end());
+    auto p = start("fusion", argv);
+    EXPECT_TRUE(observer_->wait_heartbeat("fusion", [](auto&) { return true; }, seconds(10)))
+        << "no heartbeat from depthfuse-fusion:\n" << p->log();
+    return p;
+  }
+  std::unique_ptr<Process> start_capture(const std::string& source, std::vector<std::string> extra = {}) {
+    std::vector<std::string> argv = {bin("depthfuse-capture"), "--source", source, "--lcm", url_};
+    argv.insert(argv.end(), extra.begin(), extra.end());
+    return start("capture", argv);
+  }
+  // `depthfuse scan ...`; returns the exit code, output in *out.
+  int scan(std::vector<std::string> args, std::string* out = nullptr) {
+    std::vector<std::string> argv = {bin("depthfuse"), "scan"};
+    argv.insert(argv.end(), args.begin(), args.end());
+    argv.push_back("--lcm");
+    argv.push_back(url_);
+    std::string o;
+    const int rc = run_command(argv, dir_ + "/scan-" + std::to_string(scan_calls_++) + ".log", &o);
+    if (out) *out = o;
+    return rc;
+  }
+  int64_t fused(const std::string& name = "fusion") {
+    auto hb = observer_->heartbeat(name);
+    return hb ? hb->frames_out : -1;
+  }
+
+  std::string url_, dir_;
+  std::unique_ptr<Observer> observer_;
+  int scan_calls_ = 0;
+};
+
+TEST_F(LiveAppliance, CaptureFusionMonitorEndToEnd) {
+  constexpr int kFrames = 12;
+  const std::string spec = "corner?frames=12&seed=3&pose_noise_m=0.01&pose_noise_deg=0.5";
+  auto monitor = start("monitor", {bin("depthfuse-monitor"), "--lcm", url_, "--stale-after", "2"});
+  auto fusion = start_fusion({"--queue", "64"});
+  std::string out;
+  ASSERT_EQ(scan({"start", "e2e"}, &out), 0) << out;
+  EXPECT_NE(out.find("scan e2e started"), std::string::npos) << out;
+
+  auto capture = start_capture("synthetic:" + spec, {"--rate", "5"});
+  // While the capture runs, the monitor reports all three alive, with their rates.
+  EXPECT_TRUE(eventually([&] {
+    auto st = observer_->status();
+    if (!st) return false;
+    auto* c = find_daemon(*st, "capture");
+    auto* f = find_daemon(*st, "fusion");
+    auto* m = find_daemon(*st, "monitor");
+    return c && f && m && c->alive && f->alive && m->alive &&
+           c->last.state == depthfuse::heartbeat_t::STATE_RUNNING && c->last.output_rate_hz > 1.0 &&
+           f->last.scan_id == "e2e" && f->last.frames_in > 0;
+  }, seconds(20))) << monitor->log();
+
+  ASSERT_TRUE(capture->wait(seconds(60))) << capture->log();
+  EXPECT_EQ(capture->exit_code(), 0) << capture->log();
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [&](auto& hb) { return hb.frames_out >= kFrames; },
+                                        seconds(300)))
+      << "fused " << fused() << " of " << kFrames << "\n" << fusion->log();
+  auto hb = *observer_->heartbeat("fusion");
+  EXPECT_EQ(hb.frames_in, kFrames);
+  EXPECT_EQ(hb.frames_dropped, 0);
+  EXPECT_EQ(hb.frames_lost, 0);
+  EXPECT_EQ(hb.messages_malformed + hb.messages_bad_version + hb.messages_foreign, 0);
+  EXPECT_GT(hb.point_count, 10000);
+  EXPECT_GT(hb.rss_bytes, 1 << 20);
+  EXPECT_EQ(hb.state, depthfuse::heartbeat_t::STATE_RUNNING);
+
+  // The status carries the fusion daemon's figures; the finished capture goes stale.
+  EXPECT_TRUE(eventually([&] {
+    auto st = observer_->status();
+    if (!st) return false;
+    auto* c = find_daemon(*st, "capture");
+    auto* f = find_daemon(*st, "fusion");
+    return c && f && !c->alive && c->heartbeat_age_s > 2.0 && f->alive &&
+           f->last.point_count == hb.point_count && f->last.frames_out == kFrames &&
+           f->last.rss_bytes > 0 && f->last.last_error.empty();
+  }, seconds(10)));
+
+  // `depthfuse status --json` prints the same from the CLI.
+  std::string json;
+  ASSERT_EQ(run_command({bin("depthfuse"), "status", "--json", "--lcm", url_}, dir_ + "/status.log", &json), 0)
+      << json;
+  EXPECT_NE(json.find("\"name\": \"fusion\", \"alive\": true"), std::string::npos) << json;
+  EXPECT_NE(json.find("\"point_count\": " + std::to_string(hb.point_count)), std::string::npos) << json;
+  EXPECT_NE(json.find("\"name\": \"capture\", \"alive\": false"), std::string::npos) << json;
+
+  // One refined pose per frame, published with its registration figures.
+  const auto poses = observer_->poses();
+  ASSERT_EQ(poses.size(), static_cast<size_t>(kFrames));
+  for (size_t i = 0; i < poses.size(); ++i) {
+    EXPECT_EQ(poses[i].sequence, static_cast<int64_t>(i));
+    EXPECT_EQ(poses[i].scan_id, "e2e");
+    if (i > 0) {
+      EXPECT_TRUE(poses[i].registered) << i;
+      EXPECT_GT(poses[i].icp_fitness, 0.5) << i;
+      EXPECT_LT(poses[i].icp_rmse_m, 0.01) << i;
+    }
+  }
+
+  ASSERT_EQ(scan({"stop"}, &out), 0) << out;
+  EXPECT_NE(out.find("scan e2e saved"), std::string::npos) << out;
+  EXPECT_EQ(scan({"stop"}, &out), 1) << out;  // nothing to stop any more: rejected
+  EXPECT_NE(out.find("no scan is running"), std::string::npos) << out;
+
+  // The refined trajectory against the truth: closer than the perturbed hints it started from.
+  auto seq = synthetic::SyntheticSequence::create(*synthetic::parse_synthetic_spec(spec));
+  ASSERT_TRUE(seq.is_ok()) << seq.status().to_string();
+  auto traj = read_tum_trajectory(dir_ + "/scans/e2e-trajectory.txt");
+  ASSERT_TRUE(traj.is_ok()) << traj.status().to_string();
+  ASSERT_EQ(traj->size(), static_cast<size_t>(kFrames));
+  double hint_err = 0, refined_err = 0, refined_max = 0;
+  for (int i = 1; i < kFrames; ++i) {  // frame 0 defines the map: its pose is the hint
+    const Eigen::Vector3d truth = seq->T_world_cam_true(i).translation();
+    EXPECT_NEAR((*traj)[i].timestamp_s, seq->utime(i) * 1e-6, 1e-6);
+    hint_err += (seq->T_world_cam_perturbed(i).translation() - truth).norm();
+    const double e = ((*traj)[i].T_world_cam.translation() - truth).norm();
+    refined_err += e;
+    refined_max = std::max(refined_max, e);
+  }
+  hint_err /= kFrames - 1;
+  refined_err /= kFrames - 1;
+  std::printf("trajectory: mean translation error of the hints %.1f mm, refined %.1f mm (max %.1f)\n",
+              hint_err * 1e3, refined_err * 1e3, refined_max * 1e3);
+  EXPECT_LT(refined_err, 0.5 * hint_err);
+
+  // The cloud against the analytic surfaces.
+  auto cloud = read_ply(dir_ + "/scans/e2e.ply");
+  ASSERT_TRUE(cloud.is_ok()) << cloud.status().to_string();
+  ASSERT_GT(cloud->size(), 10000u);
+  std::vector<double> dist;
+  for (size_t i = 0; i < cloud->size(); i += 37)
+    dist.push_back(seq->scene().distance_m(cloud->position(i).cast<double>()));
+  std::sort(dist.begin(), dist.end());
+  const double median = dist[dist.size() / 2];
+  const double p90 = dist[dist.size() * 9 / 10];
+  std::printf("cloud: %zu points, distance to the surfaces median %.2f mm, p90 %.2f mm\n",
+              cloud->size(), median * 1e3, p90 * 1e3);
+  EXPECT_LT(median, 0.004);
+  EXPECT_LT(p90, 0.015);
+}
+
+TEST_F(LiveAppliance, OverloadDropsTheOldestFramesAndCountsThem) {
+  auto monitor = start("monitor", {bin("depthfuse-monitor"), "--lcm", url_});
+  auto fusion = start_fusion({"--queue", "1", "--autostart", "overload"});
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.scan_id == "overload"; },
+                                        seconds(10)));
+  auto capture = start_capture("synthetic:corner?frames=40&seed=5", {"--rate", "max", "--color", "none"});
+  ASSERT_TRUE(capture->wait(seconds(120))) << capture->log();
+  EXPECT_EQ(capture->exit_code(), 0) << capture->log();
+  // Settled: the queue is empty and every received frame is fused or dropped.
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) {
+    return hb.queue_depth == 0 && hb.frames_in > 0 && hb.frames_out + hb.frames_dropped == hb.frames_in;
+  }, seconds(120))) << fusion->log();
+  const auto hb = *observer_->heartbeat("fusion");
+  std::printf("overload: received %lld, fused %lld, dropped %lld, lost in transport %lld\n",
+              static_cast<long long>(hb.frames_in), static_cast<long long>(hb.frames_out),
+              static_cast<long long>(hb.frames_dropped), static_cast<long long>(hb.frames_lost));
+  EXPECT_EQ(hb.queue_capacity, 1);
+  EXPECT_GT(hb.frames_dropped, 0);
+  EXPECT_GE(hb.frames_out, 1);
+  EXPECT_LE(hb.frames_in + hb.frames_lost, 40);
+  // The monitor reports the drops too.
+  EXPECT_TRUE(eventually([&] {
+    auto st = observer_->status();
+    auto* f = st ? find_daemon(*st, "fusion") : nullptr;
+    return f && f->last.frames_dropped == hb.frames_dropped;
+  }, seconds(5)));
+  // The newest frame was kept: the last pose published is for one of the last frames sent.
+  const auto poses = observer_->poses();
+  ASSERT_FALSE(poses.empty());
+  EXPECT_GE(poses.back().sequence, 40 - 3);
+}
+
+TEST_F(LiveAppliance, CommandsTakeEffect) {
+  auto fusion = start_fusion({"--queue", "2"});
+  auto capture = start_capture("synthetic:corner?frames=600&seed=7", {"--rate", "4", "--loop"});
+  // Idle: frames arrive and are not fused.
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.frames_in >= 3; }, seconds(20)));
+  EXPECT_EQ(fused(), 0);
+  EXPECT_EQ(observer_->heartbeat("fusion")->state, depthfuse::heartbeat_t::STATE_IDLE);
+  std::string out;
+  EXPECT_EQ(scan({"pause"}, &out), 1) << out;  // nothing to pause
+  EXPECT_NE(out.find("rejected"), std::string::npos) << out;
+
+  ASSERT_EQ(scan({"start", "first"}, &out), 0) << out;
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.frames_out >= 2; }, seconds(60)))
+      << fusion->log();
+
+  ASSERT_EQ(scan({"pause"}, &out), 0) << out;
+  EXPECT_EQ(observer_->heartbeat("fusion")->state, depthfuse::heartbeat_t::STATE_PAUSED);
+  // A frame already being fused when the pause arrived may still finish; then nothing moves.
+  std::this_thread::sleep_for(seconds(3));
+  const int64_t paused_at = fused();
+  const int64_t in_at = observer_->heartbeat("fusion")->frames_in;
+  std::this_thread::sleep_for(milliseconds(2500));
+  EXPECT_EQ(fused(), paused_at);
+  EXPECT_GT(observer_->heartbeat("fusion")->frames_in, in_at);  // still receiving
+
+  ASSERT_EQ(scan({"resume"}, &out), 0) << out;
+  EXPECT_TRUE(observer_->wait_heartbeat("fusion", [&](auto& hb) { return hb.frames_out > paused_at; },
+                                        seconds(60)));
+
+  ASSERT_EQ(scan({"checkpoint"}, &out), 0) << out;
+  EXPECT_NE(out.find("checkpoint"), std::string::npos) << out;
+
+  ASSERT_EQ(scan({"new", "second"}, &out), 0) << out;
+  EXPECT_NE(out.find("scan first saved"), std::string::npos) << out;
+  EXPECT_EQ(observer_->heartbeat("fusion")->scan_id, "second");
+  EXPECT_TRUE(std::filesystem::exists(dir_ + "/scans/first.ply"));
+  EXPECT_TRUE(std::filesystem::exists(dir_ + "/scans/first-trajectory.txt"));
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.point_count > 0; }, seconds(60)));
+
+  ASSERT_EQ(scan({"stop"}, &out), 0) << out;
+  EXPECT_TRUE(std::filesystem::exists(dir_ + "/scans/second.ply"));
+  EXPECT_EQ(observer_->heartbeat("fusion")->state, depthfuse::heartbeat_t::STATE_IDLE);
+  EXPECT_EQ(observer_->heartbeat("fusion")->point_count, 0);
+  EXPECT_EQ(scan({"start", "../escape"}, &out), 1) << out;  // names become file names
+  EXPECT_NE(out.find("scan name"), std::string::npos) << out;
+
+  // The capture obeys pause/resume addressed to it.
+  ASSERT_EQ(scan({"pause", "--target", "capture"}, &out), 0) << out;
+  std::this_thread::sleep_for(seconds(1));
+  const int64_t published = observer_->heartbeat("capture")->frames_out;
+  std::this_thread::sleep_for(seconds(2));
+  EXPECT_LE(observer_->heartbeat("capture")->frames_out, published + 1);
+  EXPECT_EQ(observer_->heartbeat("capture")->state, depthfuse::heartbeat_t::STATE_PAUSED);
+  ASSERT_EQ(scan({"resume", "--target", "capture"}, &out), 0) << out;
+  EXPECT_TRUE(observer_->wait_heartbeat("capture", [&](auto& hb) { return hb.frames_out > published + 2; },
+                                        seconds(10)));
+
+  // A daemon that is not there: a timeout, not a hang.
+  EXPECT_EQ(scan({"start", "--target", "nosuch", "--timeout", "1"}, &out), 3) << out;
+  EXPECT_NE(out.find("no acknowledgement"), std::string::npos) << out;
+
+  // SIGTERM ends both cleanly; a running scan would be saved.
+  capture->signal(SIGTERM);
+  fusion->signal(SIGTERM);
+  ASSERT_TRUE(capture->wait(seconds(10)));
+  ASSERT_TRUE(fusion->wait(seconds(30)));
+  EXPECT_EQ(capture->exit_code(), 0) << capture->log();
+  EXPECT_EQ(fusion->exit_code(), 0) << fusion->log();
+}
+
+// Small valid frames for the robustness test: a wall 1.5 m in front of a 64x48 camera.
+depthfuse::depth_frame_t small_frame(int64_t sequence) {
+  Frame f;
+  f.sequence = static_cast<uint32_t>(sequence);
+  f.utime = sequence * 33333;
+  f.intrinsics = {64, 48, 60.0, 60.0, 31.5, 23.5};
+  f.depth = DepthImage(64, 48);
+  for (auto& d : f.depth.depth_m) d = 1.5f;
+  f.T_world_cam_hint = Pose::Identity();
+  depthfuse::depth_frame_t msg;
+  EXPECT_TRUE(lcmio::encode_depth_frame(f, {}, &msg).is_ok());
+  msg.sequence = sequence;
+  return msg;
+}
+
+TEST_F(LiveAppliance, HostileInputIsCountedAndSurvived) {
+  auto monitor = start("monitor", {bin("depthfuse-monitor"), "--lcm", url_});
+  auto fusion = start_fusion({"--autostart", "robust", "--queue", "64"});
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.scan_id == "robust"; },
+                                        seconds(10)));
+  lcmio::LcmTransport* lcm = observer_->lcm();
+  auto send = [&](const char* channel, const std::vector<uint8_t>& bytes) {
+    ASSERT_TRUE(lcm->publish(channel, bytes.data(), bytes.size()).is_ok());
+    std::this_thread::sleep_for(milliseconds(10));
+  };
+  // In order: 10, 11, then 9 (late), 12, 14 (13 lost).
+  send(lcmio::kDepthChannel, lcmio::encode_message(small_frame(10)));
+  send(lcmio::kDepthChannel, lcmio::encode_message(small_frame(11)));
+  send(lcmio::kDepthChannel, lcmio::encode_message(small_frame(9)));
+  send(lcmio::kDepthChannel, lcmio::encode_message(small_frame(12)));
+  send(lcmio::kDepthChannel, lcmio::encode_message(small_frame(14)));
+  // Malformed: truncated payloads (3), a frame whose contents fail the checks (2).
+  const auto good = lcmio::encode_message(small_frame(15));
+  for (size_t cut : {good.size() / 2, size_t(9), good.size() - 1})
+    send(lcmio::kDepthChannel, std::vector<uint8_t>(good.begin(), good.begin() + cut));
+  auto broken = small_frame(16);
+  broken.intrinsics.width = -4;
+  send(lcmio::kDepthChannel, lcmio::encode_message(broken));
+  broken = small_frame(17);
+  broken.data.assign(broken.data.size(), 0x42);
+  send(lcmio::kDepthChannel, lcmio::encode_message(broken));
+  // Unknown protocol version (4).
+  for (int i = 0; i < 4; ++i) {
+    auto v = small_frame(20 + i);
+    v.protocol_version = 2;
+    send(lcmio::kDepthChannel, lcmio::encode_message(v));
+  }
+  // Foreign types on our channels (5): a heartbeat on the depth channel, poses on commands.
+  depthfuse::heartbeat_t stray{};
+  stray.protocol_version = 1;
+  stray.name = "stray";
+  for (int i = 0; i < 3; ++i) send(lcmio::kDepthChannel, lcmio::encode_message(stray));
+  depthfuse::pose_t pose{};
+  pose.protocol_version = 1;
+  for (int i = 0; i < 2; ++i) send(lcmio::kCommandChannel, lcmio::encode_message(pose));
+  // Garbage on the heartbeat channel: the monitor counts it (2 malformed, 1 foreign).
+  send(lcmio::kHeartbeatChannel, {1, 2, 3});
+  const auto stray_bytes = lcmio::encode_message(stray);
+  send(lcmio::kHeartbeatChannel, std::vector<uint8_t>(stray_bytes.begin(), stray_bytes.end() - 3));
+  send(lcmio::kHeartbeatChannel, good);
+
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) {
+    return hb.messages_malformed >= 5 && hb.messages_bad_version >= 4 && hb.messages_foreign >= 5;
+  }, seconds(10))) << fusion->log();
+  // Another heartbeat later: counters are final and the daemon is alive and well.
+  const int64_t beats = observer_->heartbeat_count("fusion");
+  ASSERT_TRUE(eventually([&] { return observer_->heartbeat_count("fusion") >= beats + 2; }, seconds(10)));
+  const auto hb = *observer_->heartbeat("fusion");
+  EXPECT_EQ(hb.messages_malformed, 5);
+  EXPECT_EQ(hb.messages_bad_version, 4);
+  EXPECT_EQ(hb.messages_foreign, 5);
+  EXPECT_EQ(hb.frames_out_of_order, 1);
+  EXPECT_EQ(hb.frames_lost, 1);
+  EXPECT_EQ(hb.frames_in, 4);  // 10, 11, 12, 14
+  EXPECT_FALSE(hb.last_error.empty());  // names the last malformed frame
+  EXPECT_TRUE(fusion->running()) << fusion->log();
+  EXPECT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.frames_out == 4; }, seconds(30)));
+  // The monitor's status reports what it could not read and the fusion daemon's counters.
+  EXPECT_TRUE(eventually([&] {
+    auto st = observer_->status();
+    auto* f = st ? find_daemon(*st, "fusion") : nullptr;
+    return st && st->messages_malformed == 2 && st->messages_foreign == 1 && f &&
+           f->last.messages_foreign == 5 &&
+           f->last.frames_out_of_order == 1;
+  }, seconds(5)));
+  EXPECT_TRUE(monitor->running()) << monitor->log();
+}
+
+TEST_F(LiveAppliance, RecordedSessionReplaysAtItsPace) {
+  const std::string log_path = dir_ + "/session.lcmlog";
+  auto logger = start("logger", {"/usr/bin/lcm-logger", "--lcm-url=" + url_, "--quiet", log_path});
+  std::this_thread::sleep_for(milliseconds(500));
+  const std::string spec = "corner?frames=10&seed=9";
+  auto capture = start_capture("synthetic:" + spec, {"--rate", "8"});
+  ASSERT_TRUE(capture->wait(seconds(30))) << capture->log();
+  std::this_thread::sleep_for(milliseconds(500));
+  logger->signal(SIGINT);
+  ASSERT_TRUE(logger->wait(seconds(10)));
+
+  // The recording holds the frames losslessly (depth to the millimetre, colour exactly).
+  auto seq = synthetic::SyntheticSequence::create(*synthetic::parse_synthetic_spec(spec));
+  ASSERT_TRUE(seq.is_ok());
+  auto src = LcmLogSource::open(log_path, {});
+  ASSERT_TRUE(src.is_ok()) << src.status().to_string() << "\n" << logger->log();
+  ASSERT_EQ((*src)->frame_count().value_or(0), 10u);
+  for (size_t i = 0; i < 10; ++i) {
+    auto f = (*src)->next();
+    ASSERT_TRUE(f.is_ok()) << f.status().to_string();
+    const Frame want = seq->render(i);
+    ASSERT_EQ(f->depth.depth_m.size(), want.depth.depth_m.size());
+    float max_err = 0;
+    for (size_t k = 0; k < want.depth.depth_m.size(); ++k)
+      max_err = std::max(max_err, std::abs(f->depth.depth_m[k] - want.depth.depth_m[k]));
+    EXPECT_LE(max_err, 0.0005f + 1e-6f) << i;
+    EXPECT_EQ(f->color.rgb, want.color.rgb) << i;
+    ASSERT_TRUE(f->T_world_cam_hint.has_value());
+    EXPECT_TRUE(f->T_world_cam_hint->isApprox(*want.T_world_cam_hint, 1e-9));
+  }
+  const double recorded_s = ((*src)->log_utime(9) - (*src)->log_utime(0)) * 1e-6;
+  EXPECT_NEAR(recorded_s, 9 / 8.0, 0.5);
+
+  // Replayed by the capture daemon at the recorded pace (never faster than recorded).
+  auto replay_fusion = start_fusion({"--autostart", "replayed", "--queue", "64"});
+  const auto t0 = std::chrono::steady_clock::now();
+  auto replay = start_capture("lcmlog:" + log_path, {"--name", "replay"});
+  ASSERT_TRUE(replay->wait(seconds(30))) << replay->log();
+  const double replay_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  EXPECT_EQ(replay->exit_code(), 0) << replay->log();
+  EXPECT_GE(replay_s, 0.9 * recorded_s);
+  EXPECT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.frames_in == 10; }, seconds(10)))
+      << replay_fusion->log();
+}
+
+}  // namespace
+}  // namespace depthfuse
