@@ -24,19 +24,61 @@ constexpr double kCheckerM = 0.25;  // colour texture: checker squares of this s
 
 constexpr int kTilePx = 16;         // frustum culling granularity
 
+// Primitives of one view: id, a lower bound of their depth, and the corners of their bounds in the
+// camera frame (8 per bounded primitive; none for unbounded ones).
+struct ViewList {
+  std::vector<int> ids;
+  std::vector<double> zmin;
+  std::vector<Eigen::Vector3d> corners;
+  std::vector<char> bounded;
+
+  // Keeps the primitives whose bounds, grown by `grow_m`, reach in front of the camera and nearer
+  // than max_z.
+  void collect(const std::vector<Eigen::AlignedBox3d>& bounds, const Eigen::Matrix3d& Rt,
+               const Eigen::Vector3d& origin, double grow_m, double max_z) {
+    ids.clear();
+    zmin.clear();
+    corners.clear();
+    bounded.clear();
+    for (size_t p = 0; p < bounds.size(); ++p) {
+      const Eigen::AlignedBox3d& b = bounds[p];
+      const bool finite = b.min().allFinite() && b.max().allFinite();
+      double z_lo = 0.0;
+      if (finite) {
+        const Eigen::Vector3d lo = b.min().array() - grow_m, hi = b.max().array() + grow_m;
+        Eigen::Vector3d c[8];
+        double z_hi = -std::numeric_limits<double>::infinity();
+        z_lo = std::numeric_limits<double>::infinity();
+        for (int k = 0; k < 8; ++k) {
+          const Eigen::Vector3d w((k & 1) ? hi.x() : lo.x(), (k & 2) ? hi.y() : lo.y(),
+                                  (k & 4) ? hi.z() : lo.z());
+          c[k] = Rt * (w - origin);
+          z_lo = std::min(z_lo, c[k].z());
+          z_hi = std::max(z_hi, c[k].z());
+        }
+        if (z_hi <= 0.0 || z_lo > max_z) continue;
+        z_lo = std::max(z_lo, 0.0);
+        corners.insert(corners.end(), c, c + 8);
+      }
+      ids.push_back(static_cast<int>(p));
+      zmin.push_back(z_lo);
+      bounded.push_back(finite ? 1 : 0);
+    }
+  }
+};
+
 struct Scratch {
   std::vector<float> exact_m;    // exact depth, 0 = none
   std::vector<float> cos_incidence;
   std::vector<float> mpi_bias_m;  // depth (z) bias
-  // Primitives that may be visible in this view: id, a lower bound of their depth, and the corners
-  // of their bounds in the camera frame (8 per primitive; none for unbounded ones).
-  std::vector<int> view_ids;
-  std::vector<double> view_zmin;
-  std::vector<Eigen::Vector3d> view_corners;
-  std::vector<char> view_bounded;
-  // The same for one tile, sorted by depth bound.
+  // Primitives that may be visible in this view, and those that may be near a visible point (for
+  // the multipath model: bounds grown by its range).
+  ViewList visible;
+  ViewList near_visible;
+  // Per tile: the visible ones sorted by depth bound, and the near ones.
   std::vector<int> tile_ids;
   std::vector<double> tile_zmin;
+  std::vector<int> tile_near_ids;
 };
 
 // floor() for the texture without a libm call.
@@ -129,34 +171,8 @@ void DepthRenderer::render(const Pose& T_world_cam, uint64_t noise_key, bool wit
 
   // Which primitives can be seen at all: in front of the camera and nearer than the range.
   const Eigen::Matrix3d Rt = R.transpose();
-  const std::vector<Eigen::AlignedBox3d>& bounds = scene_->primitive_bounds();
-  scratch.view_ids.clear();
-  scratch.view_zmin.clear();
-  scratch.view_corners.clear();
-  scratch.view_bounded.clear();
-  for (size_t p = 0; p < bounds.size(); ++p) {
-    const Eigen::AlignedBox3d& b = bounds[p];
-    const bool bounded = b.min().allFinite() && b.max().allFinite();
-    double zmin = 0.0;
-    if (bounded) {
-      Eigen::Vector3d corners[8];
-      double zmax = -std::numeric_limits<double>::infinity();
-      zmin = std::numeric_limits<double>::infinity();
-      for (int k = 0; k < 8; ++k) {
-        const Eigen::Vector3d w((k & 1) ? b.max().x() : b.min().x(), (k & 2) ? b.max().y() : b.min().y(),
-                                (k & 4) ? b.max().z() : b.min().z());
-        corners[k] = Rt * (w - origin);
-        zmin = std::min(zmin, corners[k].z());
-        zmax = std::max(zmax, corners[k].z());
-      }
-      if (zmax <= 0.0 || zmin > max_z) continue;
-      zmin = std::max(zmin, 0.0);
-      scratch.view_corners.insert(scratch.view_corners.end(), corners, corners + 8);
-    }
-    scratch.view_ids.push_back(static_cast<int>(p));
-    scratch.view_zmin.push_back(zmin);
-    scratch.view_bounded.push_back(bounded ? 1 : 0);
-  }
+  scratch.visible.collect(scene_->primitive_bounds(), Rt, origin, 0.0, max_z);
+  if (want_mpi) scratch.near_visible.collect(scene_->primitive_bounds(), Rt, origin, nc.mpi_range_m, max_z);
 
   // Pass 1: exact geometry, tile by tile against the primitives that overlap the tile's frustum,
   // nearest first. The camera ray of pixel (u, v) is ((u-cx)/fx, (v-cy)/fy, 1), rotated to the
@@ -170,15 +186,15 @@ void DepthRenderer::render(const Pose& T_world_cam, uint64_t noise_key, bool wit
       const double b0 = (tv - K.cy) / K.fy, b1 = (v_end - 1 - K.cy) / K.fy;
       scratch.tile_ids.clear();
       scratch.tile_zmin.clear();
-      size_t corner_index = 0;
-      for (size_t k = 0; k < scratch.view_ids.size(); ++k) {
-        if (scratch.view_bounded[k]) {
-          const Eigen::Vector3d* c = &scratch.view_corners[corner_index];
+      const ViewList& vis = scratch.visible;
+      for (size_t k = 0, corner_index = 0; k < vis.ids.size(); ++k) {
+        if (vis.bounded[k]) {
+          const Eigen::Vector3d* c = &vis.corners[corner_index];
           corner_index += 8;
           if (outside_tile(c, a0, a1, b0, b1)) continue;
         }
         // Insertion keeps the list sorted by depth bound (lists are short).
-        const double z = scratch.view_zmin[k];
+        const double z = vis.zmin[k];
         size_t pos = scratch.tile_ids.size();
         scratch.tile_ids.push_back(0);
         scratch.tile_zmin.push_back(0.0);
@@ -187,8 +203,20 @@ void DepthRenderer::render(const Pose& T_world_cam, uint64_t noise_key, bool wit
           scratch.tile_zmin[pos] = scratch.tile_zmin[pos - 1];
           --pos;
         }
-        scratch.tile_ids[pos] = scratch.view_ids[k];
+        scratch.tile_ids[pos] = vis.ids[k];
         scratch.tile_zmin[pos] = z;
+      }
+      scratch.tile_near_ids.clear();
+      if (want_mpi) {
+        const ViewList& near = scratch.near_visible;
+        for (size_t k = 0, corner_index = 0; k < near.ids.size(); ++k) {
+          if (near.bounded[k]) {
+            const Eigen::Vector3d* c = &near.corners[corner_index];
+            corner_index += 8;
+            if (outside_tile(c, a0, a1, b0, b1)) continue;
+          }
+          scratch.tile_near_ids.push_back(near.ids[k]);
+        }
       }
       const int* ids = scratch.tile_ids.data();
       const double* zlow = scratch.tile_zmin.data();
@@ -221,8 +249,9 @@ void DepthRenderer::render(const Pose& T_world_cam, uint64_t noise_key, bool wit
           cos_inc[i] = static_cast<float>(c);
           if (want_mpi) {
             const Eigen::Vector3d p = origin + hit.t * d;
-            const double edge_m = scene_->concave_edge_distance_m(p, hit.normal_w, hit.primitive,
-                                                                  hit.face, nc.mpi_range_m);
+            const double edge_m = scene_->concave_edge_distance_m(
+                p, hit.normal_w, hit.primitive, hit.face, nc.mpi_range_m,
+                scratch.tile_near_ids.data(), scratch.tile_near_ids.size());
             // The bias lengthens the range; the depth grows by bias * z / range = bias / |d|.
             mpi[i] = static_cast<float>(mpi_bias_m(nc, edge_m) * inv_len);
           }

@@ -116,10 +116,11 @@ Primitive Primitive::room(const Eigen::Vector3d& min_m, const Eigen::Vector3d& m
 
 struct Scene::Ray {
   Ray(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir) : o(origin), d(dir) {}
-  // 1 / d per axis (0 where d is 0), computed on the first box test: plane-only rays skip it.
+  // 1 / d per axis (+-infinity where d is +-0), computed on the first box test: plane-only rays
+  // skip it.
   const Eigen::Vector3d& inverse() const {
     if (!inv_ready) {
-      for (int k = 0; k < 3; ++k) inv[k] = d[k] != 0.0 ? 1.0 / d[k] : 0.0;
+      inv = d.cwiseInverse();
       inv_ready = true;
     }
     return inv;
@@ -246,7 +247,7 @@ void Scene::build_grid() {
 
 // One primitive against one ray: the hit parameter and face when nearer than t_max. The hit's
 // normal and surface coordinates are filled once for the nearest hit (fill_hit).
-inline bool Scene::intersect(int index, const Ray& ray, double t_max, double* t_out,
+__attribute__((always_inline)) inline bool Scene::intersect(int index, const Ray& ray, double t_max, double* t_out,
                              int* face_out) const {
   const Compact& c = compact_[static_cast<size_t>(index)];
   if (c.kind == PrimitiveKind::kPlane) {
@@ -271,46 +272,38 @@ inline bool Scene::intersect(int index, const Ray& ray, double t_max, double* t_
     *face_out = 0;
     return true;
   }
-  // Box surface (solid box or room): the first boundary crossing after the origin.
+  // Box surface (solid box or room): the first boundary crossing after the origin. Slabs with
+  // IEEE infinities for axis-parallel rays (see Ray::inverse).
   const Eigen::Vector3d& inv = ray.inverse();
-  double t0 = -kInf, t1 = kInf;
-  int f0 = -1, f1 = -1;
-  for (int k = 0; k < 3; ++k) {
-    if (ray.d[k] == 0.0) {
-      if (ray.o[k] < c.a[k] || ray.o[k] > c.b[k]) return false;
-      continue;
-    }
-    double ta = (c.a[k] - ray.o[k]) * inv[k];
-    double tb = (c.b[k] - ray.o[k]) * inv[k];
-    int fa = 2 * k, fb = 2 * k + 1;
-    if (inv[k] < 0.0) {
-      std::swap(ta, tb);
-      std::swap(fa, fb);
-    }
-    if (ta > t0) {
-      t0 = ta;
-      f0 = fa;
-    }
-    if (tb < t1) {
-      t1 = tb;
-      f1 = fb;
-    }
+  const double x0 = (c.a.x() - ray.o.x()) * inv.x(), x1 = (c.b.x() - ray.o.x()) * inv.x();
+  const double y0 = (c.a.y() - ray.o.y()) * inv.y(), y1 = (c.b.y() - ray.o.y()) * inv.y();
+  const double z0 = (c.a.z() - ray.o.z()) * inv.z(), z1 = (c.b.z() - ray.o.z()) * inv.z();
+  const double nx = std::min(x0, x1), ny = std::min(y0, y1), nz = std::min(z0, z1);
+  const double fx = std::max(x0, x1), fy = std::max(y0, y1), fz = std::max(z0, z1);
+  const double t_near = std::max(nx, std::max(ny, nz));
+  const double t_far = std::min(fx, std::min(fy, fz));
+  if (!(t_near <= t_far)) return false;  // also rejects NaN from a ray in a slab's boundary plane
+  double t;
+  int axis;
+  bool max_side;  // which of the axis' two faces
+  if (t_near > kTMin) {
+    if (t_near > t_max) return false;
+    t = t_near;
+    axis = t_near == nx ? 0 : (t_near == ny ? 1 : 2);
+    max_side = ray.d[axis] < 0.0;  // entering through the max face when travelling down the axis
+  } else if (t_far > kTMin && t_far <= t_max) {
+    t = t_far;
+    axis = t_far == fx ? 0 : (t_far == fy ? 1 : 2);
+    max_side = ray.d[axis] > 0.0;
+  } else {
+    return false;
   }
-  if (t0 > t1 || t0 > t_max) return false;
-  if (t0 > kTMin) {
-    *t_out = t0;
-    *face_out = f0;
-    return f0 >= 0;
-  }
-  if (t1 > kTMin && t1 <= t_max) {
-    *t_out = t1;
-    *face_out = f1;
-    return f1 >= 0;
-  }
-  return false;
+  *t_out = t;
+  *face_out = 2 * axis + (max_side ? 1 : 0);
+  return true;
 }
 
-inline void Scene::fill_hit(int index, int face, double t, const Ray& ray, RayHit* hit) const {
+__attribute__((always_inline)) inline void Scene::fill_hit(int index, int face, double t, const Ray& ray, RayHit* hit) const {
   const Compact& c = compact_[static_cast<size_t>(index)];
   hit->t = t;
   hit->primitive = index;
@@ -455,9 +448,11 @@ inline double Scene::surface_distance(const Compact& c, const Eigen::Vector3d& p
   }
   const Eigen::Vector3d clamped = p.cwiseMax(c.a).cwiseMin(c.b);
   if (clamped != p) {
+    const double d2 = (p - clamped).squaredNorm();
+    if (d2 >= bound * bound) return bound;
     *q = clamped;
     *outside = true;
-    return (p - clamped).norm();
+    return std::sqrt(d2);
   }
   *outside = false;
   double best = std::numeric_limits<double>::infinity();
@@ -519,46 +514,64 @@ double Scene::distance_m(const Eigen::Vector3d& p_w) const {
   return best;
 }
 
-double Scene::concave_edge_distance_m(const Eigen::Vector3d& p_w, const Eigen::Vector3d& normal_w,
-                                      int primitive, int face, double max_distance_m) const {
+// Distance to the room's two neighbouring walls when p lies on a face of a room (every edge of a
+// room is concave); max_distance_m otherwise.
+inline double Scene::own_concave_distance(const Eigen::Vector3d& p_w, int primitive, int face,
+                                          double max_distance_m) const {
   double best = max_distance_m;
-  if (primitive >= 0 && static_cast<size_t>(primitive) < compact_.size() &&
-      compact_[static_cast<size_t>(primitive)].kind == PrimitiveKind::kRoom) {
-    // Every edge of a room is concave: the distance to the two neighbouring walls' planes.
-    const Compact& c = compact_[static_cast<size_t>(primitive)];
-    const int axis = face / 2;
-    for (int k = 0; k < 3; ++k) {
-      if (k == axis) continue;
-      best = std::min(best, std::min(p_w[k] - c.a[k], c.b[k] - p_w[k]));
-    }
+  if (primitive < 0 || static_cast<size_t>(primitive) >= compact_.size()) return best;
+  const Compact& c = compact_[static_cast<size_t>(primitive)];
+  if (c.kind != PrimitiveKind::kRoom) return best;
+  const int axis = face / 2;
+  for (int k = 0; k < 3; ++k) {
+    if (k == axis) continue;
+    best = std::min(best, std::min(p_w[k] - c.a[k], c.b[k] - p_w[k]));
   }
+  return best;
+}
+
+// Lowers *best to the distance from p to primitive i when i forms a concave edge with the surface
+// at p (normal_w facing the viewer).
+inline void Scene::concave_visit(int i, const Eigen::Vector3d& p_w, const Eigen::Vector3d& normal_w,
+                                 int primitive, double* best) const {
+  if (i == primitive) return;
+  const Compact& c = compact_[static_cast<size_t>(i)];
   Eigen::Vector3d q;
   bool outside;
-  auto visit = [&](int i) {
-    if (i == primitive) return;
-    const Compact& c = compact_[static_cast<size_t>(i)];
-    const double d = surface_distance(c, p_w, best, &q, &outside);
-    if (!(d < best)) return;
-    if ((q - p_w).dot(normal_w) < -kSideTolerance) return;  // behind the surface at p: convex
-    switch (c.kind) {
-      case PrimitiveKind::kPlane:
-        if ((p_w - q).dot(c.b) < -kSideTolerance) return;  // p on the plane's back side
-        break;
-      case PrimitiveKind::kBox:
-        if (!outside) return;
-        break;
-      case PrimitiveKind::kRoom:
-        if (outside) return;
-        break;
-    }
-    best = d;
-  };
-  for (int i : global_) visit(i);
+  const double d = surface_distance(c, p_w, *best, &q, &outside);
+  if (!(d < *best)) return;
+  if ((q - p_w).dot(normal_w) < -kSideTolerance) return;  // behind the surface at p: convex
+  switch (c.kind) {
+    case PrimitiveKind::kPlane:
+      if ((p_w - q).dot(c.b) < -kSideTolerance) return;  // p on the plane's back side
+      break;
+    case PrimitiveKind::kBox:
+      if (!outside) return;
+      break;
+    case PrimitiveKind::kRoom:
+      if (outside) return;
+      break;
+  }
+  *best = d;
+}
+
+double Scene::concave_edge_distance_m(const Eigen::Vector3d& p_w, const Eigen::Vector3d& normal_w,
+                                      int primitive, int face, double max_distance_m) const {
+  double best = own_concave_distance(p_w, primitive, face, max_distance_m);
+  for (int i : global_) concave_visit(i, p_w, normal_w, primitive, &best);
   for_cells_in_xy_box(p_w.x() - best, p_w.y() - best, p_w.x() + best, p_w.y() + best,
                       [&](size_t cell) {
                         for (int j = cell_begin_[cell]; j < cell_begin_[cell + 1]; ++j)
-                          visit(cell_items_[j]);
+                          concave_visit(cell_items_[j], p_w, normal_w, primitive, &best);
                       });
+  return best;
+}
+
+double Scene::concave_edge_distance_m(const Eigen::Vector3d& p_w, const Eigen::Vector3d& normal_w,
+                                      int primitive, int face, double max_distance_m,
+                                      const int* candidates, size_t count) const {
+  double best = own_concave_distance(p_w, primitive, face, max_distance_m);
+  for (size_t k = 0; k < count; ++k) concave_visit(candidates[k], p_w, normal_w, primitive, &best);
   return best;
 }
 

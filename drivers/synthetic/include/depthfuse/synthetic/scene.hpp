@@ -102,6 +102,10 @@ class Scene {
   // Returns max_distance_m when there is none closer.
   double concave_edge_distance_m(const Eigen::Vector3d& p_w, const Eigen::Vector3d& normal_w,
                                  int primitive, int face, double max_distance_m) const;
+  // The same over a candidate list only (the renderer's per-tile list of primitives near the view).
+  double concave_edge_distance_m(const Eigen::Vector3d& p_w, const Eigen::Vector3d& normal_w,
+                                 int primitive, int face, double max_distance_m,
+                                 const int* candidates, size_t count) const;
 
   // Raycast against a candidate list sorted by t_lower[k], a lower bound of the ray parameter of any
   // hit on candidates[k]: stops at the first candidate that cannot beat the best hit. The renderer
@@ -139,6 +143,10 @@ class Scene {
 
   bool intersect(int index, const Ray& ray, double t_max, double* t, int* face) const;
   void fill_hit(int index, int face, double t, const Ray& ray, RayHit* hit) const;
+  double own_concave_distance(const Eigen::Vector3d& p_w, int primitive, int face,
+                              double max_distance_m) const;
+  void concave_visit(int i, const Eigen::Vector3d& p_w, const Eigen::Vector3d& normal_w,
+                     int primitive, double* best) const;
   static double surface_distance(const Compact& c, const Eigen::Vector3d& p, double bound,
                                  Eigen::Vector3d* q, bool* outside);
   void traverse_grid(const Ray& ray, double* best_t, int* best_index, int* best_face) const;

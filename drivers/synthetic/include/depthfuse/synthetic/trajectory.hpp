@@ -27,8 +27,9 @@ class Trajectory {
   //  room:   one closed loop (an ellipse around the room centre) looking outwards at walls and
   //          boxes, slightly downwards; the last frame comes back next to the first.
   //  rooms:  walking at 0.5 m/s along a closed tour through all 16 rooms (straight through a room or
-  //          a quarter circle around one of its corners), head swinging +-35 degrees; the tour is
-  //          ~74 m, so 20 minutes go around it about eight times, revisiting every room.
+  //          a quarter circle around one of its corners), head swinging +-50 degrees and looking
+  //          20 degrees down; the tour is ~71 m, so 20 minutes go around it about eight times,
+  //          revisiting every room.
   Pose T_world_cam(size_t i) const;
 
   SceneKind kind() const { return kind_; }
