@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# The CLI as a user runs it: synth -> reconstruct -> eval on a tiny scan, and bad input that must
+# end in a clear message and a non-zero exit (never a crash: exit codes >= 128 are signals).
+set -u
+DF="$1"
+T=$(mktemp -d)
+trap 'rm -rf "$T"' EXIT
+fails=0
+passes=0
+check() {  # check <name> <expected exit: 0|nonzero> <grep pattern for output> <command...>
+  local name="$1" want="$2" pattern="$3"; shift 3
+  "$@" >"$T/out" 2>&1
+  local rc=$?
+  if [[ $rc -ge 128 ]]; then echo "FAIL $name: crashed with signal $((rc - 128))"; cat "$T/out"; fails=$((fails+1)); return; fi
+  if [[ $want == 0 && $rc != 0 ]] || [[ $want != 0 && $rc == 0 ]]; then
+    echo "FAIL $name: exit $rc"; cat "$T/out"; fails=$((fails+1)); return
+  fi
+  if ! grep -q -- "$pattern" "$T/out"; then echo "FAIL $name: output lacks '$pattern'"; cat "$T/out"; fails=$((fails+1)); return; fi
+  echo "ok   $name"; passes=$((passes+1))
+}
+
+check synth 0 "wrote 6 frames" "$DF" synth corner "$T/c" --frames 6 --pose-noise-m 0.01 --pose-noise-deg 0.5
+check reconstruct 0 "points:" "$DF" reconstruct "$T/c" --poses "$T/c/poses_perturbed.txt" --iterations 2 -o "$T/c.ply" --trajectory-out "$T/c.txt" --report "$T/report.txt"
+check ply-written 0 "element vertex" head -c 400 "$T/c.ply"
+check report-written 0 "method:       full" cat "$T/report.txt"
+check eval 0 "jaccard index" "$DF" eval "$T/c" "$T/c.ply" --trajectory "$T/c.txt"
+check eval-png 0 "PNG" file "$T/c.eval.errors.png"
+
+# Bad input.
+cp -r "$T/c" "$T/bad"
+first=$(ls "$T/bad/depth" | head -1)
+printf 'not a png at all' > "$T/bad/depth/$first"
+check corrupt-png nonzero "cannot decode" "$DF" reconstruct "$T/bad" -o "$T/x.ply"
+cp -r "$T/c" "$T/missing"; rm "$T/missing/depth/$(ls "$T/missing/depth" | tail -1)"
+check missing-png nonzero "missing image" "$DF" reconstruct "$T/missing" -o "$T/x.ply"
+printf '0.0 nan 0 0 0 0 0 1\n' > "$T/nan.txt"
+check nan-trajectory nonzero "field 2 is nan" "$DF" reconstruct "$T/c" --poses "$T/nan.txt" -o "$T/x.ply"
+printf 'garbage\n' > "$T/garbage.txt"
+check garbage-trajectory nonzero "is not a number" "$DF" reconstruct "$T/c" --poses "$T/garbage.txt" -o "$T/x.ply"
+printf '100.0 0 0 0 0 0 0 1\n' > "$T/far.txt"
+check frame-without-pose nonzero "has no pose" "$DF" reconstruct "$T/c" --poses "$T/far.txt" -o "$T/x.ply"
+cp -r "$T/c" "$T/empty"; printf '# nothing\n' > "$T/empty/depth.txt"
+check empty-sequence nonzero "empty sequence" "$DF" reconstruct "$T/empty" -o "$T/x.ply"
+cp -r "$T/c" "$T/size"; sed -i 's/^width = 512/width = 640/' "$T/size/camera.toml"
+check wrong-size nonzero "512x424 but the camera is 640x424" "$DF" reconstruct "$T/size" -o "$T/x.ply"
+check no-such-folder nonzero "no such folder" "$DF" reconstruct "$T/nope" -o "$T/x.ply"
+check bad-method nonzero "--method must be" "$DF" reconstruct "$T/c" --method best -o "$T/x.ply"
+check bad-iterations nonzero "expects an integer" "$DF" reconstruct "$T/c" --iterations many -o "$T/x.ply"
+printf 'this is = = not toml\n' > "$T/bad.toml"
+check garbage-config nonzero "bad.toml" "$DF" reconstruct "$T/c" --config "$T/bad.toml" -o "$T/x.ply"
+check truncated-ply nonzero "truncated" bash -c "head -c 2000 '$T/c.ply' > '$T/t.ply' && '$DF' eval '$T/c' '$T/t.ply'"
+
+echo "cli: $passes passed, $fails failed"
+exit $((fails > 0))
