@@ -296,11 +296,21 @@ Result<AppConfig> parse(const std::string& text, const std::string& origin,
   if (diagnostics.ok()) {
     const double heartbeat_period_s = 1.0 / config.fusion.heartbeat_rate_hz;
     if (!(config.monitor.stale_after_s > heartbeat_period_s)) {
+      // Reported at whichever of the two keys the file sets (the threshold if both).
       const toml::table* monitor = doc["monitor"].as_table();
-      TableReader r(monitor, "monitor", doc.source(), &diagnostics, nullptr);
-      r.fail("stale_after_s", "must be > the heartbeat period 1 / fusion_daemon.heartbeat_rate_hz (" +
-                                  format_number(heartbeat_period_s) + " s), got " +
-                                  format_number(config.monitor.stale_after_s));
+      const toml::table* daemon = doc["fusion_daemon"].as_table();
+      TableReader m(monitor, "monitor", doc.source(), &diagnostics, nullptr);
+      TableReader f(daemon, "fusion_daemon", doc.source(), &diagnostics, nullptr);
+      if (m.has("stale_after_s") || !f.has("heartbeat_rate_hz")) {
+        m.fail("stale_after_s", "must be > the heartbeat period 1 / fusion_daemon.heartbeat_rate_hz (" +
+                                    format_number(heartbeat_period_s) + " s), got " +
+                                    format_number(config.monitor.stale_after_s));
+      } else {
+        f.fail("heartbeat_rate_hz", "must be > 1 / monitor.stale_after_s (" +
+                                        format_number(1.0 / config.monitor.stale_after_s) +
+                                        " Hz) or the monitor reports this daemon stale, got " +
+                                        format_number(config.fusion.heartbeat_rate_hz));
+      }
     }
   }
   DF_RETURN_IF_ERROR(diagnostics.status());

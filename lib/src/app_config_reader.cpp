@@ -56,15 +56,18 @@ void Diagnostics::add(const toml::source_region& where, const std::string& key,
   std::string m = origin_;
   if (where.begin.line > 0) m += ":" + std::to_string(where.begin.line);
   m += ": " + key + ": " + problem;
-  messages_.push_back(std::move(m));
+  messages_.emplace_back(where.begin.line, std::move(m));
 }
 
 Status Diagnostics::status() const {
   if (messages_.empty()) return Status::ok();
+  auto sorted = messages_;
+  std::stable_sort(sorted.begin(), sorted.end(),
+                   [](const auto& a, const auto& b) { return a.first < b.first; });
   std::string all;
-  for (const auto& m : messages_) {
+  for (const auto& m : sorted) {
     if (!all.empty()) all += '\n';
-    all += m;
+    all += m.second;
   }
   return invalid_argument(all);
 }

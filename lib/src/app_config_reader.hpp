@@ -3,10 +3,12 @@
 // Keeps toml++ out of the public headers.
 #pragma once
 
+#include <cstdint>
 #include <functional>
 #include <optional>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include <toml++/toml.h>
@@ -25,13 +27,13 @@ class Diagnostics {
   void add(const toml::source_region& where, const std::string& key, const std::string& problem);
   bool ok() const { return messages_.empty(); }
   size_t count() const { return messages_.size(); }
-  // ok, or invalid_argument with one problem per line.
+  // ok, or invalid_argument with one problem per line, in the order of the file.
   Status status() const;
   const std::string& origin() const { return origin_; }
 
  private:
   std::string origin_;
-  std::vector<std::string> messages_;
+  std::vector<std::pair<uint32_t, std::string>> messages_;  // (line, message)
 };
 
 // Allowed range of a number; a missing side is unbounded. Checked on ints and doubles alike.

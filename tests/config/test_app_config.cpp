@@ -394,6 +394,10 @@ TEST(AppConfig, RulesAcrossKeys) {
   EXPECT_NE(e.find("test.toml:2: monitor.stale_after_s: must be > the heartbeat period"),
             std::string::npos)
       << e;
+  e = error_of("[fusion_daemon]\nheartbeat_rate_hz = 0.2\n");
+  EXPECT_NE(e.find("test.toml:2: fusion_daemon.heartbeat_rate_hz: must be > 1 / monitor.stale_after_s"),
+            std::string::npos)
+      << e;
 }
 
 TEST(AppConfig, AllProblemsAreReportedTogether) {
@@ -401,6 +405,9 @@ TEST(AppConfig, AllProblemsAreReportedTogether) {
   EXPECT_NE(e.find("test.toml:2: fusion.chunk_size_m"), std::string::npos) << e;
   EXPECT_NE(e.find("test.toml:4: monitor.publish_rate_hz"), std::string::npos) << e;
   EXPECT_NE(e.find("test.toml:5: monitor.bogus: unknown key"), std::string::npos) << e;
+  // In the order of the file, although sections are checked in another order.
+  const std::string out_of_order = error_of("[monitor]\npublish_rate_hz = 0\n[sensor]\nlambda1 = 0\n");
+  EXPECT_LT(out_of_order.find("test.toml:2:"), out_of_order.find("test.toml:4:")) << out_of_order;
 }
 
 TEST(AppConfig, SyntaxErrorNamesTheLine) {
