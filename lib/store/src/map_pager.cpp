@@ -21,6 +21,23 @@ float distance_to_chunk_m(const PointMap& map, const ChunkKey& key, const Eigen:
   return d.norm();
 }
 
+double sensor_reach_m(const CameraIntrinsics& K, double max_depth_m) {
+  // The longest ray (z = 1) goes through the corner farthest from the principal point.
+  const double du = std::max(K.cx + 0.5, K.width - 0.5 - K.cx) / K.fx;
+  const double dv = std::max(K.cy + 0.5, K.height - 0.5 - K.cy) / K.fy;
+  return max_depth_m * std::sqrt(1.0 + du * du + dv * dv);
+}
+
+MapPagerConfig pager_config_for_sensor(double memory_budget_mib, double evict_distance_m,
+                                       const CameraIntrinsics& intrinsics, double max_depth_m,
+                                       double motion_margin_m) {
+  MapPagerConfig c;
+  c.memory_budget_mib = memory_budget_mib;
+  c.load_radius_m = sensor_reach_m(intrinsics, max_depth_m) + motion_margin_m;
+  c.evict_distance_m = std::max(evict_distance_m, c.load_radius_m + 0.25);
+  return c;
+}
+
 size_t MapPager::chunk_bytes(const Chunk& chunk) {
   return chunk.points.memory_bytes() + kChunkOverheadBytes;
 }

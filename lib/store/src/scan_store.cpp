@@ -295,30 +295,59 @@ constexpr const char* kCheckpointColumns =
     "id, utime, reason, last_frame_id, frames_fused, point_count, chunk_count, T_world_cam";
 }  // namespace
 
+// A new scan appears under its name only complete: the schema is built in a temporary file
+// beside it, which is then linked into place (link fails if the name exists, so two creators
+// cannot both win). A crash during creation leaves no half-made scan file behind the name.
 Status ScanStore::Impl::create_new() {
-  const int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
-  if (fd < 0) {
-    if (errno == EEXIST) return invalid_argument(path + ": already exists; a new scan needs a new file");
-    return io_error(path + ": cannot create: " + errno_text());
+  if (file_exists(path)) return invalid_argument(path + ": already exists; a new scan needs a new file");
+  const std::string tmp = path + ".creating-" + std::to_string(::getpid());
+  auto cleanup = [&] {
+    ::unlink(tmp.c_str());
+    ::unlink((tmp + "-journal").c_str());
+    ::unlink((tmp + "-wal").c_str());
+    ::unlink((tmp + "-shm").c_str());
+  };
+  cleanup();
+  Status st;
+  {
+    sql::Database fresh;
+    st = fresh.open(tmp, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_NOMUTEX);
+    if (st) st = fresh.exec("PRAGMA synchronous = FULL;", "setting synchronous");
+    if (st) st = fresh.exec("BEGIN IMMEDIATE;", "creating the scan");
+    if (st) st = schema::create_current(fresh);
+    if (st) {
+      auto meta = fresh.prepare("INSERT INTO meta (key, value) VALUES ('created_utime', ?), "
+                                "('chunk_size_m', '0.5');",
+                                "creating the scan");
+      if (!meta) st = meta.status();
+      else st = meta->bind(1, std::to_string(now_utime())).run("creating the scan");
+    }
+    if (st) st = fresh.exec("COMMIT;", "creating the scan");
+    // WAL (persistent in the file): readers never block the writer, and a crash in the middle
+    // of a transaction leaves the last commit.
+    if (st) {
+      auto mode = fresh.prepare("PRAGMA journal_mode = WAL;", "enabling WAL");
+      if (!mode) st = mode.status();
+      else if (auto row = mode->step("enabling WAL"); !row) st = row.status();
+      else if (!*row || mode->text(0) != "wal")
+        st = io_error(path + ": the file system does not support WAL mode");
+    }
   }
-  lock_fd = fd;
-  if (::flock(fd, LOCK_EX | LOCK_NB) != 0) return unavailable(path + ": cannot lock: " + errno_text());
-  DF_RETURN_IF_ERROR(db.open(path, SQLITE_OPEN_READWRITE | SQLITE_OPEN_NOMUTEX));
-  sqlite3_busy_timeout(db.handle(), options.busy_timeout_ms);
-  // WAL: readers never block the writer and a crash mid-transaction leaves the last commit.
-  DF_RETURN_IF_ERROR(enable_wal());
-  DF_RETURN_IF_ERROR(db.exec("PRAGMA synchronous = FULL;", "setting synchronous"));
-  DF_RETURN_IF_ERROR(db.exec("BEGIN IMMEDIATE;", "creating the scan"));
-  Status st = schema::create_current(db);
-  if (st) st = set_meta({{"created_utime", std::to_string(now_utime())}, {"chunk_size_m", "0.5"}});
-  if (st) st = db.exec("COMMIT;", "creating the scan");
-  if (!st) {
-    (void)db.exec("ROLLBACK;", "creating the scan");
-    return st;
+  if (st && ::link(tmp.c_str(), path.c_str()) != 0) {
+    st = errno == EEXIST ? invalid_argument(path + ": already exists; a new scan needs a new file")
+                         : io_error(path + ": cannot create: " + errno_text());
   }
-  schema_version = kSchemaVersion;
+  cleanup();
+  if (!st) return st.with_context("creating " + path);
+  // The new name must survive a power cut too.
+  const std::string dir = path.find('/') == std::string::npos ? "." : path.substr(0, path.rfind('/') + 1);
+  if (const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC); dfd >= 0) {
+    (void)::fsync(dfd);
+    ::close(dfd);
+  }
+  DF_RETURN_IF_ERROR(open_existing());
   report.found_schema_version = 0;
-  return db.exec("PRAGMA synchronous = NORMAL;", "setting synchronous");
+  return Status::ok();
 }
 
 Status ScanStore::Impl::open_existing() {
@@ -413,17 +442,7 @@ Result<std::unique_ptr<ScanStore>> ScanStore::open(const std::string& path, Open
   impl->mode = mode;
   impl->options = options;
   if (mode == OpenMode::kCreate) {
-    Status st = impl->create_new();
-    if (!st) {
-      const bool created = impl->lock_fd >= 0;
-      impl.reset();
-      if (created) {
-        ::unlink(path.c_str());
-        ::unlink((path + "-wal").c_str());
-        ::unlink((path + "-shm").c_str());
-      }
-      return st;
-    }
+    DF_RETURN_IF_ERROR(impl->create_new());
   } else {
     DF_RETURN_IF_ERROR(impl->open_existing());
   }

@@ -14,6 +14,7 @@
 
 #include "depthfuse/point_map.hpp"
 #include "depthfuse/status.hpp"
+#include "depthfuse/types.hpp"
 
 namespace depthfuse::store {
 
@@ -22,10 +23,11 @@ class ScanStore;
 struct MapPagerConfig {
   double memory_budget_mib = 256.0;       // resident point data of the map
   double low_watermark_fraction = 0.85;   // evict down to this fraction of the budget
-  double evict_distance_m = 6.0;          // chunks nearer to the camera than this stay resident
-  // Evicted chunks nearer than this are loaded back: the sensor's max range plus a margin for the
-  // motion until the next call. Must not exceed evict_distance_m (or loads would thrash).
-  double load_radius_m = 5.5;
+  double evict_distance_m = 7.0;          // chunks nearer to the camera than this stay resident
+  // Evicted chunks nearer than this are loaded back: the sensor's reach (sensor_reach_m, not
+  // just its max depth: the corner rays are longer) plus a margin for the motion until the next
+  // call. Must not exceed evict_distance_m (or loads would thrash).
+  double load_radius_m = 6.6;
   int retry_after_failure_calls = 30;     // after a failed write, skip eviction this many calls
   bool release_memory_to_os = true;       // malloc_trim after evicting, so RSS follows the budget
 };
@@ -89,6 +91,17 @@ class MapPager {
   std::vector<Candidate> candidates_;
   std::vector<ChunkKey> to_load_;
 };
+
+// How far from the camera a measurement can lie: max_depth_m along the ray through the farthest
+// image corner (Kinect V2 at 4.5 m: 6.1 m). Fusion and ICP touch only chunks within this reach
+// (plus their small margins) of the camera.
+double sensor_reach_m(const CameraIntrinsics& intrinsics, double max_depth_m);
+
+// A pager configuration for a sensor: load radius = reach + motion margin, eviction beyond that
+// (at least `evict_distance_m`).
+MapPagerConfig pager_config_for_sensor(double memory_budget_mib, double evict_distance_m,
+                                       const CameraIntrinsics& intrinsics, double max_depth_m,
+                                       double motion_margin_m = 0.5);
 
 // Distance from a point to a chunk's cube (0 inside).
 float distance_to_chunk_m(const PointMap& map, const ChunkKey& key, const Eigen::Vector3f& p_m);
