@@ -22,6 +22,10 @@
 #include "depthfuse/lcm/frame_codec.hpp"
 #include "depthfuse/lcm/transport.hpp"
 #include "depthfuse/source_factory.hpp"
+#if __has_include("depthfuse/lcmlog/lcmlog_source.hpp")
+#include "depthfuse/lcmlog/lcmlog_source.hpp"
+#define DEPTHFUSE_CAPTURE_HAS_LCMLOG 1
+#endif
 
 namespace {
 
@@ -350,8 +354,14 @@ int main(int argc, char** argv) {
         next_tick = now;  // far behind (slow source): do not burst to catch up
       }
     } else if (pacing == Pacing::kRecorded) {
+      // The pace of the recording: lcm-logger's receive times for a log, else the frame times.
+      int64_t utime = frame.utime;
+#if DEPTHFUSE_CAPTURE_HAS_LCMLOG
+      if (const auto* log = dynamic_cast<const depthfuse::LcmLogSource*>(source.get()))
+        utime = log->last_log_utime();
+#endif
       if (have_prev) {
-        const double dt_s = (frame.utime - prev_utime) * 1e-6;
+        const double dt_s = (utime - prev_utime) * 1e-6;
         if (dt_s > 0 && dt_s < 5.0) {
           next_tick += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(dt_s));
           const auto now = Clock::now();
@@ -364,7 +374,7 @@ int main(int argc, char** argv) {
       } else {
         next_tick = Clock::now();
       }
-      prev_utime = frame.utime;
+      prev_utime = utime;
       have_prev = true;
     }
 

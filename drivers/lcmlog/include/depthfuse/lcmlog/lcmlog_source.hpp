@@ -51,6 +51,8 @@ class LcmLogSource : public FrameSource {
   Result<Frame> load(size_t i);
   // Log time (lcm-logger's receive clock, microseconds) of depth frame i.
   int64_t log_utime(size_t i) const { return depth_[i].log_utime; }
+  // Log time of the frame next() returned last (the recorded pace for a replay); 0 before any.
+  int64_t last_log_utime() const { return next_ > 0 ? depth_[next_ - 1].log_utime : 0; }
 
  private:
   struct Event {
