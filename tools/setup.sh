@@ -20,7 +20,7 @@ PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libtomlplusplus-dev libzstd-dev
   python3-open3d python3-numpy
-  iproute2 procps dpkg-dev file
+  iproute2 procps dpkg-dev file udev
 )
 
 if [[ $(id -u) -eq 0 ]]; then
