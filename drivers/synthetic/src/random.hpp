@@ -42,8 +42,8 @@ inline double uniform21(uint64_t bits, int shift) {
 // centred and scaled to unit variance (tails end at +-4.2 sigma, excess kurtosis -0.2). Cheap
 // enough for every pixel of every frame, unlike Box-Muller.
 inline double fast_gaussian(uint64_t bits) {
-  uint64_t s = 0;
-  for (int k = 0; k < 6; ++k) s += (bits >> (10 * k)) & 1023u;
+  const uint64_t s = (bits & 1023u) + ((bits >> 10) & 1023u) + ((bits >> 20) & 1023u) +
+                     ((bits >> 30) & 1023u) + ((bits >> 40) & 1023u) + ((bits >> 50) & 1023u);
   // mean 6 * 1023 / 2, variance 6 * (1024^2 - 1) / 12
   constexpr double kMean = 3069.0;
   constexpr double kInvStd = 1.0 / 724.0769986679594;  // sqrt((1024^2 - 1) / 2)

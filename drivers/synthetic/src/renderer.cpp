@@ -79,6 +79,7 @@ struct Scratch {
   std::vector<int> tile_ids;
   std::vector<double> tile_zmin;
   std::vector<int> tile_near_ids;
+  Scene::ViewCache view;
 };
 
 // floor() for the texture without a libm call.
@@ -121,9 +122,9 @@ inline double fast_acos01(double x) {
   return std::sqrt(1.0 - x) * (1.5707288 + x * (-0.2121144 + x * (0.0742610 - 0.0187293 * x)));
 }
 
+// albedo * factor for factor in [0, 1].
 inline uint8_t shade(uint8_t albedo, double factor) {
-  const double v = albedo * factor;
-  return static_cast<uint8_t>(v >= 255.0 ? 255.0 : (v <= 0.0 ? 0.0 : v + 0.5));
+  return static_cast<uint8_t>(albedo * factor + 0.5);
 }
 
 }  // namespace
@@ -172,6 +173,7 @@ void DepthRenderer::render(const Pose& T_world_cam, uint64_t noise_key, bool wit
   // Which primitives can be seen at all: in front of the camera and nearer than the range.
   const Eigen::Matrix3d Rt = R.transpose();
   scratch.visible.collect(scene_->primitive_bounds(), Rt, origin, 0.0, max_z);
+  scene_->prepare_view(origin, &scratch.view);
   if (want_mpi) scratch.near_visible.collect(scene_->primitive_bounds(), Rt, origin, nc.mpi_range_m, max_z);
 
   // Pass 1: exact geometry, tile by tile against the primitives that overlap the tile's frustum,
@@ -230,7 +232,7 @@ void DepthRenderer::render(const Pose& T_world_cam, uint64_t noise_key, bool wit
           exact[i] = 0.0f;
           cos_inc[i] = 0.0f;
           mpi[i] = 0.0f;
-          if (count == 0 || !scene_->raycast_candidates(origin, d, ids, zlow, count, max_z, &hit))
+          if (count == 0 || !scene_->raycast_candidates(scratch.view, d, ids, zlow, count, max_z, &hit))
             continue;
           const double inv_len = 1.0 / d.norm();
           const double c = std::fabs(hit.normal_w.dot(d)) * inv_len;

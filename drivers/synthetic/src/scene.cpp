@@ -341,24 +341,110 @@ bool Scene::raycast(const Eigen::Vector3d& origin_w, const Eigen::Vector3d& dir_
   return true;
 }
 
-bool Scene::raycast_candidates(const Eigen::Vector3d& origin_w, const Eigen::Vector3d& dir_w,
-                               const int* candidates, const double* t_lower, size_t count,
-                               double t_max, RayHit* hit) const {
-  const Ray ray(origin_w, dir_w);
-  double best = t_max;
-  int best_index = -1, best_face = 0;
-  double t;
-  int face;
-  for (size_t k = 0; k < count; ++k) {
-    if (t_lower[k] >= best) break;
-    if (intersect(candidates[k], ray, best, &t, &face)) {
-      best = t;
-      best_index = candidates[k];
-      best_face = face;
+void Scene::prepare_view(const Eigen::Vector3d& origin_w, ViewCache* view) const {
+  view->origin_w = origin_w;
+  view->terms.resize(6 * compact_.size());
+  for (size_t i = 0; i < compact_.size(); ++i) {
+    const Compact& c = compact_[i];
+    double* k = &view->terms[6 * i];
+    if (c.kind == PrimitiveKind::kPlane) {
+      const Eigen::Vector3d oa = origin_w - c.a;
+      k[0] = -c.b.dot(oa);  // t = k[0] / (n . d)
+      k[1] = c.u.dot(oa);   // u coordinate of the origin
+      k[2] = c.v.dot(oa);   // v coordinate of the origin
+      k[3] = k[4] = k[5] = 0.0;
+    } else {
+      for (int j = 0; j < 3; ++j) {
+        k[j] = c.a[j] - origin_w[j];
+        k[3 + j] = c.b[j] - origin_w[j];
+      }
     }
   }
+}
+
+bool Scene::raycast_candidates(const ViewCache& view, const Eigen::Vector3d& dir_w,
+                               const int* candidates, const double* t_lower, size_t count,
+                               double t_max, RayHit* hit) const {
+  const double d0 = dir_w.x(), d1 = dir_w.y(), d2 = dir_w.z();
+  double inv0 = 0.0, inv1 = 0.0, inv2 = 0.0;
+  bool have_inv = false;
+  double best = t_max;
+  int best_index = -1, best_face = 0;
+  for (size_t n = 0; n < count; ++n) {
+    if (t_lower[n] >= best) break;
+    const int index = candidates[n];
+    const Compact& c = compact_[static_cast<size_t>(index)];
+    const double* k = &view.terms[6 * static_cast<size_t>(index)];
+    if (c.kind == PrimitiveKind::kPlane) {
+      // As in intersect(), with the origin's terms from the cache: every test scaled by |n.d|.
+      double denom = c.b.x() * d0 + c.b.y() * d1 + c.b.z() * d2;
+      double num = k[0];
+      if (denom < 0.0) {
+        denom = -denom;
+        num = -num;
+      } else if (!(denom > 0.0)) {
+        continue;
+      }
+      if (!(num > kTMin * denom) || num > best * denom) continue;
+      const double a = denom * k[1] + num * (c.u.x() * d0 + c.u.y() * d1 + c.u.z() * d2);
+      if (a < c.u_min * denom || a > c.u_max * denom) continue;
+      const double b = denom * k[2] + num * (c.v.x() * d0 + c.v.y() * d1 + c.v.z() * d2);
+      if (b < c.v_min * denom || b > c.v_max * denom) continue;
+      best = num / denom;
+      best_index = index;
+      best_face = 0;
+      continue;
+    }
+    if (!have_inv) {
+      inv0 = 1.0 / d0;  // +-infinity for axis-parallel rays, as in Ray::inverse
+      inv1 = 1.0 / d1;
+      inv2 = 1.0 / d2;
+      have_inv = true;
+    }
+    const double x0 = k[0] * inv0, x1 = k[3] * inv0;
+    const double y0 = k[1] * inv1, y1 = k[4] * inv1;
+    const double z0 = k[2] * inv2, z1 = k[5] * inv2;
+    const double nx = std::min(x0, x1), ny = std::min(y0, y1), nz = std::min(z0, z1);
+    const double fx = std::max(x0, x1), fy = std::max(y0, y1), fz = std::max(z0, z1);
+    const double t_near = std::max(nx, std::max(ny, nz));
+    const double t_far = std::min(fx, std::min(fy, fz));
+    if (!(t_near <= t_far)) continue;
+    int axis;
+    bool max_side;
+    if (t_near > kTMin) {
+      if (t_near >= best) continue;
+      best = t_near;
+      axis = t_near == nx ? 0 : (t_near == ny ? 1 : 2);
+      max_side = dir_w[axis] < 0.0;
+    } else if (t_far > kTMin && t_far < best) {
+      best = t_far;
+      axis = t_far == fx ? 0 : (t_far == fy ? 1 : 2);
+      max_side = dir_w[axis] > 0.0;
+    } else {
+      continue;
+    }
+    best_index = index;
+    best_face = 2 * axis + (max_side ? 1 : 0);
+  }
   if (best_index < 0) return false;
-  if (hit) fill_hit(best_index, best_face, best, ray, hit);
+  if (hit) {
+    hit->t = best;
+    hit->primitive = best_index;
+    hit->face = best_face;
+    const Compact& c = compact_[static_cast<size_t>(best_index)];
+    if (c.kind == PrimitiveKind::kPlane) {
+      const double* k = &view.terms[6 * static_cast<size_t>(best_index)];
+      const double dn = c.b.dot(dir_w);
+      hit->normal_w = dn < 0.0 ? c.b : Eigen::Vector3d(-c.b);
+      hit->uv_m = Eigen::Vector2d(k[1] + best * c.u.dot(dir_w), k[2] + best * c.v.dot(dir_w));
+    } else {
+      const int axis = best_face / 2;
+      hit->normal_w = Eigen::Vector3d::Zero();
+      hit->normal_w[axis] = dir_w[axis] > 0.0 ? -1.0 : 1.0;
+      const Eigen::Vector3d p = view.origin_w + best * dir_w;
+      hit->uv_m = Eigen::Vector2d(p[(axis + 1) % 3], p[(axis + 2) % 3]);
+    }
+  }
   return true;
 }
 
@@ -434,7 +520,7 @@ bool Scene::raycast(const Eigen::Vector3d& origin_w, const Eigen::Vector3d& dir_
 // Distance from p to a primitive's surface and the nearest point q there, unless it is certainly
 // not below `bound` (then returns bound or more without q). `outside` tells for boxes and rooms
 // whether p is outside the box.
-inline double Scene::surface_distance(const Compact& c, const Eigen::Vector3d& p, double bound,
+__attribute__((always_inline)) inline double Scene::surface_distance(const Compact& c, const Eigen::Vector3d& p, double bound,
                                       Eigen::Vector3d* q, bool* outside) {
   if (c.kind == PrimitiveKind::kPlane) {
     const Eigen::Vector3d w = p - c.a;
@@ -532,7 +618,7 @@ inline double Scene::own_concave_distance(const Eigen::Vector3d& p_w, int primit
 
 // Lowers *best to the distance from p to primitive i when i forms a concave edge with the surface
 // at p (normal_w facing the viewer).
-inline void Scene::concave_visit(int i, const Eigen::Vector3d& p_w, const Eigen::Vector3d& normal_w,
+__attribute__((always_inline)) inline void Scene::concave_visit(int i, const Eigen::Vector3d& p_w, const Eigen::Vector3d& normal_w,
                                  int primitive, double* best) const {
   if (i == primitive) return;
   const Compact& c = compact_[static_cast<size_t>(i)];

@@ -34,13 +34,14 @@ Pose corner_pose(size_t i, size_t frames) {
   return look_at(eye, Vector3d(0.25, 0.25, 0.6));
 }
 
-// --- room: an ellipse around the room centre, looking outwards and down.
+// --- room: an ellipse around the room centre, looking across the room (through its centre) and
+// down, so that walls and the boxes in front of them are seen from 2.5-3.5 m.
 Pose room_pose(size_t i, size_t frames) {
   const double s = static_cast<double>(i) / static_cast<double>(frames);  // closed loop
   const double phi = 2.0 * kPi * s;
   const Vector3d eye(2.5 + 0.7 * std::cos(phi), 2.0 + 0.45 * std::sin(phi),
                      1.3 + 0.05 * std::sin(3.0 * phi));
-  return look_along(eye, phi + 0.2 * std::sin(2.0 * phi), -20.0 * kDeg);
+  return look_along(eye, phi + kPi + 0.2 * std::sin(2.0 * phi), -25.0 * kDeg);
 }
 
 // --- rooms: a closed tour through all rooms.

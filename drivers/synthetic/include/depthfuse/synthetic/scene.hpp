@@ -107,12 +107,19 @@ class Scene {
                                  int primitive, int face, double max_distance_m,
                                  const int* candidates, size_t count) const;
 
-  // Raycast against a candidate list sorted by t_lower[k], a lower bound of the ray parameter of any
-  // hit on candidates[k]: stops at the first candidate that cannot beat the best hit. The renderer
-  // uses it with per-tile lists culled against the view frustum.
-  bool raycast_candidates(const Eigen::Vector3d& origin_w, const Eigen::Vector3d& dir_w,
-                          const int* candidates, const double* t_lower, size_t count, double t_max,
-                          RayHit* hit) const;
+  // The per-primitive terms of rays that all start at one origin (a camera centre), computed once
+  // per view: six numbers per primitive.
+  struct ViewCache {
+    Eigen::Vector3d origin_w = Eigen::Vector3d::Zero();
+    std::vector<double> terms;
+  };
+  void prepare_view(const Eigen::Vector3d& origin_w, ViewCache* view) const;
+
+  // Raycast from view.origin_w against a candidate list sorted by t_lower[k], a lower bound of the
+  // ray parameter of any hit on candidates[k]: stops at the first candidate that cannot beat the
+  // best hit. The renderer uses it with per-tile lists culled against the view frustum.
+  bool raycast_candidates(const ViewCache& view, const Eigen::Vector3d& dir_w, const int* candidates,
+                          const double* t_lower, size_t count, double t_max, RayHit* hit) const;
 
   const std::vector<Primitive>& primitives() const { return primitives_; }
   // Axis-aligned bounds of each primitive (infinite for unbounded planes).

@@ -24,8 +24,8 @@ class Trajectory {
 
   //  corner: a 90 degree arc (azimuth 0..90 deg) of radius ~1.4 m around a point 0.6 m in front of
   //          both walls, 1.1-1.3 m high, always looking at the corner: 1.8-2.3 m from its axis.
-  //  room:   one closed loop (an ellipse around the room centre) looking outwards at walls and
-  //          boxes, slightly downwards; the last frame comes back next to the first.
+  //  room:   one closed loop (an ellipse around the room centre) looking across the room at the
+  //          opposite walls and boxes, 25 degrees down; the last frame comes back next to the first.
   //  rooms:  walking at 0.5 m/s along a closed tour through all 16 rooms (straight through a room or
   //          a quarter circle around one of its corners), head swinging +-50 degrees and looking
   //          20 degrees down; the tour is ~71 m, so 20 minutes go around it about eight times,
