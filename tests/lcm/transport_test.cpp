@@ -129,6 +129,16 @@ TEST(LcmTransport, MissingMulticastRouteIsExplained) {
   EXPECT_NE(out.find("no route to the LCM multicast group 239.255.76.67"), std::string::npos) << out;
   EXPECT_NE(out.find("ip route add 224.0.0.0/4 dev lo"), std::string::npos) << out;
   EXPECT_NE(out.find("tools/lcm/route"), std::string::npos) << out;
+
+  // And the fix it suggests works: after tools/lcm/route, the same capture runs.
+  const int fixed = run_command(
+      {"/usr/bin/unshare", "-n", "/bin/sh", "-c",
+       "ip link set lo up && " DEPTHFUSE_TEST_DIR "/../../tools/lcm/route add && exec " +
+           bin("depthfuse-capture") + " --source synthetic:corner?frames=2 --rate max --lcm '" +
+           test_url() + "'"},
+      dir + "/capture-fixed.log", &out);
+  EXPECT_EQ(fixed, 0) << out;
+  EXPECT_NE(out.find("published 2 frames"), std::string::npos) << out;
 }
 
 }  // namespace
