@@ -54,7 +54,7 @@ class SyntheticSequence {
   // utime = round(i / rate_hz * 1e6) microseconds ("sequence time", starting at 0).
   int64_t utime(size_t i) const;
 
-  // Frame i: utime, sequence = i, sensor_serial "synthetic", intrinsics, depth in metres, a colour
+  // Frame i (i < size()): utime, sequence = i, sensor_serial "synthetic", intrinsics, depth in metres, a colour
   // image registered to it, and T_world_cam_hint = the perturbed pose. with_noise = false gives
   // the exact depth (still gated to the sensor range). Thread-safe.
   Frame render(size_t i, bool with_noise = true) const;
