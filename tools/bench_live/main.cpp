@@ -1,0 +1,345 @@
+// bench_live: how the live appliance performs on this machine.
+//  1. Transport cost per frame, in process: depth float->uint16 + zstd, LCM serialisation, and back;
+//     bytes on the wire (raw vs zstd depth, zstd vs JPEG colour).
+//  2. The fusion daemon (a real depthfuse-fusion process) fed synthetic 512x424 frames at 30 Hz
+//     over LCM on loopback for --duration seconds, every frame pre-filtered, re-registered and
+//     fused: frames per second fused, drop rate, and latency from publishing a frame to receiving
+//     its refined pose (p50, p99), plus the daemon's CPU and memory.
+// Frames are rendered and encoded before the run so that the publisher costs nothing during it.
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <mutex>
+#include <numeric>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "depthfuse/daemon/process_info.hpp"
+#include "depthfuse/depth_frame_t.hpp"
+#include "depthfuse/heartbeat_t.hpp"
+#include "depthfuse/lcm/channels.hpp"
+#include "depthfuse/lcm/codec.hpp"
+#include "depthfuse/lcm/frame_codec.hpp"
+#include "depthfuse/lcm/transport.hpp"
+#include "depthfuse/pose_t.hpp"
+#include "depthfuse/synthetic/synthetic_source.hpp"
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+namespace lcmio = depthfuse::lcmio;
+
+struct Args {
+  double duration_s = 60.0;
+  double rate_hz = 30.0;
+  std::string scene = "corner";
+  int distinct_frames = 300;
+  int queue = 4;
+  std::string config;
+  std::string lcm_url;
+  std::string fusion = std::string(DEPTHFUSE_BIN_DIR) + "/depthfuse-fusion";
+  bool color = true;
+};
+
+void usage() {
+  std::printf(
+      "usage: bench_live [--duration S] [--rate HZ] [--scene corner|room] [--frames N] [--queue N]\n"
+      "                  [--config FILE] [--lcm URL] [--fusion PATH] [--no-color]\n"
+      "  --frames N   distinct frames rendered up front; the trajectory loops over them (default 300)\n"
+      "  --lcm URL    default: a private loopback port, so a running appliance is not disturbed\n");
+}
+
+double percentile(std::vector<double> v, double p) {
+  if (v.empty()) return std::nan("");
+  std::sort(v.begin(), v.end());
+  const size_t i = std::min(v.size() - 1, static_cast<size_t>(std::lround(p * (v.size() - 1))));
+  return v[i];
+}
+
+double mean(const std::vector<double>& v) {
+  return v.empty() ? std::nan("") : std::accumulate(v.begin(), v.end(), 0.0) / v.size();
+}
+
+// utime + stime of a process in seconds (/proc/<pid>/stat), -1 if unreadable.
+double cpu_seconds(pid_t pid) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/stat");
+  std::string line;
+  if (!std::getline(in, line)) return -1;
+  const auto close = line.rfind(')');
+  if (close == std::string::npos) return -1;
+  std::istringstream rest(line.substr(close + 2));
+  std::string field;
+  long long utime = 0, stime = 0;
+  for (int i = 3; i <= 15 && rest >> field; ++i) {
+    if (i == 14) utime = std::atoll(field.c_str());
+    if (i == 15) stime = std::atoll(field.c_str());
+  }
+  return static_cast<double>(utime + stime) / static_cast<double>(::sysconf(_SC_CLK_TCK));
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Args a;
+  for (int i = 1; i < argc; ++i) {
+    const std::string k = argv[i];
+    auto next = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        usage();
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (k == "--duration") a.duration_s = std::atof(next().c_str());
+    else if (k == "--rate") a.rate_hz = std::atof(next().c_str());
+    else if (k == "--scene") a.scene = next();
+    else if (k == "--frames") a.distinct_frames = std::atoi(next().c_str());
+    else if (k == "--queue") a.queue = std::atoi(next().c_str());
+    else if (k == "--config") a.config = next();
+    else if (k == "--lcm") a.lcm_url = next();
+    else if (k == "--fusion") a.fusion = next();
+    else if (k == "--no-color") a.color = false;
+    else {
+      usage();
+      return k == "--help" || k == "-h" ? 0 : 2;
+    }
+  }
+  if (!(a.duration_s > 0) || !(a.rate_hz > 0) || a.distinct_frames < 2 || a.queue < 1) {
+    usage();
+    return 2;
+  }
+  if (a.lcm_url.empty()) a.lcm_url = lcmio::loopback_test_url(static_cast<int>(::getpid()));
+
+  auto spec = depthfuse::synthetic::parse_synthetic_spec(
+      a.scene + "?frames=" + std::to_string(a.distinct_frames) + "&seed=1&rate_hz=" +
+      std::to_string(a.rate_hz));
+  if (!spec) {
+    std::fprintf(stderr, "bench_live: %s\n", spec.status().to_string().c_str());
+    return 2;
+  }
+  auto seq = depthfuse::synthetic::SyntheticSequence::create(*spec);
+  if (!seq) {
+    std::fprintf(stderr, "bench_live: %s\n", seq.status().to_string().c_str());
+    return 2;
+  }
+
+  // ---------------------------------------------------------------- 1. transport cost
+  std::printf("bench_live: rendering %d frames of synthetic:%s (512x424)...\n", a.distinct_frames,
+              a.scene.c_str());
+  std::fflush(stdout);
+  std::vector<depthfuse::depth_frame_t> depth_msgs(a.distinct_frames);
+  std::vector<depthfuse::color_frame_t> color_msgs(a.distinct_frames);
+  std::vector<double> convert_ms, compress_ms, serialize_ms, decode_ms, depth_bytes, color_bytes,
+      jpeg_bytes, jpeg_ms, color_ms;
+  size_t raw_depth_bytes = 0;
+  for (int i = 0; i < a.distinct_frames; ++i) {
+    const depthfuse::Frame f = seq->render(static_cast<size_t>(i));
+    raw_depth_bytes = f.depth.depth_m.size() * 2;
+    lcmio::CodecTiming t;
+    if (!lcmio::encode_depth_frame(f, {}, &depth_msgs[i], &t).is_ok()) return 1;
+    convert_ms.push_back(t.convert_ms);
+    compress_ms.push_back(t.compress_ms);
+    auto t0 = Clock::now();
+    const auto bytes = lcmio::encode_message(depth_msgs[i]);
+    serialize_ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
+    depth_bytes.push_back(static_cast<double>(bytes.size()));
+    t0 = Clock::now();
+    depthfuse::depth_frame_t back;
+    depthfuse::Frame out;
+    if (lcmio::decode_message(bytes.data(), bytes.size(), &back) != lcmio::DecodeResult::kOk ||
+        !lcmio::decode_depth_frame(back, &out).is_ok())
+      return 1;
+    decode_ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
+    if (!f.color.empty()) {
+      lcmio::CodecTiming ct;
+      if (!lcmio::encode_color_frame(f, {}, &color_msgs[i], &ct).is_ok()) return 1;
+      color_ms.push_back(ct.compress_ms);
+      color_bytes.push_back(static_cast<double>(color_msgs[i].getEncodedSize()));
+      if (i % 10 == 0) {
+        lcmio::ColorEncodeOptions jo;
+        jo.encoding = lcmio::ColorEncoding::kJpeg;
+        depthfuse::color_frame_t jm;
+        lcmio::CodecTiming jt;
+        if (!lcmio::encode_color_frame(f, jo, &jm, &jt).is_ok()) return 1;
+        jpeg_ms.push_back(jt.compress_ms);
+        jpeg_bytes.push_back(static_cast<double>(jm.getEncodedSize()));
+      }
+    }
+  }
+  std::printf("\ntransport cost per 512x424 frame (mean over %d frames, one core)\n", a.distinct_frames);
+  std::printf("  depth float m -> uint16 mm      %7.2f ms\n", mean(convert_ms));
+  std::printf("  depth zstd -1                   %7.2f ms   %zu -> %.0f bytes (%.2fx)\n",
+              mean(compress_ms), raw_depth_bytes, mean(depth_bytes),
+              raw_depth_bytes / mean(depth_bytes));
+  std::printf("  LCM serialisation               %7.2f ms\n", mean(serialize_ms));
+  std::printf("  receive: LCM decode + unzstd + uint16 -> float  %7.2f ms\n", mean(decode_ms));
+  if (!color_ms.empty()) {
+    std::printf("  colour RGB8 zstd -1             %7.2f ms   %d -> %.0f bytes\n", mean(color_ms),
+                512 * 424 * 3, mean(color_bytes));
+    std::printf("  colour JPEG q90 (alternative)   %7.2f ms   %.0f bytes\n", mean(jpeg_ms), mean(jpeg_bytes));
+  }
+  std::fflush(stdout);
+
+  // ---------------------------------------------------------------- 2. the live daemon
+  auto opened = lcmio::LcmTransport::open(a.lcm_url);
+  if (!opened) {
+    std::fprintf(stderr, "bench_live: %s\n", opened.status().to_string().c_str());
+    return 1;
+  }
+  auto lcm = std::move(opened).value();
+  const std::string scan_dir =
+      (std::filesystem::temp_directory_path() / ("bench_live-" + std::to_string(::getpid()))).string();
+
+  std::vector<std::string> fargs = {a.fusion, "--lcm", a.lcm_url, "--autostart", "bench",
+                                    "--queue", std::to_string(a.queue), "--scan-dir", scan_dir};
+  if (!a.config.empty()) {
+    fargs.push_back("--config");
+    fargs.push_back(a.config);
+  }
+  const std::string fusion_log = scan_dir + ".fusion.log";
+  const pid_t fusion_pid = ::fork();
+  if (fusion_pid == 0) {
+    FILE* log = std::fopen(fusion_log.c_str(), "w");
+    if (log) {
+      ::dup2(fileno(log), 1);
+      ::dup2(fileno(log), 2);
+    }
+    std::vector<char*> cargs;
+    for (auto& s : fargs) cargs.push_back(s.data());
+    cargs.push_back(nullptr);
+    ::execv(cargs[0], cargs.data());
+    ::_exit(127);
+  }
+
+  std::mutex m;
+  std::map<int64_t, int64_t> publish_utime_by_seq;
+  std::vector<double> latency_ms, daemon_latency_ms, registered;
+  std::vector<double> fitness, rmse_mm, prefilter_ms, registration_ms, fusion_ms;
+  depthfuse::heartbeat_t last_hb{};
+  bool have_hb = false;
+  int64_t poses = 0;
+  lcm->subscribe(lcmio::kPoseChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
+    const int64_t now = depthfuse::daemon::wall_utime();
+    depthfuse::pose_t p;
+    if (lcmio::decode_message(d, n, &p) != lcmio::DecodeResult::kOk) return;
+    std::lock_guard<std::mutex> lock(m);
+    ++poses;
+    auto it = publish_utime_by_seq.find(p.sequence);
+    if (it != publish_utime_by_seq.end()) latency_ms.push_back((now - it->second) * 1e-3);
+    daemon_latency_ms.push_back((p.publish_utime - p.frame_publish_utime) * 1e-3);
+    registered.push_back(p.registered ? 1.0 : 0.0);
+    if (p.registered) {
+      fitness.push_back(p.icp_fitness);
+      rmse_mm.push_back(p.icp_rmse_m * 1e3);
+    }
+    prefilter_ms.push_back(p.prefilter_ms);
+    registration_ms.push_back(p.registration_ms);
+    fusion_ms.push_back(p.fusion_ms);
+  });
+  lcm->subscribe(lcmio::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
+    depthfuse::heartbeat_t hb;
+    if (lcmio::decode_message(d, n, &hb) != lcmio::DecodeResult::kOk || hb.name != "fusion") return;
+    std::lock_guard<std::mutex> lock(m);
+    last_hb = hb;
+    have_hb = true;
+  });
+  std::atomic<bool> stop{false};
+  std::thread receiver([&] {
+    while (!stop) (void)lcm->handle(20);
+  });
+
+  // Wait for the daemon's scan to be running.
+  const auto wait_until = Clock::now() + std::chrono::seconds(20);
+  for (;;) {
+    {
+      std::lock_guard<std::mutex> lock(m);
+      if (have_hb && last_hb.scan_id == "bench") break;
+    }
+    if (Clock::now() > wait_until) {
+      std::fprintf(stderr, "bench_live: depthfuse-fusion did not start a scan; its log: %s\n",
+                   fusion_log.c_str());
+      ::kill(fusion_pid, SIGKILL);
+      stop = true;
+      receiver.join();
+      return 1;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+
+  std::printf("\nlive: depthfuse-fusion fed %.0f Hz for %.0f s (queue %d, %s)...\n", a.rate_hz,
+              a.duration_s, a.queue, a.config.empty() ? "default config" : a.config.c_str());
+  std::fflush(stdout);
+  const double cpu0 = cpu_seconds(fusion_pid);
+  const auto period = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / a.rate_hz));
+  const auto start = Clock::now();
+  auto next = start;
+  int64_t published = 0;
+  int64_t late_publishes = 0;
+  while (Clock::now() - start < std::chrono::duration<double>(a.duration_s)) {
+    std::this_thread::sleep_until(next);
+    if (Clock::now() - next > period / 2) ++late_publishes;
+    next += period;
+    const int idx = static_cast<int>(published % a.distinct_frames);
+    auto& dm = depth_msgs[idx];
+    dm.sequence = published;
+    dm.utime = depthfuse::daemon::wall_utime();
+    if (a.color && !color_msgs[idx].data.empty()) {
+      color_msgs[idx].sequence = published;
+      (void)lcm->publish_message(lcmio::kColorChannel, color_msgs[idx]);
+    }
+    dm.publish_utime = depthfuse::daemon::wall_utime();
+    {
+      std::lock_guard<std::mutex> lock(m);
+      publish_utime_by_seq[published] = dm.publish_utime;
+    }
+    (void)lcm->publish_message(lcmio::kDepthChannel, dm);
+    ++published;
+  }
+  const double elapsed_s = std::chrono::duration<double>(Clock::now() - start).count();
+  std::this_thread::sleep_for(std::chrono::milliseconds(1500));  // the last frames in flight
+  const double cpu1 = cpu_seconds(fusion_pid);
+  // A final heartbeat with settled counters.
+  std::this_thread::sleep_for(std::chrono::milliseconds(1100));
+  stop = true;
+  receiver.join();
+  ::kill(fusion_pid, SIGTERM);
+  int status = 0;
+  ::waitpid(fusion_pid, &status, 0);
+  std::filesystem::remove_all(scan_dir);
+
+  std::lock_guard<std::mutex> lock(m);
+  const double fps = poses / elapsed_s;
+  std::printf("  published %lld frames in %.1f s (%.2f Hz; %lld publishes late by > half a period)\n",
+              static_cast<long long>(published), elapsed_s, published / elapsed_s,
+              static_cast<long long>(late_publishes));
+  std::printf("  fused     %lld frames: %.2f fps\n", static_cast<long long>(poses), fps);
+  std::printf("  received by the daemon %lld, dropped by its queue %lld (%.1f %%), lost in transport %lld\n",
+              static_cast<long long>(last_hb.frames_in), static_cast<long long>(last_hb.frames_dropped),
+              published ? 100.0 * last_hb.frames_dropped / published : 0.0,
+              static_cast<long long>(last_hb.frames_lost));
+  std::printf("  latency publish -> refined pose received: p50 %.1f ms, p99 %.1f ms, max %.1f ms\n",
+              percentile(latency_ms, 0.5), percentile(latency_ms, 0.99), percentile(latency_ms, 1.0));
+  std::printf("  (daemon side, frame publish -> pose publish: p50 %.1f ms, p99 %.1f ms)\n",
+              percentile(daemon_latency_ms, 0.5), percentile(daemon_latency_ms, 0.99));
+  std::printf("  per fused frame: pre-filter %.1f ms, re-registration %.1f ms, fusion %.1f ms (means)\n",
+              mean(prefilter_ms), mean(registration_ms), mean(fusion_ms));
+  std::printf("  registered %.1f %% of frames, ICP fitness %.3f, residual %.2f mm (means)\n",
+              100.0 * mean(registered), mean(fitness), mean(rmse_mm));
+  std::printf("  daemon CPU %.2f cores, RSS %.0f MiB, %lld points in the map at the end\n",
+              (cpu1 - cpu0) / elapsed_s, last_hb.rss_bytes / 1048576.0,
+              static_cast<long long>(last_hb.point_count));
+  return 0;
+}
