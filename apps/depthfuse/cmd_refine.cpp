@@ -137,6 +137,8 @@ int run(int argc, char** argv) {
   info.frames_dropped = meta->frames_dropped;
   auto rec = scan.commit_checkpoint(info);
   if (!rec) return cli::fail(kCmd, rec.status().message() + " (the scan is unchanged)");
+  if (auto st = scan.compact(); !st)  // the old cloud's pages; failing here loses nothing
+    std::fprintf(stderr, "depthfuse refine: warning: %s\n", st.message().c_str());
 
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   std::printf("depthfuse refine\n  scan:        %s\n  keyframes:   %zu\n  iterations:\n", path.c_str(), frames.size());

@@ -30,7 +30,13 @@ Result<std::unique_ptr<ScanRecorder>> ScanRecorder::create(const std::string& pa
   if (config.bounded_memory) DF_RETURN_IF_ERROR(MapPager::validate(config.pager));
   auto store = ScanStore::open(path, OpenMode::kCreate, config.store);
   if (!store) return store.status();
-  DF_RETURN_IF_ERROR((*store)->set_metadata(metadata));
+  ScanMetadata meta = metadata;
+  if (meta.created_utime == 0) {
+    meta.created_utime = std::chrono::duration_cast<std::chrono::microseconds>(
+                             std::chrono::system_clock::now().time_since_epoch())
+                             .count();
+  }
+  DF_RETURN_IF_ERROR((*store)->set_metadata(meta));
   DF_RETURN_IF_ERROR((*store)->set_config(config_toml, config_source));
   return std::unique_ptr<ScanRecorder>(new ScanRecorder(std::move(store).value(), config));
 }

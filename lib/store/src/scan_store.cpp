@@ -313,6 +313,8 @@ Status ScanStore::Impl::create_new() {
     sql::Database fresh;
     st = fresh.open(tmp, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_NOMUTEX);
     if (st) st = fresh.exec("PRAGMA synchronous = FULL;", "setting synchronous");
+    // Pages freed by deleted chunks can be returned to the file system (ScanStore::compact).
+    if (st) st = fresh.exec("PRAGMA auto_vacuum = INCREMENTAL;", "setting auto_vacuum");
     if (st) st = fresh.exec("BEGIN IMMEDIATE;", "creating the scan");
     if (st) st = schema::create_current(fresh);
     if (st) {
@@ -1093,6 +1095,13 @@ Status ScanStore::copy_to(const std::string& path) {
   Status done = st->run(ctx);
   if (!done) ::unlink(path.c_str());
   return done;
+}
+
+Status ScanStore::compact() {
+  Impl& s = *impl_;
+  DF_RETURN_IF_ERROR(s.require_writable("compact"));
+  if (s.in_checkpoint) return invalid_argument(s.path + ": compact inside a checkpoint");
+  return s.db.exec("PRAGMA incremental_vacuum;", "returning free pages");
 }
 
 }  // namespace depthfuse::store

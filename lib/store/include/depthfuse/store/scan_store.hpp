@@ -220,6 +220,9 @@ class ScanStore {
   Result<std::optional<CheckpointRecord>> last_checkpoint();
   Result<std::vector<CheckpointRecord>> checkpoints();
   Result<StoreSummary> summary();
+  // Returns pages freed by deleted chunks to the file system (files created with schema 2 use
+  // incremental auto-vacuum). Not inside a checkpoint.
+  Status compact();
   // A compact copy of the file as of now (VACUUM INTO); `path` must not exist. Works read-only.
   Status copy_to(const std::string& path);
   // PRAGMA integrity_check plus decoding and checking every blob (`check_blobs`).
