@@ -1,12 +1,12 @@
 // Rendering: exact depth against the analytic surfaces, and each effect of the noise model on its
 // own against the model's own formula.
+#include <gtest/gtest.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <thread>
 #include <vector>
-
-#include <gtest/gtest.h>
 
 #include "depthfuse/synthetic/renderer.hpp"
 #include "depthfuse/synthetic/synthetic_sequence.hpp"
@@ -37,8 +37,9 @@ SyntheticSequence make_sequence(SceneKind kind, int frames, NoiseConfig noise = 
 DepthRenderer plane_renderer(double distance_m, double tilt_deg, const NoiseConfig& noise) {
   const double a = tilt_deg * kPi / 180.0;
   const Vector3d normal(0, std::sin(a), -std::cos(a));
-  auto scene = Scene::create({Primitive::plane(Vector3d(0, 0, distance_m), normal, Vector3d::UnitX(),
-                                               -INFINITY, INFINITY, -INFINITY, INFINITY, "wall")});
+  auto scene =
+      Scene::create({Primitive::plane(Vector3d(0, 0, distance_m), normal, Vector3d::UnitX(),
+                                      -INFINITY, INFINITY, -INFINITY, INFINITY, "wall")});
   EXPECT_TRUE(scene.is_ok());
   RendererConfig rc;
   rc.noise = noise;
@@ -126,7 +127,8 @@ TEST(Noise, AxialStdMatchesTheKinectV2Model) {
     // Near the axis theta < 10 deg adds at most 0.1 * z^1.5 * 0.0145 mm: within the tolerance.
     EXPECT_NEAR(sd, expected, 0.03 * expected) << "at " << distance << " m";
     EXPECT_NEAR(mean, 0.0, 0.05 * expected);
-    EXPECT_NEAR(std::sqrt(norm2 / n_all), 1.0, 0.02) << "normalised residual at " << distance << " m";
+    EXPECT_NEAR(std::sqrt(norm2 / n_all), 1.0, 0.02)
+        << "normalised residual at " << distance << " m";
   }
   EXPECT_NEAR(fankhauser_axial_sigma_m(1.0, 0.0, 1.0), 1.3e-3, 1e-12);
   EXPECT_NEAR(fankhauser_axial_sigma_m(3.0, 0.0, 1.0), 2.7e-3, 1e-12);
@@ -157,7 +159,8 @@ TEST(Noise, FlyingPixelsOnlyAtDepthEdges) {
             lo = std::min(lo, double{exact.depth.at(uu, vv)});
             hi = std::max(hi, double{exact.depth.at(uu, vv)});
           }
-        const bool edge = hi - lo > std::max(noise.flying_min_jump_m, noise.flying_min_jump_fraction * lo);
+        const bool edge =
+            hi - lo > std::max(noise.flying_min_jump_m, noise.flying_min_jump_fraction * lo);
         edge_pixels += edge;
         const float z = noisy.depth.at(u, v);
         if (z == z0) continue;
@@ -267,8 +270,8 @@ TEST(Noise, OutliersAreSparseAndWithinTheRange) {
 
 TEST(Noise, DefaultsAreAllOnAndValidated) {
   const NoiseConfig d;
-  EXPECT_TRUE(d.enabled && d.axial_enabled && d.flying_enabled && d.mpi_enabled && d.dropout_enabled &&
-              d.outlier_enabled);
+  EXPECT_TRUE(d.enabled && d.axial_enabled && d.flying_enabled && d.mpi_enabled &&
+              d.dropout_enabled && d.outlier_enabled);
   EXPECT_TRUE(d.validate().is_ok());
   NoiseConfig bad;
   bad.flying_probability = 1.5;
@@ -309,8 +312,8 @@ TEST(Render, ColourIsRegisteredToDepth) {
   EXPECT_GT(changes, 1000u);
 
   // Nothing hit, nothing lit: half of the view looks past a plane.
-  auto scene = Scene::create({Primitive::plane(Vector3d(0, 0, 2), -Vector3d::UnitZ(), Vector3d::UnitX(),
-                                               0, 10, -10, 10, "half")});
+  auto scene = Scene::create({Primitive::plane(Vector3d(0, 0, 2), -Vector3d::UnitZ(),
+                                               Vector3d::UnitX(), 0, 10, -10, 10, "half")});
   ASSERT_TRUE(scene.is_ok());
   const DepthRenderer r(std::make_shared<const Scene>(std::move(scene).value()), RendererConfig());
   DepthImage depth;

@@ -1,11 +1,11 @@
 // Scene geometry: exact distances and raycasts on known configurations, the acceleration grid
 // against brute force, multipath edge distances, and the TOML round trip.
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <limits>
 #include <string>
 #include <vector>
-
-#include <gtest/gtest.h>
 
 #include "depthfuse/synthetic/scene.hpp"
 
@@ -41,11 +41,11 @@ TEST(Scene, CornerDistanceAtKnownPoints) {
   const Scene s = Scene::make(SceneKind::kCorner, 1);
   ASSERT_EQ(s.primitives().size(), 3u);
   EXPECT_NEAR(s.distance_m(Vector3d(1, 1, 1)), 1.0, 1e-12);
-  EXPECT_NEAR(s.distance_m(Vector3d(0.5, 2, 0.2)), 0.2, 1e-12);   // above the floor
-  EXPECT_NEAR(s.distance_m(Vector3d(-1, 1, 1)), 1.0, 1e-12);      // behind the x = 0 wall
+  EXPECT_NEAR(s.distance_m(Vector3d(0.5, 2, 0.2)), 0.2, 1e-12);         // above the floor
+  EXPECT_NEAR(s.distance_m(Vector3d(-1, 1, 1)), 1.0, 1e-12);            // behind the x = 0 wall
   EXPECT_NEAR(s.distance_m(Vector3d(4, 1, 1)), std::sqrt(2.0), 1e-12);  // past the planes' ends
   EXPECT_NEAR(s.distance_m(Vector3d(1, 1, 5)), std::sqrt(5.0), 1e-12);  // above the walls' tops
-  EXPECT_NEAR(s.distance_m(Vector3d(0.3, 0.0, 0.7)), 0.0, 1e-12);  // on a wall
+  EXPECT_NEAR(s.distance_m(Vector3d(0.3, 0.0, 0.7)), 0.0, 1e-12);       // on a wall
 }
 
 TEST(Scene, BoxAndRoomDistance) {
@@ -77,7 +77,8 @@ TEST(Scene, RaycastHitsAndNormalsFaceTheOrigin) {
   ASSERT_TRUE(corner.raycast(Vector3d(2, 2, 1), Vector3d(-1, 0, -1).normalized(), &t, &n));
   EXPECT_NEAR(t, std::sqrt(2.0), 1e-12);
   EXPECT_FALSE(corner.raycast(Vector3d(1, 1, 1), Vector3d(1, 1, 1), &t, &n));  // out of the corner
-  EXPECT_FALSE(corner.raycast(Vector3d(1, 1, 1), Vector3d(-1, 0, 0), 0.5, nullptr));  // beyond t_max
+  EXPECT_FALSE(
+      corner.raycast(Vector3d(1, 1, 1), Vector3d(-1, 0, 0), 0.5, nullptr));  // beyond t_max
 
   const Scene box = single_box(PrimitiveKind::kBox);
   RayHit hit;
@@ -117,8 +118,8 @@ TEST(Scene, GridMatchesBruteForceOnManyRooms) {
   for (int k = 0; k < 1500; ++k) {
     const Vector3d o(-1 + 22 * rnd(), -1 + 22 * rnd(), 0.1 + 2.4 * rnd());
     Vector3d d(rnd() - 0.5, rnd() - 0.5, 0.6 * (rnd() - 0.5));
-    if (k % 50 == 0) d = Vector3d(0, 0, 1);     // straight up: a single grid cell
-    if (k % 50 == 1) d = Vector3d(1, 0, 0.1);   // along a grid axis
+    if (k % 50 == 0) d = Vector3d(0, 0, 1);    // straight up: a single grid cell
+    if (k % 50 == 1) d = Vector3d(1, 0, 0.1);  // along a grid axis
     RayHit grid_hit;
     const bool grid = s.raycast(o, d, kInf, &grid_hit);
     double best = kInf;
@@ -146,16 +147,19 @@ TEST(Scene, ConcaveEdgeDistance) {
               0.05, 1e-12);
   EXPECT_NEAR(corner.concave_edge_distance_m(Vector3d(0.3, 0.1, 0), Vector3d::UnitZ(), 0, 0, 1.0),
               0.1, 1e-12);
-  EXPECT_EQ(corner.concave_edge_distance_m(Vector3d(1.5, 1.5, 0), Vector3d::UnitZ(), 0, 0, 0.15), 0.15);
+  EXPECT_EQ(corner.concave_edge_distance_m(Vector3d(1.5, 1.5, 0), Vector3d::UnitZ(), 0, 0, 0.15),
+            0.15);
 
   // A box on a floor: concave where it meets the floor, convex along its top edges.
-  auto s = Scene::create({Primitive::plane(Vector3d::Zero(), Vector3d::UnitZ(), Vector3d::UnitX(), -5,
-                                           5, -5, 5, "floor"),
+  auto s = Scene::create({Primitive::plane(Vector3d::Zero(), Vector3d::UnitZ(), Vector3d::UnitX(),
+                                           -5, 5, -5, 5, "floor"),
                           Primitive::box(Vector3d(0, 0, 0), Vector3d(1, 1, 0.5), "box")});
   ASSERT_TRUE(s.is_ok());
-  EXPECT_NEAR(s->concave_edge_distance_m(Vector3d(1.04, 0.5, 0), Vector3d::UnitZ(), 0, 0, 1.0), 0.04,
+  EXPECT_NEAR(s->concave_edge_distance_m(Vector3d(1.04, 0.5, 0), Vector3d::UnitZ(), 0, 0, 1.0),
+              0.04,
               1e-12);  // floor beside the box
-  EXPECT_NEAR(s->concave_edge_distance_m(Vector3d(1.0, 0.5, 0.07), Vector3d::UnitX(), 1, 1, 1.0), 0.07,
+  EXPECT_NEAR(s->concave_edge_distance_m(Vector3d(1.0, 0.5, 0.07), Vector3d::UnitX(), 1, 1, 1.0),
+              0.07,
               1e-12);  // box side just above the floor
   EXPECT_EQ(s->concave_edge_distance_m(Vector3d(0.98, 0.5, 0.5), Vector3d::UnitZ(), 1, 5, 0.15),
             0.15);  // box top next to its edge: convex, no multipath
@@ -263,11 +267,14 @@ TEST(SceneToml, ErrorsNameTheProblem) {
                "bad.toml:5: unknown key 'size'");
   expect_error("[[primitive]]\nkind = \"sphere\"\n", "sphere");
   expect_error("[[primitive]]\nkind = \"box\"\nmin_m = [0,0,0]\n", "missing 'max_m'");
-  expect_error("[[primitive]]\nkind = \"box\"\nmin_m = [0,0,0]\nmax_m = [1,-1,1]\n", "primitive 0 (box)");
-  expect_error("[[primitive]]\nkind = \"box\"\nmin_m = [0,0]\nmax_m = [1,1,1]\n", "array of 3 numbers");
-  expect_error("[[primitive]]\nkind = \"plane\"\norigin_m = [0,0,0]\nnormal = [0,0,1]\nu_axis = [0,0,1]\n"
-               "u_range_m = [0,1]\nv_range_m = [0,1]\n",
-               "perpendicular");
+  expect_error("[[primitive]]\nkind = \"box\"\nmin_m = [0,0,0]\nmax_m = [1,-1,1]\n",
+               "primitive 0 (box)");
+  expect_error("[[primitive]]\nkind = \"box\"\nmin_m = [0,0]\nmax_m = [1,1,1]\n",
+               "array of 3 numbers");
+  expect_error(
+      "[[primitive]]\nkind = \"plane\"\norigin_m = [0,0,0]\nnormal = [0,0,1]\nu_axis = [0,0,1]\n"
+      "u_range_m = [0,1]\nv_range_m = [0,1]\n",
+      "perpendicular");
   expect_error("[scene]\nname = \"x\"\nformat_version = 9\n", "format_version 9");
   expect_error("[scene\n", "bad.toml:1");
   expect_error("stray = 1\n", "unknown key 'stray'");

@@ -1,11 +1,11 @@
 // Sequences: frame fields, determinism by seed, pose perturbation statistics, and trajectories that
 // keep the camera in free space with depths in the sensor's range.
+#include <gtest/gtest.h>
+
 #include <algorithm>
 #include <cmath>
 #include <set>
 #include <vector>
-
-#include <gtest/gtest.h>
 
 #include "depthfuse/synthetic/synthetic_sequence.hpp"
 #include "depthfuse/synthetic/trajectory.hpp"
@@ -30,9 +30,7 @@ SyntheticConfig config(SceneKind kind, int frames, uint64_t seed = 1) {
   return c;
 }
 
-double angle_deg(const Eigen::Matrix3d& R) {
-  return Eigen::AngleAxisd(R).angle() * 180.0 / kPi;
-}
+double angle_deg(const Eigen::Matrix3d& R) { return Eigen::AngleAxisd(R).angle() * 180.0 / kPi; }
 
 TEST(Sequence, FramesCarryTheirMetadata) {
   SyntheticConfig c = config(SceneKind::kCorner, 10);
@@ -112,7 +110,7 @@ TEST(Sequence, PosePerturbationFollowsTheRequestedStatistics) {
 }
 
 TEST(Trajectory, CameraFrameConvention) {
-  const Pose T = look_at(Vector3d(0, 0, 1), Vector3d(0, 5, 1));  // looking north
+  const Pose T = look_at(Vector3d(0, 0, 1), Vector3d(0, 5, 1));                // looking north
   EXPECT_TRUE((T.linear() * Vector3d::UnitZ()).isApprox(Vector3d(0, 1, 0)));   // z forward
   EXPECT_TRUE((T.linear() * Vector3d::UnitX()).isApprox(Vector3d(1, 0, 0)));   // x right (east)
   EXPECT_TRUE((T.linear() * Vector3d::UnitY()).isApprox(Vector3d(0, 0, -1)));  // y down
@@ -139,9 +137,14 @@ TEST(Trajectory, CornerArcLooksIntoTheCornerWithOverlap) {
     }
   }
   // About a 90 degree sweep around the corner.
-  const Vector3d first = seq.T_world_cam_true(0).translation(), last = seq.T_world_cam_true(59).translation();
-  const double sweep = std::acos((first - Vector3d(0.6, 0.6, first.z())).head<2>().normalized().dot(
-                           (last - Vector3d(0.6, 0.6, last.z())).head<2>().normalized())) * 180 / kPi;
+  const Vector3d first = seq.T_world_cam_true(0).translation(),
+                 last = seq.T_world_cam_true(59).translation();
+  const double sweep =
+      std::acos((first - Vector3d(0.6, 0.6, first.z()))
+                    .head<2>()
+                    .normalized()
+                    .dot((last - Vector3d(0.6, 0.6, last.z())).head<2>().normalized())) *
+      180 / kPi;
   EXPECT_NEAR(sweep, 90.0, 1.0);
   EXPECT_GT(total_turn, 60.0);
 }
@@ -150,8 +153,11 @@ TEST(Trajectory, CamerasStayInFreeSpace) {
   // room: a closed loop, well away from every surface.
   const SyntheticSequence room = make(config(SceneKind::kRoom, 120));
   for (size_t i = 0; i < room.size(); ++i)
-    EXPECT_GT(room.scene().distance_m(room.T_world_cam_true(i).translation()), 0.7) << "frame " << i;
-  EXPECT_LT((room.T_world_cam_true(119).translation() - room.T_world_cam_true(0).translation()).norm(), 0.1);
+    EXPECT_GT(room.scene().distance_m(room.T_world_cam_true(i).translation()), 0.7)
+        << "frame " << i;
+  EXPECT_LT(
+      (room.T_world_cam_true(119).translation() - room.T_world_cam_true(0).translation()).norm(),
+      0.1);
 
   // rooms: 20 minutes at 30 Hz, sampled every 5 s; never near a wall or a box, every room visited,
   // and rooms come back (the walk goes round the tour several times).

@@ -1,7 +1,7 @@
 // The synthetic driver as a FrameSource, and its spec strings.
-#include <string>
-
 #include <gtest/gtest.h>
+
+#include <string>
 
 #include "depthfuse/synthetic/synthetic_source.hpp"
 
@@ -9,7 +9,8 @@ namespace depthfuse::synthetic {
 namespace {
 
 TEST(SyntheticSpec, ParsesKeys) {
-  auto c = parse_synthetic_spec("rooms?frames=36000&seed=7&pose_noise_m=0.02&pose_noise_deg=1.5&rate_hz=15&noise=0");
+  auto c = parse_synthetic_spec(
+      "rooms?frames=36000&seed=7&pose_noise_m=0.02&pose_noise_deg=1.5&rate_hz=15&noise=0");
   ASSERT_TRUE(c.is_ok()) << c.status().to_string();
   EXPECT_EQ(c->scene, SceneKind::kRooms);
   EXPECT_EQ(c->frames, 36000);
@@ -30,16 +31,15 @@ TEST(SyntheticSpec, ErrorsNameTheKeyOrValue) {
     const char* spec;
     const char* needle;
   };
-  for (const Case& k : {Case{"", "unknown synthetic scene ''"}, Case{"kitchen", "kitchen"},
-                        Case{"corner?frames=abc", "'abc' for 'frames'"},
-                        Case{"corner?frames=0", "'frames'"}, Case{"corner?frames=12x", "'12x'"},
-                        Case{"corner?seed=-1", "'seed'"},
-                        Case{"corner?pose_noise_m=x", "'pose_noise_m'"},
-                        Case{"corner?pose_noise_deg=-2", "'pose_noise_deg'"},
-                        Case{"corner?pose_noise_m=nan", "'pose_noise_m'"},
-                        Case{"corner?rate_hz=0", "'rate_hz'"}, Case{"corner?noise=maybe", "'noise'"},
-                        Case{"corner?bogus=1", "unknown key 'bogus'"},
-                        Case{"corner?frames", "'frames' has no value"}}) {
+  for (const Case& k :
+       {Case{"", "unknown synthetic scene ''"}, Case{"kitchen", "kitchen"},
+        Case{"corner?frames=abc", "'abc' for 'frames'"}, Case{"corner?frames=0", "'frames'"},
+        Case{"corner?frames=12x", "'12x'"}, Case{"corner?seed=-1", "'seed'"},
+        Case{"corner?pose_noise_m=x", "'pose_noise_m'"},
+        Case{"corner?pose_noise_deg=-2", "'pose_noise_deg'"},
+        Case{"corner?pose_noise_m=nan", "'pose_noise_m'"}, Case{"corner?rate_hz=0", "'rate_hz'"},
+        Case{"corner?noise=maybe", "'noise'"}, Case{"corner?bogus=1", "unknown key 'bogus'"},
+        Case{"corner?frames", "'frames' has no value"}}) {
     auto c = parse_synthetic_spec(k.spec);
     ASSERT_FALSE(c.is_ok()) << "accepted '" << k.spec << "'";
     EXPECT_EQ(c.status().code(), StatusCode::kInvalidArgument);
@@ -52,7 +52,8 @@ TEST(SyntheticSpec, ErrorsNameTheKeyOrValue) {
 }
 
 TEST(SyntheticSource, StreamsRewindsAndCarriesPoseHints) {
-  auto opened = open_synthetic_source("room?frames=3&seed=5&pose_noise_m=0.01&pose_noise_deg=0.5", AppConfig());
+  auto opened = open_synthetic_source("room?frames=3&seed=5&pose_noise_m=0.01&pose_noise_deg=0.5",
+                                      AppConfig());
   ASSERT_TRUE(opened.is_ok()) << opened.status().to_string();
   FrameSource& src = *opened.value();
   EXPECT_NE(src.describe().find("synthetic:room"), std::string::npos) << src.describe();

@@ -1,9 +1,9 @@
 // A written synthetic folder replays like recorded data through the TUM replay driver: same depth
 // (within the PNG's 0.2 mm step), colour, intrinsics (camera.toml) and pose hints.
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <string>
-
-#include <gtest/gtest.h>
 
 #include "depthfuse/replay/tum_source.hpp"
 #include "depthfuse/synthetic/tum_writer.hpp"

@@ -1,15 +1,15 @@
 // The TUM folder writer: every file read back (PNG through OpenCV, text by hand, TOML through the
 // scene reader) and compared with what the sequence renders.
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <sstream>
 #include <string>
 #include <vector>
-
-#include <gtest/gtest.h>
-#include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
 
 #include "depthfuse/synthetic/tum_writer.hpp"
 #include "test_util.hpp"
@@ -46,9 +46,10 @@ std::vector<std::vector<std::string>> read_table(const fs::path& p) {
 Pose pose_from_row(const std::vector<std::string>& r) {
   Pose T = Pose::Identity();
   T.translation() = Eigen::Vector3d(std::stod(r[1]), std::stod(r[2]), std::stod(r[3]));
-  T.linear() = Eigen::Quaterniond(std::stod(r[7]), std::stod(r[4]), std::stod(r[5]), std::stod(r[6]))
-                   .normalized()
-                   .toRotationMatrix();
+  T.linear() =
+      Eigen::Quaterniond(std::stod(r[7]), std::stod(r[4]), std::stod(r[5]), std::stod(r[6]))
+          .normalized()
+          .toRotationMatrix();
   return T;
 }
 
@@ -77,8 +78,8 @@ TEST(TumWriter, FolderReadsBackAsWritten) {
   const Status st = write_tum_folder(seq, root.string());
   ASSERT_TRUE(st.is_ok()) << st.to_string();
 
-  for (const char* f : {"depth.txt", "rgb.txt", "groundtruth.txt", "poses_perturbed.txt", "camera.toml",
-                        "scene.toml", "README.txt"})
+  for (const char* f : {"depth.txt", "rgb.txt", "groundtruth.txt", "poses_perturbed.txt",
+                        "camera.toml", "scene.toml", "README.txt"})
     EXPECT_TRUE(fs::is_regular_file(root / f)) << f;
 
   const auto depth_rows = read_table(root / "depth.txt");
@@ -131,9 +132,10 @@ TEST(TumWriter, FolderReadsBackAsWritten) {
     EXPECT_FALSE(pose_from_row(perturbed_rows[i]).isApprox(seq.T_world_cam_true(i), 1e-4));
   }
 
-  EXPECT_EQ(read_file(root / "camera.toml").substr(read_file(root / "camera.toml").find("[camera]")),
-            "[camera]\nwidth = 512\nheight = 424\nfx = 365.0\nfy = 365.0\ncx = 255.5\ncy = 211.5\n"
-            "depth_scale = 5000.0\n");
+  EXPECT_EQ(
+      read_file(root / "camera.toml").substr(read_file(root / "camera.toml").find("[camera]")),
+      "[camera]\nwidth = 512\nheight = 424\nfx = 365.0\nfy = 365.0\ncx = 255.5\ncy = 211.5\n"
+      "depth_scale = 5000.0\n");
 
   // scene.toml: the analytic ground truth and the settings that reproduce the folder.
   auto scene = Scene::load_toml((root / "scene.toml").string());

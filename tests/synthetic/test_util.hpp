@@ -1,15 +1,14 @@
 // Helpers shared by the synthetic source tests.
 #pragma once
 
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <Eigen/Core>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <string>
-
-#include <unistd.h>
-
-#include <Eigen/Core>
-#include <gtest/gtest.h>
 
 #include "depthfuse/types.hpp"
 
@@ -27,7 +26,8 @@ class TempDir {
  public:
   TempDir() {
     const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    std::string name = std::string("depthfuse_synthetic_") + info->test_suite_name() + "_" + info->name();
+    std::string name =
+        std::string("depthfuse_synthetic_") + info->test_suite_name() + "_" + info->name();
     for (char& c : name)
       if (c == '/') c = '_';
     path_ = std::filesystem::temp_directory_path() / (name + "_" + std::to_string(::getpid()));

@@ -1,13 +1,14 @@
-// Speed and sanity figures of the synthetic source: CPU milliseconds per rendered frame (exact and with
-// noise) for each built-in scene, and how the depths of its trajectory fall within the sensor range.
+// Speed and sanity figures of the synthetic source: CPU milliseconds per rendered frame (exact and
+// with noise) for each built-in scene, and how the depths of its trajectory fall within the sensor
+// range.
 //
 //   depthfuse_synthetic_bench [frames_per_scene [corner|room|rooms]]   (default 60, all scenes)
 //
 // Not a test: it prints figures (speed targets are not asserted anywhere).
 #include <algorithm>
-#include <ctime>
 #include <cstdio>
 #include <cstdlib>
+#include <ctime>
 #include <limits>
 #include <string>
 
@@ -64,9 +65,12 @@ int main(int argc, char** argv) {
       for (float z : frame.depth.depth_m) {
         ++total;
         if (z <= 0.0f) continue;
-        if (z < config.min_depth_m) ++near;
-        else if (z > config.max_depth_m) ++far;
-        else ++valid;
+        if (z < config.min_depth_m)
+          ++near;
+        else if (z > config.max_depth_m)
+          ++far;
+        else
+          ++valid;
       }
     }
     std::printf("%-6s %8d %10.2f %10.2f %9.1f %9.2f %9.2f\n", to_string(kind), frames,

@@ -9,8 +9,8 @@ namespace {
 
 Status check_probability(const char* name, double v) {
   if (!(v >= 0.0 && v <= 1.0))
-    return invalid_argument(std::string("noise.") + name + " must be a probability in [0, 1], got " +
-                            std::to_string(v));
+    return invalid_argument(std::string("noise.") + name +
+                            " must be a probability in [0, 1], got " + std::to_string(v));
   return Status::ok();
 }
 

@@ -1,6 +1,6 @@
 // Counter-based random numbers: every draw is a hash of (seed, frame, pixel, stream), so results do
-// not depend on the order or the thread in which pixels and frames are produced, and identical seeds
-// give identical data on every platform (no std:: distributions, whose output is
+// not depend on the order or the thread in which pixels and frames are produced, and identical
+// seeds give identical data on every platform (no std:: distributions, whose output is
 // implementation-defined).
 #pragma once
 
@@ -21,7 +21,7 @@ inline uint64_t hash_combine(uint64_t a, uint64_t b) { return mix64(a ^ mix64(b)
 
 // Independent streams of one seed.
 enum Stream : uint64_t {
-  kStreamPixelNoise = 0x6e6f697365ull,     // per-frame sensor noise
+  kStreamPixelNoise = 0x6e6f697365ull,      // per-frame sensor noise
   kStreamPosePerturbation = 0x706f7365ull,  // per-frame pose perturbation
   kStreamSceneLayout = 0x7363656e65ull,     // box layout of the built-in scenes
 };

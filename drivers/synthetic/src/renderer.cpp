@@ -1,8 +1,9 @@
 // Depth and colour rendering by raycasting, then the time-of-flight noise of NoiseConfig.
 //
 // Two passes over the image: (1) one ray per pixel gives the exact depth, the incidence angle, the
-// multipath bias and the colour; (2) the noise, which needs the exact depth of the neighbours (flying
-// pixels). Scratch buffers are per thread and reused, so a frame allocates nothing but its output.
+// multipath bias and the colour; (2) the noise, which needs the exact depth of the neighbours
+// (flying pixels). Scratch buffers are per thread and reused, so a frame allocates nothing but its
+// output.
 #include "depthfuse/synthetic/renderer.hpp"
 
 #include <algorithm>
@@ -22,7 +23,7 @@ constexpr double kPi = 3.14159265358979323846;
 constexpr double kDeg = kPi / 180.0;
 constexpr double kCheckerM = 0.25;  // colour texture: checker squares of this size on every surface
 
-constexpr int kTilePx = 16;         // frustum culling granularity
+constexpr int kTilePx = 16;  // frustum culling granularity
 
 // Primitives of one view: id, a lower bound of their depth, and the corners of their bounds in the
 // camera frame (8 per bounded primitive; none for unbounded ones).
@@ -68,7 +69,7 @@ struct ViewList {
 };
 
 struct Scratch {
-  std::vector<float> exact_m;    // exact depth, 0 = none
+  std::vector<float> exact_m;  // exact depth, 0 = none
   std::vector<float> cos_incidence;
   std::vector<float> mpi_bias_m;  // depth (z) bias
   // Primitives that may be visible in this view, and those that may be near a visible point (for
@@ -174,7 +175,8 @@ void DepthRenderer::render(const Pose& T_world_cam, uint64_t noise_key, bool wit
   const Eigen::Matrix3d Rt = R.transpose();
   scratch.visible.collect(scene_->primitive_bounds(), Rt, origin, 0.0, max_z);
   scene_->prepare_view(origin, &scratch.view);
-  if (want_mpi) scratch.near_visible.collect(scene_->primitive_bounds(), Rt, origin, nc.mpi_range_m, max_z);
+  if (want_mpi)
+    scratch.near_visible.collect(scene_->primitive_bounds(), Rt, origin, nc.mpi_range_m, max_z);
 
   // Pass 1: exact geometry, tile by tile against the primitives that overlap the tile's frustum,
   // nearest first. The camera ray of pixel (u, v) is ((u-cx)/fx, (v-cy)/fy, 1), rotated to the
@@ -232,7 +234,8 @@ void DepthRenderer::render(const Pose& T_world_cam, uint64_t noise_key, bool wit
           exact[i] = 0.0f;
           cos_inc[i] = 0.0f;
           mpi[i] = 0.0f;
-          if (count == 0 || !scene_->raycast_candidates(scratch.view, d, ids, zlow, count, max_z, &hit))
+          if (count == 0 ||
+              !scene_->raycast_candidates(scratch.view, d, ids, zlow, count, max_z, &hit))
             continue;
           const double inv_len = 1.0 / d.norm();
           const double c = std::fabs(hit.normal_w.dot(d)) * inv_len;
@@ -283,11 +286,13 @@ void DepthRenderer::render(const Pose& T_world_cam, uint64_t noise_key, bool wit
           const double g = (theta - grazing_start) / (0.5 * kPi - grazing_start);
           p += g * g;
         }
-        if (z0 > nc.dropout_far_start_m) p += nc.dropout_far_probability * (z0 - nc.dropout_far_start_m) / far_span;
+        if (z0 > nc.dropout_far_start_m)
+          p += nc.dropout_far_probability * (z0 - nc.dropout_far_start_m) / far_span;
         if (detail::uniform21(h2, 0) < p) continue;
       }
       if (nc.outlier_enabled && detail::uniform21(h2, 21) < nc.outlier_probability) {
-        out[i] = static_cast<float>(min_z + (max_z - min_z) * detail::uniform01(detail::mix64(h1 ^ 0x5bd1e995ull)));
+        out[i] = static_cast<float>(
+            min_z + (max_z - min_z) * detail::uniform01(detail::mix64(h1 ^ 0x5bd1e995ull)));
         continue;
       }
 
@@ -311,7 +316,8 @@ void DepthRenderer::render(const Pose& T_world_cam, uint64_t noise_key, bool wit
       }
       if (want_mpi) z += mpi[i];
       if (nc.axial_enabled)
-        z += detail::fast_gaussian(h1) * nc.axial_scale * fankhauser_axial_sigma_m(z0, theta, max_theta);
+        z += detail::fast_gaussian(h1) * nc.axial_scale *
+             fankhauser_axial_sigma_m(z0, theta, max_theta);
       if (z < min_z || z > max_z) continue;
       out[i] = static_cast<float>(z);
     }

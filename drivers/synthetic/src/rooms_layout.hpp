@@ -1,6 +1,6 @@
 // Geometry of the "rooms" scene shared by its generator (scene_make.cpp) and its walk
-// (trajectory.cpp): a kRoomsN x kRoomsN grid of kCellM rooms, walls kWallM thick centred on the grid
-// lines, doorways kDoorM wide in the middle of every inner wall, kDoorHeightM high.
+// (trajectory.cpp): a kRoomsN x kRoomsN grid of kCellM rooms, walls kWallM thick centred on the
+// grid lines, doorways kDoorM wide in the middle of every inner wall, kDoorHeightM high.
 #pragma once
 
 namespace depthfuse::synthetic::rooms_layout {

@@ -11,7 +11,7 @@ namespace depthfuse::synthetic {
 namespace {
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
-constexpr double kTMin = 1e-9;          // hits nearer than this (in ray units) are self-hits
+constexpr double kTMin = 1e-9;           // hits nearer than this (in ray units) are self-hits
 constexpr double kSideTolerance = 1e-6;  // metres, for "in front of" / "outside of" tests
 constexpr double kGridCellM = 0.5;
 constexpr int kMaxGridCells = 1 << 20;
@@ -58,9 +58,12 @@ Eigen::AlignedBox3d bounds_of(const Primitive& p) {
 
 const char* to_string(SceneKind kind) {
   switch (kind) {
-    case SceneKind::kCorner: return "corner";
-    case SceneKind::kRoom: return "room";
-    case SceneKind::kRooms: return "rooms";
+    case SceneKind::kCorner:
+      return "corner";
+    case SceneKind::kRoom:
+      return "room";
+    case SceneKind::kRooms:
+      return "rooms";
   }
   return "unknown";
 }
@@ -74,9 +77,12 @@ Result<SceneKind> parse_scene_kind(const std::string& text) {
 
 const char* to_string(PrimitiveKind kind) {
   switch (kind) {
-    case PrimitiveKind::kPlane: return "plane";
-    case PrimitiveKind::kBox: return "box";
-    case PrimitiveKind::kRoom: return "room";
+    case PrimitiveKind::kPlane:
+      return "plane";
+    case PrimitiveKind::kBox:
+      return "box";
+    case PrimitiveKind::kRoom:
+      return "room";
   }
   return "unknown";
 }
@@ -143,7 +149,8 @@ Result<Scene> Scene::create(std::vector<Primitive> primitives, std::string name)
     Compact c{};
     c.kind = p.kind;
     if (p.kind == PrimitiveKind::kPlane) {
-      if (!finite3(p.origin_m)) return invalid_argument(describe_primitive(i, p) + ": origin_m is not finite");
+      if (!finite3(p.origin_m))
+        return invalid_argument(describe_primitive(i, p) + ": origin_m is not finite");
       if (!finite3(p.normal) || !normalize_in_place(&p.normal))
         return invalid_argument(describe_primitive(i, p) + ": normal must be a non-zero vector");
       if (!finite3(p.u_axis) || std::fabs(p.u_axis.normalized().dot(p.normal)) > 1e-3)
@@ -153,9 +160,11 @@ Result<Scene> Scene::create(std::vector<Primitive> primitives, std::string name)
       if (!normalize_in_place(&p.u_axis))
         return invalid_argument(describe_primitive(i, p) + ": u_axis must be non-zero");
       if (std::isnan(p.u_min_m) || std::isnan(p.u_max_m) || !(p.u_min_m < p.u_max_m))
-        return invalid_argument(describe_primitive(i, p) + ": u_range_m must be [min, max] with min < max");
+        return invalid_argument(describe_primitive(i, p) +
+                                ": u_range_m must be [min, max] with min < max");
       if (std::isnan(p.v_min_m) || std::isnan(p.v_max_m) || !(p.v_min_m < p.v_max_m))
-        return invalid_argument(describe_primitive(i, p) + ": v_range_m must be [min, max] with min < max");
+        return invalid_argument(describe_primitive(i, p) +
+                                ": v_range_m must be [min, max] with min < max");
       c.a = p.origin_m;
       c.b = p.normal;
       c.u = p.u_axis;
@@ -168,7 +177,8 @@ Result<Scene> Scene::create(std::vector<Primitive> primitives, std::string name)
       if (!finite3(p.min_m) || !finite3(p.max_m))
         return invalid_argument(describe_primitive(i, p) + ": min_m and max_m must be finite");
       if (!(p.min_m.array() < p.max_m.array()).all())
-        return invalid_argument(describe_primitive(i, p) + ": min_m must be below max_m on every axis");
+        return invalid_argument(describe_primitive(i, p) +
+                                ": min_m must be below max_m on every axis");
       c.a = p.min_m;
       c.b = p.max_m;
     }
@@ -204,7 +214,8 @@ void Scene::build_grid() {
   const double ex = bounds_.max().x() - bounds_.min().x();
   const double ey = bounds_.max().y() - bounds_.min().y();
   cell_m_ = kGridCellM;
-  while ((std::ceil(ex / cell_m_) + 1) * (std::ceil(ey / cell_m_) + 1) > kMaxGridCells) cell_m_ *= 2.0;
+  while ((std::ceil(ex / cell_m_) + 1) * (std::ceil(ey / cell_m_) + 1) > kMaxGridCells)
+    cell_m_ *= 2.0;
   grid_x0_ = bounds_.min().x() - 1e-6;
   grid_y0_ = bounds_.min().y() - 1e-6;
   nx_ = std::max(1, static_cast<int>(std::ceil((ex + 2e-6) / cell_m_)));
@@ -219,10 +230,14 @@ void Scene::build_grid() {
     const bool bounded = b.min().allFinite() && b.max().allFinite();
     int ix0 = 0, ix1 = -1, iy0 = 0, iy1 = -1;
     if (bounded) {
-      ix0 = std::clamp(static_cast<int>(std::floor((b.min().x() - grid_x0_) / cell_m_)), 0, nx_ - 1);
-      ix1 = std::clamp(static_cast<int>(std::floor((b.max().x() - grid_x0_) / cell_m_)), 0, nx_ - 1);
-      iy0 = std::clamp(static_cast<int>(std::floor((b.min().y() - grid_y0_) / cell_m_)), 0, ny_ - 1);
-      iy1 = std::clamp(static_cast<int>(std::floor((b.max().y() - grid_y0_) / cell_m_)), 0, ny_ - 1);
+      ix0 =
+          std::clamp(static_cast<int>(std::floor((b.min().x() - grid_x0_) / cell_m_)), 0, nx_ - 1);
+      ix1 =
+          std::clamp(static_cast<int>(std::floor((b.max().x() - grid_x0_) / cell_m_)), 0, nx_ - 1);
+      iy0 =
+          std::clamp(static_cast<int>(std::floor((b.min().y() - grid_y0_) / cell_m_)), 0, ny_ - 1);
+      iy1 =
+          std::clamp(static_cast<int>(std::floor((b.max().y() - grid_y0_) / cell_m_)), 0, ny_ - 1);
     }
     const long covered = bounded ? static_cast<long>(ix1 - ix0 + 1) * (iy1 - iy0 + 1) : total_cells;
     if (!bounded || (covered > 16 && covered * 4 > total_cells)) {
@@ -247,8 +262,8 @@ void Scene::build_grid() {
 
 // One primitive against one ray: the hit parameter and face when nearer than t_max. The hit's
 // normal and surface coordinates are filled once for the nearest hit (fill_hit).
-__attribute__((always_inline)) inline bool Scene::intersect(int index, const Ray& ray, double t_max, double* t_out,
-                             int* face_out) const {
+__attribute__((always_inline)) inline bool Scene::intersect(int index, const Ray& ray, double t_max,
+                                                            double* t_out, int* face_out) const {
   const Compact& c = compact_[static_cast<size_t>(index)];
   if (c.kind == PrimitiveKind::kPlane) {
     // t = num / denom must lie in (kTMin, t_max] and the hit within the rectangle; every test is
@@ -303,7 +318,8 @@ __attribute__((always_inline)) inline bool Scene::intersect(int index, const Ray
   return true;
 }
 
-__attribute__((always_inline)) inline void Scene::fill_hit(int index, int face, double t, const Ray& ray, RayHit* hit) const {
+__attribute__((always_inline)) inline void Scene::fill_hit(int index, int face, double t,
+                                                           const Ray& ray, RayHit* hit) const {
   const Compact& c = compact_[static_cast<size_t>(index)];
   hit->t = t;
   hit->primitive = index;
@@ -480,8 +496,10 @@ void Scene::traverse_grid(const Ray& ray, double* best_t, int* best_index, int* 
   int iy = std::clamp(static_cast<int>(std::floor((py - grid_y0_) / cell_m_)), 0, ny_ - 1);
   const int step_x = dx > 0.0 ? 1 : (dx < 0.0 ? -1 : 0);
   const int step_y = dy > 0.0 ? 1 : (dy < 0.0 ? -1 : 0);
-  double t_next_x = step_x != 0 ? (grid_x0_ + (ix + (step_x > 0 ? 1 : 0)) * cell_m_ - ox) / dx : kInf;
-  double t_next_y = step_y != 0 ? (grid_y0_ + (iy + (step_y > 0 ? 1 : 0)) * cell_m_ - oy) / dy : kInf;
+  double t_next_x =
+      step_x != 0 ? (grid_x0_ + (ix + (step_x > 0 ? 1 : 0)) * cell_m_ - ox) / dx : kInf;
+  double t_next_y =
+      step_y != 0 ? (grid_y0_ + (iy + (step_y > 0 ? 1 : 0)) * cell_m_ - oy) / dy : kInf;
   const double t_delta_x = step_x != 0 ? cell_m_ / std::fabs(dx) : kInf;
   const double t_delta_y = step_y != 0 ? cell_m_ / std::fabs(dy) : kInf;
 
@@ -520,8 +538,8 @@ bool Scene::raycast(const Eigen::Vector3d& origin_w, const Eigen::Vector3d& dir_
 // Distance from p to a primitive's surface and the nearest point q there, unless it is certainly
 // not below `bound` (then returns bound or more without q). `outside` tells for boxes and rooms
 // whether p is outside the box.
-__attribute__((always_inline)) inline double Scene::surface_distance(const Compact& c, const Eigen::Vector3d& p, double bound,
-                                      Eigen::Vector3d* q, bool* outside) {
+__attribute__((always_inline)) inline double Scene::surface_distance(
+    const Compact& c, const Eigen::Vector3d& p, double bound, Eigen::Vector3d* q, bool* outside) {
   if (c.kind == PrimitiveKind::kPlane) {
     const Eigen::Vector3d w = p - c.a;
     const double h = c.b.dot(w);
@@ -575,15 +593,18 @@ double Scene::distance_m(const Eigen::Vector3d& p_w) const {
   Eigen::Vector3d q;
   bool outside;
   auto visit = [&](int i) {
-    best = std::min(best, surface_distance(compact_[static_cast<size_t>(i)], p_w, best, &q, &outside));
+    best =
+        std::min(best, surface_distance(compact_[static_cast<size_t>(i)], p_w, best, &q, &outside));
   };
   for (int i : global_) visit(i);
   if (nx_ == 0) return best;
 
   // Rings of cells around p's (clamped) cell: a cell k rings away is at least (k - 1) cells away
   // in x-y, so once that exceeds the best distance nothing farther can be nearer.
-  const int cx = std::clamp(static_cast<int>(std::floor((p_w.x() - grid_x0_) / cell_m_)), 0, nx_ - 1);
-  const int cy = std::clamp(static_cast<int>(std::floor((p_w.y() - grid_y0_) / cell_m_)), 0, ny_ - 1);
+  const int cx =
+      std::clamp(static_cast<int>(std::floor((p_w.x() - grid_x0_) / cell_m_)), 0, nx_ - 1);
+  const int cy =
+      std::clamp(static_cast<int>(std::floor((p_w.y() - grid_y0_) / cell_m_)), 0, ny_ - 1);
   const int max_ring = std::max(nx_, ny_);
   for (int k = 0; k <= max_ring; ++k) {
     if ((k - 1) * cell_m_ > best) break;
@@ -618,8 +639,9 @@ inline double Scene::own_concave_distance(const Eigen::Vector3d& p_w, int primit
 
 // Lowers *best to the distance from p to primitive i when i forms a concave edge with the surface
 // at p (normal_w facing the viewer).
-__attribute__((always_inline)) inline void Scene::concave_visit(int i, const Eigen::Vector3d& p_w, const Eigen::Vector3d& normal_w,
-                                 int primitive, double* best) const {
+__attribute__((always_inline)) inline void Scene::concave_visit(int i, const Eigen::Vector3d& p_w,
+                                                                const Eigen::Vector3d& normal_w,
+                                                                int primitive, double* best) const {
   if (i == primitive) return;
   const Compact& c = compact_[static_cast<size_t>(i)];
   Eigen::Vector3d q;

@@ -27,7 +27,8 @@ Primitive random_colored(Primitive p, detail::HashRng* rng) {
                  static_cast<uint8_t>(rng->uniform_int(90, 240)));
 }
 
-// Floor and two walls of 3 x 3 m meeting at the origin (the paper's CCorner): free space x, y, z > 0.
+// Floor and two walls of 3 x 3 m meeting at the origin (the paper's CCorner); the free space is
+// x, y, z > 0.
 std::vector<Primitive> make_corner() {
   std::vector<Primitive> p;
   p.push_back(colored(Primitive::plane(Vector3d::Zero(), Vector3d::UnitZ(), Vector3d::UnitX(), 0.0,
@@ -56,10 +57,10 @@ Primitive jittered_box(detail::HashRng* rng, double x0, double x1, double y0, do
   double cy = 0.5 * (y0 + y1) + rng->uniform(-jitter_m, jitter_m);
   cx = std::fmin(std::fmax(cx, limit.min().x() + 0.5 * sx), limit.max().x() - 0.5 * sx);
   cy = std::fmin(std::fmax(cy, limit.min().y() + 0.5 * sy), limit.max().y() - 0.5 * sy);
-  return random_colored(Primitive::box(Vector3d(cx - 0.5 * sx, cy - 0.5 * sy, z0),
-                                       Vector3d(cx + 0.5 * sx, cy + 0.5 * sy, z0 + sz),
-                                       std::move(name)),
-                        rng);
+  return random_colored(
+      Primitive::box(Vector3d(cx - 0.5 * sx, cy - 0.5 * sy, z0),
+                     Vector3d(cx + 0.5 * sx, cy + 0.5 * sy, z0 + sz), std::move(name)),
+      rng);
 }
 
 // A 5 x 4 x 2.6 m room with five boxes near the walls, one stacked on another. The camera loop of
@@ -68,13 +69,12 @@ Primitive jittered_box(detail::HashRng* rng, double x0, double x1, double y0, do
 std::vector<Primitive> make_room(uint64_t seed) {
   detail::HashRng rng(detail::stream_key(seed, detail::kStreamSceneLayout, 1));
   std::vector<Primitive> p;
-  p.push_back(colored(Primitive::room(Vector3d(0, 0, 0), Vector3d(5.0, 4.0, 2.6), "room"), 190, 185,
-                      175));
+  p.push_back(
+      colored(Primitive::room(Vector3d(0, 0, 0), Vector3d(5.0, 4.0, 2.6), "room"), 190, 185, 175));
   // Each box: nominal footprint, height, and the region its jittered footprint must stay in.
-  const Primitive base = jittered_box(&rng, 0.2, 0.8, 0.8, 1.6, 0.0, 0.5, 0.08,
-                                      Eigen::AlignedBox2d(Eigen::Vector2d(0.1, 0.3),
-                                                          Eigen::Vector2d(1.0, 2.4)),
-                                      "box_stack_base");
+  const Primitive base = jittered_box(
+      &rng, 0.2, 0.8, 0.8, 1.6, 0.0, 0.5, 0.08,
+      Eigen::AlignedBox2d(Eigen::Vector2d(0.1, 0.3), Eigen::Vector2d(1.0, 2.4)), "box_stack_base");
   p.push_back(base);
   // On top of it: smaller, set back from its edges.
   {
@@ -88,15 +88,15 @@ std::vector<Primitive> make_room(uint64_t seed) {
                        Vector3d(cx + 0.5 * w, cy + 0.5 * d, base.max_m.z() + h), "box_stack_top"),
         &rng));
   }
-  p.push_back(jittered_box(&rng, 4.1, 4.8, 2.9, 3.8, 0.0, 0.9, 0.08,
-                           Eigen::AlignedBox2d(Eigen::Vector2d(3.9, 2.6), Eigen::Vector2d(4.9, 3.9)),
-                           "box_tall"));
-  p.push_back(jittered_box(&rng, 2.6, 3.6, 0.2, 0.7, 0.0, 0.4, 0.1,
-                           Eigen::AlignedBox2d(Eigen::Vector2d(1.8, 0.1), Eigen::Vector2d(4.4, 0.8)),
-                           "box_long"));
-  p.push_back(jittered_box(&rng, 1.3, 1.8, 3.3, 3.8, 0.0, 0.7, 0.08,
-                           Eigen::AlignedBox2d(Eigen::Vector2d(0.8, 3.2), Eigen::Vector2d(2.4, 3.9)),
-                           "box_cube"));
+  p.push_back(jittered_box(
+      &rng, 4.1, 4.8, 2.9, 3.8, 0.0, 0.9, 0.08,
+      Eigen::AlignedBox2d(Eigen::Vector2d(3.9, 2.6), Eigen::Vector2d(4.9, 3.9)), "box_tall"));
+  p.push_back(jittered_box(
+      &rng, 2.6, 3.6, 0.2, 0.7, 0.0, 0.4, 0.1,
+      Eigen::AlignedBox2d(Eigen::Vector2d(1.8, 0.1), Eigen::Vector2d(4.4, 0.8)), "box_long"));
+  p.push_back(jittered_box(
+      &rng, 1.3, 1.8, 3.3, 3.8, 0.0, 0.7, 0.08,
+      Eigen::AlignedBox2d(Eigen::Vector2d(0.8, 3.2), Eigen::Vector2d(2.4, 3.9)), "box_cube"));
   return p;
 }
 
@@ -117,9 +117,10 @@ std::vector<Primitive> make_rooms(uint64_t seed) {
                                        extent + hw, -hw, extent + hw, "floor"),
                       165, 155, 145));
   // Ceiling facing down: u = +y, v = n x u = +x.
-  p.push_back(colored(Primitive::plane(Vector3d(0, 0, kHeightM), -Vector3d::UnitZ(), Vector3d::UnitY(),
-                                       -hw, extent + hw, -hw, extent + hw, "ceiling"),
-                      230, 230, 225));
+  p.push_back(
+      colored(Primitive::plane(Vector3d(0, 0, kHeightM), -Vector3d::UnitZ(), Vector3d::UnitY(), -hw,
+                               extent + hw, -hw, extent + hw, "ceiling"),
+              230, 230, 225));
 
   // Walls: along each grid line, pieces between doorways; a lintel (slightly thinner, so that its
   // faces are not coplanar with the wall's) above each doorway.
@@ -137,7 +138,8 @@ std::vector<Primitive> make_rooms(uint64_t seed) {
         }
       }
       pieces.emplace_back(start, extent + hw);
-      auto make = [&](double a0, double a1, double t, double z0, double z1, const std::string& name) {
+      auto make = [&](double a0, double a1, double t, double z0, double z1,
+                      const std::string& name) {
         Vector3d lo, hi;
         if (axis == 0) {
           lo = Vector3d(a0, c - t, z0);
@@ -172,22 +174,24 @@ std::vector<Primitive> make_rooms(uint64_t seed) {
         if (count == 3 && corner == skip) continue;
         if (count == 2 && (corner == skip || corner == (skip + 2) % 4)) continue;
         const int sx = corner & 1, sy = corner >> 1;
-        const double w = rng.uniform(0.4, 1.0), d = rng.uniform(0.4, 1.0), h = rng.uniform(0.3, 1.2);
+        const double w = rng.uniform(0.4, 1.0), d = rng.uniform(0.4, 1.0),
+                     h = rng.uniform(0.3, 1.2);
         const double gx = rng.uniform(0.1, 0.3), gy = rng.uniform(0.1, 0.3);
         const double x0 = sx == 0 ? rx * kCellM + hw + gx : (rx + 1) * kCellM - hw - gx - w;
         const double y0 = sy == 0 ? ry * kCellM + hw + gy : (ry + 1) * kCellM - hw - gy - d;
         const std::string name =
             "box_r" + std::to_string(rx) + std::to_string(ry) + "_c" + std::to_string(corner);
-        p.push_back(random_colored(Primitive::box(Vector3d(x0, y0, 0.0), Vector3d(x0 + w, y0 + d, h), name),
-                                   &rng));
+        p.push_back(random_colored(
+            Primitive::box(Vector3d(x0, y0, 0.0), Vector3d(x0 + w, y0 + d, h), name), &rng));
         if (rng.uniform() < 0.35) {
           const double tw = w * rng.uniform(0.4, 0.7), td = d * rng.uniform(0.4, 0.7);
           const double tx = x0 + rng.uniform(0.1, 0.9) * (w - tw);
           const double ty = y0 + rng.uniform(0.1, 0.9) * (d - td);
           const double th = rng.uniform(0.2, 0.5);
-          p.push_back(random_colored(
-              Primitive::box(Vector3d(tx, ty, h), Vector3d(tx + tw, ty + td, h + th), name + "_top"),
-              &rng));
+          p.push_back(
+              random_colored(Primitive::box(Vector3d(tx, ty, h), Vector3d(tx + tw, ty + td, h + th),
+                                            name + "_top"),
+                             &rng));
         }
         ++placed;
       }
@@ -201,9 +205,15 @@ std::vector<Primitive> make_rooms(uint64_t seed) {
 Scene Scene::make(SceneKind kind, uint64_t seed) {
   std::vector<Primitive> primitives;
   switch (kind) {
-    case SceneKind::kCorner: primitives = make_corner(); break;
-    case SceneKind::kRoom: primitives = make_room(seed); break;
-    case SceneKind::kRooms: primitives = make_rooms(seed); break;
+    case SceneKind::kCorner:
+      primitives = make_corner();
+      break;
+    case SceneKind::kRoom:
+      primitives = make_room(seed);
+      break;
+    case SceneKind::kRooms:
+      primitives = make_rooms(seed);
+      break;
   }
   Result<Scene> scene = create(std::move(primitives), to_string(kind));
   // The built-in layouts are valid by construction; a failure here is a bug caught by the tests.

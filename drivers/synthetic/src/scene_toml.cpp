@@ -14,12 +14,16 @@ namespace tu = toml_util;
 std::string Scene::to_toml() const {
   std::ostringstream out;
   out << "# depthfuse synthetic scene: the analytic ground truth of the data beside it.\n"
-         "# Metres, world frame (z up). kind = plane: the points origin_m + a u_axis + b v_axis with\n"
-         "# a in u_range_m, b in v_range_m, v_axis = normal x u_axis, normal towards the free side;\n"
-         "# kind = box: a solid box [min_m, max_m]; kind = room: the inside of the box [min_m, max_m].\n"
+         "# Metres, world frame (z up). kind = plane: the points origin_m + a u_axis + b v_axis "
+         "with\n"
+         "# a in u_range_m, b in v_range_m, v_axis = normal x u_axis, normal towards the free "
+         "side;\n"
+         "# kind = box: a solid box [min_m, max_m]; kind = room: the inside of the box [min_m, "
+         "max_m].\n"
          "[scene]\n"
          "format_version = 1\n"
-         "name = " << tu::quote(name_) << "\n";
+         "name = "
+      << tu::quote(name_) << "\n";
   for (const Primitive& p : primitives_) {
     out << "\n[[primitive]]\n"
         << "kind = " << tu::quote(to_string(p.kind)) << "\n";
@@ -62,7 +66,8 @@ Result<Scene> Scene::parse_toml(const std::string& text, const std::string& orig
       DF_RETURN_IF_ERROR(tu::read_string(*t, "name", origin, &name));
     } else if (k == "primitive") {
       if (!node.is_array_of_tables())
-        return invalid_argument(tu::where(origin, node) + "'primitive' must be an array of tables ([[primitive]])");
+        return invalid_argument(tu::where(origin, node) +
+                                "'primitive' must be an array of tables ([[primitive]])");
     } else if (!node.is_table()) {
       // Other tables (e.g. [generator]) belong to other readers; stray keys are mistakes.
       return invalid_argument(tu::where(origin, node) + "unknown key '" + k + "'");
@@ -73,15 +78,17 @@ Result<Scene> Scene::parse_toml(const std::string& text, const std::string& orig
   if (const toml::array* arr = root["primitive"].as_array()) {
     for (size_t i = 0; i < arr->size(); ++i) {
       const toml::table* t = arr->get(i)->as_table();
-      if (!t) return invalid_argument(tu::where(origin, *arr->get(i)) + "primitive must be a table");
+      if (!t)
+        return invalid_argument(tu::where(origin, *arr->get(i)) + "primitive must be a table");
       std::string kind;
       DF_RETURN_IF_ERROR(tu::read_string(*t, "kind", origin, &kind));
       Primitive p;
       if (kind == "plane") {
         p.kind = PrimitiveKind::kPlane;
-        DF_RETURN_IF_ERROR(tu::check_keys(*t, {"kind", "name", "color_rgb", "origin_m", "normal", "u_axis",
-                                               "u_range_m", "v_range_m"},
-                                          origin, "a plane primitive"));
+        DF_RETURN_IF_ERROR(tu::check_keys(
+            *t,
+            {"kind", "name", "color_rgb", "origin_m", "normal", "u_axis", "u_range_m", "v_range_m"},
+            origin, "a plane primitive"));
         DF_RETURN_IF_ERROR(tu::read_vec3(*t, "origin_m", origin, &p.origin_m, true));
         DF_RETURN_IF_ERROR(tu::read_vec3(*t, "normal", origin, &p.normal, true));
         DF_RETURN_IF_ERROR(tu::read_vec3(*t, "u_axis", origin, &p.u_axis, true));
@@ -94,13 +101,14 @@ Result<Scene> Scene::parse_toml(const std::string& text, const std::string& orig
         p.v_max_m = v[1];
       } else if (kind == "box" || kind == "room") {
         p.kind = kind == "box" ? PrimitiveKind::kBox : PrimitiveKind::kRoom;
-        DF_RETURN_IF_ERROR(tu::check_keys(*t, {"kind", "name", "color_rgb", "min_m", "max_m"}, origin,
-                                          "a " + kind + " primitive"));
+        DF_RETURN_IF_ERROR(tu::check_keys(*t, {"kind", "name", "color_rgb", "min_m", "max_m"},
+                                          origin, "a " + kind + " primitive"));
         DF_RETURN_IF_ERROR(tu::read_vec3(*t, "min_m", origin, &p.min_m, true));
         DF_RETURN_IF_ERROR(tu::read_vec3(*t, "max_m", origin, &p.max_m, true));
       } else {
         return invalid_argument(tu::where(origin, *t) + "primitive " + std::to_string(i) +
-                                ": 'kind' must be \"plane\", \"box\" or \"room\", got '" + kind + "'");
+                                ": 'kind' must be \"plane\", \"box\" or \"room\", got '" + kind +
+                                "'");
       }
       DF_RETURN_IF_ERROR(tu::read_string(*t, "name", origin, &p.name));
       if (t->contains("color_rgb")) {

@@ -24,7 +24,8 @@ Status SyntheticConfig::validate() const {
     return invalid_argument("frames must be in [1, " + std::to_string(kMaxFrames) + "], got " +
                             std::to_string(frames));
   if (!(pose_noise_m >= 0.0) || !std::isfinite(pose_noise_m))
-    return invalid_argument("pose_noise_m must be finite and >= 0, got " + std::to_string(pose_noise_m));
+    return invalid_argument("pose_noise_m must be finite and >= 0, got " +
+                            std::to_string(pose_noise_m));
   if (!(pose_noise_deg >= 0.0) || !std::isfinite(pose_noise_deg))
     return invalid_argument("pose_noise_deg must be finite and >= 0, got " +
                             std::to_string(pose_noise_deg));
@@ -59,8 +60,8 @@ Result<SyntheticSequence> SyntheticSequence::create(const SyntheticConfig& confi
     return internal_error(std::string("the built-in scene '") + to_string(config.scene) +
                           "' failed to build");
   s.trajectory_ = Trajectory(config.scene, static_cast<size_t>(config.frames), config.rate_hz);
-  s.renderer_ = DepthRenderer(
-      s.scene_, RendererConfig{config.intrinsics, config.noise, config.min_depth_m, config.max_depth_m});
+  s.renderer_ = DepthRenderer(s.scene_, RendererConfig{config.intrinsics, config.noise,
+                                                       config.min_depth_m, config.max_depth_m});
   return s;
 }
 
@@ -73,13 +74,15 @@ int64_t SyntheticSequence::utime(size_t i) const {
   return static_cast<int64_t>(std::llround(static_cast<double>(i) * 1e6 / config_.rate_hz));
 }
 
-void SyntheticSequence::render_into(size_t i, bool with_noise, Frame* frame, bool with_color) const {
+void SyntheticSequence::render_into(size_t i, bool with_noise, Frame* frame,
+                                    bool with_color) const {
   frame->utime = utime(i);
   frame->sequence = static_cast<uint32_t>(i);
   frame->sensor_serial = "synthetic";
   frame->intrinsics = config_.intrinsics;
-  renderer_.render(T_world_cam_true(i), detail::stream_key(config_.seed, detail::kStreamPixelNoise, i),
-                   with_noise, &frame->depth, with_color ? &frame->color : nullptr);
+  renderer_.render(T_world_cam_true(i),
+                   detail::stream_key(config_.seed, detail::kStreamPixelNoise, i), with_noise,
+                   &frame->depth, with_color ? &frame->color : nullptr);
   if (!with_color) frame->color = ColorImage();
   frame->T_world_cam_hint = T_world_cam_perturbed(i);
 }
@@ -138,20 +141,23 @@ std::string synthetic_config_to_toml(const SyntheticConfig& c) {
   return o.str();
 }
 
-Result<SyntheticConfig> parse_synthetic_config_toml(const std::string& text, const std::string& origin) {
+Result<SyntheticConfig> parse_synthetic_config_toml(const std::string& text,
+                                                    const std::string& origin) {
   Result<toml::table> parsed = tu::parse(text, origin);
   if (!parsed.is_ok()) return parsed.status();
   const toml::table* g = parsed.value()["generator"].as_table();
   if (!g) return invalid_argument(origin + ": no [generator] table");
-  DF_RETURN_IF_ERROR(tu::check_keys(*g,
-                                    {"scene", "frames", "seed", "pose_noise_m", "pose_noise_deg",
-                                     "rate_hz", "min_depth_m", "max_depth_m", "intrinsics", "noise"},
-                                    origin, "[generator]"));
+  DF_RETURN_IF_ERROR(
+      tu::check_keys(*g,
+                     {"scene", "frames", "seed", "pose_noise_m", "pose_noise_deg", "rate_hz",
+                      "min_depth_m", "max_depth_m", "intrinsics", "noise"},
+                     origin, "[generator]"));
   SyntheticConfig c;
   std::string scene = to_string(c.scene);
   DF_RETURN_IF_ERROR(tu::read_string(*g, "scene", origin, &scene));
   Result<SceneKind> kind = parse_scene_kind(scene);
-  if (!kind.is_ok()) return kind.status().with_context(tu::where(origin, *g->get("scene")) + "[generator] scene");
+  if (!kind.is_ok())
+    return kind.status().with_context(tu::where(origin, *g->get("scene")) + "[generator] scene");
   c.scene = kind.value();
   int64_t frames = c.frames;
   DF_RETURN_IF_ERROR(tu::read_int(*g, "frames", origin, &frames));
@@ -210,19 +216,23 @@ Result<SyntheticConfig> parse_synthetic_config_toml(const std::string& text, con
     DF_RETURN_IF_ERROR(tu::read_bool(*t, "enabled", origin, &n.enabled));
     DF_RETURN_IF_ERROR(tu::read_bool(*t, "axial_enabled", origin, &n.axial_enabled));
     DF_RETURN_IF_ERROR(tu::read_double(*t, "axial_scale", origin, &n.axial_scale));
-    DF_RETURN_IF_ERROR(tu::read_double(*t, "axial_max_incidence_deg", origin, &n.axial_max_incidence_deg));
+    DF_RETURN_IF_ERROR(
+        tu::read_double(*t, "axial_max_incidence_deg", origin, &n.axial_max_incidence_deg));
     DF_RETURN_IF_ERROR(tu::read_bool(*t, "flying_enabled", origin, &n.flying_enabled));
     DF_RETURN_IF_ERROR(tu::read_double(*t, "flying_probability", origin, &n.flying_probability));
     DF_RETURN_IF_ERROR(tu::read_double(*t, "flying_min_jump_m", origin, &n.flying_min_jump_m));
-    DF_RETURN_IF_ERROR(tu::read_double(*t, "flying_min_jump_fraction", origin, &n.flying_min_jump_fraction));
+    DF_RETURN_IF_ERROR(
+        tu::read_double(*t, "flying_min_jump_fraction", origin, &n.flying_min_jump_fraction));
     DF_RETURN_IF_ERROR(tu::read_bool(*t, "mpi_enabled", origin, &n.mpi_enabled));
     DF_RETURN_IF_ERROR(tu::read_double(*t, "mpi_max_bias_m", origin, &n.mpi_max_bias_m));
     DF_RETURN_IF_ERROR(tu::read_double(*t, "mpi_range_m", origin, &n.mpi_range_m));
     DF_RETURN_IF_ERROR(tu::read_bool(*t, "dropout_enabled", origin, &n.dropout_enabled));
     DF_RETURN_IF_ERROR(tu::read_double(*t, "dropout_probability", origin, &n.dropout_probability));
-    DF_RETURN_IF_ERROR(tu::read_double(*t, "dropout_grazing_start_deg", origin, &n.dropout_grazing_start_deg));
+    DF_RETURN_IF_ERROR(
+        tu::read_double(*t, "dropout_grazing_start_deg", origin, &n.dropout_grazing_start_deg));
     DF_RETURN_IF_ERROR(tu::read_double(*t, "dropout_far_start_m", origin, &n.dropout_far_start_m));
-    DF_RETURN_IF_ERROR(tu::read_double(*t, "dropout_far_probability", origin, &n.dropout_far_probability));
+    DF_RETURN_IF_ERROR(
+        tu::read_double(*t, "dropout_far_probability", origin, &n.dropout_far_probability));
     DF_RETURN_IF_ERROR(tu::read_bool(*t, "outlier_enabled", origin, &n.outlier_enabled));
     DF_RETURN_IF_ERROR(tu::read_double(*t, "outlier_probability", origin, &n.outlier_probability));
   }

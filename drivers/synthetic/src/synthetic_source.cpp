@@ -69,15 +69,17 @@ Result<SyntheticConfig> parse_synthetic_spec(const std::string& arg, const Synth
       if (item.empty()) continue;
       const size_t eq = item.find('=');
       const std::string key(item.substr(0, eq));
-      const std::string value(eq == std::string_view::npos ? std::string_view() : item.substr(eq + 1));
+      const std::string value(eq == std::string_view::npos ? std::string_view()
+                                                           : item.substr(eq + 1));
       auto bad = [&](const char* expected) {
-        return invalid_argument(context + ": bad value '" + value + "' for '" + key + "' (expected " +
-                                expected + ")");
+        return invalid_argument(context + ": bad value '" + value + "' for '" + key +
+                                "' (expected " + expected + ")");
       };
       if (eq == std::string_view::npos)
         return invalid_argument(context + ": '" + key + "' has no value (expected key=value)");
       if (key == "frames") {
-        if (!parse_number(value, &config.frames) || config.frames < 1) return bad("an integer >= 1");
+        if (!parse_number(value, &config.frames) || config.frames < 1)
+          return bad("an integer >= 1");
       } else if (key == "seed") {
         if (!parse_number(value, &config.seed)) return bad("a non-negative integer");
       } else if (key == "pose_noise_m") {
@@ -87,7 +89,8 @@ Result<SyntheticConfig> parse_synthetic_spec(const std::string& arg, const Synth
         if (!parse_number(value, &config.pose_noise_deg) || !(config.pose_noise_deg >= 0.0))
           return bad("a number >= 0");
       } else if (key == "rate_hz") {
-        if (!parse_number(value, &config.rate_hz) || !(config.rate_hz > 0.0)) return bad("a number > 0");
+        if (!parse_number(value, &config.rate_hz) || !(config.rate_hz > 0.0))
+          return bad("a number > 0");
       } else if (key == "noise") {
         if (value == "1" || value == "true" || value == "on") {
           config.noise.enabled = true;
@@ -113,10 +116,12 @@ Result<SyntheticConfig> parse_synthetic_spec(const std::string& arg, const Synth
 Result<std::unique_ptr<FrameSource>> open_synthetic_source(const std::string& arg,
                                                            const AppConfig& config) {
   synthetic::SyntheticConfig base;
-  if (const DeviceCalibration* cal = config.calibration_for("synthetic")) base.intrinsics = cal->intrinsics;
+  if (const DeviceCalibration* cal = config.calibration_for("synthetic"))
+    base.intrinsics = cal->intrinsics;
   Result<synthetic::SyntheticConfig> parsed = synthetic::parse_synthetic_spec(arg, base);
   if (!parsed.is_ok()) return parsed.status();
-  Result<synthetic::SyntheticSequence> sequence = synthetic::SyntheticSequence::create(parsed.value());
+  Result<synthetic::SyntheticSequence> sequence =
+      synthetic::SyntheticSequence::create(parsed.value());
   if (!sequence.is_ok()) return sequence.status();
   return std::unique_ptr<FrameSource>(
       std::make_unique<synthetic::SyntheticSource>(std::move(sequence).value()));

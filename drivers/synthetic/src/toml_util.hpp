@@ -2,6 +2,9 @@
 // strict keys in, errors with file and line.
 #pragma once
 
+#include <toml++/toml.h>
+
+#include <Eigen/Core>
 #include <charconv>
 #include <cmath>
 #include <cstdint>
@@ -9,9 +12,6 @@
 #include <initializer_list>
 #include <string>
 #include <string_view>
-
-#include <Eigen/Core>
-#include <toml++/toml.h>
 
 #include "depthfuse/status.hpp"
 
@@ -31,18 +31,29 @@ inline std::string format_double(double v) {
 }
 
 inline std::string format_vec(const Eigen::Vector3d& v) {
-  return "[" + format_double(v.x()) + ", " + format_double(v.y()) + ", " + format_double(v.z()) + "]";
+  return "[" + format_double(v.x()) + ", " + format_double(v.y()) + ", " + format_double(v.z()) +
+         "]";
 }
 
 inline std::string quote(std::string_view s) {
   std::string out = "\"";
   for (char c : s) {
     switch (c) {
-      case '"': out += "\\\""; break;
-      case '\\': out += "\\\\"; break;
-      case '\n': out += "\\n"; break;
-      case '\t': out += "\\t"; break;
-      case '\r': out += "\\r"; break;
+      case '"':
+        out += "\\\"";
+        break;
+      case '\\':
+        out += "\\\\";
+        break;
+      case '\n':
+        out += "\\n";
+        break;
+      case '\t':
+        out += "\\t";
+        break;
+      case '\r':
+        out += "\\r";
+        break;
       default:
         if (static_cast<unsigned char>(c) < 0x20) {
           char buf[8];
@@ -133,8 +144,8 @@ inline Status read_numbers(const toml::table& t, std::string_view key, const std
   for (size_t i = 0; i < count; ++i) {
     auto v = a->get(i)->value<double>();
     if (!v)
-      return invalid_argument(where(origin, *n) + "'" + std::string(key) + "' must be an array of " +
-                              std::to_string(count) + " numbers");
+      return invalid_argument(where(origin, *n) + "'" + std::string(key) +
+                              "' must be an array of " + std::to_string(count) + " numbers");
     out[i] = *v;
   }
   return Status::ok();

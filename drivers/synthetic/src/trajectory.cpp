@@ -18,8 +18,8 @@ using Eigen::Vector3d;
 
 // A camera at eye looking along yaw (from +x towards +y) and pitch (up positive).
 Pose look_along(const Vector3d& eye, double yaw_rad, double pitch_rad) {
-  const Vector3d dir(std::cos(yaw_rad) * std::cos(pitch_rad), std::sin(yaw_rad) * std::cos(pitch_rad),
-                     std::sin(pitch_rad));
+  const Vector3d dir(std::cos(yaw_rad) * std::cos(pitch_rad),
+                     std::sin(yaw_rad) * std::cos(pitch_rad), std::sin(pitch_rad));
   return look_at(eye, eye + dir);
 }
 
@@ -46,18 +46,30 @@ Pose room_pose(size_t i, size_t frames) {
 
 // --- rooms: a closed tour through all rooms.
 struct TourPiece {
-  Vector2d door_in;   // where the piece starts (middle of a doorway)
-  Vector2d dir_in;    // heading there (unit, axis-aligned)
-  Vector2d dir_out;   // heading at the end
-  double length_m;    // 5 m straight or a quarter circle of radius 2.5 m
-  double start_m;     // cumulative length before this piece
+  Vector2d door_in;  // where the piece starts (middle of a doorway)
+  Vector2d dir_in;   // heading there (unit, axis-aligned)
+  Vector2d dir_out;  // heading at the end
+  double length_m;   // 5 m straight or a quarter circle of radius 2.5 m
+  double start_m;    // cumulative length before this piece
 };
 
 // Rooms in tour order (a Hamiltonian cycle of the 4 x 4 grid).
-constexpr std::array<std::array<int, 2>, 16> kTour = {{{0, 0}, {1, 0}, {2, 0}, {3, 0},
-                                                       {3, 1}, {2, 1}, {1, 1}, {1, 2},
-                                                       {2, 2}, {3, 2}, {3, 3}, {2, 3},
-                                                       {1, 3}, {0, 3}, {0, 2}, {0, 1}}};
+constexpr std::array<std::array<int, 2>, 16> kTour = {{{0, 0},
+                                                       {1, 0},
+                                                       {2, 0},
+                                                       {3, 0},
+                                                       {3, 1},
+                                                       {2, 1},
+                                                       {1, 1},
+                                                       {1, 2},
+                                                       {2, 2},
+                                                       {3, 2},
+                                                       {3, 3},
+                                                       {2, 3},
+                                                       {1, 3},
+                                                       {0, 3},
+                                                       {0, 2},
+                                                       {0, 1}}};
 static_assert(rooms_layout::kRoomsN == 4, "the tour is written for 4 x 4 rooms");
 
 struct Tour {
@@ -124,8 +136,8 @@ Pose rooms_pose(size_t i, double rate_hz) {
   while (k + 1 < t.pieces.size() && t.pieces[k + 1].start_m <= s) ++k;
   Vector2d pos, heading;
   tour_point(t.pieces[k], s - t.pieces[k].start_m, &pos, &heading);
-  const double yaw = std::atan2(heading.y(), heading.x()) +
-                     50.0 * kDeg * std::sin(2.0 * kPi * time_s / 9.0);
+  const double yaw =
+      std::atan2(heading.y(), heading.x()) + 50.0 * kDeg * std::sin(2.0 * kPi * time_s / 9.0);
   const double pitch = -20.0 * kDeg + 5.0 * kDeg * std::sin(2.0 * kPi * time_s / 5.3);
   const Vector3d eye(pos.x(), pos.y(), kEyeHeightM + 0.02 * std::sin(2.0 * kPi * time_s * 1.8));
   return look_along(eye, yaw, pitch);
@@ -151,9 +163,12 @@ Trajectory::Trajectory(SceneKind kind, size_t frames, double rate_hz)
 
 Pose Trajectory::T_world_cam(size_t i) const {
   switch (kind_) {
-    case SceneKind::kCorner: return corner_pose(i, frames_);
-    case SceneKind::kRoom: return room_pose(i, frames_);
-    case SceneKind::kRooms: return rooms_pose(i, rate_hz_);
+    case SceneKind::kCorner:
+      return corner_pose(i, frames_);
+    case SceneKind::kRoom:
+      return room_pose(i, frames_);
+    case SceneKind::kRooms:
+      return rooms_pose(i, rate_hz_);
   }
   return Pose::Identity();
 }

@@ -6,11 +6,10 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
-#include <string>
-#include <system_error>
-
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <string>
+#include <system_error>
 
 #include "toml_util.hpp"
 
@@ -55,8 +54,9 @@ std::string readme(const SyntheticSequence& seq, bool with_color) {
   std::string s =
       "Synthetic depth sequence written by depthfuse (synthetic frame source).\n"
       "\n"
-      "Scene: " + std::string(to_string(c.scene)) + ", " + std::to_string(seq.size()) +
-      " frames at " + std::to_string(c.rate_hz) + " Hz, seed " + std::to_string(c.seed) +
+      "Scene: " +
+      std::string(to_string(c.scene)) + ", " + std::to_string(seq.size()) + " frames at " +
+      std::to_string(c.rate_hz) + " Hz, seed " + std::to_string(c.seed) +
       ".\n"
       "Layout (TUM RGB-D conventions):\n"
       "  depth/<timestamp>.png  16-bit depth, value = metres * 5000, 0 = no measurement\n";
@@ -64,14 +64,18 @@ std::string readme(const SyntheticSequence& seq, bool with_color) {
     s += "  rgb/<timestamp>.png    8-bit colour registered to depth pixel for pixel\n"
          "  rgb.txt                timestamp and file of every colour image\n";
   s += "  depth.txt              timestamp and file of every depth image\n"
-       "  groundtruth.txt        true camera poses: timestamp tx ty tz qx qy qz qw (camera to world,\n"
+       "  groundtruth.txt        true camera poses: timestamp tx ty tz qx qy qz qw (camera to "
+       "world,\n"
        "                         optical frame: x right, y down, z forward)\n"
-       "  poses_perturbed.txt    the poses a structure-from-motion front end would give (true poses\n"
+       "  poses_perturbed.txt    the poses a structure-from-motion front end would give (true "
+       "poses\n"
        "                         with noise, see [generator] pose_noise_m / pose_noise_deg)\n"
        "  camera.toml            pinhole intrinsics of the depth images and the depth scale\n"
-       "  scene.toml             the analytic scene (exact ground truth surfaces) and the generator\n"
+       "  scene.toml             the analytic scene (exact ground truth surfaces) and the "
+       "generator\n"
        "                         settings that reproduce this folder\n"
-       "Depth carries simulated Kinect V2 time-of-flight noise (axial noise after Fankhauser et al.\n"
+       "Depth carries simulated Kinect V2 time-of-flight noise (axial noise after Fankhauser et "
+       "al.\n"
        "2015, flying pixels, multipath bias in concave corners, dropouts, outliers) unless\n"
        "[generator.noise] enabled = false.\n";
   return s;
@@ -81,14 +85,16 @@ std::string readme(const SyntheticSequence& seq, bool with_color) {
 
 std::string tum_timestamp(int64_t utime) {
   const bool negative = utime < 0;
-  const uint64_t a = negative ? static_cast<uint64_t>(-(utime + 1)) + 1 : static_cast<uint64_t>(utime);
+  const uint64_t a =
+      negative ? static_cast<uint64_t>(-(utime + 1)) + 1 : static_cast<uint64_t>(utime);
   char buf[48];
   std::snprintf(buf, sizeof(buf), "%s%" PRIu64 ".%06" PRIu64, negative ? "-" : "", a / 1000000u,
                 a % 1000000u);
   return buf;
 }
 
-Status write_tum_folder(const SyntheticSequence& sequence, const std::string& folder, bool with_color) {
+Status write_tum_folder(const SyntheticSequence& sequence, const std::string& folder,
+                        bool with_color) {
   const fs::path root(folder);
   std::error_code ec;
   for (const fs::path& dir : {root, root / "depth", root / "rgb"}) {
@@ -104,9 +110,11 @@ Status write_tum_folder(const SyntheticSequence& sequence, const std::string& fo
   std::string rgb_list = "# color images\n# file: 'depthfuse synthetic " +
                          std::string(to_string(sequence.config().scene)) +
                          "'\n# timestamp filename\n";
-  std::string truth = "# ground truth trajectory (camera to world)\n# timestamp tx ty tz qx qy qz qw\n";
+  std::string truth =
+      "# ground truth trajectory (camera to world)\n# timestamp tx ty tz qx qy qz qw\n";
   std::string perturbed =
-      "# perturbed trajectory (camera to world), as a structure-from-motion front end would give it\n"
+      "# perturbed trajectory (camera to world), as a structure-from-motion front end would give "
+      "it\n"
       "# timestamp tx ty tz qx qy qz qw\n";
 
   Frame frame;
@@ -152,13 +160,15 @@ Status write_tum_folder(const SyntheticSequence& sequence, const std::string& fo
   namespace tu = toml_util;
   const std::string camera_text =
       "# Pinhole intrinsics of the depth images (undistorted); depth_scale = PNG value per metre.\n"
-      "[camera]\nwidth = " + std::to_string(K.width) + "\nheight = " + std::to_string(K.height) +
+      "[camera]\nwidth = " +
+      std::to_string(K.width) + "\nheight = " + std::to_string(K.height) +
       "\nfx = " + tu::format_double(K.fx) + "\nfy = " + tu::format_double(K.fy) +
       "\ncx = " + tu::format_double(K.cx) + "\ncy = " + tu::format_double(K.cy) +
       "\ndepth_scale = " + tu::format_double(kTumDepthScale) + "\n";
   DF_RETURN_IF_ERROR(write_text(root / "camera.toml", camera_text));
-  DF_RETURN_IF_ERROR(write_text(root / "scene.toml", sequence.scene().to_toml() + "\n" +
-                                                         synthetic_config_to_toml(sequence.config())));
+  DF_RETURN_IF_ERROR(
+      write_text(root / "scene.toml",
+                 sequence.scene().to_toml() + "\n" + synthetic_config_to_toml(sequence.config())));
   DF_RETURN_IF_ERROR(write_text(root / "README.txt", readme(sequence, with_color)));
   return Status::ok();
 }

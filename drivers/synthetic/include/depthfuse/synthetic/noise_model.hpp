@@ -19,7 +19,7 @@ struct NoiseConfig {
   // normal). The angle term diverges at grazing incidence; theta is clamped to
   // axial_max_incidence_deg (those pixels mostly drop out anyway, see below).
   bool axial_enabled = true;
-  double axial_scale = 1.0;                 // multiplies sigma_z (1 = the published model)
+  double axial_scale = 1.0;  // multiplies sigma_z (1 = the published model)
   double axial_max_incidence_deg = 80.0;
 
   // Flying pixels: a pixel whose 3x3 neighbourhood (in the exact depth map) spans a depth
@@ -43,9 +43,10 @@ struct NoiseConfig {
 
   // Dropouts (no return, depth 0), more likely at grazing incidence and far away:
   //   p = dropout_probability
-  //     + ((theta - dropout_grazing_start_deg) / (90 - dropout_grazing_start_deg))^2  if theta > start
+  //     + ((theta - dropout_grazing_start_deg) / (90 - dropout_grazing_start_deg))^2
+  //                                                       (only where theta > grazing start)
   //     + dropout_far_probability * (z - dropout_far_start_m) / (max_depth - dropout_far_start_m)
-  //                                                                             if z > far start
+  //                                                       (only where z > far start)
   bool dropout_enabled = true;
   double dropout_probability = 0.002;
   double dropout_grazing_start_deg = 65.0;

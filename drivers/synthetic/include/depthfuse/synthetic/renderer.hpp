@@ -1,6 +1,6 @@
 // Renders depth (and a registered colour image) of a Scene from any camera pose, exact or with the
-// time-of-flight noise of NoiseConfig. Stateless apart from its configuration: render() is const and
-// may be called from several threads at once. The noise of a view is a pure function of
+// time-of-flight noise of NoiseConfig. Stateless apart from its configuration: render() is const
+// and may be called from several threads at once. The noise of a view is a pure function of
 // `noise_key`, so a (seed, frame) pair always gives the same image, whatever thread renders it.
 #pragma once
 

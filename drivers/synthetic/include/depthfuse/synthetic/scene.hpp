@@ -1,25 +1,25 @@
-// Analytic scenes for the synthetic frame source: rectangles of planes, axis-aligned boxes and rooms
-// (the inside of a box). They are the exact ground truth of everything the synthetic source renders:
-// raycasting gives noise-free depth, distance_m() measures how far a reconstructed point lies from
-// the true surface, and to_toml()/parse_toml() let a written folder carry its own ground truth.
+// Analytic scenes for the synthetic frame source: rectangles of planes, axis-aligned boxes and
+// rooms (the inside of a box). They are the exact ground truth of everything the synthetic source
+// renders: raycasting gives noise-free depth, distance_m() measures how far a reconstructed point
+// lies from the true surface, and to_toml()/parse_toml() let a written folder carry its own ground
+// truth.
 //
 // World frame of the built-in scenes: z up, floor at z = 0, metres.
 #pragma once
 
+#include <Eigen/Core>
+#include <Eigen/Geometry>
 #include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
-
-#include <Eigen/Core>
-#include <Eigen/Geometry>
 
 #include "depthfuse/status.hpp"
 
 namespace depthfuse::synthetic {
 
 enum class SceneKind { kCorner, kRoom, kRooms };
-const char* to_string(SceneKind kind);              // "corner", "room", "rooms"
+const char* to_string(SceneKind kind);  // "corner", "room", "rooms"
 Result<SceneKind> parse_scene_kind(const std::string& text);
 
 enum class PrimitiveKind {
@@ -27,18 +27,18 @@ enum class PrimitiveKind {
   kBox,    // a solid axis-aligned box: its outside is the surface
   kRoom,   // the inside of an axis-aligned box: floor, ceiling and four walls seen from within
 };
-const char* to_string(PrimitiveKind kind);          // "plane", "box", "room"
+const char* to_string(PrimitiveKind kind);  // "plane", "box", "room"
 
 // One surface of a scene. Flat on purpose (one struct, a kind tag) so that it maps 1:1 to TOML.
 struct Primitive {
   PrimitiveKind kind = PrimitiveKind::kBox;
-  std::string name;                                  // optional label ("floor", "box3"), kept in TOML
+  std::string name;  // optional label ("floor", "box3"), kept in TOML
   std::array<uint8_t, 3> color_rgb = {180, 180, 180};  // albedo for the rendered colour image
 
   // kPlane: points origin_m + a u_axis + b v_axis with a in [u_min_m, u_max_m], b in
-  // [v_min_m, v_max_m], where v_axis = normal x u_axis. `normal` points to the free side (it decides
-  // which side is "in front" for the multipath model; rays hit both sides). Infinite bounds make a
-  // half-plane, a strip or a whole plane.
+  // [v_min_m, v_max_m], where v_axis = normal x u_axis. `normal` points to the free side (it
+  // decides which side is "in front" for the multipath model; rays hit both sides). Infinite bounds
+  // make a half-plane, a strip or a whole plane.
   Eigen::Vector3d origin_m = Eigen::Vector3d::Zero();
   Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();
   Eigen::Vector3d u_axis = Eigen::Vector3d::UnitX();
@@ -62,11 +62,11 @@ struct Primitive {
 
 // What a ray hit.
 struct RayHit {
-  double t = 0.0;                                    // hit = origin + t * dir (metres if |dir| = 1)
+  double t = 0.0;  // hit = origin + t * dir (metres if |dir| = 1)
   Eigen::Vector3d normal_w = Eigen::Vector3d::Zero();  // unit, on the side of the ray origin
-  int primitive = -1;                                // index into Scene::primitives()
-  int face = 0;                                      // box/room: 2*axis + (0 = min side, 1 = max side)
-  Eigen::Vector2d uv_m = Eigen::Vector2d::Zero();    // coordinates within the surface (texturing)
+  int primitive = -1;                                  // index into Scene::primitives()
+  int face = 0;  // box/room: 2*axis + (0 = min side, 1 = max side)
+  Eigen::Vector2d uv_m = Eigen::Vector2d::Zero();  // coordinates within the surface (texturing)
 };
 
 class Scene {
@@ -97,9 +97,9 @@ class Scene {
   double distance_m(const Eigen::Vector3d& p_w) const;
 
   // Multipath support: distance from p_w, a point on primitive `primitive` whose surface normal
-  // facing the viewer is normal_w, to the nearest surface that forms a concave edge with it (another
-  // surface in front of it whose free side contains p_w, or an adjacent wall of the same room).
-  // Returns max_distance_m when there is none closer.
+  // facing the viewer is normal_w, to the nearest surface that forms a concave edge with it
+  // (another surface in front of it whose free side contains p_w, or an adjacent wall of the same
+  // room). Returns max_distance_m when there is none closer.
   double concave_edge_distance_m(const Eigen::Vector3d& p_w, const Eigen::Vector3d& normal_w,
                                  int primitive, int face, double max_distance_m) const;
   // The same over a candidate list only (the renderer's per-tile list of primitives near the view).
@@ -118,8 +118,9 @@ class Scene {
   // Raycast from view.origin_w against a candidate list sorted by t_lower[k], a lower bound of the
   // ray parameter of any hit on candidates[k]: stops at the first candidate that cannot beat the
   // best hit. The renderer uses it with per-tile lists culled against the view frustum.
-  bool raycast_candidates(const ViewCache& view, const Eigen::Vector3d& dir_w, const int* candidates,
-                          const double* t_lower, size_t count, double t_max, RayHit* hit) const;
+  bool raycast_candidates(const ViewCache& view, const Eigen::Vector3d& dir_w,
+                          const int* candidates, const double* t_lower, size_t count, double t_max,
+                          RayHit* hit) const;
 
   const std::vector<Primitive>& primitives() const { return primitives_; }
   // Axis-aligned bounds of each primitive (infinite for unbounded planes).
@@ -133,7 +134,8 @@ class Scene {
   std::string to_toml() const;
   // Reads what to_toml() writes. Unknown keys are errors; other top-level tables (e.g. the
   // [generator] that write_tum_folder adds) are ignored. `origin` names the text in messages.
-  static Result<Scene> parse_toml(const std::string& text, const std::string& origin = "scene.toml");
+  static Result<Scene> parse_toml(const std::string& text,
+                                  const std::string& origin = "scene.toml");
   static Result<Scene> load_toml(const std::string& path);
 
  private:

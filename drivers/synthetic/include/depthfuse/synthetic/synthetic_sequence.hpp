@@ -22,8 +22,9 @@ struct SyntheticConfig {
   uint64_t seed = 1;  // scene layout, sensor noise and pose perturbation all derive from it
   // Pose perturbation, as a structure-from-motion front end would hand poses over. Each frame
   // independently: the camera centre moves by a translation whose x, y and z are each
-  // N(0, pose_noise_m^2) in the world frame (so the RMS distance is sqrt(3) * pose_noise_m), and the
-  // camera turns about its centre by an angle N(0, pose_noise_deg^2) about a uniformly random axis.
+  // N(0, pose_noise_m^2) in the world frame (so the RMS distance is sqrt(3) * pose_noise_m), and
+  // the camera turns about its centre by an angle N(0, pose_noise_deg^2) about a uniformly random
+  // axis.
   double pose_noise_m = 0.0;
   double pose_noise_deg = 0.0;
   CameraIntrinsics intrinsics = CameraIntrinsics::kinect_v2();
@@ -54,9 +55,9 @@ class SyntheticSequence {
   // utime = round(i / rate_hz * 1e6) microseconds ("sequence time", starting at 0).
   int64_t utime(size_t i) const;
 
-  // Frame i (i < size()): utime, sequence = i, sensor_serial "synthetic", intrinsics, depth in metres, a colour
-  // image registered to it, and T_world_cam_hint = the perturbed pose. with_noise = false gives
-  // the exact depth (still gated to the sensor range). Thread-safe.
+  // Frame i (i < size()): utime, sequence = i, sensor_serial "synthetic", intrinsics, depth in
+  // metres, a colour image registered to it, and T_world_cam_hint = the perturbed pose. with_noise
+  // = false gives the exact depth (still gated to the sensor range). Thread-safe.
   Frame render(size_t i, bool with_noise = true) const;
   // The same into an existing frame, reusing its buffers (benchmarks at 30 Hz).
   void render_into(size_t i, bool with_noise, Frame* frame, bool with_color = true) const;

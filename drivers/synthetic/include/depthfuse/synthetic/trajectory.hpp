@@ -22,14 +22,16 @@ class Trajectory {
   // speed, so its length in metres follows frames / rate_hz).
   Trajectory(SceneKind kind, size_t frames, double rate_hz);
 
-  //  corner: a 90 degree arc (azimuth 0..90 deg) of radius ~1.4 m around a point 0.6 m in front of
-  //          both walls, 1.1-1.3 m high, always looking at the corner: 1.8-2.3 m from its axis.
+  //  corner: a 90 degree arc (azimuth 0..90 deg) of radius 1.4-1.5 m around a point 0.6 m in
+  //          front of both walls, 1.1-1.3 m high, always looking into the corner, 2.1-2.4 m from
+  //          its vertical axis.
   //  room:   one closed loop (an ellipse around the room centre) looking across the room at the
-  //          opposite walls and boxes, 25 degrees down; the last frame comes back next to the first.
-  //  rooms:  walking at 0.5 m/s along a closed tour through all 16 rooms (straight through a room or
-  //          a quarter circle around one of its corners), head swinging +-50 degrees and looking
-  //          20 degrees down; the tour is ~71 m, so 20 minutes go around it about eight times,
-  //          revisiting every room.
+  //          opposite walls and boxes, 25 degrees down; the last frame comes back next to the
+  //          first.
+  //  rooms:  walking at 0.5 m/s along a closed tour through all 16 rooms (straight through a
+  //          room or a quarter circle around one of its corners), head swinging +-50 degrees and
+  //          looking 20 degrees down; the tour is ~71 m, so 20 minutes go around it about eight
+  //          times, revisiting every room.
   Pose T_world_cam(size_t i) const;
 
   SceneKind kind() const { return kind_; }
