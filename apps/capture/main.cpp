@@ -105,6 +105,12 @@ bool parse_args(int argc, char** argv, Options* o) {
 
 enum class Pacing { kFixed, kMax, kRecorded };
 
+constexpr double kStuckSourceS = 10.0;
+
+int64_t steady_ns() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now().time_since_epoch()).count();
+}
+
 // Shared between the capture loop, the command thread and the heartbeat.
 struct State {
   std::atomic<int8_t> state{heartbeat_t::STATE_STARTING};
@@ -112,6 +118,9 @@ struct State {
   std::atomic<int64_t> frames_in{0}, frames_out{0}, source_errors{0};
   std::atomic<int64_t> bytes_out{0};
   std::atomic<int64_t> encode_us{0};
+  // When the capture loop entered source->next() (steady clock, ns), 0 when not inside: a driver
+  // stuck there for longer than kStuckSourceS stops the systemd watchdog, so systemd restarts us.
+  std::atomic<int64_t> in_source_since_ns{0};
   lcmio::ReceiveCounters command_counters;
   dd::RateMeter read_rate, publish_rate;
   std::mutex mutex;  // guards the strings below
@@ -274,7 +283,15 @@ int main(int argc, char** argv) {
         publish_heartbeat(*lcm, hb_base, s);
         next_hb += std::chrono::seconds(1);
         if (next_hb < Clock::now()) next_hb = Clock::now() + std::chrono::seconds(1);
-        watchdog.pet();
+        const int64_t since = s.in_source_since_ns.load();
+        if (since == 0 || (steady_ns() - since) * 1e-9 < kStuckSourceS) {
+          watchdog.pet();
+        } else {
+          std::lock_guard<std::mutex> lock(s.mutex);
+          s.last_error = "the source has not returned a frame for " +
+                         std::to_string(static_cast<int>((steady_ns() - since) * 1e-9)) + " s";
+          s.state = heartbeat_t::STATE_ERROR;
+        }
         dd::notify_status(std::string(dd::state_name(s.state.load())) + ", " +
                           std::to_string(s.frames_out.load()) + " frames published");
       }
@@ -309,7 +326,9 @@ int main(int argc, char** argv) {
       continue;
     }
     s.state = heartbeat_t::STATE_RUNNING;
+    s.in_source_since_ns = steady_ns();
     auto frame_r = source->next();
+    s.in_source_since_ns = 0;
     if (!frame_r) {
       const auto code = frame_r.status().code();
       if (code == depthfuse::StatusCode::kEndOfStream) {

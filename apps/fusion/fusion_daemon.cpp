@@ -28,6 +28,13 @@ constexpr double kMeanWeight = 0.1;  // exponential moving averages over ~10 fra
 
 void ewma(double* mean, double value) { *mean += kMeanWeight * (value - *mean); }
 
+// Saving a very large scan may take a while; a frame takes well under a second.
+constexpr double kStuckWorkerS = 60.0;
+
+int64_t steady_ns() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now().time_since_epoch()).count();
+}
+
 std::string generated_scan_name() {
   const std::time_t t = std::time(nullptr);
   std::tm tm{};
@@ -370,11 +377,19 @@ void FusionDaemon::worker_loop() {
       std::lock_guard<std::mutex> lock(mutex_);
       commands.swap(commands_);
     }
-    for (const auto& cmd : commands) execute(cmd);
+    for (const auto& cmd : commands) {
+      worker_busy_since_ns_ = steady_ns();
+      execute(cmd);
+      worker_busy_since_ns_ = 0;
+    }
     if (stopping_.load()) break;
 
     auto item = queue_.pop(std::chrono::milliseconds(50));
-    if (item && state_.load() == heartbeat_t::STATE_RUNNING && reconstructor_) fuse(*item);
+    if (item && state_.load() == heartbeat_t::STATE_RUNNING && reconstructor_) {
+      worker_busy_since_ns_ = steady_ns();
+      fuse(*item);
+      worker_busy_since_ns_ = 0;
+    }
 
     if (reconstructor_ && sink_->durable() && state_.load() == heartbeat_t::STATE_RUNNING &&
         Clock::now() - last_checkpoint_ >
@@ -466,7 +481,13 @@ int FusionDaemon::run(const std::function<bool()>& stop_requested) {
     const auto now = Clock::now();
     if (now >= next_hb) {
       publish_heartbeat();
-      watchdog.pet();
+      const int64_t busy_since = worker_busy_since_ns_.load();
+      if (busy_since == 0 || (steady_ns() - busy_since) * 1e-9 < kStuckWorkerS) {
+        watchdog.pet();
+      } else {
+        set_error("the fusion worker has been busy with one frame or command for " +
+                  std::to_string(static_cast<int>((steady_ns() - busy_since) * 1e-9)) + " s");
+      }
       daemon::notify_status(std::string(daemon::state_name(state_.load())) + ", " +
                             std::to_string(frames_fused_.load()) + " frames fused, " +
                             std::to_string(point_count_.load()) + " points");

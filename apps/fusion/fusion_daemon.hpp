@@ -84,6 +84,9 @@ class FusionDaemon {
   std::atomic<int64_t> frames_in_{0}, frames_fused_{0}, frames_ignored_{0};
   std::atomic<int64_t> process_errors_{0}, icp_failures_{0}, registered_{0};
   std::atomic<int64_t> point_count_{0};
+  // When the worker started its current frame or command (steady clock, ns), 0 when waiting: a
+  // worker busy for longer than kStuckWorkerS stops the systemd watchdog.
+  std::atomic<int64_t> worker_busy_since_ns_{0};
   daemon::RateMeter in_rate_, out_rate_;
   std::mutex mutex_;                            // guards the fields below
   std::string scan_id_, last_error_;

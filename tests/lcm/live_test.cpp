@@ -4,10 +4,13 @@
 // against the analytic surfaces, the status fields, drop counters under overload, the commands,
 // and that hostile input is counted and survived.
 #include <gtest/gtest.h>
+#include <sys/socket.h>
+#include <sys/un.h>
 
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <mutex>
 #include <thread>
@@ -551,6 +554,62 @@ TEST_F(LiveAppliance, RecordedSessionReplaysAtItsPace) {
   EXPECT_GE(replay_s, 0.9 * recorded_s);
   EXPECT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.frames_in == 10; }, seconds(10)))
       << replay_fusion->log();
+}
+
+// Each daemon tells systemd it is ready, pets the watchdog and describes itself in STATUS=. The
+// test plays systemd: a datagram socket in NOTIFY_SOCKET, a watchdog in WATCHDOG_USEC.
+TEST_F(LiveAppliance, DaemonsNotifySystemd) {
+  const std::string sock_path = dir_ + "/notify.sock";
+  const int fd = ::socket(AF_UNIX, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+  ASSERT_GE(fd, 0);
+  sockaddr_un addr{};
+  addr.sun_family = AF_UNIX;
+  ASSERT_LT(sock_path.size(), sizeof(addr.sun_path));
+  std::strncpy(addr.sun_path, sock_path.c_str(), sizeof(addr.sun_path) - 1);
+  ASSERT_EQ(::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)), 0);
+  timeval tv{0, 200000};
+  ::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof(tv));
+
+  ::setenv("NOTIFY_SOCKET", sock_path.c_str(), 1);
+  ::setenv("WATCHDOG_USEC", "1000000", 1);  // pet at least every 0.5 s
+  std::vector<std::unique_ptr<Process>> daemons;
+  daemons.push_back(start("monitor", {bin("depthfuse-monitor"), "--lcm", url_}));
+  daemons.push_back(start("fusion", {bin("depthfuse-fusion"), "--lcm", url_, "--scan-dir", dir_ + "/scans"}));
+  daemons.push_back(start_capture("synthetic:corner?frames=50", {"--rate", "5", "--loop", "--color", "none"}));
+  ::unsetenv("NOTIFY_SOCKET");
+  ::unsetenv("WATCHDOG_USEC");
+
+  // Messages by sender pid (SCM_CREDENTIALS would tell; the STATUS text is enough to tell apart).
+  std::map<std::string, int> seen;
+  const auto deadline = std::chrono::steady_clock::now() + seconds(15);
+  while (std::chrono::steady_clock::now() < deadline) {
+    char buf[4096];
+    const ssize_t n = ::recv(fd, buf, sizeof(buf) - 1, 0);
+    if (n <= 0) continue;
+    buf[n] = 0;
+    std::string msg(buf);
+    std::istringstream lines(msg);
+    std::string line;
+    while (std::getline(lines, line)) {
+      if (line == "READY=1") ++seen["READY"];
+      if (line == "WATCHDOG=1") ++seen["WATCHDOG"];
+      if (line.rfind("STATUS=", 0) == 0) {
+        if (line.find("frames published") != std::string::npos) ++seen["capture status"];
+        if (line.find("frames fused") != std::string::npos) ++seen["fusion status"];
+        if (line.find("daemons alive") != std::string::npos) ++seen["monitor status"];
+      }
+    }
+    if (seen["READY"] >= 3 && seen["WATCHDOG"] >= 6 && seen["capture status"] && seen["fusion status"] &&
+        seen["monitor status"])
+      break;
+  }
+  ::close(fd);
+  EXPECT_EQ(seen["READY"], 3);
+  EXPECT_GE(seen["WATCHDOG"], 6);
+  EXPECT_GT(seen["capture status"], 0);
+  EXPECT_GT(seen["fusion status"], 0);
+  EXPECT_GT(seen["monitor status"], 0);
+  for (auto& d : daemons) EXPECT_TRUE(d->running()) << d->log();
 }
 
 }  // namespace
