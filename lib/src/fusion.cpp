@@ -61,6 +61,20 @@ inline void refine_point(PointArrays& a, size_t i, const Eigen::Vector3f& p, con
   a.last_frame[i] = frame_id;
 }
 
+// Merges the measurement into the point rendered at `px` if the merge rule allows it.
+inline bool try_merge(ModelProjection& proj, size_t px, const Eigen::Vector3f& p_w,
+                      const Eigen::Matrix3f& L_n, const Eigen::Vector3f& n_w, const uint8_t* rgb,
+                      uint32_t frame_id) {
+  PointArrays& a = proj.points_at(px);
+  const uint32_t j = proj.index_at(px);
+  Eigen::Vector3f p_f;
+  Eigen::Matrix3f L_f;
+  if (!merge_measurement(a.position(j), information_matrix(a, j), p_w, L_n, &p_f, &L_f)) return false;
+  refine_point(a, j, p_f, L_f, n_w, rgb, frame_id);
+  proj.take(px);
+  return true;
+}
+
 }  // namespace
 
 FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, const Pose& T_world_cam,
@@ -103,35 +117,34 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
 
       // The nearest existing point among those rendered around this pixel, not yet merged with
       // another measurement of this frame.
-      size_t best_px = 0;
-      float best_d2 = std::numeric_limits<float>::infinity();
-      for (int dv = -cr; dv <= cr; ++dv) {
-        const int vv = v + dv;
-        if (vv < 0 || vv >= m.height) continue;
-        for (int du = -cr; du <= cr; ++du) {
-          const int uu = u + du;
-          if (uu < 0 || uu >= m.width) continue;
-          const size_t px = static_cast<size_t>(vv) * m.width + uu;
-          if (proj.empty_at(px) || proj.taken_at(px)) continue;
-          const float d2 = (proj.position_at(px) - p_w).squaredNorm();
-          if (d2 < best_d2) {
-            best_d2 = d2;
-            best_px = px;
+      // The point rendered at this very pixel first; only if it is missing, taken, or does not
+      // merge, the nearest untaken one in the window. Searching the window first would let a
+      // pixel take its neighbour's point and leave the neighbour to add a redundant one.
+      bool merged = false;
+      if (!proj.empty_at(i) && !proj.taken_at(i)) merged = try_merge(proj, i, p_w, L_n, n_w, rgb, frame_id);
+      if (!merged && cr > 0) {
+        size_t best_px = i;
+        float best_d2 = std::numeric_limits<float>::infinity();
+        for (int dv = -cr; dv <= cr; ++dv) {
+          const int vv = v + dv;
+          if (vv < 0 || vv >= m.height) continue;
+          for (int du = -cr; du <= cr; ++du) {
+            const int uu = u + du;
+            if ((du == 0 && dv == 0) || uu < 0 || uu >= m.width) continue;
+            const size_t px = static_cast<size_t>(vv) * m.width + uu;
+            if (proj.empty_at(px) || proj.taken_at(px)) continue;
+            const float d2 = (proj.position_at(px) - p_w).squaredNorm();
+            if (d2 < best_d2) {
+              best_d2 = d2;
+              best_px = px;
+            }
           }
         }
+        if (best_px != i) merged = try_merge(proj, best_px, p_w, L_n, n_w, rgb, frame_id);
       }
-
-      if (best_d2 < std::numeric_limits<float>::infinity()) {
-        PointArrays& a = proj.points_at(best_px);
-        const uint32_t j = proj.index_at(best_px);
-        Eigen::Vector3f p_f;
-        Eigen::Matrix3f L_f;
-        if (merge_measurement(a.position(j), information_matrix(a, j), p_w, L_n, &p_f, &L_f)) {
-          refine_point(a, j, p_f, L_f, n_w, rgb, frame_id);
-          proj.take(best_px);
-          ++stats.merged;
-          continue;
-        }
+      if (merged) {
+        ++stats.merged;
+        continue;
       }
 
       // Not merged. A point rendered at this very pixel in front of the measurement, both facing
