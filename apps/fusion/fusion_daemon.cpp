@@ -196,7 +196,7 @@ Status FusionDaemon::start_scan(const std::string& requested_name, std::string* 
   trajectory_.clear();
   point_count_ = 0;
   last_checkpoint_ = Clock::now();
-  queue_.clear();  // frames that arrived before the scan are not part of it
+  frames_ignored_ += static_cast<int64_t>(queue_.clear());  // not part of this scan
   {
     std::lock_guard<std::mutex> lock(mutex_);
     scan_id_ = name;
@@ -210,7 +210,7 @@ Status FusionDaemon::start_scan(const std::string& requested_name, std::string* 
 Status FusionDaemon::stop_scan(const std::string& reason, std::string* message) {
   if (!reconstructor_) return invalid_argument("no scan is running");
   state_ = heartbeat_t::STATE_STOPPING;
-  queue_.clear();
+  frames_ignored_ += static_cast<int64_t>(queue_.clear());
   const size_t removed = reconstructor_->finish();
   const FusionProgress progress{static_cast<uint64_t>(frames_in_.load()),
                                 static_cast<uint64_t>(frames_fused_.load()),
@@ -269,7 +269,7 @@ void FusionDaemon::execute(const command_t& cmd) {
         st = invalid_argument("no scan is running");
       } else {
         state_ = heartbeat_t::STATE_PAUSED;
-        queue_.clear();
+        frames_ignored_ += static_cast<int64_t>(queue_.clear());
         message = "scan " + scan_.scan_id + " paused";
       }
       break;
@@ -389,6 +389,8 @@ void FusionDaemon::worker_loop() {
       worker_busy_since_ns_ = steady_ns();
       fuse(*item);
       worker_busy_since_ns_ = 0;
+    } else if (item) {
+      ++frames_ignored_;  // queued just before a pause or stop
     }
 
     if (reconstructor_ && sink_->durable() && state_.load() == heartbeat_t::STATE_RUNNING &&

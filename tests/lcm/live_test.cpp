@@ -369,7 +369,9 @@ TEST_F(LiveAppliance, CommandsTakeEffect) {
       << fusion->log();
 
   ASSERT_EQ(scan({"pause"}, &out), 0) << out;
-  EXPECT_EQ(observer_->heartbeat("fusion")->state, depthfuse::heartbeat_t::STATE_PAUSED);
+  EXPECT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) {
+    return hb.state == depthfuse::heartbeat_t::STATE_PAUSED;
+  }, seconds(3)));
   // A frame already being fused when the pause arrived may still finish; then nothing moves.
   std::this_thread::sleep_for(seconds(3));
   const int64_t paused_at = fused();
@@ -387,15 +389,17 @@ TEST_F(LiveAppliance, CommandsTakeEffect) {
 
   ASSERT_EQ(scan({"new", "second"}, &out), 0) << out;
   EXPECT_NE(out.find("scan first saved"), std::string::npos) << out;
-  EXPECT_EQ(observer_->heartbeat("fusion")->scan_id, "second");
+  EXPECT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.scan_id == "second"; },
+                                        seconds(3)));
   EXPECT_TRUE(std::filesystem::exists(dir_ + "/scans/first.ply"));
   EXPECT_TRUE(std::filesystem::exists(dir_ + "/scans/first-trajectory.txt"));
   ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.point_count > 0; }, seconds(60)));
 
   ASSERT_EQ(scan({"stop"}, &out), 0) << out;
   EXPECT_TRUE(std::filesystem::exists(dir_ + "/scans/second.ply"));
-  EXPECT_EQ(observer_->heartbeat("fusion")->state, depthfuse::heartbeat_t::STATE_IDLE);
-  EXPECT_EQ(observer_->heartbeat("fusion")->point_count, 0);
+  EXPECT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) {
+    return hb.state == depthfuse::heartbeat_t::STATE_IDLE && hb.point_count == 0 && hb.scan_id.empty();
+  }, seconds(3)));
   EXPECT_EQ(scan({"start", "../escape"}, &out), 1) << out;  // names become file names
   EXPECT_NE(out.find("scan name"), std::string::npos) << out;
 
@@ -405,7 +409,9 @@ TEST_F(LiveAppliance, CommandsTakeEffect) {
   const int64_t published = observer_->heartbeat("capture")->frames_out;
   std::this_thread::sleep_for(seconds(2));
   EXPECT_LE(observer_->heartbeat("capture")->frames_out, published + 1);
-  EXPECT_EQ(observer_->heartbeat("capture")->state, depthfuse::heartbeat_t::STATE_PAUSED);
+  EXPECT_TRUE(observer_->wait_heartbeat("capture", [](auto& hb) {
+    return hb.state == depthfuse::heartbeat_t::STATE_PAUSED;
+  }, seconds(3)));
   ASSERT_EQ(scan({"resume", "--target", "capture"}, &out), 0) << out;
   EXPECT_TRUE(observer_->wait_heartbeat("capture", [&](auto& hb) { return hb.frames_out > published + 2; },
                                         seconds(10)));

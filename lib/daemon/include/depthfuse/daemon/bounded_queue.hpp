@@ -54,7 +54,7 @@ class BoundedQueue {
     cv_.notify_all();
   }
 
-  // Drops everything queued (counted as dropped); returns how many.
+  // Discards everything queued (not counted in dropped(): the caller decided); returns how many.
   size_t clear() {
     std::lock_guard<std::mutex> lock(mutex_);
     const size_t n = items_.size();
