@@ -44,7 +44,7 @@ struct PostfilterConfig {
 struct RegistrationConfig {
   bool enabled = true;
   int iterations = 10;                       // point-to-plane ICP iterations per depth map
-  int subsample_px = 2;                      // use every n-th pixel in u and v
+  int subsample_px = 4;                      // use every n-th pixel in u and v
   double max_correspondence_m = 0.05;        // reject pairs farther apart than this
   double max_normal_angle_deg = 35.0;        // reject pairs whose normals disagree more
   double huber_delta_m = 0.005;              // robust loss scale
