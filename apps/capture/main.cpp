@@ -38,7 +38,7 @@ void usage(FILE* out) {
   std::fprintf(out,
       "usage: depthfuse-capture [--source SPEC] [--rate HZ|max|recorded] [--loop] [--lcm URL]\n"
       "                         [--config FILE] [--name NAME] [--color zstd|raw|jpeg|none]\n"
-      "                         [--depth-encoding zstd|raw] [--linger]\n"
+      "                         [--depth-encoding zstd|raw] [--depth-unit M] [--linger]\n"
       "  --source SPEC   tum:<folder> | synthetic:<corner|room>[?frames=N&...] | kinect2[:serial]\n"
       "                  | lcmlog:<file>   (default: the config's capture.source)\n"
       "  --rate          frames per second; 'max' as fast as possible; 'recorded' the pace of the\n"
@@ -47,6 +47,8 @@ void usage(FILE* out) {
       "  --loop          rewind a finite source at its end\n"
       "  --lcm URL       LCM URL (default: the config's lcm.url)\n"
       "  --name NAME     heartbeat name and command target (default: capture)\n"
+      "  --depth-unit M  metres per depth count on the wire (default 0.001; 0.0002 keeps TUM's\n"
+      "                  1/5000 m exactly)\n"
       "  --linger        keep running (heartbeat state 'finished') when a finite source ends\n");
 }
 
@@ -60,6 +62,7 @@ struct Options {
   std::string name = "capture";
   std::string color = "zstd";
   std::string depth_encoding = "zstd";
+  std::string depth_unit;  // metres per count on the wire; "" = 0.001
   bool linger = false;
 };
 
@@ -91,6 +94,8 @@ bool parse_args(int argc, char** argv, Options* o) {
       if (!value(&o->name)) return false;
     } else if (a == "--color") {
       if (!value(&o->color)) return false;
+    } else if (a == "--depth-unit") {
+      if (!value(&o->depth_unit)) return false;
     } else if (a == "--depth-encoding") {
       if (!value(&o->depth_encoding)) return false;
     } else if (a == "--linger") {
@@ -209,6 +214,14 @@ int main(int argc, char** argv) {
   } else if (opt.depth_encoding != "zstd") {
     std::fprintf(stderr, "depthfuse-capture: --depth-encoding must be zstd or raw\n");
     return 2;
+  }
+  if (!opt.depth_unit.empty()) {
+    char* end = nullptr;
+    depth_options.depth_unit_m = std::strtod(opt.depth_unit.c_str(), &end);
+    if (*end != '\0' || !(depth_options.depth_unit_m > 0) || depth_options.depth_unit_m > 1.0) {
+      std::fprintf(stderr, "depthfuse-capture: --depth-unit must be metres per count in (0, 1]\n");
+      return 2;
+    }
   }
   lcmio::ColorEncodeOptions color_options;
   bool send_color = true;
