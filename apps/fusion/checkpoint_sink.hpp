@@ -1,8 +1,9 @@
 // The seam between the fusion daemon and durable storage: the daemon tells a CheckpointSink when
 // a scan begins, after every fused frame, when a checkpoint is due (periodic, or the operator's
 // 'checkpoint now') and when the scan ends. The SQLite scan store plugs in here by implementing
-// this interface (make_checkpoint_sink picks it when it is built in); until then NullCheckpointSink
-// keeps nothing and the scan is saved as PLY + TUM trajectory on stop only.
+// this interface (make_checkpoint_sink picks it when it is built in; store::ScanRecorder maps onto
+// it: create / record_frame / checkpoint / finish); until then NullCheckpointSink keeps nothing
+// and the scan is saved as PLY + TUM trajectory on stop only.
 #pragma once
 
 #include <cstdint>
@@ -36,13 +37,22 @@ class CheckpointSink {
   // "none", "sqlite:/var/lib/depthfuse/scans/x.dfscan", ... for heartbeats and logs.
   virtual std::string describe() const = 0;
   virtual Status begin_scan(const ScanContext& scan) = 0;
-  // After each fused frame (poses, keyframes every fusion_daemon.keyframe_every_n_frames).
-  virtual Status frame_fused(const Frame& frame, const FrameReport& report) = 0;
-  // reason: "periodic", "command", "sigterm", "final".
+  // After each fused frame: poses, keyframes (fusion_daemon.keyframe_every_n_frames), and paging
+  // of the map around the camera (a pager may load and evict chunks of reconstructor.map()).
+  virtual Status frame_fused(const Frame& frame, const FrameReport& report,
+                             IncrementalReconstructor& reconstructor) = 0;
+  // reason: "periodic" (every fusion_daemon.checkpoint_interval_s, only when durable()) or
+  // "command" (depthfuse scan checkpoint).
   virtual Status checkpoint(const std::string& reason, IncrementalReconstructor& reconstructor,
                             const FusionProgress& progress) = 0;
-  // The scan is over (its PLY and trajectory are written by the daemon itself).
-  virtual Status end_scan(IncrementalReconstructor& reconstructor, const FusionProgress& progress) = 0;
+  // The scan is over; reconstructor.finish() has post-filtered the resident map. reason: "final"
+  // (stop, new scan) or "sigterm". A durable sink writes its final checkpoint here.
+  virtual Status end_scan(const std::string& reason, IncrementalReconstructor& reconstructor,
+                          const FusionProgress& progress) = 0;
+  // The whole cloud for the scan's PLY. A sink that evicts chunks from memory returns them too.
+  virtual Result<PointArrays> final_cloud(IncrementalReconstructor& reconstructor) {
+    return reconstructor.map().gather();
+  }
   // True when checkpoint() actually stores something (false: the periodic timer is not run).
   virtual bool durable() const = 0;
 };
@@ -51,11 +61,15 @@ class NullCheckpointSink : public CheckpointSink {
  public:
   std::string describe() const override { return "none"; }
   Status begin_scan(const ScanContext&) override { return Status::ok(); }
-  Status frame_fused(const Frame&, const FrameReport&) override { return Status::ok(); }
+  Status frame_fused(const Frame&, const FrameReport&, IncrementalReconstructor&) override {
+    return Status::ok();
+  }
   Status checkpoint(const std::string&, IncrementalReconstructor&, const FusionProgress&) override {
     return Status::ok();
   }
-  Status end_scan(IncrementalReconstructor&, const FusionProgress&) override { return Status::ok(); }
+  Status end_scan(const std::string&, IncrementalReconstructor&, const FusionProgress&) override {
+    return Status::ok();
+  }
   bool durable() const override { return false; }
 };
 

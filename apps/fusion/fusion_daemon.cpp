@@ -215,14 +215,15 @@ Status FusionDaemon::stop_scan(const std::string& reason, std::string* message) 
   const FusionProgress progress{static_cast<uint64_t>(frames_in_.load()),
                                 static_cast<uint64_t>(frames_fused_.load()),
                                 static_cast<uint64_t>(queue_.dropped())};
-  Status sink_status = sink_->checkpoint(reason, *reconstructor_, progress);
-  if (sink_status.is_ok()) sink_status = sink_->end_scan(*reconstructor_, progress);
+  const Status sink_status = sink_->end_scan(reason, *reconstructor_, progress);
 
-  const PointArrays cloud = reconstructor_->map().gather();
+  auto cloud_r = sink_->final_cloud(*reconstructor_);
+  const PointArrays cloud = cloud_r.is_ok() ? std::move(cloud_r).value() : PointArrays{};
   const std::string base = (std::filesystem::path(scan_.scan_dir) / scan_.scan_id).string();
   const std::string ply_path = base + ".ply";
   const std::string tum_path = base + "-trajectory.txt";
-  Status st = write_ply(ply_path, cloud, PlyOptions{});
+  Status st = cloud_r.is_ok() ? write_ply(ply_path, cloud, PlyOptions{})
+                              : cloud_r.status().with_context("collecting the cloud");
   if (st.is_ok()) st = write_tum_trajectory(tum_path, trajectory_);
   const std::string id = scan_.scan_id;
   reconstructor_.reset();
@@ -366,7 +367,7 @@ void FusionDaemon::fuse(QueuedFrame& item) {
       ewma(&mean_rmse_m_, rep.registration.rmse_m);
     }
   }
-  if (auto st = sink_->frame_fused(item.frame, rep); !st.is_ok())
+  if (auto st = sink_->frame_fused(item.frame, rep, *reconstructor_); !st.is_ok())
     set_error("checkpoint store: " + st.to_string());
 }
 
