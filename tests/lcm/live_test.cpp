@@ -618,5 +618,29 @@ TEST_F(LiveAppliance, DaemonsNotifySystemd) {
   for (auto& d : daemons) EXPECT_TRUE(d->running()) << d->log();
 }
 
+// A remote tool needs only Python 3 and the generated bindings: tools/lcm/watch.py reads the status
+// (one datagram) and full-size raw depth frames (LCM fragments) off the wire and decodes them.
+TEST_F(LiveAppliance, PythonWatcherReadsTheChannels) {
+  auto monitor = start("monitor", {bin("depthfuse-monitor"), "--lcm", url_});
+  auto capture = start_capture("synthetic:corner?frames=20",
+                               {"--rate", "10", "--loop", "--depth-encoding", "raw", "--color", "none"});
+  const std::string watch = DEPTHFUSE_TEST_DIR "/../../tools/lcm/watch.py";
+  std::string out;
+  ASSERT_EQ(run_command({DEPTHFUSE_PYTHON3, watch, "--lcm", url_, "--python-dir", DEPTHFUSE_PYTHON_DIR,
+                         "--channel", "DEPTHFUSE_STATUS", "--count", "2", "--timeout", "10"},
+                        dir_ + "/watch-status.log", &out), 0) << out;
+  EXPECT_NE(out.find("\"type\": \"status_t\""), std::string::npos) << out;
+  EXPECT_NE(out.find("\"name\": \"monitor\""), std::string::npos) << out;
+  ASSERT_EQ(run_command({DEPTHFUSE_PYTHON3, watch, "--lcm", url_, "--python-dir", DEPTHFUSE_PYTHON_DIR,
+                         "--channel", "DEPTHFUSE_DEPTH", "--count", "3", "--timeout", "10"},
+                        dir_ + "/watch-depth.log", &out), 0) << out;
+  EXPECT_NE(out.find("\"data_size\": 434176"), std::string::npos) << out;  // 512*424*2, reassembled
+  EXPECT_NE(out.find("\"source\": \"synthetic:corner?frames=20\""), std::string::npos) << out;
+  EXPECT_EQ(out.find("cannot decode"), std::string::npos) << out;
+  EXPECT_EQ(run_command({DEPTHFUSE_PYTHON3, watch, "--lcm", url_, "--python-dir", DEPTHFUSE_PYTHON_DIR,
+                         "--channel", "DEPTHFUSE_POSE", "--count", "1", "--timeout", "1"},
+                        dir_ + "/watch-none.log", &out), 1) << out;  // nobody publishes poses here
+}
+
 }  // namespace
 }  // namespace depthfuse
