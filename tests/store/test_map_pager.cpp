@@ -1,5 +1,6 @@
-// MapPager on a synthetic map: memory stays within the budget while the camera walks far, every
-// evicted chunk comes back bit for bit when the camera returns, nothing is ever lost.
+// MapPager on synthetic maps: memory stays within the budget while the camera walks far, every
+// evicted chunk comes back bit for bit when the camera returns, nothing is ever lost; prepare()
+// loads exactly the chunks a frame's depth can touch.
 #include <gtest/gtest.h>
 
 #include <map>
@@ -22,8 +23,8 @@ struct KeyLess {
   }
 };
 
-// A walk along x, 0.25 m per frame: each frame "fuses" by creating or growing the chunks around
-// the camera (within 2 m), as fusion would.
+// A walk along x, 0.25 m per frame: each frame "fuses" by growing the chunks within 2 m of the
+// camera, as fusion would.
 struct Walk {
   PointMap map{0.5};
   std::map<ChunkKey, PointArrays, KeyLess> reference;  // what every chunk should hold
@@ -55,9 +56,9 @@ TEST(MapPager, BoundedWalkAndReturnIsLossless) {
   auto store = ScanStore::open(dir.file("scan.db"), OpenMode::kCreate);
   ASSERT_TRUE(store);
   MapPagerConfig config;
-  config.memory_budget_mib = 1.0;
-  config.evict_distance_m = 3.0;
-  config.load_radius_m = 2.5;
+  config.memory_budget_mib = 0.5;
+  config.evict_distance_m = 0.5;
+  config.min_age_frames = 4;
   ASSERT_TRUE(MapPager::validate(config));
   MapPager pager(config, store->get());
   Walk walk;
@@ -66,9 +67,10 @@ TEST(MapPager, BoundedWalkAndReturnIsLossless) {
   const int steps = 400;  // 100 m out, then back
   for (int i = 0; i <= 2 * steps; ++i) {
     const Eigen::Vector3f cam = walk.camera(i <= steps ? i : 2 * steps - i);
-    ASSERT_TRUE(pager.update(&walk.map, cam)) << pager.stats().last_error;  // loads what is near
+    // Stands in for prepare(): everything this "frame" will touch lies within 2.3 m.
+    ASSERT_TRUE(pager.load_around(&walk.map, cam, 2.3, walk.frame + 1)) << pager.stats().last_error;
     walk.fuse_at(cam);
-    ASSERT_TRUE(pager.update(&walk.map, cam)) << pager.stats().last_error;
+    ASSERT_TRUE(pager.update(&walk.map, cam, walk.frame)) << pager.stats().last_error;
     size_t resident = 0;
     walk.map.for_each_chunk([&](const ChunkKey&, const Chunk& c) { resident += MapPager::chunk_bytes(c); });
     EXPECT_EQ(resident, pager.stats().resident_bytes);
@@ -100,44 +102,106 @@ TEST(MapPager, BoundedWalkAndReturnIsLossless) {
   }
 }
 
-TEST(MapPager, LoadsOnlyWithinTheRadiusAndNeverEvictsNearChunks) {
+TEST(MapPager, KeepsRecentAndNearChunksEvenOverBudget) {
   TempDir dir;
   auto store = ScanStore::open(dir.file("scan.db"), OpenMode::kCreate);
   ASSERT_TRUE(store);
   MapPagerConfig config;
-  config.memory_budget_mib = 0.01;  // far below what the near chunks need
+  config.memory_budget_mib = 0.01;  // far below what is kept
   config.evict_distance_m = 2.0;
-  config.load_radius_m = 1.5;
+  config.min_age_frames = 10;
   MapPager pager(config, store->get());
   PointMap map(0.5);
   for (int x = -20; x <= 20; ++x) {
     Chunk& c = map.get_or_create({x, 0, 0});
     c.points = make_points({x, 0, 0}, 1, 50);
+    c.last_touched_frame = x > 10 ? 95 : 50;  // x 11..20 were seen 5 frames ago
   }
   const Eigen::Vector3f cam(0.25f, 0.25f, 0.25f);
-  ASSERT_TRUE(pager.update(&map, cam));
-  // Everything farther than 2 m went; what is nearer stayed although the budget is exceeded.
+  ASSERT_TRUE(pager.update(&map, cam, 100));
+  // Kept: within 2 m of the camera (keys -4..4) and recently seen (11..20).
   map.for_each_chunk([&](const ChunkKey& k, const Chunk&) {
-    EXPECT_LE(distance_to_chunk_m(map, k, cam), 2.0f) << to_string(k);
+    EXPECT_TRUE((k.x >= -4 && k.x <= 4) || k.x >= 11) << to_string(k);
   });
-  EXPECT_EQ(map.chunk_count(), 9u);  // keys -4..4: the chunk at 2 m exactly stays
+  EXPECT_EQ(map.chunk_count(), 19u);
   EXPECT_GT(pager.stats().unevictable_bytes, 0u);
-  // Moving 3 m along x loads exactly the evicted chunks within 1.5 m: x in [1.75, 4.75] m, keys
-  // 3 .. 9, of which 5 .. 9 were evicted.
-  const Eigen::Vector3f cam2(3.25f, 0.25f, 0.25f);
+  // load_around brings back exactly the evicted chunks within the radius: from x = 3.25 m within
+  // 1.5 m is x in [1.75, 4.75] m, keys 3 .. 9, of which 5 .. 9 were evicted.
   const uint64_t loaded_before = pager.stats().total_loaded;
-  ASSERT_TRUE(pager.update(&map, cam2));
+  ASSERT_TRUE(pager.load_around(&map, Eigen::Vector3f(3.25f, 0.25f, 0.25f), 1.5, 101));
   EXPECT_EQ(pager.stats().total_loaded - loaded_before, 5u);
   for (int x = 3; x <= 9; ++x) EXPECT_NE(map.find({x, 0, 0}), nullptr) << x;
   EXPECT_EQ(map.find({10, 0, 0}), nullptr);
+  // Just loaded counts as recently used: the next update does not throw them out again.
+  ASSERT_TRUE(pager.update(&map, cam, 102));
+  for (int x = 5; x <= 9; ++x) EXPECT_NE(map.find({x, 0, 0}), nullptr) << x;
 }
 
-TEST(MapPager, RejectsAConfigThatWouldThrash) {
+TEST(MapPager, PrepareLoadsTheChunksTheFrameCanTouch) {
+  TempDir dir;
+  auto store = ScanStore::open(dir.file("scan.db"), OpenMode::kCreate);
+  ASSERT_TRUE(store);
+  MapPagerConfig config;
+  config.load_margin_m = 0.3;
+  MapPager pager(config, store->get());
+  PointMap map(0.5);
+  // Everything in a 12 x 12 x 4 m block is evicted.
+  for (int x = -4; x < 20; ++x)
+    for (int y = -12; y < 12; ++y)
+      for (int z = 0; z < 8; ++z) pager.mark_evicted({x, y, z});
+  // Store them so that loading finds them (the content does not matter here).
+  std::vector<Chunk> chunks;
+  std::vector<std::pair<ChunkKey, const Chunk*>> batch;
+  chunks.reserve(pager.evicted().size());
+  for (const ChunkKey& k : pager.evicted()) {
+    chunks.emplace_back();
+    chunks.back().points = make_points(k, 1, 2);
+    batch.emplace_back(k, &chunks.back());
+  }
+  ASSERT_TRUE((*store)->stage_chunks(batch));
+  // A camera at (0, 0, 1.5) looking along +x at a wall x = 6 m.
+  const CameraIntrinsics K = test::small_camera();
+  const Pose T = test::look_at(Eigen::Vector3d(0, 0, 1.5), Eigen::Vector3d(6, 0, 1.5));
+  Frame f;
+  f.intrinsics = K;
+  f.depth = DepthImage(K.width, K.height);
+  for (int v = 0; v < K.height; ++v)
+    for (int u = 0; u < K.width; ++u) f.depth.at(u, v) = 6.0f;  // z = 6 m everywhere: the wall
+  ASSERT_TRUE(pager.prepare(&map, f, T, 1)) << pager.stats().last_error;
+  // Loaded: chunks touching the wall's visible patch and the last 10 % of the rays before it.
+  const Eigen::Vector3f o(0, 0, 1.5f);
+  size_t loaded = 0;
+  map.for_each_chunk([&](const ChunkKey& k, const Chunk&) {
+    ++loaded;
+    const Eigen::Vector3f lo = map.chunk_origin_m(k);
+    EXPECT_GE(lo.x() + 0.5f, 6.0f * 0.9f * 0.95f - 0.31f) << to_string(k);  // nothing near the camera
+    EXPECT_LE(lo.x(), 6.3f) << to_string(k);
+  });
+  EXPECT_GT(loaded, 50u);
+  // Every chunk holding a wall sample is resident.
+  for (int v = 0; v < K.height; v += 3) {
+    for (int u = 0; u < K.width; u += 3) {
+      const Eigen::Vector3d p = T * Eigen::Vector3d((u - K.cx) / K.fx * 6.0, (v - K.cy) / K.fy * 6.0, 6.0);
+      const ChunkKey k = map.key_for(p.cast<float>());
+      if (k.z < 0 || k.z >= 8 || k.y < -12 || k.y >= 12) continue;
+      EXPECT_NE(map.find(k), nullptr) << to_string(k);
+    }
+  }
+  // Nothing left evicted that the frame can see, so a second call loads nothing.
+  const uint64_t before = pager.stats().total_loaded;
+  ASSERT_TRUE(pager.prepare(&map, f, T, 2));
+  EXPECT_EQ(pager.stats().total_loaded, before);
+}
+
+TEST(MapPager, RejectsBadConfigs) {
   MapPagerConfig c;
-  c.load_radius_m = 7.0;
-  c.evict_distance_m = 6.0;
-  EXPECT_FALSE(MapPager::validate(c));
+  EXPECT_TRUE(MapPager::validate(c));
   c.memory_budget_mib = 0;
-  c.load_radius_m = 5.0;
+  EXPECT_FALSE(MapPager::validate(c));
+  c = MapPagerConfig{};
+  c.load_subsample_px = 0;
+  EXPECT_FALSE(MapPager::validate(c));
+  c = MapPagerConfig{};
+  c.low_watermark_fraction = 1.5;
   EXPECT_FALSE(MapPager::validate(c));
 }

@@ -38,8 +38,9 @@ ReconstructionConfig config() {
 RecorderConfig recorder_config(double budget_mib) {
   RecorderConfig rc;
   rc.bounded_memory = true;
-  // The corridor is rendered to 4.4 m depth; the camera moves < 0.3 m per frame.
-  rc.pager = pager_config_for_sensor(budget_mib, 0.0, test::small_camera(), 4.4, 0.3);
+  rc.pager.memory_budget_mib = budget_mib;
+  rc.pager.evict_distance_m = 1.0;
+  rc.pager.min_age_frames = 5;
   rc.keyframe_every_n_frames = 5;
   return rc;
 }
@@ -49,6 +50,7 @@ struct Reference {
   std::vector<Frame> frames;
   std::vector<Pose> poses;
   ChunkContents cloud;  // after finish() (post-filter)
+  double ms_per_frame = 0;
 };
 
 const Reference& reference() {
@@ -60,11 +62,14 @@ const Reference& reference() {
     for (int i = 0; i < n; ++i)
       r.frames.push_back(corridor.render(corridor.pose(i, n), test::small_camera(), static_cast<uint32_t>(i)));
     IncrementalReconstructor rec(config());
+    const auto t0 = std::chrono::steady_clock::now();
     for (const Frame& f : r.frames) {
       auto rep = rec.process(f);
       if (!rep) std::abort();
       r.poses.push_back(rep->T_world_cam);
     }
+    r.ms_per_frame = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count() /
+                     static_cast<double>(n);
     rec.finish();
     rec.map().for_each_chunk([&](const ChunkKey& k, const Chunk& c) {
       if (!c.points.empty()) r.cloud[k] = c.points;
@@ -128,13 +133,14 @@ TEST(Recorder, BoundedRunEqualsUnboundedRun) {
   for (const auto& [k, a] : ref.cloud) total_bytes += a.memory_bytes();
   TempDir dir;
   const std::string path = dir.file("scan.db");
-  const double budget_mib = 20.0;
+  const double budget_mib = 8.0;
   auto made = ScanRecorder::create(path, metadata(), "[fusion]\n", "test", recorder_config(budget_mib));
   ASSERT_TRUE(made) << made.status().to_string();
   ScanRecorder& recorder = **made;
   IncrementalReconstructor rec(config());
   size_t max_resident = 0;
   for (size_t i = 0; i < ref.frames.size(); ++i) {
+    ASSERT_TRUE(recorder.prepare_frame(ref.frames[i], rec)) << recorder.status().last_error;
     auto rep = rec.process(ref.frames[i]);
     ASSERT_TRUE(rep) << rep.status().to_string();
     ASSERT_TRUE(recorder.record_frame(ref.frames[i], *rep, &rec.map())) << recorder.status().last_error;
@@ -178,12 +184,12 @@ namespace {
   IncrementalReconstructor rec(config());
   size_t next = 0;
   if (access(path.c_str(), F_OK) != 0) {
-    auto made = ScanRecorder::create(path, metadata(), "[fusion]\n", "test", recorder_config(20.0));
+    auto made = ScanRecorder::create(path, metadata(), "[fusion]\n", "test", recorder_config(8.0));
     if (!made) _exit(3);
     recorder = std::move(made).value();
   } else {
     ResumePoint resume;
-    auto opened = ScanRecorder::resume(path, recorder_config(20.0), &resume);
+    auto opened = ScanRecorder::resume(path, recorder_config(8.0), &resume);
     if (!opened) {
       std::fprintf(stderr, "resume: %s\n", opened.status().to_string().c_str());
       _exit(4);
@@ -193,6 +199,7 @@ namespace {
     rec.reset(std::move(resume.map), resume.next_frame_id, resume.last_T_world_cam);
   }
   for (size_t i = next; i < ref.frames.size(); ++i) {
+    if (!recorder->prepare_frame(ref.frames[i], rec)) _exit(9);
     auto rep = rec.process(ref.frames[i]);
     if (!rep || rep->frame_id != i + 1) _exit(5);
     if (!recorder->record_frame(ref.frames[i], *rep, &rec.map())) _exit(6);
@@ -219,7 +226,9 @@ TEST(Recorder, KilledAndResumedScanEqualsUninterruptedRun) {
     if (child == 0) scan_process(path);
     int status = 0;
     if (kills < 20) {
-      std::this_thread::sleep_for(std::chrono::milliseconds(60 + rng() % 500));
+      // A life lasts about a dozen frames on average, whatever this machine's speed.
+      const auto span = static_cast<uint32_t>(std::max(1.0, 40.0 * ref.ms_per_frame));
+      std::this_thread::sleep_for(std::chrono::milliseconds(30 + rng() % span));
       kill(child, SIGKILL);
     }
     ASSERT_EQ(waitpid(child, &status, 0), child);

@@ -4,14 +4,38 @@
 
 #include <algorithm>
 #include <cmath>
+#include <tuple>
 
 #include "depthfuse/store/scan_store.hpp"
 
 namespace depthfuse::store {
 
 namespace {
+
 // std::unordered_map node and bucket overhead per chunk, roughly.
 constexpr size_t kChunkOverheadBytes = sizeof(Chunk) + sizeof(ChunkKey) + 4 * sizeof(void*);
+
+bool key_less(const ChunkKey& a, const ChunkKey& b) {
+  return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
+}
+
+// The chunk of p and, where p lies within `margin` of a face, the neighbours across it.
+inline void push_dilated(const PointMap& map, const Eigen::Vector3f& p, float margin,
+                         std::vector<ChunkKey>* keys) {
+  const ChunkKey k = map.key_for(p);
+  const Eigen::Vector3f o = map.chunk_origin_m(k);
+  const float s = static_cast<float>(map.chunk_size_m());
+  int lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) {
+    const float f = p[a] - o[a];
+    lo[a] = f < margin ? -1 : 0;
+    hi[a] = f > s - margin ? 1 : 0;
+  }
+  for (int dx = lo[0]; dx <= hi[0]; ++dx)
+    for (int dy = lo[1]; dy <= hi[1]; ++dy)
+      for (int dz = lo[2]; dz <= hi[2]; ++dz) keys->push_back({k.x + dx, k.y + dy, k.z + dz});
+}
+
 }  // namespace
 
 float distance_to_chunk_m(const PointMap& map, const ChunkKey& key, const Eigen::Vector3f& p) {
@@ -19,23 +43,6 @@ float distance_to_chunk_m(const PointMap& map, const ChunkKey& key, const Eigen:
   const Eigen::Vector3f hi = lo + Eigen::Vector3f::Constant(static_cast<float>(map.chunk_size_m()));
   const Eigen::Vector3f d = (lo - p).cwiseMax(p - hi).cwiseMax(Eigen::Vector3f::Zero());
   return d.norm();
-}
-
-double sensor_reach_m(const CameraIntrinsics& K, double max_depth_m) {
-  // The longest ray (z = 1) goes through the corner farthest from the principal point.
-  const double du = std::max(K.cx + 0.5, K.width - 0.5 - K.cx) / K.fx;
-  const double dv = std::max(K.cy + 0.5, K.height - 0.5 - K.cy) / K.fy;
-  return max_depth_m * std::sqrt(1.0 + du * du + dv * dv);
-}
-
-MapPagerConfig pager_config_for_sensor(double memory_budget_mib, double evict_distance_m,
-                                       const CameraIntrinsics& intrinsics, double max_depth_m,
-                                       double motion_margin_m) {
-  MapPagerConfig c;
-  c.memory_budget_mib = memory_budget_mib;
-  c.load_radius_m = sensor_reach_m(intrinsics, max_depth_m) + motion_margin_m;
-  c.evict_distance_m = std::max(evict_distance_m, c.load_radius_m + 0.25);
-  return c;
 }
 
 size_t MapPager::chunk_bytes(const Chunk& chunk) {
@@ -48,49 +55,78 @@ Status MapPager::validate(const MapPagerConfig& c) {
   if (!(c.memory_budget_mib > 0.0)) return invalid_argument("memory_budget_mib must be positive");
   if (!(c.low_watermark_fraction > 0.0 && c.low_watermark_fraction <= 1.0))
     return invalid_argument("low_watermark_fraction must be in (0, 1]");
-  if (!(c.load_radius_m > 0.0)) return invalid_argument("load_radius_m must be positive");
-  if (c.evict_distance_m < c.load_radius_m)
-    return invalid_argument("evict_distance_m (" + std::to_string(c.evict_distance_m) +
-                            ") must not be smaller than load_radius_m (" +
-                            std::to_string(c.load_radius_m) + "): chunks would be loaded and "
-                            "evicted again");
+  if (!(c.evict_distance_m >= 0.0)) return invalid_argument("evict_distance_m must be >= 0");
+  if (c.min_age_frames < 0) return invalid_argument("min_age_frames must be >= 0");
+  if (!(c.load_margin_m >= 0.0)) return invalid_argument("load_margin_m must be >= 0");
+  if (c.load_subsample_px < 1) return invalid_argument("load_subsample_px must be >= 1");
   return Status::ok();
 }
 
-Status MapPager::update(PointMap* map, const Eigen::Vector3f& camera_position_m) {
-  Status load = load_near(map, camera_position_m);
-  Status evict = evict_far(map, camera_position_m);
+Status MapPager::finish_call(Status st) {
   stats_.evicted_chunks = evicted_.size();
   stats_.unloadable_chunks = unloadable_.size();
-  const Status& first_error = !load ? load : evict;
-  if (!first_error) {
+  if (!st) {
     ++stats_.failures;
-    stats_.last_error = first_error.to_string();
+    stats_.last_error = st.to_string();
   } else {
     stats_.last_error.clear();
   }
-  return first_error;
+  return st;
 }
 
-Status MapPager::load_near(PointMap* map, const Eigen::Vector3f& cam) {
+Status MapPager::prepare(PointMap* map, const Frame& frame, const Pose& T, uint32_t frame_id) {
+  if (evicted_.empty()) return Status::ok();  // nothing to bring back: free
+  const DepthImage& d = frame.depth;
+  const CameraIntrinsics& K = frame.intrinsics;
+  if (d.empty() || d.width != K.width || d.height != K.height || !K.valid()) return Status::ok();
+  const Eigen::Matrix3f R = T.linear().cast<float>();
+  const Eigen::Vector3f t = T.translation().cast<float>();
+  const float fx = static_cast<float>(K.fx), fy = static_cast<float>(K.fy);
+  const float cx = static_cast<float>(K.cx), cy = static_cast<float>(K.cy);
+  const float margin = static_cast<float>(config_.load_margin_m);
+  const int step = config_.load_subsample_px;
+  keys_.clear();
+  // The same samples as the pipeline's chunk selection: the surface point, and the stretch of the
+  // ray just in front of it (0.9 .. 1.0 of the range) that visibility checks look at.
+  for (int v = step / 2; v < d.height; v += step) {
+    for (int u = step / 2; u < d.width; u += step) {
+      const float z = d.depth_m[static_cast<size_t>(v) * d.width + u];
+      if (!(z > 0.0f) || !std::isfinite(z)) continue;
+      const Eigen::Vector3f p_c((u - cx) / fx * z, (v - cy) / fy * z, z);
+      for (float f : {1.0f, 0.95f, 0.9f}) push_dilated(*map, R * (f * p_c) + t, margin, &keys_);
+    }
+  }
+  std::sort(keys_.begin(), keys_.end(), key_less);
+  keys_.erase(std::unique(keys_.begin(), keys_.end()), keys_.end());
+  keys_.erase(std::remove_if(keys_.begin(), keys_.end(), [&](const ChunkKey& k) { return !evicted_.count(k); }),
+              keys_.end());
+  return finish_call(load(map, keys_, frame_id));
+}
+
+Status MapPager::load_around(PointMap* map, const Eigen::Vector3f& p, double radius_m, uint32_t frame_id) {
   if (evicted_.empty()) return Status::ok();
-  const float radius = static_cast<float>(config_.load_radius_m);
-  const int reach = static_cast<int>(std::ceil(radius / map->chunk_size_m())) + 1;
+  const float radius = static_cast<float>(radius_m);
+  const int reach = static_cast<int>(std::ceil(radius_m / map->chunk_size_m())) + 1;
   const size_t cube = static_cast<size_t>(2 * reach + 1) * (2 * reach + 1) * (2 * reach + 1);
-  to_load_.clear();
+  keys_.clear();
   if (evicted_.size() < cube) {
     for (const ChunkKey& k : evicted_)
-      if (distance_to_chunk_m(*map, k, cam) <= radius) to_load_.push_back(k);
+      if (distance_to_chunk_m(*map, k, p) <= radius) keys_.push_back(k);
   } else {
-    const ChunkKey c = map->key_for(cam);
+    const ChunkKey c = map->key_for(p);
     ChunkKey k;
     for (k.x = c.x - reach; k.x <= c.x + reach; ++k.x)
       for (k.y = c.y - reach; k.y <= c.y + reach; ++k.y)
         for (k.z = c.z - reach; k.z <= c.z + reach; ++k.z)
-          if (evicted_.count(k) && distance_to_chunk_m(*map, k, cam) <= radius) to_load_.push_back(k);
+          if (evicted_.count(k) && distance_to_chunk_m(*map, k, p) <= radius) keys_.push_back(k);
   }
+  std::sort(keys_.begin(), keys_.end(), key_less);
+  return finish_call(load(map, keys_, frame_id));
+}
+
+Status MapPager::load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t frame_id) {
   Status first_error;
-  for (const ChunkKey& k : to_load_) {
+  for (const ChunkKey& k : keys) {
     auto stored = store_->read_chunk(k, /*include_staged=*/true);
     evicted_.erase(k);
     if (!stored) {
@@ -104,19 +140,25 @@ Status MapPager::load_near(PointMap* map, const Eigen::Vector3f& cam) {
     }
     Chunk loaded = std::move(stored->chunk);
     if (Chunk* resident = map->find(k)) {
-      // Fusion created the chunk while it was evicted: keep both sets of points.
+      // Fusion created the chunk while it was evicted (prepare() was skipped or the pose jumped):
+      // keep both sets of points.
       loaded.points.append(resident->points);
       loaded.last_touched_frame = std::max(loaded.last_touched_frame, resident->last_touched_frame);
       loaded.dirty = true;
       ++stats_.load_collisions;
     }
     map->insert(k, std::move(loaded));
+    loaded_at_[k] = frame_id;
     ++stats_.total_loaded;
   }
   return first_error;
 }
 
-Status MapPager::evict_far(PointMap* map, const Eigen::Vector3f& cam) {
+Status MapPager::update(PointMap* map, const Eigen::Vector3f& camera_position_m, uint32_t frame_id) {
+  return finish_call(evict(map, camera_position_m, frame_id));
+}
+
+Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame_id) {
   const size_t budget = static_cast<size_t>(config_.memory_budget_mib * 1024.0 * 1024.0);
   size_t resident = 0;
   map->for_each_chunk([&](const ChunkKey&, const Chunk& c) { resident += chunk_bytes(c); });
@@ -130,14 +172,19 @@ Status MapPager::evict_far(PointMap* map, const Eigen::Vector3f& cam) {
   }
 
   candidates_.clear();
-  const float min_distance = static_cast<float>(config_.evict_distance_m);
+  const float keep_distance = static_cast<float>(config_.evict_distance_m);
+  const uint32_t min_age = static_cast<uint32_t>(config_.min_age_frames);
   map->for_each_chunk([&](const ChunkKey& k, const Chunk& c) {
+    uint32_t used = c.last_touched_frame;
+    if (auto it = loaded_at_.find(k); it != loaded_at_.end()) used = std::max(used, it->second);
+    if (used + min_age >= frame_id) return;  // seen (or brought back) recently
     const float d = distance_to_chunk_m(*map, k, cam);
-    if (d > min_distance) candidates_.push_back({k, c.last_touched_frame, d, chunk_bytes(c)});
+    if (d <= keep_distance) return;
+    candidates_.push_back({k, used, d, chunk_bytes(c)});
   });
-  // Least recently touched first; among equals, the farthest.
+  // Least recently used first; among equals, the farthest.
   std::sort(candidates_.begin(), candidates_.end(), [](const Candidate& a, const Candidate& b) {
-    if (a.last_touched_frame != b.last_touched_frame) return a.last_touched_frame < b.last_touched_frame;
+    if (a.last_used_frame != b.last_used_frame) return a.last_used_frame < b.last_used_frame;
     return a.distance_m > b.distance_m;
   });
   const size_t target = static_cast<size_t>(static_cast<double>(budget) * config_.low_watermark_fraction);
@@ -164,8 +211,9 @@ Status MapPager::evict_far(PointMap* map, const Eigen::Vector3f& cam) {
     // A clean, empty chunk has nothing in the file and nothing to come back to.
     const bool keep_key = c->dirty || !c->points.empty();
     map->extract(k, nullptr);
-    if (keep_key) evicted_.insert(k);
+    loaded_at_.erase(k);
     unloadable_.erase(k);
+    if (keep_key) evicted_.insert(k);
   }
   stats_.total_evicted += n;
   stats_.resident_chunks = map->chunk_count();

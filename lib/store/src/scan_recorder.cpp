@@ -73,9 +73,13 @@ Result<std::unique_ptr<ScanRecorder>> ScanRecorder::resume(const std::string& pa
     auto keys = store.list_chunks();
     if (!keys) return keys.status();
     for (const ChunkInfo& c : *keys) rec->pager_->mark_evicted(c.key);
+    // The surroundings of the last pose; prepare_frame() brings back whatever the next frames see.
     Eigen::Vector3f cam = Eigen::Vector3f::Zero();
     if (resume->last_T_world_cam) cam = resume->last_T_world_cam->translation().cast<float>();
-    DF_RETURN_IF_ERROR(rec->pager_->update(resume->map.get(), cam).with_context("resuming"));
+    DF_RETURN_IF_ERROR(rec->pager_
+                           ->load_around(resume->map.get(), cam, config.pager.evict_distance_m,
+                                         resume->next_frame_id)
+                           .with_context("resuming"));
   } else {
     PointMap* map = resume->map.get();
     DF_RETURN_IF_ERROR(store.for_each_chunk([&](const ChunkInfo& info, PointArrays& points) {
@@ -89,6 +93,18 @@ Result<std::unique_ptr<ScanRecorder>> ScanRecorder::resume(const std::string& pa
   }
   if (rec->pager_) rec->status_.pager = rec->pager_->stats();
   return rec;
+}
+
+Status ScanRecorder::prepare_frame(const Frame& frame, IncrementalReconstructor& reconstructor,
+                                   const std::optional<Pose>& prediction) {
+  if (!pager_) return Status::ok();
+  Pose guess = Pose::Identity();
+  if (frame.T_world_cam_hint) guess = *frame.T_world_cam_hint;
+  else if (prediction) guess = *prediction;
+  else if (reconstructor.last_pose()) guess = *reconstructor.last_pose();
+  Status st = pager_->prepare(&reconstructor.map(), frame, guess, reconstructor.next_frame_id());
+  status_.pager = pager_->stats();
+  return note(st);
 }
 
 Status ScanRecorder::record_frame(const Frame& frame, const FrameReport& report, PointMap* map) {
@@ -119,7 +135,7 @@ Status ScanRecorder::record_frame(const Frame& frame, const FrameReport& report,
   ++frames_since_keyframe_;
 
   if (pager_) {
-    Status st = pager_->update(map, report.T_world_cam.translation().cast<float>());
+    Status st = pager_->update(map, report.T_world_cam.translation().cast<float>(), report.frame_id);
     status_.pager = pager_->stats();
     if (!st && result) result = note(st);
   }
@@ -137,7 +153,11 @@ Result<CheckpointRecord> ScanRecorder::checkpoint(PointMap* map, const std::stri
 
 Result<CheckpointRecord> ScanRecorder::finish(PointMap* map, const FrameCounters& counters,
                                               const std::string& reason) {
-  return write_checkpoint(map, reason, counters, true);
+  auto rec = write_checkpoint(map, reason, counters, true);
+  // Pages freed by rewritten and promoted chunks go back to the file system; failing here loses
+  // nothing (the checkpoint is committed).
+  if (rec) (void)note(store_->compact());
+  return rec;
 }
 
 Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std::string& reason,

@@ -1,12 +1,19 @@
-// Bounded memory for the fused map: when the resident chunks exceed a budget, the least recently
-// touched chunks far from the camera are written to the scan file and dropped; evicted chunks the
-// camera comes back to are loaded again. Cost per call does not grow with the map: loading visits
-// the cube of chunk keys within the load radius (or the evicted index, when that is smaller), and
-// eviction scans only the resident chunks, whose number the budget bounds.
+// Bounded memory for the fused map. Two calls per frame:
+//  - prepare() before the frame is processed loads back every evicted chunk the frame can touch:
+//    the chunks around its back-projected depth (at the predicted pose, dilated by a margin that
+//    covers ICP's correction and the pipeline's own chunk margins), so fusion and registration see
+//    exactly the map an unbounded run would;
+//  - update() after it: when the resident chunks exceed the budget, the least recently touched
+//    ones (Chunk::last_touched_frame) that the camera has not seen for a while and that are not
+//    right next to it are written to the scan file and dropped.
+// Per-call cost follows the frame, not the map: prepare() visits a subsample of the frame's
+// pixels and looks their chunk keys up in the evicted index; update() scans only resident chunks,
+// whose number the budget bounds.
 #pragma once
 
 #include <cstdint>
 #include <string>
+#include <unordered_map>
 #include <unordered_set>
 #include <vector>
 
@@ -23,11 +30,12 @@ class ScanStore;
 struct MapPagerConfig {
   double memory_budget_mib = 256.0;       // resident point data of the map
   double low_watermark_fraction = 0.85;   // evict down to this fraction of the budget
-  double evict_distance_m = 7.0;          // chunks nearer to the camera than this stay resident
-  // Evicted chunks nearer than this are loaded back: the sensor's reach (sensor_reach_m, not
-  // just its max depth: the corner rays are longer) plus a margin for the motion until the next
-  // call. Must not exceed evict_distance_m (or loads would thrash).
-  double load_radius_m = 6.6;
+  double evict_distance_m = 1.5;          // chunks nearer to the camera than this stay resident
+  int min_age_frames = 30;                // chunks touched (or loaded) this recently stay resident
+  // prepare(): a chunk within this distance of a back-projected depth sample is loaded. Covers
+  // the pipeline's chunk margins (0.1 m) and the pose change ICP makes from the prediction.
+  double load_margin_m = 0.3;
+  int load_subsample_px = 4;              // prepare() looks at every n-th pixel in u and v
   int retry_after_failure_calls = 30;     // after a failed write, skip eviction this many calls
   bool release_memory_to_os = true;       // malloc_trim after evicting, so RSS follows the budget
 };
@@ -36,12 +44,12 @@ struct PagerStats {
   size_t resident_chunks = 0;
   size_t resident_bytes = 0;              // after the last update
   size_t evicted_chunks = 0;              // keys in the evicted index
-  size_t unevictable_bytes = 0;           // over budget but within evict_distance_m
+  size_t unevictable_bytes = 0;           // over budget, but all recently seen or near
+  size_t unloadable_chunks = 0;           // evicted chunks that failed to load (damaged)
   uint64_t total_evicted = 0, total_written = 0, total_loaded = 0;
   uint64_t load_collisions = 0;           // a loaded chunk met a new resident one (points merged)
   uint64_t failures = 0;
-  size_t unloadable_chunks = 0;           // evicted chunks that failed to load (damaged)
-  std::string last_error;                 // empty after a successful update
+  std::string last_error;                 // empty after a successful call
 };
 
 class MapPager {
@@ -51,8 +59,18 @@ class MapPager {
 
   static Status validate(const MapPagerConfig& config);
 
-  // Once per frame, after fusion, with the camera position in the world frame.
-  Status update(PointMap* map, const Eigen::Vector3f& camera_position_m);
+  // Before IncrementalReconstructor::process(frame): loads the evicted chunks the frame can touch.
+  // `T_world_cam_guess`: the frame's pose hint, else the prediction, else the last pose.
+  // `frame_id`: the id the frame will get (IncrementalReconstructor::next_frame_id()).
+  Status prepare(PointMap* map, const Frame& frame, const Pose& T_world_cam_guess, uint32_t frame_id);
+
+  // After the frame was fused, with the camera position in the world frame.
+  Status update(PointMap* map, const Eigen::Vector3f& camera_position_m, uint32_t frame_id);
+
+  // Loads the evicted chunks within `radius_m` of a point (e.g. around the camera on resume, so
+  // that the first frame's tracking has its map). Visits the cube of keys, or the evicted index
+  // when that is smaller.
+  Status load_around(PointMap* map, const Eigen::Vector3f& p_m, double radius_m, uint32_t frame_id);
 
   // Resume: a chunk that is in the scan file but not in memory.
   void mark_evicted(const ChunkKey& key) { evicted_.insert(key); }
@@ -73,35 +91,26 @@ class MapPager {
   const PagerStats& stats() const { return stats_; }
 
  private:
-  Status load_near(PointMap* map, const Eigen::Vector3f& camera_position_m);
-  Status evict_far(PointMap* map, const Eigen::Vector3f& camera_position_m);
+  Status load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t frame_id);
+  Status evict(PointMap* map, const Eigen::Vector3f& camera_position_m, uint32_t frame_id);
+  Status finish_call(Status st);
 
   MapPagerConfig config_;
   ScanStore* store_;
   std::unordered_set<ChunkKey, ChunkKeyHash> evicted_;
   std::unordered_set<ChunkKey, ChunkKeyHash> unloadable_;  // load failed; not retried every frame
+  std::unordered_map<ChunkKey, uint32_t, ChunkKeyHash> loaded_at_;  // frame a chunk was loaded at
   PagerStats stats_;
   int skip_eviction_calls_ = 0;
   struct Candidate {
     ChunkKey key;
-    uint32_t last_touched_frame;
+    uint32_t last_used_frame;
     float distance_m;
     size_t bytes;
   };
   std::vector<Candidate> candidates_;
-  std::vector<ChunkKey> to_load_;
+  std::vector<ChunkKey> keys_;
 };
-
-// How far from the camera a measurement can lie: max_depth_m along the ray through the farthest
-// image corner (Kinect V2 at 4.5 m: 6.1 m). Fusion and ICP touch only chunks within this reach
-// (plus their small margins) of the camera.
-double sensor_reach_m(const CameraIntrinsics& intrinsics, double max_depth_m);
-
-// A pager configuration for a sensor: load radius = reach + motion margin, eviction beyond that
-// (at least `evict_distance_m`).
-MapPagerConfig pager_config_for_sensor(double memory_budget_mib, double evict_distance_m,
-                                       const CameraIntrinsics& intrinsics, double max_depth_m,
-                                       double motion_margin_m = 0.5);
 
 // Distance from a point to a chunk's cube (0 inside).
 float distance_to_chunk_m(const PointMap& map, const ChunkKey& key, const Eigen::Vector3f& p_m);

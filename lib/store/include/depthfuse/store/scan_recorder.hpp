@@ -71,8 +71,14 @@ class ScanRecorder {
                                                       ResumePoint* resume);
   ~ScanRecorder();
 
+  // Before IncrementalReconstructor::process(frame): brings back the evicted chunks the frame can
+  // touch (bounded memory only; free otherwise). The pose guess is the frame's hint, else
+  // `prediction`, else the reconstructor's last pose.
+  Status prepare_frame(const Frame& frame, IncrementalReconstructor& reconstructor,
+                       const std::optional<Pose>& prediction = std::nullopt);
+
   // After IncrementalReconstructor::process: buffers the pose, writes a keyframe every n frames,
-  // and lets the pager load and evict chunks around the camera.
+  // and lets the pager evict what the budget cannot hold.
   Status record_frame(const Frame& frame, const FrameReport& report, PointMap* map);
 
   // One transaction: changed resident chunks, chunks removed from the map, chunks evicted since
