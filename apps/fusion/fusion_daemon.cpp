@@ -207,6 +207,21 @@ Status FusionDaemon::start_scan(const std::string& requested_name, std::string* 
   return Status::ok();
 }
 
+// Writes `path` through a temporary file and a rename, so that a crash or a full disk never leaves
+// a truncated file under the final name.
+template <typename WriteFn>
+Status write_atomically(const std::string& path, WriteFn write) {
+  const std::string tmp = path + ".partial";
+  Status st = write(tmp);
+  std::error_code ec;
+  if (st.is_ok()) {
+    std::filesystem::rename(tmp, path, ec);
+    if (ec) st = io_error("cannot rename " + tmp + " to " + path + ": " + ec.message());
+  }
+  if (!st.is_ok()) std::filesystem::remove(tmp, ec);
+  return st;
+}
+
 Status FusionDaemon::stop_scan(const std::string& reason, std::string* message) {
   if (!reconstructor_) return invalid_argument("no scan is running");
   state_ = heartbeat_t::STATE_STOPPING;
@@ -218,24 +233,41 @@ Status FusionDaemon::stop_scan(const std::string& reason, std::string* message) 
   const Status sink_status = sink_->end_scan(reason, *reconstructor_, progress);
 
   auto cloud_r = sink_->final_cloud(*reconstructor_);
-  const PointArrays cloud = cloud_r.is_ok() ? std::move(cloud_r).value() : PointArrays{};
   const std::string base = (std::filesystem::path(scan_.scan_dir) / scan_.scan_id).string();
   const std::string ply_path = base + ".ply";
   const std::string tum_path = base + "-trajectory.txt";
-  Status st = cloud_r.is_ok() ? write_ply(ply_path, cloud, PlyOptions{})
-                              : cloud_r.status().with_context("collecting the cloud");
-  if (st.is_ok()) st = write_tum_trajectory(tum_path, trajectory_);
+  std::error_code ec;
+  std::filesystem::create_directories(scan_.scan_dir, ec);
+  Status st = cloud_r.status().with_context("collecting the cloud");
+  if (cloud_r.is_ok()) {
+    st = write_atomically(ply_path, [&](const std::string& p) {
+      return write_ply(p, *cloud_r, PlyOptions{});
+    });
+  }
+  if (st.is_ok()) {
+    st = write_atomically(tum_path, [&](const std::string& p) {
+      return write_tum_trajectory(p, trajectory_);
+    });
+  }
   const std::string id = scan_.scan_id;
+  if (!st.is_ok()) {
+    // Never lose a scan: keep it, paused, so that the operator can fix the cause and stop again.
+    state_ = heartbeat_t::STATE_PAUSED;
+    const Status failed = st.with_context("saving scan " + id);
+    set_error(failed.to_string());
+    return Status(failed.code(), failed.message() + "; the scan is kept in memory, paused: fix "
+                                                    "the problem and stop again");
+  }
+  const size_t points = cloud_r->size();
   reconstructor_.reset();
   point_count_ = 0;
   state_ = heartbeat_t::STATE_IDLE;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     scan_id_.clear();
-    if (st.is_ok()) last_saved_cloud_ = ply_path;
+    last_saved_cloud_ = ply_path;
   }
-  if (!st.is_ok()) return st.with_context("saving scan " + id);
-  *message = "scan " + id + " saved: " + std::to_string(cloud.size()) + " points (" +
+  *message = "scan " + id + " saved: " + std::to_string(points) + " points (" +
              std::to_string(removed) + " removed by the post-filter) in " + ply_path + ", " +
              std::to_string(trajectory_.size()) + " poses in " + tum_path;
   if (!sink_status.is_ok()) {
@@ -405,12 +437,19 @@ void FusionDaemon::worker_loop() {
       last_checkpoint_ = Clock::now();
     }
   }
-  // Shutting down (SIGTERM): a running scan is saved, not lost.
+  // Shutting down (SIGTERM): a running scan is saved, not lost; if the scan directory cannot take
+  // it, the temporary directory gets it rather than nobody.
   if (reconstructor_) {
     std::string message;
     if (auto st = stop_scan("sigterm", &message); !st.is_ok()) {
       std::fprintf(stderr, "depthfuse-fusion: %s\n", st.to_string().c_str());
-      set_error(st.to_string());
+      scan_.scan_dir = (std::filesystem::temp_directory_path() / "depthfuse-rescue").string();
+      std::fprintf(stderr, "depthfuse-fusion: saving scan %s to %s instead\n", scan_.scan_id.c_str(),
+                   scan_.scan_dir.c_str());
+      if (auto again = stop_scan("sigterm", &message); !again.is_ok()) {
+        std::fprintf(stderr, "depthfuse-fusion: %s\n", again.to_string().c_str());
+        set_error(again.to_string());
+      }
     }
   }
 }

@@ -12,6 +12,7 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <mutex>
 #include <thread>
 
@@ -640,6 +641,56 @@ TEST_F(LiveAppliance, PythonWatcherReadsTheChannels) {
   EXPECT_EQ(run_command({DEPTHFUSE_PYTHON3, watch, "--lcm", url_, "--python-dir", DEPTHFUSE_PYTHON_DIR,
                          "--channel", "DEPTHFUSE_POSE", "--count", "1", "--timeout", "1"},
                         dir_ + "/watch-none.log", &out), 1) << out;  // nobody publishes poses here
+}
+
+// A scan that cannot be written (the scan directory is gone, the disk is full) is kept, paused,
+// and saved by the next stop once the cause is fixed; at SIGTERM it goes to a rescue directory.
+TEST_F(LiveAppliance, StopNeverLosesTheScan) {
+  const std::string scans = dir_ + "/scans";
+  auto fusion = start_fusion({"--autostart", "keep", "--queue", "8"});
+  auto capture = start_capture("synthetic:corner?frames=4", {"--rate", "5", "--color", "none"});
+  ASSERT_TRUE(capture->wait(seconds(30))) << capture->log();
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.frames_out == 4; }, seconds(120)))
+      << fusion->log();
+  const int64_t points = observer_->heartbeat("fusion")->point_count;
+  ASSERT_GT(points, 0);
+
+  std::filesystem::remove_all(scans);
+  { std::ofstream(scans) << "a file where the scan directory should be\n"; }
+  std::string out;
+  EXPECT_EQ(scan({"stop"}, &out), 1) << out;
+  EXPECT_NE(out.find("kept in memory"), std::string::npos) << out;
+  EXPECT_TRUE(observer_->wait_heartbeat("fusion", [&](auto& hb) {
+    return hb.state == depthfuse::heartbeat_t::STATE_PAUSED && hb.scan_id == "keep" &&
+           hb.point_count > 0 && !hb.last_error.empty();
+  }, seconds(3)));
+
+  std::filesystem::remove(scans);
+  std::filesystem::create_directories(scans);
+  ASSERT_EQ(scan({"stop"}, &out), 0) << out;
+  auto cloud = read_ply(scans + "/keep.ply");
+  ASSERT_TRUE(cloud.is_ok()) << cloud.status().to_string();
+  EXPECT_GT(cloud->size(), 0u);
+  EXPECT_LE(cloud->size(), static_cast<size_t>(points));
+  auto traj = read_tum_trajectory(scans + "/keep-trajectory.txt");
+  ASSERT_TRUE(traj.is_ok()) << traj.status().to_string();
+  EXPECT_EQ(traj->size(), 4u);
+  for (const auto& entry : std::filesystem::directory_iterator(scans))
+    EXPECT_EQ(entry.path().string().find(".partial"), std::string::npos) << entry.path();
+
+  // SIGTERM with nowhere to write: the scan lands in the rescue directory.
+  const std::string name = "rescue-" + std::to_string(::getpid());
+  ASSERT_EQ(scan({"start", name}, &out), 0) << out;
+  std::filesystem::remove_all(scans);
+  { std::ofstream(scans) << "not a directory\n"; }
+  fusion->signal(SIGTERM);
+  ASSERT_TRUE(fusion->wait(seconds(30)));
+  EXPECT_EQ(fusion->exit_code(), 0) << fusion->log();
+  const auto rescued = std::filesystem::temp_directory_path() / "depthfuse-rescue" / (name + ".ply");
+  EXPECT_TRUE(std::filesystem::exists(rescued)) << fusion->log();
+  EXPECT_NE(fusion->log().find(rescued.parent_path().string()), std::string::npos) << fusion->log();
+  std::filesystem::remove(rescued);
+  std::filesystem::remove(rescued.parent_path() / (name + "-trajectory.txt"));
 }
 
 }  // namespace
