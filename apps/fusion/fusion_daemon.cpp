@@ -24,6 +24,7 @@ using depthfuse::heartbeat_t;
 using Clock = std::chrono::steady_clock;
 
 constexpr size_t kPendingColorFrames = 8;
+constexpr size_t kMaxPublishers = 16;
 constexpr double kMeanWeight = 0.1;  // exponential moving averages over ~10 frames
 
 void ewma(double* mean, double value) { *mean += kMeanWeight * (value - *mean); }
@@ -129,7 +130,10 @@ void FusionDaemon::on_depth(const uint8_t* data, size_t size) {
     set_error(st.message());
     return;
   }
-  const auto seen = sequence_.observe(msg.sequence);
+  // Per publisher, so that two captures on one channel do not look like chaos to each other.
+  const std::string publisher = msg.source + "|" + msg.sensor_serial;
+  if (sequences_.size() >= kMaxPublishers && !sequences_.count(publisher)) sequences_.clear();
+  const auto seen = sequences_[publisher].observe(msg.sequence);
   if (seen.verdict == lcmio::SequenceTracker::Verdict::kOutOfOrder) {
     // A late frame: its pose would be predicted from a newer one. Counted, not fused.
     ++counters_.out_of_order;

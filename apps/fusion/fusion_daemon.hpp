@@ -74,7 +74,7 @@ class FusionDaemon {
   daemon::BoundedQueue<QueuedFrame> queue_;
 
   // Receive thread only.
-  lcmio::SequenceTracker sequence_;
+  std::map<std::string, lcmio::SequenceTracker> sequences_;  // per publisher (source|serial)
   std::map<int64_t, ColorImage> pending_color_;  // by sequence, the last few
 
   // Shared.
