@@ -549,7 +549,9 @@ TEST_F(LiveAppliance, RecordedSessionReplaysAtItsPace) {
     EXPECT_TRUE(f->T_world_cam_hint->isApprox(*want.T_world_cam_hint, 1e-9));
   }
   const double recorded_s = ((*src)->log_utime(9) - (*src)->log_utime(0)) * 1e-6;
-  EXPECT_NEAR(recorded_s, 9 / 8.0, 0.5);
+  // Published at 8 Hz: 9 intervals take at least 1.125 s (more when the machine is busy).
+  EXPECT_GE(recorded_s, 1.0);
+  EXPECT_LT(recorded_s, 10.0);
 
   // Replayed by the capture daemon at the recorded pace (never faster than recorded).
   auto replay_fusion = start_fusion({"--autostart", "replayed", "--queue", "64"});
