@@ -438,7 +438,10 @@ TEST(ScanStore, MigratesASchema1File) {
   ASSERT_FALSE(ro);
   EXPECT_EQ(ro.status().code(), StatusCode::kUnsupported);
   EXPECT_NE(ro.status().message().find("schema version 1"), std::string::npos) << ro.status().message();
+  EXPECT_NE(ro.status().message().find("--upgrade"), std::string::npos) << ro.status().message();
 
+  const std::string copy = dir.file("old-copy.db");
+  std::filesystem::copy_file(path, copy);
   {
     auto s = open_or_die(path, OpenMode::kReadWrite);
     ASSERT_TRUE(s);
@@ -446,6 +449,11 @@ TEST(ScanStore, MigratesASchema1File) {
     EXPECT_EQ(s->open_report().found_schema_version, 1);
     EXPECT_EQ(s->schema_version(), 2);
   }
+  // The same through the CLI: inspect refuses, inspect --upgrade migrates and checks.
+  const std::string cli = DEPTHFUSE_CLI;
+  EXPECT_NE(std::system((cli + " inspect " + copy + " > /dev/null 2>&1").c_str()), 0);
+  EXPECT_EQ(std::system((cli + " inspect --upgrade " + copy + " > /dev/null 2>&1").c_str()), 0);
+  EXPECT_EQ(std::system((cli + " inspect " + copy + " > /dev/null 2>&1").c_str()), 0);
   auto s = open_or_die(path, OpenMode::kReadOnly);
   ASSERT_TRUE(s);
   auto c = s->read_chunk(key);
