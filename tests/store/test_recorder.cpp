@@ -3,6 +3,7 @@
 // again and resumed from its checkpoints ends exactly where an uninterrupted run ends.
 #include <gtest/gtest.h>
 #include <signal.h>
+#include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -261,6 +262,74 @@ TEST(Recorder, KilledAndResumedScanEqualsUninterruptedRun) {
               progress.c_str());
   EXPECT_GT(last_frame_seen, 0u) << "no checkpoint before the last kill";
   EXPECT_LT(last_frame_seen, ref.frames.size()) << "the kills came after the scan";
+  expect_same_cloud(stored_cloud(path), ref.cloud);
+  expect_same_poses(path, ref.poses, ref.frames.size());
+}
+
+// A full disk in the middle of a scan (a file size limit in a child process): checkpoints and
+// evictions fail and say so, fusion goes on, the last good checkpoint stays intact; once there is
+// space again the next checkpoint writes everything, and the scan ends exactly as an
+// uninterrupted run. Nothing is lost.
+TEST(Recorder, FullDiskMidScanLosesNothing) {
+  const Reference& ref = reference();
+  TempDir dir;
+  const std::string path = dir.file("scan.db");
+  fflush(stdout);
+  const pid_t child = fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    signal(SIGXFSZ, SIG_IGN);
+    auto made = ScanRecorder::create(path, metadata(), "[fusion]\n", "test", recorder_config(8.0));
+    if (!made) _exit(3);
+    ScanRecorder& recorder = **made;
+    IncrementalReconstructor rec(config());
+    const size_t full_at = 60, space_at = 240;
+    uint64_t failed_checkpoints = 0;
+    int64_t good_checkpoint = 0;
+    for (size_t i = 0; i < ref.frames.size(); ++i) {
+      if (i == full_at) {
+        const auto size = std::filesystem::file_size(path);
+        struct rlimit rl {static_cast<rlim_t>(size + 512 * 1024), RLIM_INFINITY};
+        if (setrlimit(RLIMIT_FSIZE, &rl) != 0) _exit(4);
+        good_checkpoint = recorder.status().last_checkpoint ? recorder.status().last_checkpoint->id : 0;
+      }
+      if (i == space_at) {
+        struct rlimit rl {RLIM_INFINITY, RLIM_INFINITY};
+        if (setrlimit(RLIMIT_FSIZE, &rl) != 0) _exit(5);
+        // While the disk was full: the file still held the last good checkpoint, intact.
+        auto r = ScanStore::open(path, OpenMode::kReadOnly);
+        if (!r) _exit(6);
+        auto last = (*r)->last_checkpoint();
+        if (!last || !*last || (*last)->id != good_checkpoint) _exit(7);
+        auto integrity = (*r)->integrity_check();
+        if (!integrity || !integrity->ok()) _exit(8);
+        if (failed_checkpoints == 0 || recorder.status().checkpoint_error.empty()) _exit(9);
+        std::printf("disk full for frames %zu..%zu: %llu checkpoints failed (\"%s\"), pager failures %llu, "
+                    "resident %.1f MiB\n",
+                    full_at, space_at, static_cast<unsigned long long>(failed_checkpoints),
+                    recorder.status().checkpoint_error.substr(0, 120).c_str(),
+                    static_cast<unsigned long long>(recorder.status().pager.failures),
+                    recorder.status().pager.resident_bytes / 1048576.0);
+      }
+      (void)recorder.prepare_frame(ref.frames[i], rec);
+      auto rep = rec.process(ref.frames[i]);
+      if (!rep) _exit(10);
+      (void)recorder.record_frame(ref.frames[i], *rep, &rec.map());  // evictions may fail: kept
+      if (i % 20 == 19 && !recorder.checkpoint(&rec.map(), "periodic")) {
+        if (i < full_at || i >= space_at) _exit(11);
+        if (recorder.status().last_error_code != StatusCode::kIoError) _exit(12);
+        ++failed_checkpoints;
+      }
+    }
+    rec.finish();
+    if (!recorder.finish(&rec.map())) _exit(13);
+    fflush(stdout);
+    _exit(0);
+  }
+  int status = 0;
+  ASSERT_EQ(waitpid(child, &status, 0), child);
+  ASSERT_TRUE(WIFEXITED(status));
+  ASSERT_EQ(WEXITSTATUS(status), 0);
   expect_same_cloud(stored_cloud(path), ref.cloud);
   expect_same_poses(path, ref.poses, ref.frames.size());
 }

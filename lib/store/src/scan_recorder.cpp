@@ -166,7 +166,11 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
   const auto t0 = std::chrono::steady_clock::now();
   ScanStore& store = *store_;
   Status st = store.begin_checkpoint();
-  if (!st) return note(st);
+  if (!st) {
+    status_.checkpoint_error = st.to_string();
+    ++status_.checkpoint_failures;
+    return note(st);
+  }
   std::vector<ChunkKey> emptied_evicted;
   auto body = [&]() -> Status {
     map->for_each_chunk([&](const ChunkKey& key, const Chunk& c) {
@@ -201,10 +205,16 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
     for (const PoseRecord& p : pending_poses_) DF_RETURN_IF_ERROR(store.write_pose(p));
     return Status::ok();
   };
+  auto failed = [&](const Status& error) {
+    const Status st2 = error.with_context("checkpoint (the previous checkpoint is intact)");
+    status_.checkpoint_error = st2.to_string();
+    ++status_.checkpoint_failures;
+    return note(st2);
+  };
   st = body();
   if (!st) {
     store.rollback_checkpoint();
-    return note(st.with_context("checkpoint (the previous checkpoint is intact)"));
+    return failed(st);
   }
   CheckpointInfo info;
   info.reason = reason;
@@ -214,7 +224,7 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
   info.frames_fused = frames_fused_;
   info.frames_dropped = counters.dropped;
   auto rec = store.commit_checkpoint(info);
-  if (!rec) return note(rec.status().with_context("checkpoint (the previous checkpoint is intact)"));
+  if (!rec) return failed(rec.status());
   map->for_each_chunk([](const ChunkKey&, Chunk& c) { c.dirty = false; });
   for (const ChunkKey& k : emptied_evicted) pager_->forget(k);
   pending_poses_.clear();
@@ -225,6 +235,7 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   status_.last_error_code = StatusCode::kOk;
   status_.last_error.clear();
+  status_.checkpoint_error.clear();
   return rec;
 }
 

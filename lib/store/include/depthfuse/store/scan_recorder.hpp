@@ -44,6 +44,10 @@ struct RecorderStatus {
   PagerStats pager;
   StatusCode last_error_code = StatusCode::kOk;
   std::string last_error;                    // the latest failure, cleared by the next success
+  // The latest failed checkpoint, cleared only by a successful one (a full disk stays visible in
+  // the heartbeat while frames keep being fused).
+  std::string checkpoint_error;
+  uint64_t checkpoint_failures = 0;
 };
 
 // Where a resumed scan continues.
