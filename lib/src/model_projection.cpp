@@ -7,27 +7,6 @@
 
 namespace depthfuse {
 
-namespace {
-
-inline void push_dilated(const PointMap& map, const Eigen::Vector3f& p, float margin,
-                         std::vector<ChunkKey>* keys) {
-  const ChunkKey k = map.key_for(p);
-  keys->push_back(k);
-  const Eigen::Vector3f o = map.chunk_origin_m(k);
-  const float s = static_cast<float>(map.chunk_size_m());
-  int lo[3], hi[3];
-  for (int a = 0; a < 3; ++a) {
-    const float f = p[a] - o[a];
-    lo[a] = f < margin ? -1 : 0;
-    hi[a] = f > s - margin ? 1 : 0;
-  }
-  for (int dx = lo[0]; dx <= hi[0]; ++dx)
-    for (int dy = lo[1]; dy <= hi[1]; ++dy)
-      for (int dz = lo[2]; dz <= hi[2]; ++dz)
-        if (dx || dy || dz) keys->push_back({k.x + dx, k.y + dy, k.z + dz});
-}
-
-}  // namespace
 
 void ModelProjection::select_chunks(PointMap& map, const MeasurementImage& m,
                                     const Pose& T_world_cam, float margin_m, int stride) {
@@ -39,7 +18,7 @@ void ModelProjection::select_chunks(PointMap& map, const MeasurementImage& m,
       const size_t i = static_cast<size_t>(v) * m.width + u;
       if (!m.valid[i]) continue;
       const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);
-      for (float f : {1.0f, 0.95f, 0.9f}) push_dilated(map, R * (f * p_c) + t, margin_m, &keys_);
+      for (float f : {1.0f, 0.95f, 0.9f}) map.keys_near(R * (f * p_c) + t, margin_m, &keys_);
     }
   }
   std::sort(keys_.begin(), keys_.end(), [](const ChunkKey& a, const ChunkKey& b) {

@@ -20,6 +20,21 @@ Eigen::Vector3f PointMap::chunk_origin_m(const ChunkKey& key) const {
   return {key.x * s, key.y * s, key.z * s};
 }
 
+void PointMap::keys_near(const Eigen::Vector3f& p, float margin_m, std::vector<ChunkKey>* out) const {
+  const ChunkKey k = key_for(p);
+  const Eigen::Vector3f o = chunk_origin_m(k);
+  const float s = static_cast<float>(chunk_size_m_);
+  int lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) {
+    const float f = p[a] - o[a];
+    lo[a] = f < margin_m ? -1 : 0;
+    hi[a] = f > s - margin_m ? 1 : 0;
+  }
+  for (int dx = lo[0]; dx <= hi[0]; ++dx)
+    for (int dy = lo[1]; dy <= hi[1]; ++dy)
+      for (int dz = lo[2]; dz <= hi[2]; ++dz) out->push_back({k.x + dx, k.y + dy, k.z + dz});
+}
+
 Chunk* PointMap::find(const ChunkKey& key) {
   auto it = chunks_.find(key);
   return it == chunks_.end() ? nullptr : &it->second;

@@ -43,6 +43,10 @@ class PointMap {
   ChunkKey key_for(const Eigen::Vector3f& p) const { return key_for(p.x(), p.y(), p.z()); }
   Eigen::Vector3f chunk_origin_m(const ChunkKey& key) const;
 
+  // The key of p's chunk and, where p lies within margin_m of a face (or edge, or corner), the keys
+  // of the chunks across it: every chunk a point within margin_m of p can be in. Appends to *out.
+  void keys_near(const Eigen::Vector3f& p, float margin_m, std::vector<ChunkKey>* out) const;
+
   Chunk* find(const ChunkKey& key);
   const Chunk* find(const ChunkKey& key) const;
   Chunk& get_or_create(const ChunkKey& key);
