@@ -1,5 +1,6 @@
 #include "fusion_daemon.hpp"
 
+#include <algorithm>
 #include <cctype>
 #include <cstdio>
 #include <ctime>
@@ -25,6 +26,7 @@ using Clock = std::chrono::steady_clock;
 
 constexpr size_t kPendingColorFrames = 8;
 constexpr size_t kMaxPublishers = 16;
+constexpr size_t kRecentCommands = 64;
 constexpr double kMeanWeight = 0.1;  // exponential moving averages over ~10 frames
 
 void ewma(double* mean, double value) { *mean += kMeanWeight * (value - *mean); }
@@ -166,20 +168,23 @@ void FusionDaemon::on_command(const uint8_t* data, size_t size) {
     return;
   }
   if (!cmd.target.empty() && cmd.target != options_.name) return;
+  bool acknowledge_again = false;
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    // A resent command (the client repeats until acknowledged) is acknowledged, not redone.
-    if (cmd.command_id == ack_.id) {
-      ;
+    // The client repeats a command until it is acknowledged: a repeat is never carried out twice.
+    // The last one is acknowledged again; an older one (a straggler) is ignored.
+    const bool seen = std::find(recent_command_ids_.begin(), recent_command_ids_.end(),
+                                cmd.command_id) != recent_command_ids_.end();
+    if (seen) {
+      acknowledge_again = cmd.command_id == ack_.id;
     } else {
-      for (const auto& queued : commands_)
-        if (queued.command_id == cmd.command_id) return;
+      recent_command_ids_.push_back(cmd.command_id);
+      if (recent_command_ids_.size() > kRecentCommands) recent_command_ids_.pop_front();
       commands_.push_back(cmd);
       queue_.wake();
-      return;
     }
   }
-  publish_heartbeat();
+  if (acknowledge_again) publish_heartbeat();
 }
 
 // ---------------------------------------------------------------- worker thread
@@ -269,7 +274,6 @@ Status FusionDaemon::stop_scan(const std::string& reason, std::string* message) 
   {
     std::lock_guard<std::mutex> lock(mutex_);
     scan_id_.clear();
-    last_saved_cloud_ = ply_path;
   }
   *message = "scan " + id + " saved: " + std::to_string(points) + " points (" +
              std::to_string(removed) + " removed by the post-filter) in " + ply_path + ", " +

@@ -92,9 +92,9 @@ class FusionDaemon {
   std::string scan_id_, last_error_;
   Ack ack_;
   std::deque<depthfuse::command_t> commands_;
+  std::deque<int64_t> recent_command_ids_;      // queued or carried out, newest last
   double mean_latency_ms_ = 0, mean_prefilter_ms_ = 0, mean_registration_ms_ = 0,
          mean_fusion_ms_ = 0, mean_fitness_ = 0, mean_rmse_m_ = 0;
-  std::string last_saved_cloud_;
 
   // Worker only.
   std::unique_ptr<IncrementalReconstructor> reconstructor_;

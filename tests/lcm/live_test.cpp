@@ -417,6 +417,26 @@ TEST_F(LiveAppliance, CommandsTakeEffect) {
   EXPECT_TRUE(observer_->wait_heartbeat("capture", [&](auto& hb) { return hb.frames_out > published + 2; },
                                         seconds(10)));
 
+  // The same command arriving three times (the client resends until acknowledged) runs once:
+  // a second `new` would save scan "twice" and start it again.
+  depthfuse::command_t again{};
+  again.protocol_version = depthfuse::command_t::PROTOCOL_VERSION;
+  again.command_id = 4242;
+  again.target = "fusion";
+  again.action = depthfuse::command_t::ACTION_NEW_SCAN;
+  again.argument = "twice";
+  for (int i = 0; i < 3; ++i) {
+    ASSERT_TRUE(observer_->lcm()->publish_message(lcmio::kCommandChannel, again).is_ok());
+    std::this_thread::sleep_for(milliseconds(100));
+  }
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) {
+    return hb.last_command_id == 4242 && hb.scan_id == "twice";
+  }, seconds(5)));
+  std::this_thread::sleep_for(seconds(1));
+  EXPECT_FALSE(std::filesystem::exists(dir_ + "/scans/twice.ply"));
+  ASSERT_EQ(scan({"stop"}, &out), 0) << out;
+  EXPECT_TRUE(std::filesystem::exists(dir_ + "/scans/twice.ply"));
+
   // A daemon that is not there: a timeout, not a hang.
   EXPECT_EQ(scan({"start", "--target", "nosuch", "--timeout", "1"}, &out), 3) << out;
   EXPECT_NE(out.find("no acknowledgement"), std::string::npos) << out;
