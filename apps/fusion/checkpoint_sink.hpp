@@ -2,7 +2,7 @@
 // a scan begins, after every fused frame, when a checkpoint is due (periodic, or the operator's
 // 'checkpoint now') and when the scan ends. The SQLite scan store plugs in here by implementing
 // this interface (make_checkpoint_sink picks it when it is built in; store::ScanRecorder maps onto
-// it: create / record_frame / checkpoint / finish); until then NullCheckpointSink keeps nothing
+// it: create / prepare_frame / record_frame / checkpoint / finish / export_cloud); until then NullCheckpointSink keeps nothing
 // and the scan is saved as PLY + TUM trajectory on stop only.
 #pragma once
 
@@ -12,6 +12,7 @@
 
 #include "depthfuse/app_config.hpp"
 #include "depthfuse/pipeline.hpp"
+#include "depthfuse/ply.hpp"
 #include "depthfuse/status.hpp"
 #include "depthfuse/types.hpp"
 
@@ -37,6 +38,12 @@ class CheckpointSink {
   // "none", "sqlite:/var/lib/depthfuse/scans/x.dfscan", ... for heartbeats and logs.
   virtual std::string describe() const = 0;
   virtual Status begin_scan(const ScanContext& scan) = 0;
+  // Before IncrementalReconstructor::process: a pager loads the evicted chunks the frame will touch.
+  virtual Status prepare_frame(const Frame& frame, IncrementalReconstructor& reconstructor) {
+    (void)frame;
+    (void)reconstructor;
+    return Status::ok();
+  }
   // After each fused frame: poses, keyframes (fusion_daemon.keyframe_every_n_frames), and paging
   // of the map around the camera (a pager may load and evict chunks of reconstructor.map()).
   virtual Status frame_fused(const Frame& frame, const FrameReport& report,
@@ -49,9 +56,13 @@ class CheckpointSink {
   // (stop, new scan) or "sigterm". A durable sink writes its final checkpoint here.
   virtual Status end_scan(const std::string& reason, IncrementalReconstructor& reconstructor,
                           const FusionProgress& progress) = 0;
-  // The whole cloud for the scan's PLY. A sink that evicts chunks from memory returns them too.
-  virtual Result<PointArrays> final_cloud(IncrementalReconstructor& reconstructor) {
-    return reconstructor.map().gather();
+  // Writes the scan's whole cloud as binary PLY to `ply_path` and says how many points. A sink that
+  // evicted chunks from memory writes them too (e.g. streamed from its file).
+  virtual Result<size_t> write_cloud(const std::string& ply_path,
+                                     IncrementalReconstructor& reconstructor) {
+    const PointArrays cloud = reconstructor.map().gather();
+    DF_RETURN_IF_ERROR(write_ply(ply_path, cloud, PlyOptions{}));
+    return cloud.size();
   }
   // True when checkpoint() actually stores something (false: the periodic timer is not run).
   virtual bool durable() const = 0;

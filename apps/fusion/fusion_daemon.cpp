@@ -241,18 +241,18 @@ Status FusionDaemon::stop_scan(const std::string& reason, std::string* message) 
                                 static_cast<uint64_t>(queue_.dropped())};
   const Status sink_status = sink_->end_scan(reason, *reconstructor_, progress);
 
-  auto cloud_r = sink_->final_cloud(*reconstructor_);
   const std::string base = (std::filesystem::path(scan_.scan_dir) / scan_.scan_id).string();
   const std::string ply_path = base + ".ply";
   const std::string tum_path = base + "-trajectory.txt";
   std::error_code ec;
   std::filesystem::create_directories(scan_.scan_dir, ec);
-  Status st = cloud_r.status().with_context("collecting the cloud");
-  if (cloud_r.is_ok()) {
-    st = write_atomically(ply_path, [&](const std::string& p) {
-      return write_ply(p, *cloud_r, PlyOptions{});
-    });
-  }
+  size_t points = 0;
+  Status st = write_atomically(ply_path, [&](const std::string& p) -> Status {
+    auto written = sink_->write_cloud(p, *reconstructor_);
+    if (!written) return written.status();
+    points = *written;
+    return Status::ok();
+  });
   if (st.is_ok()) {
     st = write_atomically(tum_path, [&](const std::string& p) {
       return write_tum_trajectory(p, trajectory_);
@@ -267,7 +267,6 @@ Status FusionDaemon::stop_scan(const std::string& reason, std::string* message) 
     return Status(failed.code(), failed.message() + "; the scan is kept in memory, paused: fix "
                                                     "the problem and stop again");
   }
-  const size_t points = cloud_r->size();
   reconstructor_.reset();
   point_count_ = 0;
   state_ = heartbeat_t::STATE_IDLE;
@@ -358,6 +357,8 @@ void FusionDaemon::execute(const command_t& cmd) {
 }
 
 void FusionDaemon::fuse(QueuedFrame& item) {
+  if (auto st = sink_->prepare_frame(item.frame, *reconstructor_); !st.is_ok())
+    set_error("checkpoint store: " + st.to_string());
   auto report = reconstructor_->process(item.frame);
   if (!report) {
     ++process_errors_;
