@@ -19,23 +19,6 @@ bool key_less(const ChunkKey& a, const ChunkKey& b) {
   return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
 }
 
-// The chunk of p and, where p lies within `margin` of a face, the neighbours across it.
-inline void push_dilated(const PointMap& map, const Eigen::Vector3f& p, float margin,
-                         std::vector<ChunkKey>* keys) {
-  const ChunkKey k = map.key_for(p);
-  const Eigen::Vector3f o = map.chunk_origin_m(k);
-  const float s = static_cast<float>(map.chunk_size_m());
-  int lo[3], hi[3];
-  for (int a = 0; a < 3; ++a) {
-    const float f = p[a] - o[a];
-    lo[a] = f < margin ? -1 : 0;
-    hi[a] = f > s - margin ? 1 : 0;
-  }
-  for (int dx = lo[0]; dx <= hi[0]; ++dx)
-    for (int dy = lo[1]; dy <= hi[1]; ++dy)
-      for (int dz = lo[2]; dz <= hi[2]; ++dz) keys->push_back({k.x + dx, k.y + dy, k.z + dz});
-}
-
 }  // namespace
 
 float distance_to_chunk_m(const PointMap& map, const ChunkKey& key, const Eigen::Vector3f& p) {
@@ -93,7 +76,7 @@ Status MapPager::prepare(PointMap* map, const Frame& frame, const Pose& T, uint3
       const float z = d.depth_m[static_cast<size_t>(v) * d.width + u];
       if (!(z > 0.0f) || !std::isfinite(z)) continue;
       const Eigen::Vector3f p_c((u - cx) / fx * z, (v - cy) / fy * z, z);
-      for (float f : {1.0f, 0.95f, 0.9f}) push_dilated(*map, R * (f * p_c) + t, margin, &keys_);
+      for (float f : {1.0f, 0.95f, 0.9f}) map->keys_near(R * (f * p_c) + t, margin, &keys_);
     }
   }
   std::sort(keys_.begin(), keys_.end(), key_less);
