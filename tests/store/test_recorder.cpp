@@ -333,3 +333,34 @@ TEST(Recorder, FullDiskMidScanLosesNothing) {
   expect_same_cloud(stored_cloud(path), ref.cloud);
   expect_same_poses(path, ref.poses, ref.frames.size());
 }
+
+// Chunks removed from the map between checkpoints leave the file; a checkpoint of a map that never
+// held a chunk (e.g. one taken before a resumed map was handed to the reconstructor) deletes
+// nothing.
+TEST(Recorder, RemovedChunksLeaveTheFileOthersNeverDo) {
+  TempDir dir;
+  const std::string path = dir.file("scan.db");
+  RecorderConfig rc;
+  rc.bounded_memory = true;
+  {
+    auto made = ScanRecorder::create(path, metadata(), "", "", rc);
+    ASSERT_TRUE(made);
+    PointMap map(0.5);
+    for (int x = 0; x < 6; ++x) map.get_or_create({x, 0, 0}).points = test::make_points({x, 0, 0}, 1, 20);
+    ASSERT_TRUE((*made)->checkpoint(&map, "periodic"));
+    ASSERT_TRUE(map.extract({2, 0, 0}, nullptr));
+    map.get_or_create({4, 0, 0}).points.clear();  // emptied by the post-filter
+    map.get_or_create({4, 0, 0}).dirty = true;
+    auto rec = (*made)->checkpoint(&map, "periodic");
+    ASSERT_TRUE(rec);
+    EXPECT_EQ(rec->chunk_count, 4u);
+  }
+  ResumePoint at;
+  auto resumed = ScanRecorder::resume(path, rc, &at);
+  ASSERT_TRUE(resumed) << resumed.status().to_string();
+  PointMap other(0.5);  // not the resumed map
+  auto rec = (*resumed)->checkpoint(&other, "periodic");
+  ASSERT_TRUE(rec);
+  EXPECT_EQ(rec->chunk_count, 4u);
+  EXPECT_EQ(rec->id, 3);
+}

@@ -177,12 +177,11 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
       if (st && c.dirty) st = store.write_chunk(key, c);
     });
     DF_RETURN_IF_ERROR(st);
-    // Chunks the map dropped (neither resident nor evicted) leave the file too.
-    auto committed = store.list_chunks();
-    if (!committed) return committed.status();
-    for (const ChunkInfo& info : *committed) {
-      if (!map->find(info.key) && !(pager_ && pager_->is_evicted(info.key)))
-        DF_RETURN_IF_ERROR(store.delete_chunk(info.key));
+    // Chunks that were in the map at the last checkpoint and have left it without being evicted
+    // leave the file too. (Only those: a map that never held a chunk cannot delete it.)
+    for (const ChunkKey& key : resident_at_checkpoint_) {
+      if (!map->find(key) && !(pager_ && pager_->is_evicted(key)))
+        DF_RETURN_IF_ERROR(store.delete_chunk(key));
     }
     if (postfilter_evicted && pager_) {
       // The post-filter is per point, so applying it chunk by chunk equals applying it to the
@@ -225,7 +224,11 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
   info.frames_dropped = counters.dropped;
   auto rec = store.commit_checkpoint(info);
   if (!rec) return failed(rec.status());
-  map->for_each_chunk([](const ChunkKey&, Chunk& c) { c.dirty = false; });
+  resident_at_checkpoint_.clear();
+  map->for_each_chunk([&](const ChunkKey& k, Chunk& c) {
+    c.dirty = false;
+    resident_at_checkpoint_.push_back(k);
+  });
   for (const ChunkKey& k : emptied_evicted) pager_->forget(k);
   pending_poses_.clear();
   status_.pending_poses = 0;

@@ -85,8 +85,8 @@ class ScanRecorder {
   // and lets the pager evict what the budget cannot hold.
   Status record_frame(const Frame& frame, const FrameReport& report, PointMap* map);
 
-  // One transaction: changed resident chunks, chunks removed from the map, chunks evicted since
-  // the last checkpoint, buffered poses and the counters.
+  // One transaction: changed resident chunks, chunks removed from the map since the last
+  // checkpoint, chunks evicted since the last checkpoint, buffered poses and the counters.
   Result<CheckpointRecord> checkpoint(PointMap* map, const std::string& reason,
                                       const FrameCounters& counters = {});
 
@@ -110,6 +110,7 @@ class ScanRecorder {
   RecorderConfig config_;
   std::unique_ptr<MapPager> pager_;
   std::vector<PoseRecord> pending_poses_;
+  std::vector<ChunkKey> resident_at_checkpoint_;  // to notice chunks removed from the map
   uint32_t last_frame_id_ = 0;
   std::optional<Pose> last_pose_;
   uint64_t frames_fused_ = 0;                // including those before a resume
