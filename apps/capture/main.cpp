@@ -1,6 +1,8 @@
 // depthfuse-capture: reads a FrameSource (Kinect V2, TUM folder, synthetic scene, LCM log) and
 // publishes its depth (and colour) frames on LCM with sequence numbers, plus a heartbeat at 1 Hz.
 // Obeys pause/resume/stop/start addressed to it ("capture" by default). Clean exit on SIGINT/SIGTERM.
+// A live source that is unavailable for now (no Kinect plugged in, USB not accessible yet) is waited
+// for, never a reason to exit; with a Kinect the heartbeat carries its device state.
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -25,6 +27,10 @@
 #if __has_include("depthfuse/lcmlog/lcmlog_source.hpp")
 #include "depthfuse/lcmlog/lcmlog_source.hpp"
 #define DEPTHFUSE_CAPTURE_HAS_LCMLOG 1
+#endif
+#if DEPTHFUSE_CAPTURE_HAS_KINECT2  // set by CMakeLists.txt where the kinect2 driver is built
+#include "depthfuse/kinect2/kinect2_source.hpp"
+#include "kinect2_heartbeat.hpp"
 #endif
 
 namespace {
@@ -111,6 +117,15 @@ bool parse_args(int argc, char** argv, Options* o) {
 enum class Pacing { kFixed, kMax, kRecorded };
 
 constexpr double kStuckSourceS = 10.0;
+// A source whose next() said kUnavailable is asked again after at least this long (counted from
+// the call: a driver that already waited inside next(), like the Kinect's, is asked again at once).
+constexpr double kUnavailableRetryS = 0.5;
+// A Kinect source that could not be opened because USB is not accessible is tried again this often.
+constexpr double kOpenRetryS = 2.0;
+
+bool is_kinect2_spec(const std::string& spec) {
+  return spec == "kinect2" || spec.rfind("kinect2:", 0) == 0;
+}
 
 int64_t steady_ns() {
   return std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now().time_since_epoch()).count();
@@ -133,9 +148,17 @@ struct State {
   int64_t last_command_id = 0;
   int8_t last_command_result = heartbeat_t::COMMAND_RESULT_NONE;
   std::string last_command_message;
+#if DEPTHFUSE_CAPTURE_HAS_KINECT2
+  // The Kinect source once it is open; until then (kinect2 requested but not opened yet) the
+  // heartbeat reports kinect_unopened (guarded by mutex).
+  bool kinect_requested = false;  // set before the service thread starts
+  std::atomic<const depthfuse::Kinect2Source*> kinect{nullptr};
+  depthfuse::Kinect2Status kinect_unopened;
+#endif
 };
 
-void publish_heartbeat(lcmio::LcmTransport& lcm, const dd::HeartbeatBase& base, State& s) {
+// Publishes the heartbeat and returns it.
+heartbeat_t publish_heartbeat(lcmio::LcmTransport& lcm, const dd::HeartbeatBase& base, State& s) {
   heartbeat_t hb = base.make(s.state.load());
   hb.input_rate_hz = s.read_rate.rate_hz();
   hb.output_rate_hz = s.publish_rate.rate_hz();
@@ -155,7 +178,20 @@ void publish_heartbeat(lcmio::LcmTransport& lcm, const dd::HeartbeatBase& base, 
   dd::add_counter(&hb, "source_errors", static_cast<double>(s.source_errors.load()));
   dd::add_counter(&hb, "bytes_per_frame", static_cast<double>(s.bytes_out.load()) / out);
   dd::add_counter(&hb, "encode_publish_ms_mean", s.encode_us.load() * 1e-3 / out);
+#if DEPTHFUSE_CAPTURE_HAS_KINECT2
+  if (s.kinect_requested) {
+    depthfuse::Kinect2Status kinect_status;
+    if (const auto* kinect = s.kinect.load()) {
+      kinect_status = kinect->status();  // thread-safe; not under s.mutex
+    } else {
+      std::lock_guard<std::mutex> lock(s.mutex);
+      kinect_status = s.kinect_unopened;
+    }
+    depthfuse::capture::annotate_heartbeat(kinect_status, &hb);
+  }
+#endif
   (void)lcm.publish_message(lcmio::kHeartbeatChannel, hb);
+  return hb;
 }
 
 void handle_command(const depthfuse::command_t& cmd, const std::string& name, State& s) {
@@ -242,14 +278,6 @@ int main(int argc, char** argv) {
   }
   auto lcm = std::move(opened).value();
 
-  auto source_r = depthfuse::open_frame_source(source_spec, config);
-  if (!source_r) {
-    std::fprintf(stderr, "depthfuse-capture: cannot open source '%s': %s\n", source_spec.c_str(),
-                 source_r.status().to_string().c_str());
-    return 1;
-  }
-  auto source = std::move(source_r).value();
-
   Pacing pacing = Pacing::kFixed;
   double rate_hz = config.capture.rate_hz;
   const bool is_log = source_spec.rfind("lcmlog:", 0) == 0;
@@ -265,12 +293,16 @@ int main(int argc, char** argv) {
                    opt.rate.c_str());
       return 2;
     }
-  } else if (auto nominal = source->nominal_rate_hz()) {
-    rate_hz = *nominal;
   }
-  if (pacing == Pacing::kFixed && !(rate_hz > 0)) pacing = Pacing::kMax;  // rate_hz = 0 in config
 
   State s;
+  const bool kinect_requested = is_kinect2_spec(source_spec);
+#if DEPTHFUSE_CAPTURE_HAS_KINECT2
+  s.kinect_requested = kinect_requested;
+  s.kinect_unopened.serial = source_spec.size() > 8 ? source_spec.substr(8) : std::string();
+  s.kinect_unopened.pipeline = config.capture.kinect2_pipeline;
+  s.kinect_unopened.detail = "opening the kinect2 source";
+#endif
   dd::HeartbeatBase hb_base(opt.name);
   const std::string name = opt.name;
   lcm->subscribe(lcmio::kCommandChannel, [&](const std::string&, const uint8_t* data, size_t size,
@@ -293,7 +325,7 @@ int main(int argc, char** argv) {
         s.last_error = r.status().message();
       }
       if (Clock::now() >= next_hb) {
-        publish_heartbeat(*lcm, hb_base, s);
+        const heartbeat_t hb = publish_heartbeat(*lcm, hb_base, s);
         next_hb += std::chrono::seconds(1);
         if (next_hb < Clock::now()) next_hb = Clock::now() + std::chrono::seconds(1);
         const int64_t since = s.in_source_since_ns.load();
@@ -305,11 +337,71 @@ int main(int argc, char** argv) {
                          std::to_string(static_cast<int>((steady_ns() - since) * 1e-9)) + " s";
           s.state = heartbeat_t::STATE_ERROR;
         }
-        dd::notify_status(std::string(dd::state_name(s.state.load())) + ", " +
-                          std::to_string(s.frames_out.load()) + " frames published");
+        dd::notify_status(std::string(dd::state_name(hb.state)) + ", " +
+                          std::to_string(hb.frames_out) + " frames published" +
+                          (hb.last_error.empty() ? std::string() : "; " + hb.last_error));
       }
     }
   });
+
+  // Open the source. A Kinect whose USB cannot be accessed (yet) is waited for like an absent one.
+  std::unique_ptr<depthfuse::FrameSource> source;
+  std::string open_error_logged;
+  bool told_ready = false;
+  int exit_code = 0;
+  while (!shutdown.stop_requested()) {
+    auto source_r = depthfuse::open_frame_source(source_spec, config);
+    if (source_r) {
+      source = std::move(source_r).value();
+      break;
+    }
+    const std::string why =
+        "cannot open source '" + source_spec + "': " + source_r.status().to_string();
+    if (!kinect_requested || source_r.status().code() != depthfuse::StatusCode::kUnavailable) {
+      std::fprintf(stderr, "depthfuse-capture: %s\n", why.c_str());
+      std::lock_guard<std::mutex> lock(s.mutex);
+      s.last_error = why;
+      exit_code = 1;
+      break;
+    }
+    if (why != open_error_logged) {
+      std::fprintf(stderr, "depthfuse-capture: %s; trying again every %.0f s\n", why.c_str(),
+                   kOpenRetryS);
+      open_error_logged = why;
+    }
+    {
+      std::lock_guard<std::mutex> lock(s.mutex);
+      s.last_error = why;
+#if DEPTHFUSE_CAPTURE_HAS_KINECT2
+      s.kinect_unopened.detail = source_r.status().message();
+#endif
+    }
+    s.state = heartbeat_t::STATE_IDLE;
+    if (!told_ready) {
+      dd::notify_ready("waiting for " + source_spec);
+      told_ready = true;
+    }
+    shutdown.sleep_for(kOpenRetryS);
+  }
+  if (!source) {  // a bad source, or stopped while waiting for one
+    s.state = exit_code == 0 ? heartbeat_t::STATE_STOPPING : heartbeat_t::STATE_ERROR;
+    dd::notify_stopping();
+    publish_heartbeat(*lcm, hb_base, s);
+    shutdown.request_stop();
+    service.join();
+    return exit_code;
+  }
+  if (!open_error_logged.empty()) {
+    std::lock_guard<std::mutex> lock(s.mutex);
+    s.last_error.clear();
+  }
+#if DEPTHFUSE_CAPTURE_HAS_KINECT2
+  s.kinect = depthfuse::as_kinect2_source(*source);
+#endif
+  if (pacing == Pacing::kFixed && opt.rate.empty()) {
+    if (auto nominal = source->nominal_rate_hz()) rate_hz = *nominal;
+  }
+  if (pacing == Pacing::kFixed && !(rate_hz > 0)) pacing = Pacing::kMax;  // rate_hz = 0 in config
 
   std::fprintf(stderr, "depthfuse-capture: %s -> %s (%s)\n", source->describe().c_str(),
                url.c_str(),
@@ -317,12 +409,14 @@ int main(int argc, char** argv) {
                : pacing == Pacing::kRecorded ? "recorded pace"
                                              : (std::to_string(rate_hz) + " Hz").c_str());
   s.state = heartbeat_t::STATE_RUNNING;
-  dd::notify_ready("publishing " + source->describe());
+  if (told_ready)
+    dd::notify_status("publishing " + source->describe());
+  else
+    dd::notify_ready("publishing " + source->describe());
 
   depthfuse::depth_frame_t depth_msg;
   depthfuse::color_frame_t color_msg;
   uint32_t sequence = 0;
-  int exit_code = 0;
   const auto period = pacing == Pacing::kFixed
                           ? std::chrono::duration_cast<Clock::duration>(
                                 std::chrono::duration<double>(1.0 / rate_hz))
@@ -339,7 +433,8 @@ int main(int argc, char** argv) {
       continue;
     }
     s.state = heartbeat_t::STATE_RUNNING;
-    s.in_source_since_ns = steady_ns();
+    const int64_t asked_ns = steady_ns();
+    s.in_source_since_ns = asked_ns;
     auto frame_r = source->next();
     s.in_source_since_ns = 0;
     if (!frame_r) {
@@ -357,15 +452,28 @@ int main(int argc, char** argv) {
         }
         break;
       }
+      if (code == depthfuse::StatusCode::kUnavailable) {  // a live device is gone for now: wait
+#if DEPTHFUSE_CAPTURE_HAS_KINECT2
+        const bool kinect = s.kinect.load() != nullptr;
+#else
+        const bool kinect = false;
+#endif
+        // A Kinect's own status goes into the heartbeat (state, reason, counters): waiting for a
+        // device is not a source error. Any other live source is reported as one.
+        if (!kinect) {
+          ++s.source_errors;
+          s.state = heartbeat_t::STATE_ERROR;
+          std::lock_guard<std::mutex> lock(s.mutex);
+          s.last_error = frame_r.status().to_string();
+        }
+        const double waited_s = (steady_ns() - asked_ns) * 1e-9;
+        if (waited_s < kUnavailableRetryS) shutdown.sleep_for(kUnavailableRetryS - waited_s);
+        continue;
+      }
       ++s.source_errors;
       {
         std::lock_guard<std::mutex> lock(s.mutex);
         s.last_error = frame_r.status().to_string();
-      }
-      if (code == depthfuse::StatusCode::kUnavailable) {  // a live device is gone for now
-        s.state = heartbeat_t::STATE_ERROR;
-        shutdown.sleep_for(0.5);
-        continue;
       }
       std::fprintf(stderr, "depthfuse-capture: %s\n", frame_r.status().to_string().c_str());
       s.state = heartbeat_t::STATE_ERROR;
