@@ -1,12 +1,20 @@
 #include "checkpoint_sink.hpp"
 
+#if DEPTHFUSE_FUSION_HAS_STORE
+#include "sqlite_checkpoint_sink.hpp"
+#endif
+
 namespace depthfuse::fusiond {
 
-std::unique_ptr<CheckpointSink> make_checkpoint_sink(const AppConfig& config) {
+std::unique_ptr<CheckpointSink> make_checkpoint_sink(const AppConfig& config,
+                                                     const std::string& scan_db_path) {
+#if DEPTHFUSE_FUSION_HAS_STORE
+  return std::make_unique<SqliteCheckpointSink>(config, SqliteSinkOptions{scan_db_path});
+#else
   (void)config;
-  // The SQLite scan store (lib/store) implements CheckpointSink in its own adapter and is returned
-  // here once it is wired in; this build keeps no checkpoints.
+  (void)scan_db_path;
   return std::make_unique<NullCheckpointSink>();
+#endif
 }
 
 }  // namespace depthfuse::fusiond

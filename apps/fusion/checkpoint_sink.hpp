@@ -1,14 +1,16 @@
 // The seam between the fusion daemon and durable storage: the daemon tells a CheckpointSink when
 // a scan begins, after every fused frame, when a checkpoint is due (periodic, or the operator's
 // 'checkpoint now') and when the scan ends. The SQLite scan store plugs in here by implementing
-// this interface (make_checkpoint_sink picks it when it is built in; store::ScanRecorder maps onto
-// it: create / prepare_frame / record_frame / checkpoint / finish / export_cloud); until then NullCheckpointSink keeps nothing
-// and the scan is saved as PLY + TUM trajectory on stop only.
+// this interface (SqliteCheckpointSink, sqlite_checkpoint_sink.hpp, on store::ScanRecorder:
+// create or resume / prepare_frame / record_frame / checkpoint / finish / export_cloud);
+// NullCheckpointSink keeps nothing and the scan is saved as PLY + TUM trajectory on stop only.
 #pragma once
 
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "depthfuse/app_config.hpp"
 #include "depthfuse/pipeline.hpp"
@@ -38,6 +40,16 @@ class CheckpointSink {
   // "none", "sqlite:/var/lib/depthfuse/scans/x.dfscan", ... for heartbeats and logs.
   virtual std::string describe() const = 0;
   virtual Status begin_scan(const ScanContext& scan) = 0;
+  // Right after begin_scan, with the scan's fresh reconstructor: a sink that found an existing
+  // scan (a restart after a crash) puts its last checkpoint back (map, next frame id, last pose),
+  // may rename the scan to the stored one, and fills in the trajectory recorded so far.
+  virtual Status restore(IncrementalReconstructor& reconstructor, ScanContext* scan,
+                         std::vector<StampedPose>* trajectory) {
+    (void)reconstructor;
+    (void)scan;
+    (void)trajectory;
+    return Status::ok();
+  }
   // Before IncrementalReconstructor::process: a pager loads the evicted chunks the frame will touch.
   virtual Status prepare_frame(const Frame& frame, IncrementalReconstructor& reconstructor) {
     (void)frame;
@@ -64,6 +76,10 @@ class CheckpointSink {
     DF_RETURN_IF_ERROR(write_ply(ply_path, cloud, PlyOptions{}));
     return cloud.size();
   }
+  // Figures for the heartbeat's counters (name, value).
+  virtual void add_counters(std::vector<std::pair<std::string, double>>* counters) const {
+    (void)counters;
+  }
   // True when checkpoint() actually stores something (false: the periodic timer is not run).
   virtual bool durable() const = 0;
 };
@@ -84,7 +100,9 @@ class NullCheckpointSink : public CheckpointSink {
   bool durable() const override { return false; }
 };
 
-// The sink this build has: the scan store when it is built in and wired, else NullCheckpointSink.
-std::unique_ptr<CheckpointSink> make_checkpoint_sink(const AppConfig& config);
+// The sink this build has: the SQLite scan store when it is built in, else NullCheckpointSink.
+// `scan_db_path` (--scan-db): the first scan's file; empty: a file per scan in the scan directory.
+std::unique_ptr<CheckpointSink> make_checkpoint_sink(const AppConfig& config,
+                                                     const std::string& scan_db_path = "");
 
 }  // namespace depthfuse::fusiond

@@ -203,7 +203,14 @@ Status FusionDaemon::start_scan(const std::string& requested_name, std::string* 
   DF_RETURN_IF_ERROR(sink_->begin_scan(scan_).with_context("checkpoint store"));
   reconstructor_ = std::make_unique<IncrementalReconstructor>(config_.reconstruction);
   trajectory_.clear();
-  point_count_ = 0;
+  // An existing scan file (a restart after a crash): continue from its last checkpoint.
+  if (auto st = sink_->restore(*reconstructor_, &scan_, &trajectory_); !st.is_ok()) {
+    reconstructor_.reset();
+    trajectory_.clear();
+    return st.with_context("checkpoint store");
+  }
+  name = scan_.scan_id;
+  point_count_ = static_cast<int64_t>(reconstructor_->map().point_count());
   last_checkpoint_ = Clock::now();
   frames_ignored_ += static_cast<int64_t>(queue_.clear());  // not part of this scan
   {
@@ -211,7 +218,9 @@ Status FusionDaemon::start_scan(const std::string& requested_name, std::string* 
     scan_id_ = name;
   }
   state_ = heartbeat_t::STATE_RUNNING;
-  *message = "scan " + name + " started";
+  *message = "scan " + name + (reconstructor_->next_frame_id() > 1
+                                   ? " resumed at frame " + std::to_string(reconstructor_->next_frame_id())
+                                   : std::string(" started"));
   std::fprintf(stderr, "depthfuse-fusion: %s\n", message->c_str());
   return Status::ok();
 }
@@ -435,6 +444,7 @@ void FusionDaemon::worker_loop() {
       ++frames_ignored_;  // queued just before a pause or stop
     }
 
+    refresh_sink_counters();
     if (reconstructor_ && sink_->durable() && state_.load() == heartbeat_t::STATE_RUNNING &&
         Clock::now() - last_checkpoint_ >
             std::chrono::duration<double>(config_.fusion.checkpoint_interval_s)) {
@@ -461,6 +471,14 @@ void FusionDaemon::worker_loop() {
       }
     }
   }
+}
+
+// The sink belongs to the worker; the heartbeat (receive thread) reads a copy of its figures.
+void FusionDaemon::refresh_sink_counters() {
+  std::vector<std::pair<std::string, double>> counters;
+  sink_->add_counters(&counters);
+  std::lock_guard<std::mutex> lock(mutex_);
+  sink_counters_.swap(counters);
 }
 
 // ---------------------------------------------------------------- heartbeat
@@ -493,6 +511,7 @@ void FusionDaemon::publish_heartbeat() {
     daemon::add_counter(&hb, "fusion_ms_mean", mean_fusion_ms_);
     daemon::add_counter(&hb, "icp_fitness_mean", mean_fitness_);
     daemon::add_counter(&hb, "icp_rmse_mm_mean", mean_rmse_m_ * 1e3);
+    for (const auto& [counter, value] : sink_counters_) daemon::add_counter(&hb, counter, value);
   }
   daemon::add_counter(&hb, "frames_ignored", static_cast<double>(frames_ignored_.load()));
   daemon::add_counter(&hb, "frames_registered", static_cast<double>(registered_.load()));

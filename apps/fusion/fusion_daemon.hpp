@@ -64,6 +64,7 @@ class FusionDaemon {
   Status stop_scan(const std::string& reason, std::string* message);
   void fuse(QueuedFrame& item);
   void publish_heartbeat();
+  void refresh_sink_counters();
   void set_error(const std::string& e);
 
   AppConfig config_;
@@ -93,6 +94,7 @@ class FusionDaemon {
   Ack ack_;
   std::deque<depthfuse::command_t> commands_;
   std::deque<int64_t> recent_command_ids_;      // queued or carried out, newest last
+  std::vector<std::pair<std::string, double>> sink_counters_;  // the checkpoint store's figures
   double mean_latency_ms_ = 0, mean_prefilter_ms_ = 0, mean_registration_ms_ = 0,
          mean_fusion_ms_ = 0, mean_fitness_ = 0, mean_rmse_m_ = 0;
 

@@ -1,5 +1,5 @@
 // depthfuse-fusion [--lcm URL] [--config FILE] [--name NAME] [--autostart [SCAN]] [--scan-dir DIR]
-//                  [--queue N]
+//                  [--queue N] [--scan-db FILE]
 #include <cstdio>
 #include <cstdlib>
 #include <string>
@@ -12,7 +12,7 @@ namespace {
 void usage(FILE* out) {
   std::fprintf(out,
       "usage: depthfuse-fusion [--lcm URL] [--config FILE] [--name NAME] [--autostart [SCAN]]\n"
-      "                        [--scan-dir DIR] [--queue N]\n"
+      "                        [--scan-dir DIR] [--queue N] [--scan-db FILE]\n"
       "Fuses the depth frames on LCM into a point cloud, frame by frame, and publishes the refined\n"
       "poses. Scans are started and stopped with 'depthfuse scan start|stop|...'.\n"
       "  --config FILE     the appliance's TOML (default: built-in defaults)\n"
@@ -20,13 +20,15 @@ void usage(FILE* out) {
       "  --name NAME       heartbeat name and command target (default: fusion)\n"
       "  --autostart SCAN  start scan SCAN at once ('-' or nothing: a name from the time)\n"
       "  --scan-dir DIR    overrides fusion_daemon.scan_dir (PLY and trajectory on stop)\n"
-      "  --queue N         overrides fusion_daemon.queue_capacity_frames\n");
+      "  --queue N         overrides fusion_daemon.queue_capacity_frames\n"
+      "  --scan-db FILE    the first scan's SQLite scan file; an existing one is resumed from its\n"
+      "                    last checkpoint (default: SCAN_DIR/<scan>.dfscan per scan, likewise)\n");
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string url, config_path, scan_dir, queue_text;
+  std::string url, config_path, scan_dir, queue_text, scan_db;
   depthfuse::fusiond::DaemonOptions options;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -48,6 +50,8 @@ int main(int argc, char** argv) {
       need(&options.name);
     } else if (a == "--scan-dir") {
       need(&scan_dir);
+    } else if (a == "--scan-db") {
+      need(&scan_db);
     } else if (a == "--queue") {
       need(&queue_text);
     } else if (a == "--autostart") {
@@ -89,6 +93,6 @@ int main(int argc, char** argv) {
     return 1;
   }
   depthfuse::fusiond::FusionDaemon daemon(config, options, std::move(opened).value(),
-                                          depthfuse::fusiond::make_checkpoint_sink(config));
+                                          depthfuse::fusiond::make_checkpoint_sink(config, scan_db));
   return daemon.run([&] { return shutdown.stop_requested(); });
 }

@@ -1,0 +1,171 @@
+#include "sqlite_checkpoint_sink.hpp"
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "depthfuse/store/export.hpp"
+
+namespace depthfuse::fusiond {
+
+namespace {
+
+store::FrameCounters counters_of(const FusionProgress& p) { return {p.frames_received, p.frames_dropped}; }
+
+// The configuration text stored with the scan: the file the daemon was started with, if any.
+std::string config_text(const AppConfig& config) {
+  if (config.source_path.empty()) return "";
+  std::ifstream in(config.source_path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+}  // namespace
+
+SqliteCheckpointSink::SqliteCheckpointSink(const AppConfig& config, const SqliteSinkOptions& options)
+    : config_(config), options_(options) {}
+
+SqliteCheckpointSink::~SqliteCheckpointSink() = default;
+
+std::string SqliteCheckpointSink::describe() const {
+  if (!path_.empty()) return "sqlite:" + path_;
+  if (!options_.scan_db_path.empty() && !scan_db_used_) return "sqlite:" + options_.scan_db_path;
+  return "sqlite:" + config_.fusion.scan_dir;
+}
+
+store::RecorderConfig SqliteCheckpointSink::recorder_config() const {
+  store::RecorderConfig rc;
+  rc.bounded_memory = true;
+  rc.pager.memory_budget_mib = config_.fusion.memory_budget_mib;
+  rc.keyframe_every_n_frames = config_.fusion.keyframe_every_n_frames;
+  return rc;
+}
+
+Status SqliteCheckpointSink::begin_scan(const ScanContext& scan) {
+  recorder_.reset();  // a previous scan's file (and its write lock) is released
+  resume_.reset();
+  final_written_ = false;
+  if (!options_.scan_db_path.empty() && !scan_db_used_) {
+    path_ = options_.scan_db_path;
+    scan_db_used_ = true;
+  } else {
+    path_ = (std::filesystem::path(scan.scan_dir) / (scan.scan_id + ".dfscan")).string();
+  }
+  const store::RecorderConfig rc = recorder_config();
+  std::error_code ec;
+  if (std::filesystem::exists(path_, ec)) {
+    auto at = std::make_unique<store::ResumePoint>();
+    auto resumed = store::ScanRecorder::resume(path_, rc, at.get());
+    if (!resumed) return resumed.status().with_context("resuming scan file " + path_);
+    recorder_ = std::move(resumed).value();
+    resume_ = std::move(at);
+    return Status::ok();
+  }
+  store::ScanMetadata meta;
+  meta.scan_id = scan.scan_id;
+  meta.created_utime = scan.created_utime;
+  meta.method = to_string(config_.reconstruction.pipeline.method);
+  meta.chunk_size_m = config_.reconstruction.fusion.chunk_size_m;
+  meta.software_version = "depthfuse-fusion";
+  auto created = store::ScanRecorder::create(path_, meta, config_text(config_),
+                                             config_.source_path, rc);
+  if (!created) return created.status().with_context("creating scan file " + path_);
+  recorder_ = std::move(created).value();
+  return Status::ok();
+}
+
+Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, ScanContext* scan,
+                                     std::vector<StampedPose>* trajectory) {
+  if (!resume_) return Status::ok();
+  std::unique_ptr<store::ResumePoint> at = std::move(resume_);
+  if (!at->metadata.scan_id.empty()) scan->scan_id = at->metadata.scan_id;
+  if (at->metadata.created_utime != 0) scan->created_utime = at->metadata.created_utime;
+  std::unique_ptr<PointMap> map = std::move(at->map);
+  if (!map) map = std::make_unique<PointMap>(config_.reconstruction.fusion.chunk_size_m);
+  reconstructor.reset(std::move(map), at->next_frame_id, at->last_T_world_cam);
+  if (trajectory) {
+    trajectory->clear();
+    auto poses = recorder_->store().read_poses();
+    if (!poses) return poses.status().with_context("reading the poses of " + path_);
+    for (const auto& p : *poses) trajectory->push_back({p.utime * 1e-6, p.T_world_cam});
+  }
+  const auto& r = at->open_report;
+  std::fprintf(stderr,
+               "depthfuse-fusion: resumed scan %s from %s at checkpoint %lld: next frame %u, %zu "
+               "resident points; discarded after the checkpoint: %zu poses, %zu keyframes, %zu "
+               "staged chunks\n",
+               scan->scan_id.c_str(), path_.c_str(),
+               static_cast<long long>(at->checkpoint ? at->checkpoint->id : 0), at->next_frame_id,
+               reconstructor.map().point_count(), r.discarded_poses, r.discarded_keyframes,
+               r.discarded_staged_chunks);
+  return Status::ok();
+}
+
+Status SqliteCheckpointSink::prepare_frame(const Frame& frame, IncrementalReconstructor& reconstructor) {
+  if (!recorder_) return invalid_argument("no scan file is open");
+  return recorder_->prepare_frame(frame, reconstructor);
+}
+
+Status SqliteCheckpointSink::frame_fused(const Frame& frame, const FrameReport& report,
+                                         IncrementalReconstructor& reconstructor) {
+  if (!recorder_) return invalid_argument("no scan file is open");
+  return recorder_->record_frame(frame, report, &reconstructor.map());
+}
+
+Status SqliteCheckpointSink::checkpoint(const std::string& reason, IncrementalReconstructor& reconstructor,
+                                        const FusionProgress& progress) {
+  if (!recorder_) return invalid_argument("no scan file is open");
+  auto r = recorder_->checkpoint(&reconstructor.map(), reason, counters_of(progress));
+  if (!r) return r.status().with_context("checkpoint of " + path_ + " (the last good one is kept)");
+  return Status::ok();
+}
+
+Status SqliteCheckpointSink::end_scan(const std::string& reason, IncrementalReconstructor& reconstructor,
+                                      const FusionProgress& progress) {
+  if (!recorder_) return invalid_argument("no scan file is open");
+  auto r = recorder_->finish(&reconstructor.map(), counters_of(progress), reason);
+  if (!r) return r.status().with_context("final checkpoint of " + path_);
+  final_written_ = true;
+  return Status::ok();
+}
+
+Result<size_t> SqliteCheckpointSink::write_cloud(const std::string& ply_path,
+                                                 IncrementalReconstructor& reconstructor) {
+  if (!recorder_) return CheckpointSink::write_cloud(ply_path, reconstructor);
+  if (!final_written_) {
+    // The file lacks the end of the scan; the resident map alone may lack the evicted chunks.
+    // Refuse, so that the daemon keeps the scan (paused) and the operator can stop it again.
+    return io_error("the final checkpoint of " + path_ +
+                    " was not written, so the scan's cloud cannot be exported from it");
+  }
+  // export_cloud picks the format by the name's suffix; ply_path may be a temporary name.
+  const bool is_ply = ply_path.size() >= 4 && ply_path.compare(ply_path.size() - 4, 4, ".ply") == 0;
+  const std::string out = is_ply ? ply_path : ply_path + ".ply";
+  auto exported = store::export_cloud(recorder_->store(), out);
+  if (!exported) return exported.status().with_context("exporting " + path_);
+  if (!is_ply) {
+    std::error_code ec;
+    std::filesystem::rename(out, ply_path, ec);
+    if (ec) {
+      std::filesystem::remove(out, ec);
+      return io_error("cannot rename " + out + " to " + ply_path + ": " + ec.message());
+    }
+  }
+  recorder_.reset();  // the scan is over: release the file
+  return static_cast<size_t>(exported->points_written);
+}
+
+void SqliteCheckpointSink::add_counters(std::vector<std::pair<std::string, double>>* counters) const {
+  if (!recorder_) return;
+  const store::RecorderStatus& s = recorder_->status();
+  counters->emplace_back("checkpoints_written", static_cast<double>(s.checkpoints_written));
+  counters->emplace_back("checkpoint_failures", static_cast<double>(s.checkpoint_failures));
+  counters->emplace_back("last_checkpoint_frame",
+                         s.last_checkpoint ? static_cast<double>(s.last_checkpoint->last_frame_id) : 0.0);
+  counters->emplace_back("resident_mib", s.pager.resident_bytes / (1024.0 * 1024.0));
+  counters->emplace_back("evicted_chunks", static_cast<double>(s.pager.evicted_chunks));
+}
+
+}  // namespace depthfuse::fusiond

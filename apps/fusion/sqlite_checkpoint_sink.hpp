@@ -1,0 +1,56 @@
+// CheckpointSink on the SQLite scan store: one scan file per scan (store::ScanRecorder), bounded
+// memory through its MapPager, a WAL transaction per checkpoint, and resume from the last
+// checkpoint when the scan file already exists (a restart after a crash or kill -9).
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "checkpoint_sink.hpp"
+#include "depthfuse/store/scan_recorder.hpp"
+
+namespace depthfuse::fusiond {
+
+struct SqliteSinkOptions {
+  // The first scan of the process goes to this file (created, or resumed when it exists). Empty:
+  // every scan gets `<fusion_daemon.scan_dir>/<scan id>.dfscan` (resumed when it exists).
+  std::string scan_db_path;
+};
+
+class SqliteCheckpointSink : public CheckpointSink {
+ public:
+  SqliteCheckpointSink(const AppConfig& config, const SqliteSinkOptions& options);
+  ~SqliteCheckpointSink() override;
+
+  std::string describe() const override;
+  Status begin_scan(const ScanContext& scan) override;
+  Status restore(IncrementalReconstructor& reconstructor, ScanContext* scan,
+                 std::vector<StampedPose>* trajectory) override;
+  Status prepare_frame(const Frame& frame, IncrementalReconstructor& reconstructor) override;
+  Status frame_fused(const Frame& frame, const FrameReport& report,
+                     IncrementalReconstructor& reconstructor) override;
+  Status checkpoint(const std::string& reason, IncrementalReconstructor& reconstructor,
+                    const FusionProgress& progress) override;
+  Status end_scan(const std::string& reason, IncrementalReconstructor& reconstructor,
+                  const FusionProgress& progress) override;
+  Result<size_t> write_cloud(const std::string& ply_path,
+                             IncrementalReconstructor& reconstructor) override;
+  void add_counters(std::vector<std::pair<std::string, double>>* counters) const override;
+  bool durable() const override { return true; }
+
+  // The scan file of the current (or last) scan.
+  const std::string& path() const { return path_; }
+
+ private:
+  store::RecorderConfig recorder_config() const;
+
+  AppConfig config_;
+  SqliteSinkOptions options_;
+  bool scan_db_used_ = false;       // --scan-db is for the first scan only
+  std::string path_;
+  std::unique_ptr<store::ScanRecorder> recorder_;
+  std::unique_ptr<store::ResumePoint> resume_;  // between begin_scan and restore
+  bool final_written_ = false;      // end_scan's checkpoint committed
+};
+
+}  // namespace depthfuse::fusiond
