@@ -1,0 +1,168 @@
+// depthfuse-capture (synthetic corner) -> depthfuse-fusion --scan-db FILE, real processes on real
+// LCM. (a) a recorded scan passes `depthfuse inspect` and `depthfuse export` writes its cloud;
+// (b) the fusion daemon killed with SIGKILL at random moments, 20+ times, resumes each time from
+// the file's last checkpoint (the next frame id follows it), the file passes its integrity check
+// after every kill, and the final file holds every frame id exactly once.
+#include <random>
+
+#include "depthfuse/store/scan_store.hpp"
+#include "test_support.hpp"
+
+namespace depthfuse::testing {
+namespace {
+
+using std::chrono::milliseconds;
+using std::chrono::seconds;
+
+class FusionStore : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    url_ = test_url();
+    require_multicast_route(url_);
+    dir_ = temp_dir("fusion-store");
+    config_ = dir_ + "/depthfuse.toml";
+    std::ofstream(config_) << "[fusion_daemon]\ncheckpoint_interval_s = 0.5\n"
+                              "keyframe_every_n_frames = 5\nscan_dir = \"" << dir_ << "/scans\"\n";
+    db_ = dir_ + "/scan.db";
+  }
+  void TearDown() override {
+    if (!HasFailure()) std::filesystem::remove_all(dir_);
+  }
+  std::unique_ptr<Process> start_fusion(const std::string& log) {
+    return std::make_unique<Process>(
+        std::vector<std::string>{bin("depthfuse-fusion"), "--config", config_, "--lcm", url_,
+                                 "--scan-db", db_, "--autostart", "kill-test"},
+        dir_ + "/" + log);
+  }
+  std::unique_ptr<Process> start_capture(const std::string& spec, std::vector<std::string> extra) {
+    std::vector<std::string> argv = {bin("depthfuse-capture"), "--source", "synthetic:" + spec,
+                                     "--lcm", url_, "--color", "none"};
+    argv.insert(argv.end(), extra.begin(), extra.end());
+    return std::make_unique<Process>(argv, dir_ + "/capture.log");
+  }
+  int cli(std::vector<std::string> args, std::string* out) {
+    args.insert(args.begin(), bin("depthfuse"));
+    return run_command(args, dir_ + "/cli-" + std::to_string(cli_calls_++) + ".log", out);
+  }
+  // The last checkpoint's frame id (0 before the first), after an integrity check of the file.
+  uint32_t checked_last_frame(const std::string& when) {
+    auto store = store::ScanStore::open(db_, store::OpenMode::kReadOnly);
+    if (!store) {
+      ADD_FAILURE() << when << ": " << store.status().to_string();
+      return 0;
+    }
+    auto integrity = (*store)->integrity_check();
+    EXPECT_TRUE(integrity.is_ok()) << when << ": " << integrity.status().to_string();
+    if (integrity.is_ok()) {
+      std::string problems;
+      for (const auto& p : integrity->problems) problems += p + "\n";
+      EXPECT_TRUE(integrity->ok()) << when << ":\n" << problems;
+    }
+    auto last = (*store)->last_checkpoint();
+    EXPECT_TRUE(last.is_ok()) << when << ": " << last.status().to_string();
+    return last.is_ok() && *last ? (*last)->last_frame_id : 0;
+  }
+
+  std::string url_, dir_, config_, db_;
+  int cli_calls_ = 0;
+};
+
+// "element vertex N" of a PLY header, -1 when there is none.
+int64_t ply_vertex_count(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::string line;
+  while (std::getline(in, line) && line != "end_header") {
+    if (line.rfind("element vertex ", 0) == 0) return std::stoll(line.substr(15));
+  }
+  return -1;
+}
+
+TEST_F(FusionStore, RecordedScanInspectsAndExports) {
+  auto fusion = start_fusion("fusion.log");
+  std::this_thread::sleep_for(milliseconds(500));
+  auto capture = start_capture("corner?frames=12&seed=3", {"--rate", "4"});
+  ASSERT_TRUE(capture->wait(seconds(60))) << capture->log();
+  ASSERT_EQ(capture->exit_code(), 0) << capture->log();
+  std::this_thread::sleep_for(seconds(2));  // the last frames are fused
+  fusion->signal(SIGTERM);
+  ASSERT_TRUE(fusion->wait(seconds(60))) << fusion->log();
+  EXPECT_EQ(fusion->exit_code(), 0) << fusion->log();
+
+  std::string out;
+  ASSERT_EQ(cli({"inspect", db_}, &out), 0) << out;
+  EXPECT_NE(out.find("integrity      ok"), std::string::npos) << out;
+  EXPECT_NE(out.find("(sigterm, frame "), std::string::npos) << out;
+
+  auto store = store::ScanStore::open(db_, store::OpenMode::kReadOnly);
+  ASSERT_TRUE(store.is_ok()) << store.status().to_string();
+  auto summary = (*store)->summary();
+  ASSERT_TRUE(summary.is_ok()) << summary.status().to_string();
+  EXPECT_GE(summary->pose_count, 3u) << fusion->log();
+  EXPECT_GT(summary->point_count, 10000u);
+
+  const std::string ply = dir_ + "/x.ply";
+  ASSERT_EQ(cli({"export", db_, "-o", ply}, &out), 0) << out;
+  EXPECT_EQ(ply_vertex_count(ply), static_cast<int64_t>(summary->point_count));
+  // The daemon's own PLY on stop is the same cloud, streamed from the file.
+  EXPECT_EQ(ply_vertex_count(dir_ + "/scans/kill-test.ply"), static_cast<int64_t>(summary->point_count))
+      << fusion->log();
+}
+
+TEST_F(FusionStore, KilledTwentyTimesResumesFromTheLastCheckpoint) {
+  constexpr int kKills = 20;
+  auto capture = start_capture("corner?frames=60&seed=11", {"--rate", "6", "--loop"});
+  std::mt19937 rng(std::random_device{}());
+  std::uniform_int_distribution<int> kill_after_ms(300, 2500);
+
+  uint32_t checkpoint_frame = 0;  // of the file, as the last kill left it
+  int resumes_with_frames = 0;
+  for (int round = 0; round <= kKills; ++round) {
+    const std::string log = "fusion-" + std::to_string(round) + ".log";
+    auto fusion = start_fusion(log);
+    // The daemon states where it continues: right after the file's last checkpoint.
+    const std::string expected = checkpoint_frame == 0
+        ? "scan kill-test started"
+        : "scan kill-test resumed at frame " + std::to_string(checkpoint_frame + 1);
+    EXPECT_TRUE(eventually([&] { return fusion->log().find(expected) != std::string::npos; },
+                           seconds(20)))
+        << "round " << round << ": expected '" << expected << "':\n" << fusion->log();
+    if (checkpoint_frame > 0) ++resumes_with_frames;
+    if (round == kKills) {
+      // The last round ends cleanly: a final checkpoint.
+      std::this_thread::sleep_for(seconds(2));
+      fusion->signal(SIGTERM);
+      ASSERT_TRUE(fusion->wait(seconds(60))) << fusion->log();
+      EXPECT_EQ(fusion->exit_code(), 0) << fusion->log();
+    } else {
+      std::this_thread::sleep_for(milliseconds(kill_after_ms(rng)));
+      fusion->signal(SIGKILL);
+      ASSERT_TRUE(fusion->wait(seconds(10)));
+      EXPECT_EQ(fusion->exit_code(), 128 + SIGKILL);
+    }
+    const uint32_t now = checked_last_frame("after round " + std::to_string(round));
+    EXPECT_GE(now, checkpoint_frame) << "a checkpoint went missing in round " << round;
+    checkpoint_frame = now;
+    if (HasFatalFailure()) return;
+  }
+  capture->signal(SIGTERM);
+  EXPECT_GT(resumes_with_frames, kKills / 2) << "too few rounds reached a checkpoint";
+
+  // Every frame id from 1 to the last checkpoint's exactly once: ids continued across resumes.
+  auto store = store::ScanStore::open(db_, store::OpenMode::kReadOnly);
+  ASSERT_TRUE(store.is_ok()) << store.status().to_string();
+  auto poses = (*store)->read_poses();
+  ASSERT_TRUE(poses.is_ok()) << poses.status().to_string();
+  ASSERT_EQ(poses->size(), checkpoint_frame);
+  for (size_t i = 0; i < poses->size(); ++i) ASSERT_EQ((*poses)[i].frame_id, i + 1);
+  EXPECT_GT(checkpoint_frame, static_cast<uint32_t>(kKills)) << "the scan hardly advanced";
+
+  std::string out;
+  ASSERT_EQ(cli({"inspect", db_}, &out), 0) << out;
+  EXPECT_NE(out.find("integrity      ok"), std::string::npos) << out;
+  const std::string ply = dir_ + "/after-kills.ply";
+  ASSERT_EQ(cli({"export", db_, "-o", ply}, &out), 0) << out;
+  EXPECT_GT(ply_vertex_count(ply), 10000);
+}
+
+}  // namespace
+}  // namespace depthfuse::testing
