@@ -5,6 +5,10 @@
 // after every kill, and the final file holds every frame id exactly once.
 #include <random>
 
+#include "depthfuse/daemon/heartbeat.hpp"
+#include "depthfuse/heartbeat_t.hpp"
+#include "depthfuse/lcm/channels.hpp"
+#include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/store/scan_store.hpp"
 #include "test_support.hpp"
 
@@ -28,11 +32,11 @@ class FusionStore : public ::testing::Test {
   void TearDown() override {
     if (!HasFailure()) std::filesystem::remove_all(dir_);
   }
-  std::unique_ptr<Process> start_fusion(const std::string& log) {
-    return std::make_unique<Process>(
-        std::vector<std::string>{bin("depthfuse-fusion"), "--config", config_, "--lcm", url_,
-                                 "--scan-db", db_, "--autostart", "kill-test"},
-        dir_ + "/" + log);
+  std::unique_ptr<Process> start_fusion(const std::string& log, std::vector<std::string> prefix = {}) {
+    std::vector<std::string> argv = {bin("depthfuse-fusion"), "--config", config_, "--lcm", url_,
+                                     "--scan-db", db_, "--autostart", "kill-test"};
+    argv.insert(argv.begin(), prefix.begin(), prefix.end());
+    return std::make_unique<Process>(argv, dir_ + "/" + log);
   }
   std::unique_ptr<Process> start_capture(const std::string& spec, std::vector<std::string> extra) {
     std::vector<std::string> argv = {bin("depthfuse-capture"), "--source", "synthetic:" + spec,
@@ -162,6 +166,51 @@ TEST_F(FusionStore, KilledTwentyTimesResumesFromTheLastCheckpoint) {
   const std::string ply = dir_ + "/after-kills.ply";
   ASSERT_EQ(cli({"export", db_, "-o", ply}, &out), 0) << out;
   EXPECT_GT(ply_vertex_count(ply), 10000);
+}
+
+TEST_F(FusionStore, FullDiskIsReportedAndTheLastGoodCheckpointKept) {
+  std::mutex mutex;
+  std::optional<depthfuse::heartbeat_t> last_hb;
+  Listener listener(url_);
+  ASSERT_TRUE(listener.error().empty()) << listener.error();
+  listener.subscribe(lcmio::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n,
+                                                   int64_t) {
+    depthfuse::heartbeat_t hb;
+    if (lcmio::decode_message(d, n, &hb) != lcmio::DecodeResult::kOk || hb.name != "fusion") return;
+    std::lock_guard<std::mutex> lock(mutex);
+    last_hb = hb;
+  });
+  listener.start();
+  auto hb = [&] {
+    std::lock_guard<std::mutex> lock(mutex);
+    return last_hb;
+  };
+
+  // A 12 MB file size limit: the first checkpoints fit, the growing scan soon does not. SIGXFSZ
+  // is ignored (inherited through exec), so writes fail with EFBIG instead of killing the daemon.
+  auto old_handler = ::signal(SIGXFSZ, SIG_IGN);
+  auto fusion = start_fusion("fusion-full.log", {"/usr/bin/prlimit", "--fsize=12000000", "--"});
+  ::signal(SIGXFSZ, old_handler);
+  std::this_thread::sleep_for(milliseconds(500));
+  auto capture = start_capture("corner?frames=60&seed=5", {"--rate", "5", "--loop"});
+
+  ASSERT_TRUE(eventually([&] {
+    auto h = hb();
+    return h && daemon::counter_value(*h, "checkpoint_failures") > 0;
+  }, seconds(90))) << fusion->log();
+  const auto failed = *hb();
+  EXPECT_NE(failed.last_error.find("checkpoint"), std::string::npos) << failed.last_error;
+  EXPECT_GT(daemon::counter_value(failed, "checkpoints_written"), 0) << fusion->log();
+  // Fusion goes on.
+  EXPECT_TRUE(eventually([&] { return hb()->frames_out > failed.frames_out + 2; }, seconds(30)))
+      << fusion->log();
+  EXPECT_TRUE(fusion->running()) << fusion->log();
+  fusion->signal(SIGKILL);
+  ASSERT_TRUE(fusion->wait(seconds(10)));
+  capture->signal(SIGTERM);
+
+  // The last good checkpoint is there and the file is sound.
+  EXPECT_GT(checked_last_frame("after the full disk"), 0u);
 }
 
 }  // namespace
