@@ -137,7 +137,11 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
     for (size_t i = 0; i < frames.size(); ++i) {
       Result<size_t> r = measure(frames[i], c, &m);
       if (!r) return r.status();
-      const RegistrationResult reg = registrar.refine(m, *result.map, result.T_world_cam[i]);
+      // The first round starts from the initial poses, which may be several centimetres off:
+      // coarse to fine, with wider correspondence gates. Later rounds only refine.
+      const RegistrationResult reg = round == 1
+                                         ? registrar.track(m, *result.map, result.T_world_cam[i])
+                                         : registrar.refine(m, *result.map, result.T_world_cam[i]);
       if (reg.converged) {
         refined[i] = reg.T_world_cam;
         rep.max_translation_change_m =
