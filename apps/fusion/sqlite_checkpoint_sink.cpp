@@ -135,8 +135,12 @@ Result<size_t> SqliteCheckpointSink::write_cloud(const std::string& ply_path,
                                                  IncrementalReconstructor& reconstructor) {
   if (!recorder_) return CheckpointSink::write_cloud(ply_path, reconstructor);
   if (!final_written_) {
-    // The file lacks the end of the scan; the resident map alone may lack the evicted chunks.
-    // Refuse, so that the daemon keeps the scan (paused) and the operator can stop it again.
+    // The file lacks the end of the scan. With nothing evicted the resident map is the whole
+    // cloud; otherwise it would lack the evicted chunks: refuse, so that the daemon keeps the scan
+    // (paused) and the operator can stop it again.
+    const store::MapPager* pager = recorder_->pager();
+    if (!pager || (pager->evicted().empty() && pager->stats().total_evicted == 0))
+      return CheckpointSink::write_cloud(ply_path, reconstructor);
     return io_error("the final checkpoint of " + path_ +
                     " was not written, so the scan's cloud cannot be exported from it");
   }
