@@ -9,6 +9,7 @@
 #include "depthfuse/heartbeat_t.hpp"
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/codec.hpp"
+#include "depthfuse/pose_t.hpp"
 #include "depthfuse/store/scan_store.hpp"
 #include "test_support.hpp"
 
@@ -114,6 +115,21 @@ TEST_F(FusionStore, RecordedScanInspectsAndExports) {
 
 TEST_F(FusionStore, KilledTwentyTimesResumesFromTheLastCheckpoint) {
   constexpr int kKills = 20;
+  // The first pose each round's daemon publishes: registered means ICP found the restored map
+  // where the restored pose expects it (a resume without map or pose cannot register its first
+  // frame: an empty map has nothing to register against).
+  std::mutex mutex;
+  std::map<int, bool> first_pose_registered;  // by round
+  std::atomic<int> current_round{-1};
+  Listener listener(url_);
+  ASSERT_TRUE(listener.error().empty()) << listener.error();
+  listener.subscribe(lcmio::kPoseChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
+    depthfuse::pose_t pose;
+    if (lcmio::decode_message(d, n, &pose) != lcmio::DecodeResult::kOk) return;
+    std::lock_guard<std::mutex> lock(mutex);
+    first_pose_registered.emplace(current_round.load(), pose.registered != 0);
+  });
+  listener.start();
   auto capture = start_capture("corner?frames=60&seed=11", {"--rate", "6", "--loop"});
   std::mt19937 rng(std::random_device{}());
   std::uniform_int_distribution<int> kill_after_ms(300, 2500);
@@ -122,6 +138,7 @@ TEST_F(FusionStore, KilledTwentyTimesResumesFromTheLastCheckpoint) {
   int resumes_with_frames = 0;
   for (int round = 0; round <= kKills; ++round) {
     const std::string log = "fusion-" + std::to_string(round) + ".log";
+    current_round = round;
     auto fusion = start_fusion(log);
     // The daemon states where it continues: right after the file's last checkpoint.
     const std::string expected = checkpoint_frame == 0
@@ -149,7 +166,17 @@ TEST_F(FusionStore, KilledTwentyTimesResumesFromTheLastCheckpoint) {
     if (HasFatalFailure()) return;
   }
   capture->signal(SIGTERM);
+  listener.stop();
   EXPECT_GT(resumes_with_frames, kKills / 2) << "too few rounds reached a checkpoint";
+  int registered_first = 0;
+  for (const auto& [round, registered] : first_pose_registered) registered_first += round > 0 && registered;
+  // Frames arrive where ICP may legitimately fail (the looping capture jumps back to its start),
+  // so most rounds, not all.
+  EXPECT_GE(registered_first, resumes_with_frames / 2)
+      << "resumed daemons did not track against the restored map and pose";
+  std::printf("%d kills, %d resumes from a checkpoint, %d of them registered their first frame, "
+              "%u frames in the final file\n",
+              kKills, resumes_with_frames, registered_first, checkpoint_frame);
 
   // Every frame id from 1 to the last checkpoint's exactly once: ids continued across resumes.
   auto store = store::ScanStore::open(db_, store::OpenMode::kReadOnly);
