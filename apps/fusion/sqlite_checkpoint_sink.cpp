@@ -11,8 +11,6 @@ namespace depthfuse::fusiond {
 
 namespace {
 
-store::FrameCounters counters_of(const FusionProgress& p) { return {p.frames_received, p.frames_dropped}; }
-
 // The configuration text stored with the scan: the file the daemon was started with, if any.
 std::string config_text(const AppConfig& config) {
   if (config.source_path.empty()) return "";
@@ -28,6 +26,11 @@ SqliteCheckpointSink::SqliteCheckpointSink(const AppConfig& config, const Sqlite
     : config_(config), options_(options) {}
 
 SqliteCheckpointSink::~SqliteCheckpointSink() = default;
+
+// The daemon counts from its start; a resumed scan adds what the file counted before.
+store::FrameCounters SqliteCheckpointSink::counters_of(const FusionProgress& p) const {
+  return {resumed_received_ + p.frames_received, resumed_dropped_ + p.frames_dropped};
+}
 
 std::string SqliteCheckpointSink::describe() const {
   if (!path_.empty()) return "sqlite:" + path_;
@@ -47,6 +50,7 @@ Status SqliteCheckpointSink::begin_scan(const ScanContext& scan) {
   recorder_.reset();  // a previous scan's file (and its write lock) is released
   resume_.reset();
   final_written_ = false;
+  resumed_received_ = resumed_dropped_ = 0;
   if (!options_.scan_db_path.empty() && !scan_db_used_) {
     path_ = options_.scan_db_path;
     scan_db_used_ = true;
@@ -82,6 +86,8 @@ Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, Sc
   std::unique_ptr<store::ResumePoint> at = std::move(resume_);
   if (!at->metadata.scan_id.empty()) scan->scan_id = at->metadata.scan_id;
   if (at->metadata.created_utime != 0) scan->created_utime = at->metadata.created_utime;
+  resumed_received_ = at->metadata.frames_received;
+  resumed_dropped_ = at->metadata.frames_dropped;
   std::unique_ptr<PointMap> map = std::move(at->map);
   if (!map) map = std::make_unique<PointMap>(config_.reconstruction.fusion.chunk_size_m);
   reconstructor.reset(std::move(map), at->next_frame_id, at->last_T_world_cam);

@@ -43,6 +43,7 @@ class SqliteCheckpointSink : public CheckpointSink {
 
  private:
   store::RecorderConfig recorder_config() const;
+  store::FrameCounters counters_of(const FusionProgress& progress) const;
 
   AppConfig config_;
   SqliteSinkOptions options_;
@@ -51,6 +52,7 @@ class SqliteCheckpointSink : public CheckpointSink {
   std::unique_ptr<store::ScanRecorder> recorder_;
   std::unique_ptr<store::ResumePoint> resume_;  // between begin_scan and restore
   bool final_written_ = false;      // end_scan's checkpoint committed
+  uint64_t resumed_received_ = 0, resumed_dropped_ = 0;  // counted before a resume
 };
 
 }  // namespace depthfuse::fusiond
