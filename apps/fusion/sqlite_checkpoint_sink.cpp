@@ -42,6 +42,7 @@ store::RecorderConfig SqliteCheckpointSink::recorder_config() const {
   store::RecorderConfig rc;
   rc.bounded_memory = true;
   rc.pager.memory_budget_mib = config_.fusion.memory_budget_mib;
+  rc.pager.evict_distance_m = config_.fusion.evict_distance_m;
   rc.keyframe_every_n_frames = config_.fusion.keyframe_every_n_frames;
   return rc;
 }
