@@ -12,17 +12,9 @@ namespace depthfuse {
 bool merge_measurement(const Eigen::Vector3f& p_e, const Eigen::Matrix3f& L_e,
                        const Eigen::Vector3f& p_n, const Eigen::Matrix3f& L_n,
                        Eigen::Vector3f* p_fused, Eigen::Matrix3f* L_fused) {
-  // Product of the two Gaussians: the fused point is pulled towards the more certain one.
-  const Eigen::Matrix3f L = L_e + L_n;
-  Eigen::Matrix3f C;
-  if (!invert_symmetric3(L, &C)) return false;
-  const Eigen::Vector3f delta = p_n - p_e;
-  const Eigen::Vector3f from_e = C * (L_n * delta);  // p' - p_e
-  const Eigen::Vector3f from_n = from_e - delta;     // p' - p_n
-  // Inside both uncertainty ellipsoids (each defined by its own covariance).
-  if (mahalanobis2(from_e, L_e) > 1.0f || mahalanobis2(from_n, L_n) > 1.0f) return false;
-  *p_fused = p_e + from_e;
-  *L_fused = L;
+  Sym3f L;
+  if (!merge_rule(p_e, Sym3f::from(L_e), p_n, Sym3f::from(L_n), p_fused, &L)) return false;
+  *L_fused = L.matrix();
   return true;
 }
 
@@ -37,43 +29,72 @@ inline uint16_t saturating_increment(uint16_t v) {
   return v == std::numeric_limits<uint16_t>::max() ? v : static_cast<uint16_t>(v + 1);
 }
 
+inline Sym3f information_at(const PointArrays& a, size_t i) {
+  return {a.info_xx[i], a.info_xy[i], a.info_xz[i], a.info_yy[i], a.info_yz[i], a.info_zz[i]};
+}
+
 // Refines existing point i of `a` with a measurement.
-inline void refine_point(PointArrays& a, size_t i, const Eigen::Vector3f& p, const Eigen::Matrix3f& L,
+inline void refine_point(PointArrays& a, size_t i, const Eigen::Vector3f& p, const Sym3f& L,
                          const Eigen::Vector3f& n_new, const uint8_t* rgb, uint32_t frame_id) {
   a.x[i] = p.x();
   a.y[i] = p.y();
   a.z[i] = p.z();
-  set_information(a, i, L);
+  a.info_xx[i] = L.xx; a.info_xy[i] = L.xy; a.info_xz[i] = L.xz;
+  a.info_yy[i] = L.yy; a.info_yz[i] = L.yz; a.info_zz[i] = L.zz;
   // Normal and colour: running means over all measurements of the point.
   const float w = static_cast<float>(a.merges[i]) + 1.0f;
   Eigen::Vector3f n = w * a.normal(i) + n_new;
-  const float len = n.norm();
-  if (len > 1e-6f) n /= len;
+  const float len2 = n.squaredNorm();
+  if (len2 > 1e-12f) n *= 1.0f / std::sqrt(len2);
   a.nx[i] = n.x();
   a.ny[i] = n.y();
   a.nz[i] = n.z();
   if (rgb) {
-    a.r[i] = static_cast<uint8_t>(std::lround((w * a.r[i] + rgb[0]) / (w + 1.0f)));
-    a.g[i] = static_cast<uint8_t>(std::lround((w * a.g[i] + rgb[1]) / (w + 1.0f)));
-    a.b[i] = static_cast<uint8_t>(std::lround((w * a.b[i] + rgb[2]) / (w + 1.0f)));
+    const float inv = 1.0f / (w + 1.0f);
+    a.r[i] = static_cast<uint8_t>((w * a.r[i] + rgb[0]) * inv + 0.5f);
+    a.g[i] = static_cast<uint8_t>((w * a.g[i] + rgb[1]) * inv + 0.5f);
+    a.b[i] = static_cast<uint8_t>((w * a.b[i] + rgb[2]) * inv + 0.5f);
   }
   a.merges[i] = saturating_increment(a.merges[i]);
   a.last_frame[i] = frame_id;
 }
 
-// Merges the measurement into the point rendered at `px` if the merge rule allows it.
-inline bool try_merge(ModelProjection& proj, size_t px, const Eigen::Vector3f& p_w,
-                      const Eigen::Matrix3f& L_n, const Eigen::Vector3f& n_w, const uint8_t* rgb,
-                      uint32_t frame_id) {
-  PointArrays& a = proj.points_at(px);
-  const uint32_t j = proj.index_at(px);
+// Merges the measurement into the candidate rendered at `px` if the merge rule allows it.
+inline bool try_merge(ModelProjection& proj, size_t px, const Eigen::Vector3f& p_w, const Sym3f& L_n,
+                      const Eigen::Vector3f& n_w, const uint8_t* rgb, uint32_t frame_id) {
+  PointArrays& a = proj.candidate_points(px);
+  const uint32_t j = proj.candidate_index(px);
   Eigen::Vector3f p_f;
-  Eigen::Matrix3f L_f;
-  if (!merge_measurement(a.position(j), information_matrix(a, j), p_w, L_n, &p_f, &L_f)) return false;
+  Sym3f L_f;
+  if (!merge_rule(proj.candidate_position(px), information_at(a, j), p_w, L_n, &p_f, &L_f))
+    return false;
   refine_point(a, j, p_f, L_f, n_w, rgb, frame_id);
   proj.take(px);
   return true;
 }
+
+// The measurement's information from its depth alone: lateral (the pixel footprint) and axial
+// (the time-of-flight noise curve), in 1/m^2.
+struct InformationCurve {
+  float inv_kx, inv_ky;     // 1 / lateral variance coefficient
+  float a0, a1, a2, inv_lambda2;
+
+  explicit InformationCurve(const SensorModel& model)
+      : inv_kx(static_cast<float>(1.0 / model.lateral_variance_x_m2(1.0))),
+        inv_ky(static_cast<float>(1.0 / model.lateral_variance_y_m2(1.0))),
+        a0(static_cast<float>(model.config().alpha0_m)),
+        a1(static_cast<float>(model.config().alpha1)),
+        a2(static_cast<float>(model.config().alpha2_per_m)),
+        inv_lambda2(static_cast<float>(1.0 / model.config().lambda2)) {}
+
+  void at(float z, float* w_x, float* w_y, float* w_z) const {
+    const float inv_z2 = 1.0f / (z * z);
+    const float sigma = (a2 * z + a1) * z + a0;
+    *w_x = inv_kx * inv_z2;
+    *w_y = inv_ky * inv_z2;
+    *w_z = inv_lambda2 / (sigma * sigma);
+  }
+};
 
 }  // namespace
 
@@ -83,12 +104,12 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
   const CameraIntrinsics& K = m.intrinsics;
   const bool has_color = color && !color->empty() && color->width == m.width &&
                          color->height == m.height;
-  const SensorModel model(sensor_config_, K);
+  const InformationCurve curve(SensorModel(sensor_config_, K));
 
   // Existing points near this frame's measurements, rendered into its camera.
   ModelProjection& proj = *projection_;
   proj.select_chunks(*map, m, T_world_cam, 0.1f);
-  proj.render(T_world_cam, K);
+  proj.render(T_world_cam, K, &m);
 
   const Eigen::Matrix3f R = T_world_cam.linear().cast<float>();
   const Eigen::Vector3f t = T_world_cam.translation().cast<float>();
@@ -106,22 +127,22 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
       if (!m.valid[i]) continue;
       ++stats.measurements;
       const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);
-      const Eigen::Vector3f p_w = R * p_c + t;
+      const Eigen::Vector3f ray_w = R * p_c;
+      const Eigen::Vector3f p_w = ray_w + t;
       const Eigen::Vector3f n_w = R * Eigen::Vector3f(m.nx[i], m.ny[i], m.nz[i]);
       const float z = m.z[i];
-      Eigen::Matrix3f L_n;
-      ray_information(p_w - t, up_w, static_cast<float>(1.0 / model.lateral_variance_x_m2(z)),
-                      static_cast<float>(1.0 / model.lateral_variance_y_m2(z)),
-                      static_cast<float>(1.0 / model.axial_variance_m2(z)), &L_n);
+      const float range = p_c.norm();
+      float w_x, w_y, w_z;
+      curve.at(z, &w_x, &w_y, &w_z);
+      const Sym3f L_n = ray_information(ray_w * (1.0f / range), up_w, w_x, w_y, w_z);
       const uint8_t* rgb = has_color ? &color->rgb[3 * i] : nullptr;
 
-      // The nearest existing point among those rendered around this pixel, not yet merged with
-      // another measurement of this frame.
-      // The point rendered at this very pixel first; only if it is missing, taken, or does not
-      // merge, the nearest untaken one in the window. Searching the window first would let a
-      // pixel take its neighbour's point and leave the neighbour to add a redundant one.
+      // The candidate at this very pixel (the existing point closest in depth to the measurement)
+      // first; only if it is missing, taken, or does not merge, the nearest untaken candidate in
+      // the window. Searching the window first would let a pixel take its neighbour's point and
+      // leave the neighbour to add a redundant one.
       bool merged = false;
-      if (!proj.empty_at(i) && !proj.taken_at(i)) merged = try_merge(proj, i, p_w, L_n, n_w, rgb, frame_id);
+      if (proj.has_candidate(i) && !proj.taken_at(i)) merged = try_merge(proj, i, p_w, L_n, n_w, rgb, frame_id);
       if (!merged && cr > 0) {
         size_t best_px = i;
         float best_d2 = std::numeric_limits<float>::infinity();
@@ -132,8 +153,8 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
             const int uu = u + du;
             if ((du == 0 && dv == 0) || uu < 0 || uu >= m.width) continue;
             const size_t px = static_cast<size_t>(vv) * m.width + uu;
-            if (proj.empty_at(px) || proj.taken_at(px)) continue;
-            const float d2 = (proj.position_at(px) - p_w).squaredNorm();
+            if (!proj.has_candidate(px) || proj.taken_at(px)) continue;
+            const float d2 = (proj.candidate_position(px) - p_w).squaredNorm();
             if (d2 < best_d2) {
               best_d2 = d2;
               best_px = px;
@@ -147,18 +168,18 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
         continue;
       }
 
-      // Not merged. A point rendered at this very pixel in front of the measurement, both facing
+      // Not merged. The front-most point at this pixel in front of the measurement, both facing
       // the camera, and within a tenth of the range: the camera saw through it (paper eq. 2-3).
       if (!proj.empty_at(i)) {
         const float z_e = proj.depth_at(i);
         if (z_e < z) {
-          PointArrays& a = proj.points_at(i);
-          const uint32_t j = proj.index_at(i);
+          PointArrays& a = proj.front_points(i);
+          const uint32_t j = proj.front_index(i);
           const Eigen::Vector3f p_e = a.position(j);
-          const float s_e = (p_e - t).norm(), s_n = p_c.norm();
+          const float s_e = (p_e - t).norm();
           const bool facing_e = a.normal(j).dot(t - p_e) > 0.0f;
           const bool facing_n = n_w.dot(t - p_w) > 0.0f;
-          if (facing_e && facing_n && std::abs(s_e - s_n) < range_fraction * s_n) {
+          if (facing_e && facing_n && std::abs(s_e - range) < range_fraction * range) {
             a.violations[j] = saturating_increment(a.violations[j]);
             ++stats.violations;
           }
@@ -168,9 +189,9 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
       PointRecord rec;
       rec.position_m = p_w;
       rec.normal = n_w;
-      rec.information[0] = L_n(0, 0); rec.information[1] = L_n(0, 1);
-      rec.information[2] = L_n(0, 2); rec.information[3] = L_n(1, 1);
-      rec.information[4] = L_n(1, 2); rec.information[5] = L_n(2, 2);
+      rec.information[0] = L_n.xx; rec.information[1] = L_n.xy;
+      rec.information[2] = L_n.xz; rec.information[3] = L_n.yy;
+      rec.information[4] = L_n.yz; rec.information[5] = L_n.zz;
       if (rgb) { rec.rgb[0] = rgb[0]; rec.rgb[1] = rgb[1]; rec.rgb[2] = rgb[2]; }
       rec.last_frame = frame_id;
       const ChunkKey key = map->key_for(p_w);

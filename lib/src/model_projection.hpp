@@ -34,49 +34,78 @@ class ModelProjection {
   void select_chunks(PointMap& map, const MeasurementImage& m, const Pose& T_world_cam,
                      float margin_m, int stride = 8);
 
-  // Z-buffers the points of the selected chunks into the camera at T_world_cam.
-  void render(const Pose& T_world_cam, const CameraIntrinsics& K);
+  // Projects the points of the selected chunks into the camera at T_world_cam. Per pixel it keeps
+  // the front-most point (a z-buffer: visibility and registration) and, given the frame's own
+  // measurements, the point whose depth is closest to the measured depth there: fusion's merge
+  // candidate. Where earlier frames left several layers of points over a pixel, the front-most
+  // point is often not the one the measurement belongs to.
+  void render(const Pose& T_world_cam, const CameraIntrinsics& K,
+              const MeasurementImage* measured = nullptr);
 
   // After render(): per pixel, the confidence-weighted mean (weight 1 + merges) of every rendered
   // point within band_m behind the nearest one. Registration aligns to this consensus surface:
   // the nearest point alone is biased towards the camera wherever the cloud still has several
   // layers (poorly registered frames), and ICP would pull every camera towards itself.
   void average_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m);
-  bool has_surface(size_t pixel) const { return surface_w_[pixel] > 0.0f; }
+  bool has_surface(size_t pixel) const { return surface_[pixel].w > 0.0f; }
   Eigen::Vector3f surface_point(size_t pixel) const {
-    return {surface_x_[pixel], surface_y_[pixel], surface_z_[pixel]};
+    const SurfaceSum& s = surface_[pixel];
+    return {s.x, s.y, s.z};
   }
   Eigen::Vector3f surface_normal(size_t pixel) const {
-    return {surface_nx_[pixel], surface_ny_[pixel], surface_nz_[pixel]};
+    const SurfaceSum& s = surface_[pixel];
+    return {s.nx, s.ny, s.nz};
   }
 
-  bool empty_at(size_t pixel) const { return slot_[pixel] < 0; }
-  // World position of the point rendered at a pixel, stored pixel-ordered so that neighbourhood
-  // searches read contiguous memory instead of chasing points through chunks.
-  Eigen::Vector3f position_at(size_t pixel) const {
-    return {pos_x_[pixel], pos_y_[pixel], pos_z_[pixel]};
+  // The front-most point at a pixel.
+  bool empty_at(size_t pixel) const { return front_slot_[pixel] < 0; }
+  float depth_at(size_t pixel) const { return front_depth_[pixel]; }
+  PointArrays& front_points(size_t pixel) const { return chunks_[front_slot_[pixel]]->points; }
+  uint32_t front_index(size_t pixel) const { return front_index_[pixel]; }
+
+  // The merge candidate at a pixel (render() with measurements only). Its world position is stored
+  // pixel-ordered, so that neighbourhood searches read contiguous memory.
+  bool has_candidate(size_t pixel) const { return cand_slot_[pixel] >= 0; }
+  Eigen::Vector3f candidate_position(size_t pixel) const {
+    return {cand_x_[pixel], cand_y_[pixel], cand_z_[pixel]};
   }
-  // One merge per point per frame: a point is rendered at exactly one pixel, so a flag suffices.
+  PointArrays& candidate_points(size_t pixel) const { return chunks_[cand_slot_[pixel]]->points; }
+  uint32_t candidate_index(size_t pixel) const { return cand_index_[pixel]; }
+  // One merge per point per frame: a point is a candidate at one pixel at most, so a flag suffices.
   bool taken_at(size_t pixel) const { return taken_[pixel] != 0; }
   void take(size_t pixel) { taken_[pixel] = 1; }
-  PointArrays& points_at(size_t pixel) const { return chunks_[slot_[pixel]]->points; }
-  uint32_t index_at(size_t pixel) const { return index_[pixel]; }
-  float depth_at(size_t pixel) const { return depth_[pixel]; }
+
   size_t rendered_points() const { return rendered_; }
   const std::vector<Chunk*>& chunks() const { return chunks_; }
 
  private:
+  // A pixel's z-buffer entries as 64-bit keys, (key bits << 32) | point id, so that one integer
+  // comparison keeps the minimum (non-negative floats order like their bit patterns).
+  struct PixelKeys {
+    uint64_t front;     // key: depth in the camera
+    uint64_t cand;      // key: |depth - measured depth|
+    float measured_z;   // the frame's depth at this pixel, 0 = none
+    uint32_t unused;
+  };
+  struct SurfaceSum {
+    float x, y, z, nx, ny, nz, w;
+  };
+  template <bool kGuided>
+  void render_points(const Pose& T_world_cam, const CameraIntrinsics& K);
+  // Point id (offset of its chunk + index) back to chunk slot and index; *slot on entry is a hint.
+  void locate(uint32_t id, int32_t* slot, uint32_t* index) const;
+
   std::vector<ChunkKey> keys_;          // scratch
   std::vector<Chunk*> chunks_;          // selected, existing, non-empty chunks
-  std::vector<int32_t> slot_;           // per pixel: index into chunks_, -1 = nothing
-  std::vector<uint32_t> index_;         // per pixel: point index within the chunk
-  std::vector<float> depth_;            // per pixel: z of that point in the camera
-  std::vector<float> pos_x_, pos_y_, pos_z_;  // per pixel: its world position
-  std::vector<uint8_t> taken_;          // per pixel: merged with a measurement of this frame
+  std::vector<uint32_t> offsets_;       // first point id of each chunk, and the total
+  std::vector<PixelKeys> pixel_keys_;   // per pixel, during render()
+  std::vector<int32_t> front_slot_, cand_slot_;    // per pixel: index into chunks_, -1 = nothing
+  std::vector<uint32_t> front_index_, cand_index_; // per pixel: point index within the chunk
+  std::vector<float> front_depth_;      // per pixel: z of the front-most point in the camera
+  std::vector<float> cand_x_, cand_y_, cand_z_;  // per pixel: the candidate's world position
+  std::vector<uint8_t> taken_;          // per pixel: candidate merged with a measurement of this frame
   size_t rendered_ = 0;
-  // average_surface(): world-frame mean point and unit normal per pixel, and the summed weight.
-  std::vector<float> surface_x_, surface_y_, surface_z_, surface_nx_, surface_ny_, surface_nz_;
-  std::vector<float> surface_w_;
+  std::vector<SurfaceSum> surface_;     // average_surface(): mean point and unit normal, summed weight
 };
 
 }  // namespace depthfuse
