@@ -37,6 +37,7 @@ void ModelProjection::select_chunks(PointMap& map, const MeasurementImage& m,
 namespace {
 
 constexpr uint64_t kNoKey = ~uint64_t{0};
+constexpr uint32_t kInfBits = 0x7f800000u;  // bit pattern of +inf
 
 inline uint32_t float_bits(float f) {
   uint32_t b;
@@ -78,10 +79,12 @@ void ModelProjection::render_points(const Pose& T_world_cam, const CameraIntrins
       ++rendered;
       const uint64_t id = base + i;
       const uint64_t front = (uint64_t{float_bits(z)} << 32) | id;
-      if (front < k.front) k.front = front;
-      if (kGuided && k.measured_z > 0.0f) {
+      // Branch-free minimum: which point wins a pixel is unpredictable.
+      k.front = std::min(front, k.front);
+      if (kGuided) {
+        // Pixels without a measurement have measured_z = +inf: their keys stay at the maximum.
         const uint64_t cand = (uint64_t{float_bits(std::abs(z - k.measured_z))} << 32) | id;
-        if (cand < k.cand) k.cand = cand;
+        k.cand = std::min(cand, k.cand);
       }
     }
   }
@@ -126,7 +129,8 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
     PixelKeys& k = pixel_keys_[px];
     k.front = kNoKey;
     k.cand = kNoKey;
-    k.measured_z = guided && measured->valid[px] ? measured->z[px] : 0.0f;
+    k.measured_z = guided && measured->valid[px] ? measured->z[px]
+                                                 : std::numeric_limits<float>::infinity();
   }
   if (guided) {
     render_points<true>(T_world_cam, K);
@@ -154,7 +158,7 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
       front_slot_[px] = front_hint;
       front_depth_[px] = bits_float(static_cast<uint32_t>(k.front >> 32));
     }
-    if (k.cand == kNoKey) {
+    if ((k.cand >> 32) >= kInfBits) {  // no candidate, or no measurement at this pixel
       cand_slot_[px] = -1;
       continue;
     }

@@ -84,7 +84,7 @@ class ModelProjection {
   struct PixelKeys {
     uint64_t front;     // key: depth in the camera
     uint64_t cand;      // key: |depth - measured depth|
-    float measured_z;   // the frame's depth at this pixel, 0 = none
+    float measured_z;   // the frame's depth at this pixel, +inf = none
     uint32_t unused;
   };
   struct SurfaceSum {
