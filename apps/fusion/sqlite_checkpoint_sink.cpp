@@ -177,6 +177,9 @@ void SqliteCheckpointSink::add_counters(std::vector<std::pair<std::string, doubl
                          s.last_checkpoint ? static_cast<double>(s.last_checkpoint->last_frame_id) : 0.0);
   counters->emplace_back("resident_mib", s.pager.resident_bytes / (1024.0 * 1024.0));
   counters->emplace_back("evicted_chunks", static_cast<double>(s.pager.evicted_chunks));
+  // Paging activity since the scan (or its resume) began: chunks written out and brought back.
+  counters->emplace_back("chunks_evicted_total", static_cast<double>(s.pager.total_evicted));
+  counters->emplace_back("chunks_loaded_total", static_cast<double>(s.pager.total_loaded));
 }
 
 }  // namespace depthfuse::fusiond
