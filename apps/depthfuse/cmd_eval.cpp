@@ -107,10 +107,7 @@ int run(int argc, char** argv) {
     const Eigen::Matrix3f R = alignment->linear().cast<float>();
     const Eigen::Vector3f t = alignment->translation().cast<float>();
     for (size_t i = 0; i < cloud->size(); ++i) {
-      const Eigen::Vector3f p = R * cloud->position(i) + t;
-      cloud->x[i] = p.x();
-      cloud->y[i] = p.y();
-      cloud->z[i] = p.z();
+      cloud->position_m[i] = R * cloud->position_m[i] + t;
     }
     r << "  cloud aligned to the truth by the trajectory's rigid alignment (--no-align to skip)\n";
   }

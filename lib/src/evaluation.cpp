@@ -15,7 +15,8 @@ namespace depthfuse {
 
 namespace {
 
-inline ChunkKey voxel(float x, float y, float z, double inv) {
+inline ChunkKey voxel(const Eigen::Vector3f& p, double inv) {
+  const float x = p.x(), y = p.y(), z = p.z();
   return {static_cast<int32_t>(std::floor(x * inv)), static_cast<int32_t>(std::floor(y * inv)),
           static_cast<int32_t>(std::floor(z * inv))};
 }
@@ -24,7 +25,7 @@ std::unordered_set<ChunkKey, ChunkKeyHash> voxel_set(const PointArrays& a, doubl
   std::unordered_set<ChunkKey, ChunkKeyHash> s;
   s.reserve(a.size() / 4 + 16);
   const double inv = 1.0 / voxel_m;
-  for (size_t i = 0; i < a.size(); ++i) s.insert(voxel(a.x[i], a.y[i], a.z[i], inv));
+  for (size_t i = 0; i < a.size(); ++i) s.insert(voxel(a.position_m[i], inv));
   return s;
 }
 
@@ -58,10 +59,10 @@ std::vector<double> distances_to_cloud(const PointArrays& points, const PointArr
   const double inv = 1.0 / cell;
   std::unordered_map<ChunkKey, std::vector<uint32_t>, ChunkKeyHash> grid;
   grid.reserve(ref.size() / 8 + 16);
-  for (size_t i = 0; i < ref.size(); ++i) grid[voxel(ref.x[i], ref.y[i], ref.z[i], inv)].push_back(static_cast<uint32_t>(i));
+  for (size_t i = 0; i < ref.size(); ++i) grid[voxel(ref.position_m[i], inv)].push_back(static_cast<uint32_t>(i));
   std::vector<double> out(points.size(), max_m);
   for (size_t i = 0; i < points.size(); ++i) {
-    const ChunkKey c = voxel(points.x[i], points.y[i], points.z[i], inv);
+    const ChunkKey c = voxel(points.position_m[i], inv);
     double best2 = max_m * max_m;
     for (int ring = 0; ring <= 4; ++ring) {
       // Once a hit closer than the ring's inner distance is found, outer rings cannot beat it.
@@ -73,8 +74,8 @@ std::vector<double> distances_to_cloud(const PointArrays& points, const PointArr
             auto it = grid.find({c.x + dx, c.y + dy, c.z + dz});
             if (it == grid.end()) continue;
             for (uint32_t j : it->second) {
-              const double ex = points.x[i] - ref.x[j], ey = points.y[i] - ref.y[j], ez = points.z[i] - ref.z[j];
-              best2 = std::min(best2, ex * ex + ey * ey + ez * ez);
+              const Eigen::Vector3d e = (points.position_m[i] - ref.position_m[j]).cast<double>();
+              best2 = std::min(best2, e.squaredNorm());
             }
           }
     }
@@ -97,7 +98,7 @@ PointArrays voxel_downsample(const PointArrays& a, double voxel_m) {
   PointArrays out;
   const double inv = 1.0 / voxel_m;
   for (size_t i = 0; i < a.size(); ++i)
-    if (seen.insert(voxel(a.x[i], a.y[i], a.z[i], inv)).second) out.push_back(a.get(i));
+    if (seen.insert(voxel(a.position_m[i], inv)).second) out.push_back(a.get(i));
   return out;
 }
 

@@ -29,34 +29,33 @@ inline uint16_t saturating_increment(uint16_t v) {
   return v == std::numeric_limits<uint16_t>::max() ? v : static_cast<uint16_t>(v + 1);
 }
 
-inline Sym3f information_at(const PointArrays& a, size_t i) {
-  return {a.info_xx[i], a.info_xy[i], a.info_xz[i], a.info_yy[i], a.info_yz[i], a.info_zz[i]};
+inline Sym3f information_of(const PointState& s) {
+  return {s.info_xx, s.info_xy, s.info_xz, s.info_yy, s.info_yz, s.info_zz};
 }
 
 // Refines existing point i of `a` with a measurement.
 inline void refine_point(PointArrays& a, size_t i, const Eigen::Vector3f& p, const Sym3f& L,
                          const Eigen::Vector3f& n_new, const uint8_t* rgb, uint32_t frame_id) {
-  a.x[i] = p.x();
-  a.y[i] = p.y();
-  a.z[i] = p.z();
-  a.info_xx[i] = L.xx; a.info_xy[i] = L.xy; a.info_xz[i] = L.xz;
-  a.info_yy[i] = L.yy; a.info_yz[i] = L.yz; a.info_zz[i] = L.zz;
+  a.position_m[i] = p;
+  PointState& s = a.state[i];
+  s.info_xx = L.xx; s.info_xy = L.xy; s.info_xz = L.xz;
+  s.info_yy = L.yy; s.info_yz = L.yz; s.info_zz = L.zz;
   // Normal and colour: running means over all measurements of the point.
-  const float w = static_cast<float>(a.merges[i]) + 1.0f;
-  Eigen::Vector3f n = w * a.normal(i) + n_new;
+  const float w = static_cast<float>(s.merges) + 1.0f;
+  Eigen::Vector3f n = w * Eigen::Vector3f(s.nx, s.ny, s.nz) + n_new;
   const float len2 = n.squaredNorm();
   if (len2 > 1e-12f) n *= 1.0f / std::sqrt(len2);
-  a.nx[i] = n.x();
-  a.ny[i] = n.y();
-  a.nz[i] = n.z();
+  s.nx = n.x();
+  s.ny = n.y();
+  s.nz = n.z();
   if (rgb) {
     const float inv = 1.0f / (w + 1.0f);
-    a.r[i] = static_cast<uint8_t>((w * a.r[i] + rgb[0]) * inv + 0.5f);
-    a.g[i] = static_cast<uint8_t>((w * a.g[i] + rgb[1]) * inv + 0.5f);
-    a.b[i] = static_cast<uint8_t>((w * a.b[i] + rgb[2]) * inv + 0.5f);
+    s.r = static_cast<uint8_t>((w * s.r + rgb[0]) * inv + 0.5f);
+    s.g = static_cast<uint8_t>((w * s.g + rgb[1]) * inv + 0.5f);
+    s.b = static_cast<uint8_t>((w * s.b + rgb[2]) * inv + 0.5f);
   }
-  a.merges[i] = saturating_increment(a.merges[i]);
-  a.last_frame[i] = frame_id;
+  s.merges = saturating_increment(s.merges);
+  s.last_frame = frame_id;
 }
 
 // Merges the measurement into the candidate rendered at `px` if the merge rule allows it.
@@ -66,7 +65,7 @@ inline bool try_merge(ModelProjection& proj, size_t px, const Eigen::Vector3f& p
   const uint32_t j = proj.candidate_index(px);
   Eigen::Vector3f p_f;
   Sym3f L_f;
-  if (!merge_rule(proj.candidate_position(px), information_at(a, j), p_w, L_n, &p_f, &L_f))
+  if (!merge_rule(proj.candidate_position(px), information_of(a.state[j]), p_w, L_n, &p_f, &L_f))
     return false;
   refine_point(a, j, p_f, L_f, n_w, rgb, frame_id);
   proj.take(px);
@@ -115,6 +114,7 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
   const Eigen::Vector3f t = T_world_cam.translation().cast<float>();
   const Eigen::Vector3f up_w = R.col(1);
   const int cr = std::max(0, config_.candidate_radius_px);
+  const size_t proj_pixels = m.pixel_count();
   const float range_fraction = static_cast<float>(config_.visibility_range_fraction);
 
   // Chunk lookups repeat for neighbouring pixels: remember the last one.
@@ -124,6 +124,8 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
   for (int v = 0; v < m.height; ++v) {
     for (int u = 0; u < m.width; ++u) {
       const size_t i = static_cast<size_t>(v) * m.width + u;
+      if (i + ModelProjection::kPrefetchPixels < proj_pixels)
+        proj.prefetch_candidate(i + ModelProjection::kPrefetchPixels);
       if (!m.valid[i]) continue;
       ++stats.measurements;
       const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);
@@ -175,12 +177,12 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
         if (z_e < z) {
           PointArrays& a = proj.front_points(i);
           const uint32_t j = proj.front_index(i);
-          const Eigen::Vector3f p_e = a.position(j);
+          const Eigen::Vector3f& p_e = a.position(j);
           const float s_e = (p_e - t).norm();
           const bool facing_e = a.normal(j).dot(t - p_e) > 0.0f;
           const bool facing_n = n_w.dot(t - p_w) > 0.0f;
           if (facing_e && facing_n && std::abs(s_e - range) < range_fraction * range) {
-            a.violations[j] = saturating_increment(a.violations[j]);
+            a.state[j].violations = saturating_increment(a.state[j].violations);
             ++stats.violations;
           }
         }
@@ -223,7 +225,7 @@ size_t postfilter(PointMap* map) {
     keep.resize(a.size());
     bool any = false;
     for (size_t i = 0; i < a.size(); ++i) {
-      keep[i] = a.violations[i] <= a.merges[i];
+      keep[i] = a.state[i].violations <= a.state[i].merges;
       any |= !keep[i];
     }
     if (any) {

@@ -51,40 +51,76 @@ inline float bits_float(uint32_t b) {
   return f;
 }
 
+// The camera that render() and average_surface() project into: world to pixel.
+struct PixelProjector {
+  Eigen::Matrix3f R;
+  Eigen::Vector3f t;
+  float fx, fy, cx, cy;
+  int width, height;
+
+  PixelProjector(const Pose& T_world_cam, const CameraIntrinsics& K) {
+    const Pose T_cam_world = T_world_cam.inverse();
+    R = T_cam_world.linear().cast<float>();
+    t = T_cam_world.translation().cast<float>();
+    fx = static_cast<float>(K.fx);
+    fy = static_cast<float>(K.fy);
+    cx = static_cast<float>(K.cx);
+    cy = static_cast<float>(K.cy);
+    width = K.width;
+    height = K.height;
+  }
+
+  // Pixel index and camera depth of each point in a block; kNoPixel where it falls outside.
+  // Projecting a block first and updating the pixels after lets the random pixel accesses be
+  // prefetched and overlap, instead of waiting on each one in turn.
+  static constexpr uint32_t kNoPixel = ~uint32_t{0};
+  static constexpr size_t kBlock = 64;
+  void project_block(const Eigen::Vector3f* pos, size_t count, uint32_t* pixel, float* depth) const {
+    for (size_t i = 0; i < count; ++i) {
+      const Eigen::Vector3f& p = pos[i];
+      const float x = R(0, 0) * p.x() + R(0, 1) * p.y() + R(0, 2) * p.z() + t.x();
+      const float y = R(1, 0) * p.x() + R(1, 1) * p.y() + R(1, 2) * p.z() + t.y();
+      const float z = R(2, 0) * p.x() + R(2, 1) * p.y() + R(2, 2) * p.z() + t.z();
+      int u, v;
+      pixel[i] = project_to_pixel(x, y, z, fx, fy, cx, cy, width, height, &u, &v)
+                     ? static_cast<uint32_t>(v * width + u)
+                     : kNoPixel;
+      depth[i] = z;
+    }
+  }
+};
+
 }  // namespace
 
 template <bool kGuided>
 void ModelProjection::render_points(const Pose& T_world_cam, const CameraIntrinsics& K) {
-  const Pose T_cam_world = T_world_cam.inverse();
-  const Eigen::Matrix3f R = T_cam_world.linear().cast<float>();
-  const Eigen::Vector3f t = T_cam_world.translation().cast<float>();
-  const float fx = static_cast<float>(K.fx), fy = static_cast<float>(K.fy);
-  const float cx = static_cast<float>(K.cx), cy = static_cast<float>(K.cy);
+  const PixelProjector cam(T_world_cam, K);
   PixelKeys* keys = pixel_keys_.data();
+  uint32_t pixel[PixelProjector::kBlock];
+  float depth[PixelProjector::kBlock];
   size_t rendered = 0;
   for (size_t s = 0; s < chunks_.size(); ++s) {
     const PointArrays& a = chunks_[s]->points;
     const size_t count = a.size();
-    const float* px_ = a.x.data();
-    const float* py_ = a.y.data();
-    const float* pz_ = a.z.data();
-    const uint64_t base = offsets_[s];
-    for (size_t i = 0; i < count; ++i) {
-      const float x = R(0, 0) * px_[i] + R(0, 1) * py_[i] + R(0, 2) * pz_[i] + t.x();
-      const float y = R(1, 0) * px_[i] + R(1, 1) * py_[i] + R(1, 2) * pz_[i] + t.y();
-      const float z = R(2, 0) * px_[i] + R(2, 1) * py_[i] + R(2, 2) * pz_[i] + t.z();
-      int u, v;
-      if (!project_to_pixel(x, y, z, fx, fy, cx, cy, K.width, K.height, &u, &v)) continue;
-      PixelKeys& k = keys[static_cast<size_t>(v) * K.width + u];
-      ++rendered;
-      const uint64_t id = base + i;
-      const uint64_t front = (uint64_t{float_bits(z)} << 32) | id;
-      // Branch-free minimum: which point wins a pixel is unpredictable.
-      k.front = std::min(front, k.front);
-      if (kGuided) {
-        // Pixels without a measurement have measured_z = +inf: their keys stay at the maximum.
-        const uint64_t cand = (uint64_t{float_bits(std::abs(z - k.measured_z))} << 32) | id;
-        k.cand = std::min(cand, k.cand);
+    for (size_t start = 0; start < count; start += PixelProjector::kBlock) {
+      const size_t block = std::min(PixelProjector::kBlock, count - start);
+      cam.project_block(a.position_m.data() + start, block, pixel, depth);
+      for (size_t i = 0; i < block; ++i) {
+        if (pixel[i] != PixelProjector::kNoPixel) __builtin_prefetch(keys + pixel[i], 1);
+      }
+      const uint64_t base = offsets_[s] + start;
+      for (size_t i = 0; i < block; ++i) {
+        if (pixel[i] == PixelProjector::kNoPixel) continue;
+        PixelKeys& k = keys[pixel[i]];
+        ++rendered;
+        const uint64_t id = base + i;
+        // Branch-free minimum: which point wins a pixel is unpredictable.
+        k.front = std::min((uint64_t{float_bits(depth[i])} << 32) | id, k.front);
+        if (kGuided) {
+          // Pixels without a measurement have measured_z = +inf: their keys stay at +inf.
+          const uint64_t cand = (uint64_t{float_bits(std::abs(depth[i] - k.measured_z))} << 32) | id;
+          k.cand = std::min(cand, k.cand);
+        }
       }
     }
   }
@@ -92,12 +128,9 @@ void ModelProjection::render_points(const Pose& T_world_cam, const CameraIntrins
 }
 
 void ModelProjection::locate(uint32_t id, int32_t* slot, uint32_t* index) const {
-  // Neighbouring pixels mostly hit the chunk of the last lookup (*slot on entry, if valid).
-  size_t s = static_cast<size_t>(*slot);
-  if (*slot < 0 || s + 1 >= offsets_.size() || id < offsets_[s] || id >= offsets_[s + 1]) {
-    const auto it = std::upper_bound(offsets_.begin(), offsets_.end(), id);
-    s = static_cast<size_t>(it - offsets_.begin()) - 1;
-  }
+  // The page table gives the chunk holding the page's first id; the id is in it or a later one.
+  size_t s = static_cast<size_t>(page_slot_[id >> kIdPageBits]);
+  while (offsets_[s + 1] <= id) ++s;
   *slot = static_cast<int32_t>(s);
   *index = id - offsets_[s];
 }
@@ -122,6 +155,11 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
     total = sum;
   }
   offsets_[chunks_.size()] = static_cast<uint32_t>(total);
+  page_slot_.resize((total >> kIdPageBits) + 1);
+  for (size_t page = 0, s = 0; page < page_slot_.size(); ++page) {
+    while (s + 1 < chunks_.size() && offsets_[s + 1] <= (uint64_t{page} << kIdPageBits)) ++s;
+    page_slot_[page] = static_cast<int32_t>(s);
+  }
 
   const bool guided = measured && measured->pixel_count() == n;
   pixel_keys_.resize(n);
@@ -147,29 +185,30 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
   cand_y_.resize(n);
   cand_z_.resize(n);
   taken_.assign(n, 0);
-  int32_t front_hint = -1, cand_hint = -1;
   for (size_t px = 0; px < n; ++px) {
     const PixelKeys& k = pixel_keys_[px];
     if (k.front == kNoKey) {
       front_slot_[px] = -1;
       front_depth_[px] = std::numeric_limits<float>::infinity();
     } else {
-      locate(static_cast<uint32_t>(k.front), &front_hint, &front_index_[px]);
-      front_slot_[px] = front_hint;
+      locate(static_cast<uint32_t>(k.front), &front_slot_[px], &front_index_[px]);
       front_depth_[px] = bits_float(static_cast<uint32_t>(k.front >> 32));
     }
     if ((k.cand >> 32) >= kInfBits) {  // no candidate, or no measurement at this pixel
       cand_slot_[px] = -1;
       continue;
     }
-    locate(static_cast<uint32_t>(k.cand), &cand_hint, &cand_index_[px]);
-    const int32_t slot = cand_hint;
-    const uint32_t index = cand_index_[px];
-    cand_slot_[px] = slot;
-    const PointArrays& a = chunks_[slot]->points;
-    cand_x_[px] = a.x[index];
-    cand_y_[px] = a.y[index];
-    cand_z_[px] = a.z[index];
+    locate(static_cast<uint32_t>(k.cand), &cand_slot_[px], &cand_index_[px]);
+  }
+  // The candidates' positions, pixel-ordered. Each is a random read into the map: prefetching a few
+  // pixels ahead turns a chain of cache misses into overlapping ones.
+  for (size_t px = 0; px < n; ++px) {
+    if (px + kPrefetchPixels < n) prefetch_candidate(px + kPrefetchPixels);
+    if (cand_slot_[px] < 0) continue;
+    const Eigen::Vector3f& p = chunks_[cand_slot_[px]]->points.position_m[cand_index_[px]];
+    cand_x_[px] = p.x();
+    cand_y_[px] = p.y();
+    cand_z_[px] = p.z();
   }
 }
 
@@ -177,33 +216,42 @@ void ModelProjection::average_surface(const Pose& T_world_cam, const CameraIntri
                                       float band_m) {
   const size_t n = static_cast<size_t>(K.width) * K.height;
   surface_.assign(n, SurfaceSum{0, 0, 0, 0, 0, 0, 0});
-  const Pose T_cam_world = T_world_cam.inverse();
-  const Eigen::Matrix3f R = T_cam_world.linear().cast<float>();
-  const Eigen::Vector3f t = T_cam_world.translation().cast<float>();
-  const float fx = static_cast<float>(K.fx), fy = static_cast<float>(K.fy);
-  const float cx = static_cast<float>(K.cx), cy = static_cast<float>(K.cy);
-  const float* depth = front_depth_.data();
+  const PixelProjector cam(T_world_cam, K);
+  const float* front = front_depth_.data();
   SurfaceSum* sum = surface_.data();
+  uint32_t pixel[PixelProjector::kBlock];
+  float depth[PixelProjector::kBlock];
   for (const Chunk* c : chunks_) {
     const PointArrays& a = c->points;
     const size_t count = a.size();
-    for (size_t i = 0; i < count; ++i) {
-      const float x = R(0, 0) * a.x[i] + R(0, 1) * a.y[i] + R(0, 2) * a.z[i] + t.x();
-      const float y = R(1, 0) * a.x[i] + R(1, 1) * a.y[i] + R(1, 2) * a.z[i] + t.y();
-      const float z = R(2, 0) * a.x[i] + R(2, 1) * a.y[i] + R(2, 2) * a.z[i] + t.z();
-      int u, v;
-      if (!project_to_pixel(x, y, z, fx, fy, cx, cy, K.width, K.height, &u, &v)) continue;
-      const size_t px = static_cast<size_t>(v) * K.width + u;
-      if (z > depth[px] + band_m) continue;
-      const float w = 1.0f + a.merges[i];
-      SurfaceSum& s = sum[px];
-      s.x += w * a.x[i];
-      s.y += w * a.y[i];
-      s.z += w * a.z[i];
-      s.nx += w * a.nx[i];
-      s.ny += w * a.ny[i];
-      s.nz += w * a.nz[i];
-      s.w += w;
+    for (size_t start = 0; start < count; start += PixelProjector::kBlock) {
+      const size_t block = std::min(PixelProjector::kBlock, count - start);
+      cam.project_block(a.position_m.data() + start, block, pixel, depth);
+      for (size_t i = 0; i < block; ++i) {
+        if (pixel[i] != PixelProjector::kNoPixel) __builtin_prefetch(front + pixel[i]);
+      }
+      for (size_t i = 0; i < block; ++i) {
+        if (pixel[i] == PixelProjector::kNoPixel || depth[i] > front[pixel[i]] + band_m) {
+          pixel[i] = PixelProjector::kNoPixel;
+        } else {
+          __builtin_prefetch(sum + pixel[i], 1);
+          __builtin_prefetch(a.state.data() + start + i);
+        }
+      }
+      for (size_t i = 0; i < block; ++i) {
+        if (pixel[i] == PixelProjector::kNoPixel) continue;
+        const Eigen::Vector3f& p = a.position_m[start + i];
+        const PointState& st = a.state[start + i];
+        const float w = 1.0f + st.merges;
+        SurfaceSum& s = sum[pixel[i]];
+        s.x += w * p.x();
+        s.y += w * p.y();
+        s.z += w * p.z();
+        s.nx += w * st.nx;
+        s.ny += w * st.ny;
+        s.nz += w * st.nz;
+        s.w += w;
+      }
     }
   }
   for (size_t px = 0; px < n; ++px) {

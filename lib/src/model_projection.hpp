@@ -71,6 +71,22 @@ class ModelProjection {
   }
   PointArrays& candidate_points(size_t pixel) const { return chunks_[cand_slot_[pixel]]->points; }
   uint32_t candidate_index(size_t pixel) const { return cand_index_[pixel]; }
+  // Starts loading the candidate's position and state at a pixel into the cache (a hint, no effect
+  // on results). Loops over pixels call it a few pixels ahead.
+  __attribute__((always_inline)) void prefetch_candidate(size_t pixel) const {
+    const int32_t slot = cand_slot_[pixel];
+    if (slot >= 0) {
+      const PointArrays& a = chunks_[slot]->points;
+      const uint32_t i = cand_index_[pixel];
+      __builtin_prefetch(a.position_m.data() + i);
+      // A 48-byte record can straddle two cache lines: fetch both ends.
+      const char* state = reinterpret_cast<const char*>(a.state.data() + i);
+      __builtin_prefetch(state);
+      __builtin_prefetch(state + sizeof(PointState) - 1);
+    }
+  }
+  static constexpr size_t kPrefetchPixels = 16;
+
   // One merge per point per frame: a point is a candidate at one pixel at most, so a flag suffices.
   bool taken_at(size_t pixel) const { return taken_[pixel] != 0; }
   void take(size_t pixel) { taken_[pixel] = 1; }
@@ -92,12 +108,14 @@ class ModelProjection {
   };
   template <bool kGuided>
   void render_points(const Pose& T_world_cam, const CameraIntrinsics& K);
-  // Point id (offset of its chunk + index) back to chunk slot and index; *slot on entry is a hint.
+  // Point id (offset of its chunk + index) back to chunk slot and index.
   void locate(uint32_t id, int32_t* slot, uint32_t* index) const;
+  static constexpr int kIdPageBits = 10;
 
   std::vector<ChunkKey> keys_;          // scratch
   std::vector<Chunk*> chunks_;          // selected, existing, non-empty chunks
   std::vector<uint32_t> offsets_;       // first point id of each chunk, and the total
+  std::vector<int32_t> page_slot_;      // per page of 2^kIdPageBits ids: the chunk of its first id
   std::vector<PixelKeys> pixel_keys_;   // per pixel, during render()
   std::vector<int32_t> front_slot_, cand_slot_;    // per pixel: index into chunks_, -1 = nothing
   std::vector<uint32_t> front_index_, cand_index_; // per pixel: point index within the chunk

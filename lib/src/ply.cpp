@@ -57,11 +57,11 @@ Status PlyWriter::write(const PointArrays& a, const std::vector<uint8_t>* keep) 
     size_t in_batch = 0;
     for (; i < a.size() && in_batch < kBatch; ++i) {
       if (keep && !(*keep)[i]) continue;
-      put(p, a.x[i]); put(p, a.y[i]); put(p, a.z[i]);
-      put(p, a.nx[i]); put(p, a.ny[i]); put(p, a.nz[i]);
-      if (options_.with_color) { put(p, a.r[i]); put(p, a.g[i]); put(p, a.b[i]); }
+      put(p, a.position_m[i].x()); put(p, a.position_m[i].y()); put(p, a.position_m[i].z());
+      put(p, a.state[i].nx); put(p, a.state[i].ny); put(p, a.state[i].nz);
+      if (options_.with_color) { put(p, a.state[i].r); put(p, a.state[i].g); put(p, a.state[i].b); }
       if (options_.with_fusion_stats) {
-        put(p, a.merges[i]); put(p, a.violations[i]); put(p, uncertainty_m(a, i));
+        put(p, a.state[i].merges); put(p, a.state[i].violations); put(p, uncertainty_m(a, i));
       }
       ++in_batch;
     }

@@ -1,76 +1,66 @@
 #include "depthfuse/point_arrays.hpp"
 
 #include <cmath>
+#include <cstring>
 #include <limits>
 
 #include <Eigen/LU>
 
 namespace depthfuse {
 
-// Applies fn to every column of the structure-of-arrays, so that adding a field means touching one
-// list instead of every method.
-template <typename A, typename Fn>
-static void for_each_column(A& a, Fn&& fn) {
-  fn(a.x); fn(a.y); fn(a.z);
-  fn(a.nx); fn(a.ny); fn(a.nz);
-  fn(a.info_xx); fn(a.info_xy); fn(a.info_xz); fn(a.info_yy); fn(a.info_yz); fn(a.info_zz);
-  fn(a.r); fn(a.g); fn(a.b);
-  fn(a.merges); fn(a.violations);
-  fn(a.last_frame);
-}
-
 void PointArrays::reserve(size_t n) {
-  for_each_column(*this, [n](auto& v) { v.reserve(n); });
+  position_m.reserve(n);
+  state.reserve(n);
 }
 
 void PointArrays::clear() {
-  for_each_column(*this, [](auto& v) { v.clear(); });
+  position_m.clear();
+  state.clear();
+}
+
+void PointArrays::resize(size_t n) {
+  position_m.resize(n, Eigen::Vector3f::Zero());
+  state.resize(n, PointState{});
 }
 
 void PointArrays::push_back(const PointRecord& p) {
-  x.push_back(p.position_m.x()); y.push_back(p.position_m.y()); z.push_back(p.position_m.z());
-  nx.push_back(p.normal.x()); ny.push_back(p.normal.y()); nz.push_back(p.normal.z());
-  info_xx.push_back(p.information[0]); info_xy.push_back(p.information[1]);
-  info_xz.push_back(p.information[2]); info_yy.push_back(p.information[3]);
-  info_yz.push_back(p.information[4]); info_zz.push_back(p.information[5]);
-  r.push_back(p.rgb[0]); g.push_back(p.rgb[1]); b.push_back(p.rgb[2]);
-  merges.push_back(p.merges); violations.push_back(p.violations);
-  last_frame.push_back(p.last_frame);
+  position_m.push_back(p.position_m);
+  PointState s;
+  s.info_xx = p.information[0]; s.info_xy = p.information[1]; s.info_xz = p.information[2];
+  s.info_yy = p.information[3]; s.info_yz = p.information[4]; s.info_zz = p.information[5];
+  s.nx = p.normal.x(); s.ny = p.normal.y(); s.nz = p.normal.z();
+  s.merges = p.merges;
+  s.violations = p.violations;
+  s.last_frame = p.last_frame;
+  s.r = p.rgb[0]; s.g = p.rgb[1]; s.b = p.rgb[2];
+  s.reserved = 0;
+  state.push_back(s);
 }
 
 PointRecord PointArrays::get(size_t i) const {
+  const PointState& s = state[i];
   PointRecord p;
-  p.position_m = position(i);
+  p.position_m = position_m[i];
   p.normal = normal(i);
-  p.information[0] = info_xx[i]; p.information[1] = info_xy[i]; p.information[2] = info_xz[i];
-  p.information[3] = info_yy[i]; p.information[4] = info_yz[i]; p.information[5] = info_zz[i];
-  p.rgb[0] = r[i]; p.rgb[1] = g[i]; p.rgb[2] = b[i];
-  p.merges = merges[i];
-  p.violations = violations[i];
-  p.last_frame = last_frame[i];
+  p.information[0] = s.info_xx; p.information[1] = s.info_xy; p.information[2] = s.info_xz;
+  p.information[3] = s.info_yy; p.information[4] = s.info_yz; p.information[5] = s.info_zz;
+  p.rgb[0] = s.r; p.rgb[1] = s.g; p.rgb[2] = s.b;
+  p.merges = s.merges;
+  p.violations = s.violations;
+  p.last_frame = s.last_frame;
   return p;
 }
 
 void PointArrays::set(size_t i, const PointRecord& p) {
-  x[i] = p.position_m.x(); y[i] = p.position_m.y(); z[i] = p.position_m.z();
-  nx[i] = p.normal.x(); ny[i] = p.normal.y(); nz[i] = p.normal.z();
-  info_xx[i] = p.information[0]; info_xy[i] = p.information[1]; info_xz[i] = p.information[2];
-  info_yy[i] = p.information[3]; info_yz[i] = p.information[4]; info_zz[i] = p.information[5];
-  r[i] = p.rgb[0]; g[i] = p.rgb[1]; b[i] = p.rgb[2];
-  merges[i] = p.merges;
-  violations[i] = p.violations;
-  last_frame[i] = p.last_frame;
+  PointArrays one;
+  one.push_back(p);
+  position_m[i] = one.position_m[0];
+  state[i] = one.state[0];
 }
 
 void PointArrays::append(const PointArrays& o) {
-  // Pair up columns of *this and o by walking both with the same visitor order.
-  std::vector<void*> dst;
-  for_each_column(*this, [&dst](auto& v) { dst.push_back(&v); });
-  size_t k = 0;
-  for_each_column(o, [&dst, &k](const auto& v) {
-    auto* d = static_cast<std::remove_const_t<std::remove_reference_t<decltype(v)>>*>(dst[k++]);
-    d->insert(d->end(), v.begin(), v.end());
-  });
+  position_m.insert(position_m.end(), o.position_m.begin(), o.position_m.end());
+  state.insert(state.end(), o.state.begin(), o.state.end());
 }
 
 size_t PointArrays::compact(const std::vector<uint8_t>& keep) {
@@ -79,30 +69,25 @@ size_t PointArrays::compact(const std::vector<uint8_t>& keep) {
   for (size_t i = 0; i < n; ++i) {
     if (!keep[i]) continue;
     if (out != i) {
-      for_each_column(*this, [i, out](auto& v) { v[out] = v[i]; });
+      position_m[out] = position_m[i];
+      state[out] = state[i];
     }
     ++out;
   }
-  for_each_column(*this, [out](auto& v) { v.resize(out); });
+  position_m.resize(out);
+  state.resize(out);
   return n - out;
 }
 
 size_t PointArrays::memory_bytes() const {
-  size_t bytes = 0;
-  for_each_column(*this, [&bytes](const auto& v) { bytes += v.capacity() * sizeof(v[0]); });
-  return bytes;
+  return position_m.capacity() * sizeof(Eigen::Vector3f) + state.capacity() * sizeof(PointState);
 }
 
 bool PointArrays::operator==(const PointArrays& o) const {
-  std::vector<const void*> mine;
-  for_each_column(*this, [&mine](const auto& v) { mine.push_back(&v); });
-  size_t k = 0;
-  bool equal = true;
-  for_each_column(o, [&](const auto& v) {
-    const auto* m = static_cast<const std::remove_reference_t<decltype(v)>*>(mine[k++]);
-    equal = equal && (*m == v);
-  });
-  return equal;
+  return size() == o.size() && o.state.size() == state.size() &&
+         (empty() || (std::memcmp(position_m.data(), o.position_m.data(),
+                                  size() * sizeof(Eigen::Vector3f)) == 0 &&
+                      std::memcmp(state.data(), o.state.data(), size() * sizeof(PointState)) == 0));
 }
 
 float uncertainty_m(const PointArrays& a, size_t i) {

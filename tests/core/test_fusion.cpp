@@ -89,7 +89,7 @@ TEST(Fuser, ShiftedViewStillMergesOnThePlane) {
   EXPECT_GT(s.merged, s.measurements * 8 / 10);
   // Fused points stay on the plane.
   const PointArrays pts = fx.map.gather();
-  for (size_t i = 0; i < pts.size(); i += 97) EXPECT_NEAR(pts.z[i], 2.0f, 1e-4f);
+  for (size_t i = 0; i < pts.size(); i += 97) EXPECT_NEAR(pts.position_m[i].z(), 2.0f, 1e-4f);
 }
 
 TEST(Fuser, SeenThroughPointCountsViolationAndPostfilterRemovesIt) {

@@ -59,10 +59,10 @@ TEST(Ply, RoundTrip) {
   ASSERT_TRUE(b.is_ok()) << b.status().to_string();
   ASSERT_EQ(b->size(), a.size());
   for (size_t i = 0; i < a.size(); ++i) {
-    EXPECT_EQ(b->x[i], a.x[i]);
-    EXPECT_EQ(b->nz[i], a.nz[i]);
-    EXPECT_EQ(b->r[i], a.r[i]);
-    EXPECT_EQ(b->merges[i], a.merges[i]);
+    EXPECT_EQ(b->position_m[i].x(), a.position_m[i].x());
+    EXPECT_EQ(b->state[i].nz, a.state[i].nz);
+    EXPECT_EQ(b->state[i].r, a.state[i].r);
+    EXPECT_EQ(b->state[i].merges, a.state[i].merges);
   }
 }
 

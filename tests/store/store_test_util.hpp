@@ -71,15 +71,9 @@ bool same_bits(const std::vector<T>& a, const std::vector<T>& b) {
   return a.size() == b.size() && (a.empty() || std::memcmp(a.data(), b.data(), a.size() * sizeof(T)) == 0);
 }
 
-// Bitwise equality of every column (operator== would call -0 == 0 equal and NaN != NaN).
+// Bitwise equality of both arrays (float == would call -0 == 0 equal and NaN != NaN).
 inline bool bit_equal(const PointArrays& a, const PointArrays& b) {
-  return same_bits(a.x, b.x) && same_bits(a.y, b.y) && same_bits(a.z, b.z) && same_bits(a.nx, b.nx) &&
-         same_bits(a.ny, b.ny) && same_bits(a.nz, b.nz) && same_bits(a.info_xx, b.info_xx) &&
-         same_bits(a.info_xy, b.info_xy) && same_bits(a.info_xz, b.info_xz) &&
-         same_bits(a.info_yy, b.info_yy) && same_bits(a.info_yz, b.info_yz) &&
-         same_bits(a.info_zz, b.info_zz) && same_bits(a.r, b.r) && same_bits(a.g, b.g) &&
-         same_bits(a.b, b.b) && same_bits(a.merges, b.merges) && same_bits(a.violations, b.violations) &&
-         same_bits(a.last_frame, b.last_frame);
+  return same_bits(a.position_m, b.position_m) && same_bits(a.state, b.state);
 }
 
 inline Pose look_at(const Eigen::Vector3d& eye, const Eigen::Vector3d& target) {

@@ -27,14 +27,14 @@ TEST(Checksum, KnownVectors) {
 TEST(BlobCodec, PointsRoundTripBitExactIncludingSpecialFloats) {
   PointArrays a = make_points({3, -2, 7}, 5, 1000);
   // Values operator== cannot tell apart or never equals: -0, NaN with payload, inf, denormals.
-  a.x[0] = -0.0f;
-  a.y[1] = std::numeric_limits<float>::quiet_NaN();
+  a.position_m[0].x() = -0.0f;
+  a.position_m[1].y() = std::numeric_limits<float>::quiet_NaN();
   uint32_t nan_bits = 0x7FC0BEEFu;
-  std::memcpy(&a.z[2], &nan_bits, 4);
-  a.nx[3] = std::numeric_limits<float>::infinity();
-  a.info_xx[4] = std::numeric_limits<float>::denorm_min();
-  a.merges[5] = 65535;
-  a.last_frame[6] = 0xFFFFFFFFu;
+  std::memcpy(&a.position_m[2].z(), &nan_bits, 4);
+  a.state[3].nx = std::numeric_limits<float>::infinity();
+  a.state[4].info_xx = std::numeric_limits<float>::denorm_min();
+  a.state[5].merges = 65535;
+  a.state[6].last_frame = 0xFFFFFFFFu;
   BlobCodec codec;
   std::vector<uint8_t> blob;
   ASSERT_TRUE(codec.encode_points(a, &blob));

@@ -1,5 +1,6 @@
 // The offline tools on real scan files: export (PLY and PCD, read back by depthfuse, Open3D and
 // PCL, filters, during a live writer), inspect and export on damaged files, refine.
+#include <cstring>
 #include <gtest/gtest.h>
 #include <signal.h>
 #include <sys/wait.h>
@@ -56,7 +57,7 @@ PointArrays make_scan(const std::string& path, int chunks, size_t points_each = 
     const ChunkKey k{i % 7 - 3, i / 7 - 2, i % 3};
     Chunk c;
     c.points = make_points(k, static_cast<uint32_t>(i + 1), points_each);
-    for (size_t j = 0; j < c.points.size(); ++j) c.points.merges[j] = static_cast<uint16_t>(j % 10);
+    for (size_t j = 0; j < c.points.size(); ++j) c.points.state[j].merges = static_cast<uint16_t>(j % 10);
     EXPECT_TRUE((*s)->write_chunk(k, c));
   }
   CheckpointInfo info;
@@ -74,8 +75,8 @@ PointArrays make_scan(const std::string& path, int chunks, size_t points_each = 
 void write_reference(const std::string& path, const PointArrays& a) {
   std::FILE* f = std::fopen(path.c_str(), "w");
   for (size_t i = 0; i < a.size(); ++i)
-    std::fprintf(f, "%.9g %.9g %.9g %.9g %.9g %.9g %d %d %d\n", a.x[i], a.y[i], a.z[i], a.nx[i], a.ny[i],
-                 a.nz[i], a.r[i], a.g[i], a.b[i]);
+    std::fprintf(f, "%.9g %.9g %.9g %.9g %.9g %.9g %d %d %d\n", a.position_m[i].x(), a.position_m[i].y(), a.position_m[i].z(), a.state[i].nx, a.state[i].ny,
+                 a.state[i].nz, a.state[i].r, a.state[i].g, a.state[i].b);
   std::fclose(f);
 }
 
@@ -117,9 +118,11 @@ TEST(Export, PlyAndPcdHoldEveryPointExactly) {
       auto back = read_ply(out);
       ASSERT_TRUE(back) << back.status().to_string();
       ASSERT_EQ(back->size(), all.size());
-      EXPECT_TRUE(test::same_bits(back->x, all.x));
-      EXPECT_TRUE(test::same_bits(back->nz, all.nz));
-      EXPECT_EQ(back->r, all.r);
+      EXPECT_TRUE(test::same_bits(back->position_m, all.position_m));
+      for (size_t i = 0; i < all.size(); ++i) {
+        ASSERT_EQ(std::memcmp(&back->state[i].nz, &all.state[i].nz, sizeof(float)), 0) << i;
+        ASSERT_EQ(back->state[i].r, all.state[i].r) << i;
+      }
     }
 #ifdef DEPTHFUSE_PCL_READ_CHECK
     const Proc pcl = run(std::string(DEPTHFUSE_PCL_READ_CHECK) + " " + out + " " + reference);
@@ -144,7 +147,7 @@ TEST(Export, FiltersKeepExactlyTheSelectedPoints) {
   const Eigen::AlignedBox3f box(Eigen::Vector3f(-0.7f, -0.6f, 0.1f), Eigen::Vector3f(0.9f, 0.4f, 1.2f));
   PointArrays want;
   for (size_t i = 0; i < all.size(); ++i)
-    if (all.merges[i] >= 4 && box.contains(all.position(i))) want.push_back(all.get(i));
+    if (all.state[i].merges >= 4 && box.contains(all.position(i))) want.push_back(all.get(i));
   ASSERT_GT(want.size(), 100u);
   ASSERT_LT(want.size(), all.size() / 2);
   const std::string out = dir.file("filtered.pcd"), reference = dir.file("filtered.txt");

@@ -84,8 +84,8 @@ TEST(ScanStore, RoundTripIsBitExact) {
     const ChunkKey k{i - 10, i % 3 - 1, -i};
     chunks.emplace_back(k, make_points(k, 1, 50 + 37 * i));
   }
-  chunks[3].second.x[0] = -0.0f;
-  chunks[4].second.nz[1] = std::numeric_limits<float>::quiet_NaN();
+  chunks[3].second.position_m[0].x() = -0.0f;
+  chunks[4].second.state[1].nz = std::numeric_limits<float>::quiet_NaN();
   ScanMetadata meta;
   meta.scan_id = "room-17";
   meta.created_utime = 1700000000123456;
@@ -226,7 +226,7 @@ TEST(ScanStore, RolledBackCheckpointLeavesThePreviousOne) {
   }
   // A write that fails mid-checkpoint: the caller rolls back.
   PointArrays broken = make_points(c, 3, 5);
-  broken.nx.pop_back();
+  broken.state.pop_back();
   EXPECT_EQ(s->write_chunk(c, chunk_of(broken)).code(), StatusCode::kInvalidArgument);
   s->rollback_checkpoint();
   s.reset();

@@ -22,18 +22,32 @@ struct PointRecord {
   uint32_t last_frame = 0;   // id of the last frame that merged into it (one merge per frame)
 };
 
-struct PointArrays {
-  std::vector<float> x, y, z;
-  std::vector<float> nx, ny, nz;
-  std::vector<float> info_xx, info_xy, info_xz, info_yy, info_yz, info_zz;
-  std::vector<uint8_t> r, g, b;
-  std::vector<uint16_t> merges, violations;
-  std::vector<uint32_t> last_frame;
+// What fusion reads and writes together on every merge, in one 48-byte record: a merge then touches
+// one or two cache lines instead of a dozen separate columns.
+struct PointState {
+  // Information matrix (inverse covariance) in 1/m^2, symmetric.
+  float info_xx, info_xy, info_xz, info_yy, info_yz, info_zz;
+  float nx, ny, nz;         // unit normal, world frame
+  uint16_t merges;          // how many measurements refined this point
+  uint16_t violations;      // how often a camera saw through it
+  uint32_t last_frame;      // id of the last frame that merged into it (one merge per frame)
+  uint8_t r, g, b;          // colour, 0 when the input has none
+  uint8_t reserved;         // always 0
+};
+static_assert(sizeof(PointState) == 48, "PointState is one packed 48-byte record");
 
-  size_t size() const { return x.size(); }
-  bool empty() const { return x.empty(); }
+// The fused cloud's point data: two arrays, positions (what projecting the map into a camera
+// streams through) and per-point state (what a merge updates). One PointArrays per map chunk; the
+// same type carries exported and loaded clouds, so nothing converts between layouts.
+struct PointArrays {
+  std::vector<Eigen::Vector3f> position_m;  // world frame
+  std::vector<PointState> state;
+
+  size_t size() const { return position_m.size(); }
+  bool empty() const { return position_m.empty(); }
   void reserve(size_t n);
   void clear();
+  void resize(size_t n);
   void push_back(const PointRecord& p);
   PointRecord get(size_t i) const;
   void set(size_t i, const PointRecord& p);
@@ -41,25 +55,28 @@ struct PointArrays {
   // Keeps the points whose keep[i] is non-zero, in order. Returns how many were removed.
   size_t compact(const std::vector<uint8_t>& keep);
   size_t memory_bytes() const;  // capacity actually held
+  // Bit-exact comparison (NaN payloads and signed zeros included).
   bool operator==(const PointArrays& o) const;
 
-  static constexpr size_t kBytesPerPoint = 6 * 4 + 6 * 4 + 3 + 2 * 2 + 4;
+  static constexpr size_t kBytesPerPoint = sizeof(Eigen::Vector3f) + sizeof(PointState);
 
-  Eigen::Vector3f position(size_t i) const { return {x[i], y[i], z[i]}; }
-  Eigen::Vector3f normal(size_t i) const { return {nx[i], ny[i], nz[i]}; }
+  const Eigen::Vector3f& position(size_t i) const { return position_m[i]; }
+  Eigen::Vector3f normal(size_t i) const { return {state[i].nx, state[i].ny, state[i].nz}; }
 };
 
 // Information matrix helpers (symmetric 3x3 stored as 6 floats).
 inline Eigen::Matrix3f information_matrix(const PointArrays& a, size_t i) {
+  const PointState& s = a.state[i];
   Eigen::Matrix3f m;
-  m << a.info_xx[i], a.info_xy[i], a.info_xz[i],
-       a.info_xy[i], a.info_yy[i], a.info_yz[i],
-       a.info_xz[i], a.info_yz[i], a.info_zz[i];
+  m << s.info_xx, s.info_xy, s.info_xz,
+       s.info_xy, s.info_yy, s.info_yz,
+       s.info_xz, s.info_yz, s.info_zz;
   return m;
 }
 inline void set_information(PointArrays& a, size_t i, const Eigen::Matrix3f& m) {
-  a.info_xx[i] = m(0, 0); a.info_xy[i] = m(0, 1); a.info_xz[i] = m(0, 2);
-  a.info_yy[i] = m(1, 1); a.info_yz[i] = m(1, 2); a.info_zz[i] = m(2, 2);
+  PointState& s = a.state[i];
+  s.info_xx = m(0, 0); s.info_xy = m(0, 1); s.info_xz = m(0, 2);
+  s.info_yy = m(1, 1); s.info_yz = m(1, 2); s.info_zz = m(2, 2);
 }
 
 // A scalar uncertainty for reports and export: sqrt of the mean covariance eigenvalue, in metres.

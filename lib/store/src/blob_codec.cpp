@@ -6,6 +6,9 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <type_traits>
+#include <iterator>
+#include <cstddef>
 
 #include "depthfuse/store/checksum.hpp"
 
@@ -60,16 +63,50 @@ const char* kind_name(BlobKind k) {
   return "unknown";
 }
 
-// The PointArrays columns in blob order; ids are positions in this list.
-template <typename A, typename Fn>
-void point_columns(A& a, Fn&& fn) {
-  fn("x", a.x); fn("y", a.y); fn("z", a.z);
-  fn("nx", a.nx); fn("ny", a.ny); fn("nz", a.nz);
-  fn("info_xx", a.info_xx); fn("info_xy", a.info_xy); fn("info_xz", a.info_xz);
-  fn("info_yy", a.info_yy); fn("info_yz", a.info_yz); fn("info_zz", a.info_zz);
-  fn("r", a.r); fn("g", a.g); fn("b", a.b);
-  fn("merges", a.merges); fn("violations", a.violations);
-  fn("last_frame", a.last_frame);
+// The point columns in blob order (ids are positions in this list), and where each field lives in
+// PointArrays: the file keeps one column per field, whatever the in-memory layout.
+struct PointColumn {
+  const char* name;
+  uint8_t size;     // bytes per element
+  bool in_state;    // PointArrays::state, else PointArrays::position_m
+  uint8_t offset;   // byte offset of the field in its record
+};
+constexpr PointColumn kPointColumns[] = {
+    {"x", 4, false, 0}, {"y", 4, false, 4}, {"z", 4, false, 8},
+    {"nx", 4, true, offsetof(PointState, nx)},
+    {"ny", 4, true, offsetof(PointState, ny)},
+    {"nz", 4, true, offsetof(PointState, nz)},
+    {"info_xx", 4, true, offsetof(PointState, info_xx)},
+    {"info_xy", 4, true, offsetof(PointState, info_xy)},
+    {"info_xz", 4, true, offsetof(PointState, info_xz)},
+    {"info_yy", 4, true, offsetof(PointState, info_yy)},
+    {"info_yz", 4, true, offsetof(PointState, info_yz)},
+    {"info_zz", 4, true, offsetof(PointState, info_zz)},
+    {"r", 1, true, offsetof(PointState, r)},
+    {"g", 1, true, offsetof(PointState, g)},
+    {"b", 1, true, offsetof(PointState, b)},
+    {"merges", 2, true, offsetof(PointState, merges)},
+    {"violations", 2, true, offsetof(PointState, violations)},
+    {"last_frame", 4, true, offsetof(PointState, last_frame)},
+};
+constexpr size_t point_column_bytes() {
+  size_t n = 0;
+  for (const PointColumn& c : kPointColumns) n += c.size;
+  return n;
+}
+constexpr size_t kPointColumnBytes = point_column_bytes();  // bytes per point in a blob
+static_assert(sizeof(Eigen::Vector3f) == 12, "positions are three packed floats");
+
+// Base address and record stride of a column's field in `a`.
+template <typename A>
+auto column_base(A& a, const PointColumn& c, size_t* stride) {
+  using Byte = std::conditional_t<std::is_const_v<A>, const uint8_t, uint8_t>;
+  if (c.in_state) {
+    *stride = sizeof(PointState);
+    return reinterpret_cast<Byte*>(a.state.data()) + c.offset;
+  }
+  *stride = sizeof(Eigen::Vector3f);
+  return reinterpret_cast<Byte*>(a.position_m.data()) + c.offset;
 }
 
 struct DepthCodeInfo {
@@ -277,18 +314,21 @@ Status BlobCodec::decode(const void* blob, size_t /*size*/, const std::string& w
 Status BlobCodec::encode_points(const PointArrays& a, std::vector<uint8_t>* blob) {
   const size_t n = a.size();
   if (n > UINT32_MAX) return invalid_argument("chunk has too many points");
+  if (a.state.size() != n) return invalid_argument("PointArrays columns have different lengths");
+  // Gather each field into a contiguous column.
+  columns_.resize(n * kPointColumnBytes);
   std::vector<Column> cols;
-  cols.reserve(18);
+  cols.reserve(std::size(kPointColumns));
+  uint8_t* dst = columns_.data();
   uint8_t id = 0;
-  bool sizes_ok = true;
-  point_columns(a, [&](const char* name, const auto& v) {
-    using T = typename std::decay_t<decltype(v)>::value_type;
-    sizes_ok = sizes_ok && v.size() == n;
-    cols.push_back({id++, static_cast<uint8_t>(sizeof(T)),
-                    static_cast<uint8_t>(sizeof(T) > 1 ? kBytePlanes : kNone), v.data(), nullptr,
-                    name});
-  });
-  if (!sizes_ok) return invalid_argument("PointArrays columns have different lengths");
+  for (const PointColumn& c : kPointColumns) {
+    size_t stride = 0;
+    const uint8_t* src = n ? column_base(a, c, &stride) : nullptr;
+    for (size_t i = 0; i < n; ++i) std::memcpy(dst + i * c.size, src + i * stride, c.size);
+    cols.push_back({id++, c.size, static_cast<uint8_t>(c.size > 1 ? kBytePlanes : kNone), dst,
+                    nullptr, c.name});
+    dst += n * c.size;
+  }
   return encode(BlobKind::kPoints, static_cast<uint32_t>(n), 0, 0, cols, blob);
 }
 
@@ -300,20 +340,33 @@ Status BlobCodec::decode_points(const void* blob, size_t size, const std::string
     return corrupt(what + ": expected a points blob, found kind " +
                    std::to_string(static_cast<int>(header->kind)));
   const size_t n = header->element_count;
-  std::vector<Column> cols;
-  cols.reserve(18);
-  uint8_t id = 0;
   // Size check before allocating: a damaged count must not become a huge allocation.
-  if (n > static_cast<size_t>(header->raw_bytes) / PointArrays::kBytesPerPoint + 1)
+  if (n > static_cast<size_t>(header->raw_bytes) / kPointColumnBytes + 1)
     return corrupt(what + ": header announces " + std::to_string(n) + " points in " +
                    std::to_string(header->raw_bytes) + " bytes");
-  point_columns(*out, [&](const char* name, auto& v) {
-    using T = typename std::decay_t<decltype(v)>::value_type;
-    v.resize(n);
-    cols.push_back({id++, static_cast<uint8_t>(sizeof(T)), 0, nullptr, v.data(), name});
-  });
+  columns_.resize(n * kPointColumnBytes);
+  std::vector<Column> cols;
+  cols.reserve(std::size(kPointColumns));
+  uint8_t* dst = columns_.data();
+  uint8_t id = 0;
+  for (const PointColumn& c : kPointColumns) {
+    cols.push_back({id++, c.size, 0, nullptr, dst, c.name});
+    dst += n * c.size;
+  }
   Status st = decode(blob, size, what, BlobKind::kPoints, *header, cols);
-  if (!st) out->clear();
+  if (!st) {
+    out->clear();
+    return st;
+  }
+  // Scatter the columns into the records.
+  out->resize(n);
+  const uint8_t* src = columns_.data();
+  for (const PointColumn& c : kPointColumns) {
+    size_t stride = 0;
+    uint8_t* base = n ? column_base(*out, c, &stride) : nullptr;
+    for (size_t i = 0; i < n; ++i) std::memcpy(base + i * stride, src + i * c.size, c.size);
+    src += n * c.size;
+  }
   return st;
 }
 

@@ -29,8 +29,8 @@ size_t select_points(const PointArrays& a, const ExportOptions& o, std::vector<u
   if (o.min_merges == 0 && !o.bbox_m) return a.size();
   size_t n = 0;
   for (size_t i = 0; i < a.size(); ++i) {
-    bool k = a.merges[i] >= o.min_merges;
-    if (k && o.bbox_m) k = o.bbox_m->contains(Eigen::Vector3f(a.x[i], a.y[i], a.z[i]));
+    bool k = a.state[i].merges >= o.min_merges;
+    if (k && o.bbox_m) k = o.bbox_m->contains(Eigen::Vector3f(a.position_m[i].x(), a.position_m[i].y(), a.position_m[i].z()));
     (*keep)[i] = k;
     n += k;
   }

@@ -59,16 +59,16 @@ Status PcdWriter::write(const PointArrays& a, const std::vector<uint8_t>* keep) 
     size_t in_batch = 0;
     for (; i < a.size() && in_batch < kBatch; ++i) {
       if (keep && !(*keep)[i]) continue;
-      put(p, a.x[i]); put(p, a.y[i]); put(p, a.z[i]);
-      put(p, a.nx[i]); put(p, a.ny[i]); put(p, a.nz[i]);
+      put(p, a.position_m[i].x()); put(p, a.position_m[i].y()); put(p, a.position_m[i].z());
+      put(p, a.state[i].nx); put(p, a.state[i].ny); put(p, a.state[i].nz);
       if (options_.with_color) {
         // PCL packs colour as 0x00RRGGBB in the bytes of a float.
-        const uint32_t rgb = (static_cast<uint32_t>(a.r[i]) << 16) |
-                             (static_cast<uint32_t>(a.g[i]) << 8) | a.b[i];
+        const uint32_t rgb = (static_cast<uint32_t>(a.state[i].r) << 16) |
+                             (static_cast<uint32_t>(a.state[i].g) << 8) | a.state[i].b;
         put(p, rgb);
       }
       if (options_.with_fusion_stats) {
-        put(p, a.merges[i]); put(p, a.violations[i]); put(p, uncertainty_m(a, i));
+        put(p, a.state[i].merges); put(p, a.state[i].violations); put(p, uncertainty_m(a, i));
       }
       ++in_batch;
     }

@@ -88,7 +88,7 @@ std::string format_double(double v) {
 
 Eigen::AlignedBox3f bounds_of(const PointArrays& a) {
   Eigen::AlignedBox3f box;
-  for (size_t i = 0; i < a.size(); ++i) box.extend(Eigen::Vector3f(a.x[i], a.y[i], a.z[i]));
+  for (size_t i = 0; i < a.size(); ++i) box.extend(a.position_m[i]);
   return box;
 }
 

@@ -83,6 +83,7 @@ class BlobCodec {
   ZSTD_DCtx_s* dctx_ = nullptr;
   std::vector<uint8_t> raw_;     // transformed columns, concatenated
   std::vector<uint16_t> u16_;    // depth scratch
+  std::vector<uint8_t> columns_; // point fields gathered into columns
 };
 
 // Poses are stored as the top three rows of the 4x4 matrix, 12 little-endian doubles row-major.
