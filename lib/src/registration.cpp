@@ -49,20 +49,27 @@ struct NormalEquations {
 
 }  // namespace
 
-RegistrationResult Registrar::run(const MeasurementImage& m, const PointMap& map,
-                                  const Pose& initial, int subsample, int iterations,
-                                  double max_corr_m) {
+void Registrar::render_model(const MeasurementImage& m, const PointMap& map, const Pose& T_world_cam,
+                             double max_corr_m) {
+  ModelProjection& proj = *projection_;
+  // The map is only read; the projection's chunk pointers are non-const for fusion's sake.
+  proj.select_chunks(const_cast<PointMap&>(map), m, T_world_cam, static_cast<float>(max_corr_m) + 0.05f);
+  proj.render(T_world_cam, m.intrinsics);
+  if (proj.rendered_points() > 0)
+    proj.average_surface(T_world_cam, m.intrinsics, static_cast<float>(config_.model_band_m));
+  T_world_model_cam_ = T_world_cam;
+}
+
+RegistrationResult Registrar::run(const MeasurementImage& m, const Pose& initial, int subsample,
+                                  int iterations, double max_corr_m) {
   RegistrationResult result;
   result.T_world_cam = initial;
   const CameraIntrinsics& K = m.intrinsics;
-  ModelProjection& proj = *projection_;
-  // The map is only read; the projection's chunk pointers are non-const for fusion's sake.
-  proj.select_chunks(const_cast<PointMap&>(map), m, initial, static_cast<float>(max_corr_m) + 0.05f);
-  proj.render(initial, K);
+  const ModelProjection& proj = *projection_;
   if (proj.rendered_points() == 0) return result;
-  proj.average_surface(initial, K, static_cast<float>(config_.model_band_m));
 
-  const Pose T_cam0_world = initial.inverse();
+  // Associations are made in the camera the model was rendered from.
+  const Pose T_cam0_world = T_world_model_cam_.inverse();
   const float fx = static_cast<float>(K.fx), fy = static_cast<float>(K.fy);
   const float cx = static_cast<float>(K.cx), cy = static_cast<float>(K.cy);
   const float cos_max = static_cast<float>(std::cos(config_.max_normal_angle_deg * M_PI / 180.0));
@@ -132,7 +139,8 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const PointMap& map
 
 RegistrationResult Registrar::refine(const MeasurementImage& m, const PointMap& map,
                                      const Pose& T_world_cam_initial) {
-  return run(m, map, T_world_cam_initial, config_.subsample_px, config_.iterations,
+  render_model(m, map, T_world_cam_initial, config_.max_correspondence_m);
+  return run(m, T_world_cam_initial, config_.subsample_px, config_.iterations,
              config_.max_correspondence_m);
 }
 
@@ -143,10 +151,13 @@ RegistrationResult Registrar::track(const MeasurementImage& m, const PointMap& m
   RegistrationResult r;
   r.T_world_cam = T_world_cam_initial;
   Pose T = T_world_cam_initial;
+  // One rendering of the model, at the initial pose and wide enough for the coarsest gate, serves
+  // every level: associations go through the rendered camera whatever the current estimate.
+  render_model(m, map, T, config_.max_correspondence_m * (1 << (levels - 1)));
   for (int level = levels - 1; level >= 0; --level) {
     const int step = std::max(1, config_.subsample_px) << level;
     const double gate = config_.max_correspondence_m * (1 << level);
-    r = run(m, map, T, step, config_.tracking_iterations_per_level, gate);
+    r = run(m, T, step, config_.tracking_iterations_per_level, gate);
     if (r.converged) T = r.T_world_cam;
   }
   r.T_world_cam = T;

@@ -56,9 +56,15 @@ void usage() {
       "usage: bench_memory [--minutes M] [--rate-hz R] [--budget-mib B] [--evict-distance-m D]\n"
       "                    [--min-age-s A]\n"
       "                    [--checkpoint-s S] [--keyframe-every N] [--report-s S]\n"
-      "                    [--mode both|bounded|unbounded] [--dir DIR] [--seed N] [--no-noise]\n"
+      "                    [--mode both|bounded|unbounded|compare] [--dir DIR] [--seed N] [--no-noise]\n"
       "  Scan length is M minutes of frames at R Hz (the walk is 0.5 m/s whatever R is).\n"
-      "  DIR receives bounded.db and unbounded.db (deleted first).\n");
+      "  DIR receives bounded.db and unbounded.db (deleted first). --mode compare only compares\n"
+      "  the two files already in DIR (e.g. a bounded run of another budget against the\n"
+      "  unbounded.db of an earlier run with the same scan options, linked into DIR).\n"
+      "  Columns: other_MiB = VmRSS - map_MiB, what the process holds besides the map's point data\n"
+      "  (scene, pipeline scratch, SQLite cache, allocator slack): the overhead that must not grow.\n"
+      "  map_MiB counts vector capacity as the budget does; capacity never written is not resident,\n"
+      "  so other_MiB understates (even below 0) while chunks are growing.\n");
 }
 
 bool parse(int argc, char** argv, Options* o) {
@@ -86,7 +92,7 @@ bool parse(int argc, char** argv, Options* o) {
     else return false;
   }
   return o->minutes > 0 && o->rate_hz > 0 && o->budget_mib > 0 &&
-         (o->mode == "both" || o->mode == "bounded" || o->mode == "unbounded");
+         (o->mode == "both" || o->mode == "bounded" || o->mode == "unbounded" || o->mode == "compare");
 }
 
 // A field of /proc/self/status in MiB (VmRSS, VmHWM).
@@ -148,8 +154,8 @@ int run(const Options& o, bool bounded) {
               name, seq->size(), o.minutes, o.rate_hz,
               bounded ? (std::to_string(static_cast<int>(o.budget_mib)) + " MiB").c_str() : "none",
               rc.pager.evict_distance_m, rc.pager.min_age_frames, rss_start);
-  std::printf("[%s] %8s %7s %10s %8s %10s %10s %9s %8s %7s %7s\n", name, "scan_s", "frame", "map_pts",
-              "chunks", "map_MiB", "VmRSS_MiB", "evicted", "loaded", "ckpts", "fps");
+  std::printf("[%s] %8s %7s %10s %8s %10s %10s %10s %9s %8s %7s %7s\n", name, "scan_s", "frame", "map_pts",
+              "chunks", "map_MiB", "VmRSS_MiB", "other_MiB", "evicted", "loaded", "ckpts", "fps");
   const auto t0 = Clock::now();
   auto t_report = t0;
   size_t frames_at_report = 0;
@@ -192,8 +198,9 @@ int run(const Options& o, bool bounded) {
       size_t map_bytes = 0;
       rec.map().for_each_chunk([&](const ChunkKey&, const Chunk& c) { map_bytes += store::MapPager::chunk_bytes(c); });
       const store::RecorderStatus& s = recorder.status();
-      std::printf("[%s] %8.1f %7zu %10zu %8zu %10.1f %10.1f %9llu %8llu %7llu %7.1f\n", name, scan_s, i + 1,
-                  rec.map().point_count(), rec.map().chunk_count(), map_bytes / 1048576.0, rss,
+      std::printf("[%s] %8.1f %7zu %10zu %8zu %10.1f %10.1f %10.1f %9llu %8llu %7llu %7.1f\n", name, scan_s,
+                  i + 1, rec.map().point_count(), rec.map().chunk_count(), map_bytes / 1048576.0, rss,
+                  rss - map_bytes / 1048576.0,
                   static_cast<unsigned long long>(s.pager.total_evicted),
                   static_cast<unsigned long long>(s.pager.total_loaded),
                   static_cast<unsigned long long>(s.checkpoints_written), fps);
@@ -275,6 +282,7 @@ int main(int argc, char** argv) {
     usage();
     return 2;
   }
+  if (o.mode == "compare") return compare(o);
   std::filesystem::create_directories(o.dir);
   for (const char* name : {"bounded", "unbounded"}) {
     if (o.mode != "both" && o.mode != name) continue;

@@ -35,10 +35,15 @@ class Registrar {
                            const Pose& T_world_cam_initial);
 
  private:
-  RegistrationResult run(const MeasurementImage& m, const PointMap& map, const Pose& initial,
-                         int subsample, int iterations, double max_corr_m);
+  // Projects the map around the frame's measurements into the camera at T_world_cam.
+  void render_model(const MeasurementImage& m, const PointMap& map, const Pose& T_world_cam,
+                    double max_corr_m);
+  // ICP against the last rendered model, from `initial`.
+  RegistrationResult run(const MeasurementImage& m, const Pose& initial, int subsample,
+                         int iterations, double max_corr_m);
   RegistrationConfig config_;
   std::unique_ptr<ModelProjection> projection_;
+  Pose T_world_model_cam_ = Pose::Identity();  // where the model was rendered from
 };
 
 }  // namespace depthfuse
