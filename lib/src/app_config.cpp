@@ -111,6 +111,8 @@ void read_registration(TableReader& r, RegistrationConfig* g) {
   r.read("huber_delta_m", &g->huber_delta_m, positive());
   // A rigid pose has 6 degrees of freedom: fewer pairs cannot determine it.
   r.read("min_correspondences", &g->min_correspondences, at_least(6));
+  r.read("model_band_m", &g->model_band_m, positive());
+  r.read("model_downsample", &g->model_downsample, closed(1, 8));
   r.read("tracking_levels", &g->tracking_levels, closed(1, 8));  // pixel steps grow as 2^level
   r.read("tracking_iterations_per_level", &g->tracking_iterations_per_level, non_negative());
   r.reject_unknown();

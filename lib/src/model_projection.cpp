@@ -51,7 +51,7 @@ inline float bits_float(uint32_t b) {
   return f;
 }
 
-// The camera that render() and average_surface() project into: world to pixel.
+// The camera that render() and render_surface() project into: world to pixel.
 struct PixelProjector {
   Eigen::Matrix3f R;
   Eigen::Vector3f t;
@@ -212,15 +212,15 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
   }
 }
 
-void ModelProjection::average_surface(const Pose& T_world_cam, const CameraIntrinsics& K,
-                                      float band_m) {
+void ModelProjection::render_surface(const Pose& T_world_cam, const CameraIntrinsics& K,
+                                     float band_m) {
   const size_t n = static_cast<size_t>(K.width) * K.height;
-  surface_.assign(n, SurfaceSum{0, 0, 0, 0, 0, 0, 0});
+  surface_.assign(n, SurfaceSum{0, 0, 0, 0, 0, 0, 0, std::numeric_limits<float>::infinity()});
   const PixelProjector cam(T_world_cam, K);
-  const float* front = front_depth_.data();
   SurfaceSum* sum = surface_.data();
   uint32_t pixel[PixelProjector::kBlock];
   float depth[PixelProjector::kBlock];
+  size_t rendered = 0;
   for (const Chunk* c : chunks_) {
     const PointArrays& a = c->points;
     const size_t count = a.size();
@@ -228,22 +228,19 @@ void ModelProjection::average_surface(const Pose& T_world_cam, const CameraIntri
       const size_t block = std::min(PixelProjector::kBlock, count - start);
       cam.project_block(a.position_m.data() + start, block, pixel, depth);
       for (size_t i = 0; i < block; ++i) {
-        if (pixel[i] != PixelProjector::kNoPixel) __builtin_prefetch(front + pixel[i]);
-      }
-      for (size_t i = 0; i < block; ++i) {
-        if (pixel[i] == PixelProjector::kNoPixel || depth[i] > front[pixel[i]] + band_m) {
-          pixel[i] = PixelProjector::kNoPixel;
-        } else {
-          __builtin_prefetch(sum + pixel[i], 1);
-          __builtin_prefetch(a.state.data() + start + i);
-        }
+        if (pixel[i] != PixelProjector::kNoPixel) __builtin_prefetch(sum + pixel[i], 1);
       }
       for (size_t i = 0; i < block; ++i) {
         if (pixel[i] == PixelProjector::kNoPixel) continue;
+        ++rendered;
+        SurfaceSum& s = sum[pixel[i]];
+        const float z = depth[i];
+        if (z > s.front_z + band_m) continue;  // behind the surface seen so far
+        if (z < s.front_z - band_m) s = SurfaceSum{0, 0, 0, 0, 0, 0, 0, z};  // a new front surface
+        s.front_z = std::min(s.front_z, z);
         const Eigen::Vector3f& p = a.position_m[start + i];
         const PointState& st = a.state[start + i];
         const float w = 1.0f + st.merges;
-        SurfaceSum& s = sum[pixel[i]];
         s.x += w * p.x();
         s.y += w * p.y();
         s.z += w * p.z();
@@ -254,6 +251,7 @@ void ModelProjection::average_surface(const Pose& T_world_cam, const CameraIntri
       }
     }
   }
+  rendered_ = rendered;
   for (size_t px = 0; px < n; ++px) {
     SurfaceSum& s = sum[px];
     if (s.w <= 0.0f) continue;

@@ -42,11 +42,14 @@ class ModelProjection {
   void render(const Pose& T_world_cam, const CameraIntrinsics& K,
               const MeasurementImage* measured = nullptr);
 
-  // After render(): per pixel, the confidence-weighted mean (weight 1 + merges) of every rendered
-  // point within band_m behind the nearest one. Registration aligns to this consensus surface:
-  // the nearest point alone is biased towards the camera wherever the cloud still has several
-  // layers (poorly registered frames), and ICP would pull every camera towards itself.
-  void average_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m);
+  // Registration's model, in one pass over the selected chunks instead of render(): per pixel, the
+  // confidence-weighted mean (weight 1 + merges) of the rendered points within band_m behind the
+  // front-most one. Registration aligns to this consensus surface: the nearest point alone is
+  // biased towards the camera wherever the cloud still has several layers (poorly registered
+  // frames), and ICP would pull every camera towards itself. The band follows the front as points
+  // stream in; a point can stay in the mean when a later one moves the front less than band_m
+  // closer, a bias far below the band.
+  void render_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m);
   bool has_surface(size_t pixel) const { return surface_[pixel].w > 0.0f; }
   Eigen::Vector3f surface_point(size_t pixel) const {
     const SurfaceSum& s = surface_[pixel];
@@ -105,6 +108,7 @@ class ModelProjection {
   };
   struct SurfaceSum {
     float x, y, z, nx, ny, nz, w;
+    float front_z;  // depth of the front-most point seen so far
   };
   template <bool kGuided>
   void render_points(const Pose& T_world_cam, const CameraIntrinsics& K);
@@ -123,7 +127,7 @@ class ModelProjection {
   std::vector<float> cand_x_, cand_y_, cand_z_;  // per pixel: the candidate's world position
   std::vector<uint8_t> taken_;          // per pixel: candidate merged with a measurement of this frame
   size_t rendered_ = 0;
-  std::vector<SurfaceSum> surface_;     // average_surface(): mean point and unit normal, summed weight
+  std::vector<SurfaceSum> surface_;     // render_surface(): mean point and unit normal, summed weight
 };
 
 }  // namespace depthfuse

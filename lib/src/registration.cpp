@@ -49,14 +49,34 @@ struct NormalEquations {
 
 }  // namespace
 
+namespace {
+
+// The camera of the registration model: `factor` times coarser than the depth camera. ICP samples
+// every few pixels, so a coarser model loses nothing it would use, averages more points per pixel,
+// and its per-pixel sums stay in cache.
+CameraIntrinsics model_intrinsics(const CameraIntrinsics& K, int factor) {
+  if (factor <= 1) return K;
+  CameraIntrinsics M = K;
+  const double f = factor;
+  M.width = std::max(1, K.width / factor);
+  M.height = std::max(1, K.height / factor);
+  M.fx = K.fx / f;
+  M.fy = K.fy / f;
+  // Pixel centres: continuous coordinate u maps to (u + 0.5) / f - 0.5.
+  M.cx = (K.cx + 0.5) / f - 0.5;
+  M.cy = (K.cy + 0.5) / f - 0.5;
+  return M;
+}
+
+}  // namespace
+
 void Registrar::render_model(const MeasurementImage& m, const PointMap& map, const Pose& T_world_cam,
                              double max_corr_m) {
   ModelProjection& proj = *projection_;
   // The map is only read; the projection's chunk pointers are non-const for fusion's sake.
   proj.select_chunks(const_cast<PointMap&>(map), m, T_world_cam, static_cast<float>(max_corr_m) + 0.05f);
-  proj.render(T_world_cam, m.intrinsics);
-  if (proj.rendered_points() > 0)
-    proj.average_surface(T_world_cam, m.intrinsics, static_cast<float>(config_.model_band_m));
+  model_K_ = model_intrinsics(m.intrinsics, config_.model_downsample);
+  proj.render_surface(T_world_cam, model_K_, static_cast<float>(config_.model_band_m));
   T_world_model_cam_ = T_world_cam;
 }
 
@@ -64,14 +84,14 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const Pose& initial
                                   int iterations, double max_corr_m) {
   RegistrationResult result;
   result.T_world_cam = initial;
-  const CameraIntrinsics& K = m.intrinsics;
   const ModelProjection& proj = *projection_;
   if (proj.rendered_points() == 0) return result;
 
   // Associations are made in the camera the model was rendered from.
   const Pose T_cam0_world = T_world_model_cam_.inverse();
-  const float fx = static_cast<float>(K.fx), fy = static_cast<float>(K.fy);
-  const float cx = static_cast<float>(K.cx), cy = static_cast<float>(K.cy);
+  const CameraIntrinsics& MK = model_K_;
+  const float fx = static_cast<float>(MK.fx), fy = static_cast<float>(MK.fy);
+  const float cx = static_cast<float>(MK.cx), cy = static_cast<float>(MK.cy);
   const float cos_max = static_cast<float>(std::cos(config_.max_normal_angle_deg * M_PI / 180.0));
   const float max_d = static_cast<float>(max_corr_m);
   const float huber = static_cast<float>(config_.huber_delta_m);
@@ -99,9 +119,9 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const Pose& initial
         const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);
         const Eigen::Vector3f p0 = R0 * p_c + t0;
         int pu, pv;
-        if (!project_to_pixel(p0.x(), p0.y(), p0.z(), fx, fy, cx, cy, K.width, K.height, &pu, &pv))
+        if (!project_to_pixel(p0.x(), p0.y(), p0.z(), fx, fy, cx, cy, MK.width, MK.height, &pu, &pv))
           continue;
-        const size_t px = static_cast<size_t>(pv) * K.width + pu;
+        const size_t px = static_cast<size_t>(pv) * MK.width + pu;
         if (!proj.has_surface(px)) continue;
         const Eigen::Vector3f q = proj.surface_point(px);
         const Eigen::Vector3f n_q = proj.surface_normal(px);

@@ -48,10 +48,12 @@ struct RegistrationConfig {
   double max_correspondence_m = 0.05;        // reject pairs farther apart than this
   double max_normal_angle_deg = 35.0;        // reject pairs whose normals disagree more
   double huber_delta_m = 0.005;              // robust loss scale
-  int min_correspondences = 500;
+  int min_correspondences = 500;             // fewer: keep the initial pose, report failure
   // The model surface at a pixel is the confidence-weighted mean of the points within this depth
-  // band behind the nearest one (see ModelProjection::average_surface).
-  double model_band_m = 0.05;             // fewer: keep the initial pose, report failure
+  // band behind the nearest one (see ModelProjection::render_surface).
+  double model_band_m = 0.05;
+  // The model is rendered this many times coarser than the depth camera (1 = full resolution).
+  int model_downsample = 2;
   // Tracking without a pose hint: coarse-to-fine levels (subsample 4, 2, 1 ...), iterations each.
   int tracking_levels = 3;
   int tracking_iterations_per_level = 10;

@@ -44,6 +44,7 @@ class Registrar {
   RegistrationConfig config_;
   std::unique_ptr<ModelProjection> projection_;
   Pose T_world_model_cam_ = Pose::Identity();  // where the model was rendered from
+  CameraIntrinsics model_K_;                    // and with which camera
 };
 
 }  // namespace depthfuse

@@ -160,19 +160,29 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
   map->for_each_chunk([&](const ChunkKey& k, const Chunk& c) {
     uint32_t used = c.last_touched_frame;
     if (auto it = loaded_at_.find(k); it != loaded_at_.end()) used = std::max(used, it->second);
-    if (used + min_age >= frame_id) return;  // seen (or brought back) recently
+    if (used >= frame_id) return;  // observed by (or loaded for) this very frame
     const float d = distance_to_chunk_m(*map, k, cam);
     if (d <= keep_distance) return;
-    candidates_.push_back({k, used, d, chunk_bytes(c)});
+    candidates_.push_back({k, used, d, chunk_bytes(c), used + min_age >= frame_id});
   });
-  // Least recently used first; among equals, the farthest.
+  // Least recently used first; among equals, the farthest. The recently seen come last.
   std::sort(candidates_.begin(), candidates_.end(), [](const Candidate& a, const Candidate& b) {
     if (a.last_used_frame != b.last_used_frame) return a.last_used_frame < b.last_used_frame;
     return a.distance_m > b.distance_m;
   });
+  // Chunks not seen for min_age_frames go first, down to the low watermark. Only when they do not
+  // bring the map under the budget itself do recently seen ones go too (just down to the budget,
+  // as the next frames may load them back): the views of the last min_age_frames frames can hold
+  // more than the budget (a walk back into mapped rooms loads their full chunks), and the budget
+  // must hold anyway. What stays is this frame's chunks and those near the camera.
   const size_t target = static_cast<size_t>(static_cast<double>(budget) * config_.low_watermark_fraction);
-  size_t n = 0, freed = 0;
-  while (n < candidates_.size() && resident - freed > target) freed += candidates_[n++].bytes;
+  size_t n = 0, freed = 0, recent = 0;
+  while (n < candidates_.size() && !candidates_[n].recent && resident - freed > target)
+    freed += candidates_[n++].bytes;
+  while (n < candidates_.size() && resident - freed > budget) {
+    freed += candidates_[n++].bytes;
+    ++recent;
+  }
   if (resident - freed > budget) stats_.unevictable_bytes = resident - freed - budget;
   if (n == 0) return Status::ok();
 
@@ -199,6 +209,7 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
     if (keep_key) evicted_.insert(k);
   }
   stats_.total_evicted += n;
+  stats_.total_evicted_recent += recent;
   stats_.resident_chunks = map->chunk_count();
   stats_.resident_bytes = resident - freed;
   if (config_.release_memory_to_os) malloc_trim(0);

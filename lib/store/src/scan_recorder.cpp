@@ -1,5 +1,7 @@
 #include "depthfuse/store/scan_recorder.hpp"
 
+#include <malloc.h>
+
 #include <chrono>
 
 #include "depthfuse/fusion.hpp"
@@ -234,6 +236,9 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
   status_.pending_poses = 0;
   ++status_.checkpoints_written;
   status_.last_checkpoint = *rec;
+  // Encoding and writing the chunks freed heap memory that glibc would keep until the pager's next
+  // eviction: give it back now, so that resident memory follows the budget through checkpoints too.
+  if (pager_ && config_.pager.release_memory_to_os) malloc_trim(0);
   status_.last_checkpoint_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   status_.last_error_code = StatusCode::kOk;

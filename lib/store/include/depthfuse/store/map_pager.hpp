@@ -5,7 +5,9 @@
 //    exactly the map an unbounded run would;
 //  - update() after it: when the resident chunks exceed the budget, the least recently touched
 //    ones (Chunk::last_touched_frame) that the camera has not seen for a while and that are not
-//    right next to it are written to the scan file and dropped.
+//    right next to it are written to the scan file and dropped. When those are not enough, the
+//    recently seen ones go too, down to the budget; never the ones this frame observed or loaded,
+//    nor those near the camera.
 // Per-call cost follows the frame, not the map: prepare() visits a subsample of the frame's
 // pixels and looks their chunk keys up in the evicted index; update() scans only resident chunks,
 // whose number the budget bounds.
@@ -31,7 +33,9 @@ struct MapPagerConfig {
   double memory_budget_mib = 256.0;       // resident point data of the map
   double low_watermark_fraction = 0.85;   // evict down to this fraction of the budget
   double evict_distance_m = 1.5;          // chunks nearer to the camera than this stay resident
-  int min_age_frames = 30;                // chunks touched (or loaded) this recently stay resident
+  // Chunks touched (or loaded) this recently are evicted only when evicting the older ones does
+  // not bring the map under the budget.
+  int min_age_frames = 30;
   // prepare(): a chunk within this distance of a back-projected depth sample is loaded. Covers
   // the pipeline's chunk margins (0.1 m) and the pose change ICP makes from the prediction.
   double load_margin_m = 0.3;
@@ -44,9 +48,10 @@ struct PagerStats {
   size_t resident_chunks = 0;
   size_t resident_bytes = 0;              // after the last update
   size_t evicted_chunks = 0;              // keys in the evicted index
-  size_t unevictable_bytes = 0;           // over budget, but all recently seen or near
+  size_t unevictable_bytes = 0;           // over budget, but all seen by the last frame or near
   size_t unloadable_chunks = 0;           // evicted chunks that failed to load (damaged)
   uint64_t total_evicted = 0, total_written = 0, total_loaded = 0;
+  uint64_t total_evicted_recent = 0;      // of total_evicted: seen within min_age_frames
   uint64_t load_collisions = 0;           // a loaded chunk met a new resident one (points merged)
   uint64_t failures = 0;
   std::string last_error;                 // empty after a successful call
@@ -107,6 +112,7 @@ class MapPager {
     uint32_t last_used_frame;
     float distance_m;
     size_t bytes;
+    bool recent;  // used within min_age_frames
   };
   std::vector<Candidate> candidates_;
   std::vector<ChunkKey> keys_;
