@@ -11,6 +11,7 @@
 //
 //   bench_memory --minutes 20 --rate-hz 30 --budget-mib 256          (the figure; long)
 //   bench_memory --minutes 3 --rate-hz 10 --budget-mib 64            (a quick look)
+#include <malloc.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -64,7 +65,10 @@ void usage() {
       "  Columns: other_MiB = VmRSS - map_MiB, what the process holds besides the map's point data\n"
       "  (scene, pipeline scratch, SQLite cache, allocator slack): the overhead that must not grow.\n"
       "  map_MiB counts vector capacity as the budget does; capacity never written is not resident,\n"
-      "  so other_MiB understates (even below 0) while chunks are growing.\n");
+      "  so other_MiB understates (even below 0) while chunks are growing. heap_free_MiB: freed\n"
+      "  memory malloc keeps in its heap (mallinfo2 fordblks); malloc_trim hands its whole pages\n"
+      "  back to the OS, so only part of it is resident. VmHWM in the last line is the true peak\n"
+      "  (also inside checkpoints), the peak column is sampled once per frame.\n");
 }
 
 bool parse(int argc, char** argv, Options* o) {
@@ -154,8 +158,8 @@ int run(const Options& o, bool bounded) {
               name, seq->size(), o.minutes, o.rate_hz,
               bounded ? (std::to_string(static_cast<int>(o.budget_mib)) + " MiB").c_str() : "none",
               rc.pager.evict_distance_m, rc.pager.min_age_frames, rss_start);
-  std::printf("[%s] %8s %7s %10s %8s %10s %10s %10s %9s %8s %7s %7s\n", name, "scan_s", "frame", "map_pts",
-              "chunks", "map_MiB", "VmRSS_MiB", "other_MiB", "evicted", "loaded", "ckpts", "fps");
+  std::printf("[%s] %8s %7s %10s %8s %10s %10s %10s %9s %8s %7s %7s %13s\n", name, "scan_s", "frame", "map_pts",
+              "chunks", "map_MiB", "VmRSS_MiB", "other_MiB", "evicted", "loaded", "ckpts", "fps", "heap_free_MiB");
   const auto t0 = Clock::now();
   auto t_report = t0;
   size_t frames_at_report = 0;
@@ -198,12 +202,12 @@ int run(const Options& o, bool bounded) {
       size_t map_bytes = 0;
       rec.map().for_each_chunk([&](const ChunkKey&, const Chunk& c) { map_bytes += store::MapPager::chunk_bytes(c); });
       const store::RecorderStatus& s = recorder.status();
-      std::printf("[%s] %8.1f %7zu %10zu %8zu %10.1f %10.1f %10.1f %9llu %8llu %7llu %7.1f\n", name, scan_s,
+      std::printf("[%s] %8.1f %7zu %10zu %8zu %10.1f %10.1f %10.1f %9llu %8llu %7llu %7.1f %13.1f\n", name, scan_s,
                   i + 1, rec.map().point_count(), rec.map().chunk_count(), map_bytes / 1048576.0, rss,
                   rss - map_bytes / 1048576.0,
                   static_cast<unsigned long long>(s.pager.total_evicted),
                   static_cast<unsigned long long>(s.pager.total_loaded),
-                  static_cast<unsigned long long>(s.checkpoints_written), fps);
+                  static_cast<unsigned long long>(s.checkpoints_written), fps, mallinfo2().fordblks / 1048576.0);
       std::fflush(stdout);
     }
   }

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <tuple>
 
 #include "depthfuse/store/scan_store.hpp"
@@ -69,14 +70,34 @@ Status MapPager::prepare(PointMap* map, const Frame& frame, const Pose& T, uint3
   const float margin = static_cast<float>(config_.load_margin_m);
   const int step = config_.load_subsample_px;
   keys_.clear();
-  // The same samples as the pipeline's chunk selection: the surface point, and the stretch of the
-  // ray just in front of it (0.9 .. 1.0 of the range) that visibility checks look at.
-  for (int v = step / 2; v < d.height; v += step) {
-    for (int u = step / 2; u < d.width; u += step) {
-      const float z = d.depth_m[static_cast<size_t>(v) * d.width + u];
-      if (!(z > 0.0f) || !std::isfinite(z)) continue;
-      const Eigen::Vector3f p_c((u - cx) / fx * z, (v - cy) / fy * z, z);
-      for (float f : {1.0f, 0.95f, 0.9f}) map->keys_near(R * (f * p_c) + t, margin, &keys_);
+  // Per block of step x step pixels, the stretch of the block's ray from 0.9 of its nearest depth to
+  // its farthest: the surface points of every pixel (not only a sampled one: a block across a depth
+  // edge holds a near and a far surface) and the stretch in front of them (0.9 .. 1.0 of the
+  // range) that visibility checks look at. Samples along it are at most `margin` apart, and the
+  // radius grows by the block's lateral extent at that depth.
+  const float inv_fx = 1.0f / fx;
+  for (int v0 = 0; v0 < d.height; v0 += step) {
+    for (int u0 = 0; u0 < d.width; u0 += step) {
+      float zmin = std::numeric_limits<float>::infinity(), zmax = 0.0f;
+      const int v1 = std::min(v0 + step, d.height), u1 = std::min(u0 + step, d.width);
+      for (int v = v0; v < v1; ++v) {
+        const float* row = d.depth_m.data() + static_cast<size_t>(v) * d.width;
+        for (int u = u0; u < u1; ++u) {
+          const float z = row[u];
+          if (!(z > 0.0f) || !std::isfinite(z)) continue;
+          zmin = std::min(zmin, z);
+          zmax = std::max(zmax, z);
+        }
+      }
+      if (!(zmax > 0.0f)) continue;
+      const float uc = 0.5f * static_cast<float>(u0 + u1 - 1), vc = 0.5f * static_cast<float>(v0 + v1 - 1);
+      const Eigen::Vector3f ray((uc - cx) / fx, (vc - cy) / fy, 1.0f);  // at z = 1
+      const float radius = margin + 0.75f * static_cast<float>(step) * zmax * inv_fx;
+      for (float z = 0.9f * zmin;; z += margin) {
+        const float zs = std::min(z, zmax);
+        map->keys_near(R * (zs * ray) + t, radius, &keys_);
+        if (zs >= zmax || !(margin > 0.0f)) break;
+      }
     }
   }
   std::sort(keys_.begin(), keys_.end(), key_less);
@@ -138,6 +159,19 @@ Status MapPager::load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t
 }
 
 Status MapPager::update(PointMap* map, const Eigen::Vector3f& camera_position_m, uint32_t frame_id) {
+  // A chunk fusion created at an evicted key that prepare() did not load (the refined pose moved
+  // farther than load_margin_m from the guess, say): its stored points come back now and join the
+  // new ones, before a checkpoint or an eviction could write the new chunk over the stored one.
+  if (!evicted_.empty()) {
+    keys_.clear();
+    map->for_each_chunk([&](const ChunkKey& k, const Chunk&) {
+      if (evicted_.count(k)) keys_.push_back(k);
+    });
+    if (!keys_.empty()) {
+      std::sort(keys_.begin(), keys_.end(), key_less);
+      if (Status st = load(map, keys_, frame_id); !st) return finish_call(st);
+    }
+  }
   return finish_call(evict(map, camera_position_m, frame_id));
 }
 
