@@ -68,7 +68,8 @@ void usage() {
       "  so other_MiB understates (even below 0) while chunks are growing. heap_free_MiB: freed\n"
       "  memory malloc keeps in its heap (mallinfo2 fordblks); malloc_trim hands its whole pages\n"
       "  back to the OS, so only part of it is resident. VmHWM in the last line is the true peak\n"
-      "  (also inside checkpoints), the peak column is sampled once per frame.\n");
+      "  (also inside checkpoints); peak_MiB is the highest VmRSS sampled after each frame since\n"
+      "  the previous line.\n");
 }
 
 bool parse(int argc, char** argv, Options* o) {
@@ -158,13 +159,13 @@ int run(const Options& o, bool bounded) {
               name, seq->size(), o.minutes, o.rate_hz,
               bounded ? (std::to_string(static_cast<int>(o.budget_mib)) + " MiB").c_str() : "none",
               rc.pager.evict_distance_m, rc.pager.min_age_frames, rss_start);
-  std::printf("[%s] %8s %7s %10s %8s %10s %10s %10s %9s %8s %7s %7s %13s\n", name, "scan_s", "frame", "map_pts",
-              "chunks", "map_MiB", "VmRSS_MiB", "other_MiB", "evicted", "loaded", "ckpts", "fps", "heap_free_MiB");
+  std::printf("[%s] %8s %7s %10s %8s %10s %10s %10s %9s %8s %7s %7s %13s %9s\n", name, "scan_s", "frame", "map_pts",
+              "chunks", "map_MiB", "VmRSS_MiB", "other_MiB", "evicted", "loaded", "ckpts", "fps", "heap_free_MiB", "peak_MiB");
   const auto t0 = Clock::now();
   auto t_report = t0;
   size_t frames_at_report = 0;
   double next_checkpoint_s = o.checkpoint_interval_s, next_report_s = 0.0;
-  double sq_error = 0.0, max_rss = 0.0;
+  double sq_error = 0.0, max_rss = 0.0, interval_max_rss = 0.0;
   size_t errors = 0;
   Frame frame;
   for (size_t i = 0; i < seq->size(); ++i) {
@@ -192,6 +193,7 @@ int run(const Options& o, bool bounded) {
     }
     const double rss = proc_status_mib("VmRSS");
     max_rss = std::max(max_rss, rss);
+    interval_max_rss = std::max(interval_max_rss, rss);
     if (scan_s >= next_report_s || i + 1 == seq->size()) {
       next_report_s += o.report_every_s;
       const auto now = Clock::now();
@@ -202,12 +204,14 @@ int run(const Options& o, bool bounded) {
       size_t map_bytes = 0;
       rec.map().for_each_chunk([&](const ChunkKey&, const Chunk& c) { map_bytes += store::MapPager::chunk_bytes(c); });
       const store::RecorderStatus& s = recorder.status();
-      std::printf("[%s] %8.1f %7zu %10zu %8zu %10.1f %10.1f %10.1f %9llu %8llu %7llu %7.1f %13.1f\n", name, scan_s,
+      std::printf("[%s] %8.1f %7zu %10zu %8zu %10.1f %10.1f %10.1f %9llu %8llu %7llu %7.1f %13.1f %9.1f\n", name, scan_s,
                   i + 1, rec.map().point_count(), rec.map().chunk_count(), map_bytes / 1048576.0, rss,
                   rss - map_bytes / 1048576.0,
                   static_cast<unsigned long long>(s.pager.total_evicted),
                   static_cast<unsigned long long>(s.pager.total_loaded),
-                  static_cast<unsigned long long>(s.checkpoints_written), fps, mallinfo2().fordblks / 1048576.0);
+                  static_cast<unsigned long long>(s.checkpoints_written), fps, mallinfo2().fordblks / 1048576.0,
+                  interval_max_rss);
+      interval_max_rss = 0.0;
       std::fflush(stdout);
     }
   }
