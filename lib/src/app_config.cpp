@@ -94,6 +94,7 @@ void read_fusion(TableReader& r, FusionConfig* f) {
   r.read("visibility_range_fraction", &f->visibility_range_fraction, open_closed(0.0, 1.0));
   r.read("candidate_radius_px", &f->candidate_radius_px, non_negative());
   r.read("normal_radius_px", &f->normal_radius_px, at_least(1));
+  r.read("threads", &f->threads, closed(1, 2));
   r.reject_unknown();
 }
 
@@ -113,6 +114,7 @@ void read_registration(TableReader& r, RegistrationConfig* g) {
   r.read("min_correspondences", &g->min_correspondences, at_least(6));
   r.read("model_band_m", &g->model_band_m, positive());
   r.read("model_downsample", &g->model_downsample, closed(1, 8));
+  r.read("threads", &g->threads, closed(1, 2));
   r.read("tracking_levels", &g->tracking_levels, closed(1, 8));  // pixel steps grow as 2^level
   r.read("tracking_iterations_per_level", &g->tracking_iterations_per_level, non_negative());
   r.reject_unknown();

@@ -6,6 +6,7 @@
 
 #include "geometry.hpp"
 #include "model_projection.hpp"
+#include "parallel.hpp"
 
 namespace depthfuse {
 
@@ -18,8 +19,15 @@ bool merge_measurement(const Eigen::Vector3f& p_e, const Eigen::Matrix3f& L_e,
   return true;
 }
 
+struct Fuser::Scratch {
+  PointArrays added[3];  // new points of the bands: top, bottom, and the seam between them
+};
+
 Fuser::Fuser(const SensorModelConfig& sensor, const FusionConfig& fusion)
-    : sensor_config_(sensor), config_(fusion), projection_(std::make_unique<ModelProjection>()) {}
+    : sensor_config_(sensor),
+      config_(fusion),
+      projection_(std::make_unique<ModelProjection>()),
+      scratch_(std::make_unique<Scratch>()) {}
 
 Fuser::~Fuser() = default;
 
@@ -95,39 +103,57 @@ struct InformationCurve {
   }
 };
 
-}  // namespace
+// One frame's fusion over a band of image rows. Bands that are two rows apart touch disjoint
+// pixels and points (a point is rendered at exactly one pixel, and the candidate window reaches
+// one row), so two of them can run at once; points a band adds go to its own list and reach the
+// map afterwards.
+class FrameFusion {
+ public:
+  FrameFusion(const MeasurementImage& m, const ColorImage* color, const Pose& T_world_cam,
+              uint32_t frame_id, const InformationCurve& curve, const FusionConfig& config,
+              ModelProjection* proj)
+      : m_(m),
+        color_(color && !color->empty() && color->width == m.width && color->height == m.height
+                   ? color
+                   : nullptr),
+        frame_id_(frame_id),
+        curve_(curve),
+        proj_(*proj),
+        R_(T_world_cam.linear().cast<float>()),
+        t_(T_world_cam.translation().cast<float>()),
+        up_w_(R_.col(1)),
+        cr_(std::max(0, config.candidate_radius_px)),
+        range_fraction_(static_cast<float>(config.visibility_range_fraction)) {}
 
-FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, const Pose& T_world_cam,
-                        uint32_t frame_id, PointMap* map) {
-  FusionStats stats;
-  const CameraIntrinsics& K = m.intrinsics;
-  const bool has_color = color && !color->empty() && color->width == m.width &&
-                         color->height == m.height;
-  const InformationCurve curve(SensorModel(sensor_config_, K));
+  // Fuses rows [v0, v1); new points are appended to *added.
+  void rows(int v0, int v1, PointArrays* added, FusionStats* stats) const;
 
-  // Existing points near this frame's measurements, rendered into its camera.
-  ModelProjection& proj = *projection_;
-  proj.select_chunks(*map, m, T_world_cam, 0.1f);
-  proj.render(T_world_cam, K, &m);
+ private:
+  const MeasurementImage& m_;
+  const ColorImage* color_;
+  uint32_t frame_id_;
+  const InformationCurve& curve_;
+  ModelProjection& proj_;
+  Eigen::Matrix3f R_;
+  Eigen::Vector3f t_, up_w_;
+  int cr_;
+  float range_fraction_;
+};
 
-  const Eigen::Matrix3f R = T_world_cam.linear().cast<float>();
-  const Eigen::Vector3f t = T_world_cam.translation().cast<float>();
-  const Eigen::Vector3f up_w = R.col(1);
-  const int cr = std::max(0, config_.candidate_radius_px);
+void FrameFusion::rows(int v0, int v1, PointArrays* added, FusionStats* stats) const {
+  const MeasurementImage& m = m_;
+  ModelProjection& proj = proj_;
+  const Eigen::Matrix3f& R = R_;
+  const Eigen::Vector3f& t = t_;
+  const int cr = cr_;
   const size_t proj_pixels = m.pixel_count();
-  const float range_fraction = static_cast<float>(config_.visibility_range_fraction);
-
-  // Chunk lookups repeat for neighbouring pixels: remember the last one.
-  ChunkKey last_key{std::numeric_limits<int32_t>::min(), 0, 0};
-  Chunk* last_chunk = nullptr;
-
-  for (int v = 0; v < m.height; ++v) {
+  for (int v = v0; v < v1; ++v) {
     for (int u = 0; u < m.width; ++u) {
       const size_t i = static_cast<size_t>(v) * m.width + u;
       if (i + ModelProjection::kPrefetchPixels < proj_pixels)
         proj.prefetch_candidate(i + ModelProjection::kPrefetchPixels);
       if (!m.valid[i]) continue;
-      ++stats.measurements;
+      ++stats->measurements;
       const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);
       const Eigen::Vector3f ray_w = R * p_c;
       const Eigen::Vector3f p_w = ray_w + t;
@@ -135,16 +161,17 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
       const float z = m.z[i];
       const float range = p_c.norm();
       float w_x, w_y, w_z;
-      curve.at(z, &w_x, &w_y, &w_z);
-      const Sym3f L_n = ray_information(ray_w * (1.0f / range), up_w, w_x, w_y, w_z);
-      const uint8_t* rgb = has_color ? &color->rgb[3 * i] : nullptr;
+      curve_.at(z, &w_x, &w_y, &w_z);
+      const Sym3f L_n = ray_information(ray_w * (1.0f / range), up_w_, w_x, w_y, w_z);
+      const uint8_t* rgb = color_ ? &color_->rgb[3 * i] : nullptr;
 
       // The candidate at this very pixel (the existing point closest in depth to the measurement)
       // first; only if it is missing, taken, or does not merge, the nearest untaken candidate in
       // the window. Searching the window first would let a pixel take its neighbour's point and
       // leave the neighbour to add a redundant one.
       bool merged = false;
-      if (proj.has_candidate(i) && !proj.taken_at(i)) merged = try_merge(proj, i, p_w, L_n, n_w, rgb, frame_id);
+      if (proj.has_candidate(i) && !proj.taken_at(i))
+        merged = try_merge(proj, i, p_w, L_n, n_w, rgb, frame_id_);
       if (!merged && cr > 0) {
         size_t best_px = i;
         float best_d2 = std::numeric_limits<float>::infinity();
@@ -163,10 +190,10 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
             }
           }
         }
-        if (best_px != i) merged = try_merge(proj, best_px, p_w, L_n, n_w, rgb, frame_id);
+        if (best_px != i) merged = try_merge(proj, best_px, p_w, L_n, n_w, rgb, frame_id_);
       }
       if (merged) {
-        ++stats.merged;
+        ++stats->merged;
         continue;
       }
 
@@ -181,9 +208,9 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
           const float s_e = (p_e - t).norm();
           const bool facing_e = a.normal(j).dot(t - p_e) > 0.0f;
           const bool facing_n = n_w.dot(t - p_w) > 0.0f;
-          if (facing_e && facing_n && std::abs(s_e - range) < range_fraction * range) {
+          if (facing_e && facing_n && std::abs(s_e - range) < range_fraction_ * range) {
             a.state[j].violations = saturating_increment(a.state[j].violations);
-            ++stats.violations;
+            ++stats->violations;
           }
         }
       }
@@ -195,17 +222,71 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
       rec.information[2] = L_n.xz; rec.information[3] = L_n.yy;
       rec.information[4] = L_n.yz; rec.information[5] = L_n.zz;
       if (rgb) { rec.rgb[0] = rgb[0]; rec.rgb[1] = rgb[1]; rec.rgb[2] = rgb[2]; }
-      rec.last_frame = frame_id;
-      const ChunkKey key = map->key_for(p_w);
-      if (!last_chunk || key != last_key) {
-        last_chunk = &map->get_or_create(key);
-        last_chunk->last_touched_frame = frame_id;
-        last_chunk->dirty = true;
-        last_key = key;
-      }
-      last_chunk->points.push_back(rec);
-      ++stats.added;
+      rec.last_frame = frame_id_;
+      added->push_back(rec);
+      ++stats->added;
     }
+  }
+}
+
+// Appends a band's new points to their chunks, in order.
+void add_points(const PointArrays& added, uint32_t frame_id, PointMap* map) {
+  // Chunk lookups repeat for neighbouring points: remember the last one.
+  ChunkKey last_key{std::numeric_limits<int32_t>::min(), 0, 0};
+  Chunk* last_chunk = nullptr;
+  for (size_t i = 0; i < added.size(); ++i) {
+    const ChunkKey key = map->key_for(added.position_m[i]);
+    if (!last_chunk || key != last_key) {
+      last_chunk = &map->get_or_create(key);
+      last_chunk->last_touched_frame = frame_id;
+      last_chunk->dirty = true;
+      last_key = key;
+    }
+    last_chunk->points.position_m.push_back(added.position_m[i]);
+    last_chunk->points.state.push_back(added.state[i]);
+  }
+}
+
+void add_stats(const FusionStats& s, FusionStats* total) {
+  total->measurements += s.measurements;
+  total->merged += s.merged;
+  total->added += s.added;
+  total->violations += s.violations;
+}
+
+}  // namespace
+
+FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, const Pose& T_world_cam,
+                        uint32_t frame_id, PointMap* map) {
+  const InformationCurve curve(SensorModel(sensor_config_, m.intrinsics));
+
+  // Existing points near this frame's measurements, rendered into its camera.
+  ModelProjection& proj = *projection_;
+  proj.set_threads(config_.threads);
+  proj.select_chunks(*map, m, T_world_cam, 0.1f);
+  proj.render(T_world_cam, m.intrinsics, &m);
+
+  const FrameFusion frame(m, color, T_world_cam, frame_id, curve, config_, &proj);
+  FusionStats stats[3];
+  PointArrays* added = scratch_->added;
+  for (PointArrays& a : scratch_->added) a.clear();
+  // Bands: rows [0, h - r) and [h + r, height), on two threads if there are two, then the seam
+  // [h - r, h + r) once both are done (r: the candidate window's reach). With one thread the bands
+  // run in the same order, so the result does not depend on the thread count.
+  const int r = std::max(1, config_.candidate_radius_px);
+  const int h = m.height / 2;
+  if (m.height > 8 * r) {
+    run_pair(
+        config_.threads, [&] { frame.rows(0, h - r, &added[0], &stats[0]); },
+        [&] { frame.rows(h + r, m.height, &added[1], &stats[1]); });
+    frame.rows(h - r, h + r, &added[2], &stats[2]);
+  } else {
+    frame.rows(0, m.height, &added[0], &stats[0]);
+  }
+  FusionStats total;
+  for (int b = 0; b < 3; ++b) {
+    add_points(added[b], frame_id, map);
+    add_stats(stats[b], &total);
   }
 
   // The chunks this frame observed: eviction keeps recently seen chunks, checkpoints write
@@ -214,7 +295,7 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
     c->last_touched_frame = frame_id;
     c->dirty = true;
   }
-  return stats;
+  return total;
 }
 
 size_t postfilter(PointMap* map) {

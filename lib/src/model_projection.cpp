@@ -1,10 +1,12 @@
 #include "model_projection.hpp"
 
 #include <algorithm>
-#include <cstring>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <tuple>
+
+#include "parallel.hpp"
 
 namespace depthfuse {
 
@@ -93,13 +95,13 @@ struct PixelProjector {
 }  // namespace
 
 template <bool kGuided>
-void ModelProjection::render_points(const Pose& T_world_cam, const CameraIntrinsics& K) {
+size_t ModelProjection::render_points(const Pose& T_world_cam, const CameraIntrinsics& K,
+                                      size_t chunk_begin, size_t chunk_end, PixelKeys* keys) const {
   const PixelProjector cam(T_world_cam, K);
-  PixelKeys* keys = pixel_keys_.data();
   uint32_t pixel[PixelProjector::kBlock];
   float depth[PixelProjector::kBlock];
   size_t rendered = 0;
-  for (size_t s = 0; s < chunks_.size(); ++s) {
+  for (size_t s = chunk_begin; s < chunk_end; ++s) {
     const PointArrays& a = chunks_[s]->points;
     const size_t count = a.size();
     for (size_t start = 0; start < count; start += PixelProjector::kBlock) {
@@ -124,7 +126,14 @@ void ModelProjection::render_points(const Pose& T_world_cam, const CameraIntrins
       }
     }
   }
-  rendered_ = rendered;
+  return rendered;
+}
+
+size_t ModelProjection::split_chunk() const {
+  const uint32_t half = offsets_.back() / 2;
+  size_t s = 0;
+  while (s < chunks_.size() && offsets_[s] < half) ++s;
+  return s;
 }
 
 void ModelProjection::locate(uint32_t id, int32_t* slot, uint32_t* index) const {
@@ -170,10 +179,23 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
     k.measured_z = guided && measured->valid[px] ? measured->z[px]
                                                  : std::numeric_limits<float>::infinity();
   }
-  if (guided) {
-    render_points<true>(T_world_cam, K);
-  } else {
-    render_points<false>(T_world_cam, K);
+  const bool two = threads_ > 1 && chunks_.size() > 1;
+  if (two) pixel_keys_2_ = pixel_keys_;
+  const size_t split = two ? split_chunk() : chunks_.size();
+  size_t rendered[2] = {0, 0};
+  auto half = [&](int h) {
+    const size_t begin = h == 0 ? 0 : split, end = h == 0 ? split : chunks_.size();
+    PixelKeys* keys = h == 0 ? pixel_keys_.data() : pixel_keys_2_.data();
+    rendered[h] = guided ? render_points<true>(T_world_cam, K, begin, end, keys)
+                         : render_points<false>(T_world_cam, K, begin, end, keys);
+  };
+  run_pair(two ? 2 : 1, [&] { half(0); }, [&] { if (two) half(1); });
+  rendered_ = rendered[0] + rendered[1];
+  if (two) {
+    for (size_t px = 0; px < n; ++px) {
+      pixel_keys_[px].front = std::min(pixel_keys_[px].front, pixel_keys_2_[px].front);
+      pixel_keys_[px].cand = std::min(pixel_keys_[px].cand, pixel_keys_2_[px].cand);
+    }
   }
 
   front_slot_.resize(n);
@@ -212,17 +234,15 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
   }
 }
 
-void ModelProjection::render_surface(const Pose& T_world_cam, const CameraIntrinsics& K,
-                                     float band_m) {
-  const size_t n = static_cast<size_t>(K.width) * K.height;
-  surface_.assign(n, SurfaceSum{0, 0, 0, 0, 0, 0, 0, std::numeric_limits<float>::infinity()});
+size_t ModelProjection::render_surface_points(const Pose& T_world_cam, const CameraIntrinsics& K,
+                                              float band_m, size_t chunk_begin, size_t chunk_end,
+                                              SurfaceSum* sum) const {
   const PixelProjector cam(T_world_cam, K);
-  SurfaceSum* sum = surface_.data();
   uint32_t pixel[PixelProjector::kBlock];
   float depth[PixelProjector::kBlock];
   size_t rendered = 0;
-  for (const Chunk* c : chunks_) {
-    const PointArrays& a = c->points;
+  for (size_t c = chunk_begin; c < chunk_end; ++c) {
+    const PointArrays& a = chunks_[c]->points;
     const size_t count = a.size();
     for (size_t start = 0; start < count; start += PixelProjector::kBlock) {
       const size_t block = std::min(PixelProjector::kBlock, count - start);
@@ -251,7 +271,56 @@ void ModelProjection::render_surface(const Pose& T_world_cam, const CameraIntrin
       }
     }
   }
-  rendered_ = rendered;
+  return rendered;
+}
+
+void ModelProjection::render_surface(const Pose& T_world_cam, const CameraIntrinsics& K,
+                                     float band_m) {
+  const size_t n = static_cast<size_t>(K.width) * K.height;
+  const SurfaceSum empty{0, 0, 0, 0, 0, 0, 0, std::numeric_limits<float>::infinity()};
+  surface_.assign(n, empty);
+  // Point ids are not needed here, only the chunk split.
+  offsets_.resize(chunks_.size() + 1);
+  uint64_t total = 0;
+  for (size_t c = 0; c < chunks_.size(); ++c) {
+    offsets_[c] = static_cast<uint32_t>(std::min<uint64_t>(total, 0xffffffffull));
+    total += chunks_[c]->points.size();
+  }
+  offsets_[chunks_.size()] = static_cast<uint32_t>(std::min<uint64_t>(total, 0xffffffffull));
+  // Always two halves, on two threads if there are two, so that the result does not depend on
+  // the thread count.
+  surface_2_.assign(n, empty);
+  const size_t split = split_chunk();
+  size_t rendered[2] = {0, 0};
+  run_pair(
+      threads_,
+      [&] { rendered[0] = render_surface_points(T_world_cam, K, band_m, 0, split, surface_.data()); },
+      [&] {
+        rendered[1] = render_surface_points(T_world_cam, K, band_m, split, chunks_.size(),
+                                            surface_2_.data());
+      });
+  rendered_ = rendered[0] + rendered[1];
+  SurfaceSum* sum = surface_.data();
+  {
+    // The two halves' surfaces at a pixel: the nearer one, or both where they are within the band.
+    for (size_t px = 0; px < n; ++px) {
+      SurfaceSum& s = sum[px];
+      const SurfaceSum& o = surface_2_[px];
+      if (o.w <= 0.0f || o.front_z > s.front_z + band_m) continue;
+      if (s.w <= 0.0f || o.front_z < s.front_z - band_m) {
+        s = o;
+        continue;
+      }
+      s.x += o.x;
+      s.y += o.y;
+      s.z += o.z;
+      s.nx += o.nx;
+      s.ny += o.ny;
+      s.nz += o.nz;
+      s.w += o.w;
+      s.front_z = std::min(s.front_z, o.front_z);
+    }
+  }
   for (size_t px = 0; px < n; ++px) {
     SurfaceSum& s = sum[px];
     if (s.w <= 0.0f) continue;

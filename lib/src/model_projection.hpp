@@ -34,6 +34,10 @@ class ModelProjection {
   void select_chunks(PointMap& map, const MeasurementImage& m, const Pose& T_world_cam,
                      float margin_m, int stride = 8);
 
+  // Threads for render() and render_surface(): 1, or 2 (each half of the points renders into its
+  // own buffers, combined after). The results do not depend on it.
+  void set_threads(int threads) { threads_ = threads; }
+
   // Projects the points of the selected chunks into the camera at T_world_cam. Per pixel it keeps
   // the front-most point (a z-buffer: visibility and registration) and, given the frame's own
   // measurements, the point whose depth is closest to the measured depth there: fusion's merge
@@ -111,7 +115,12 @@ class ModelProjection {
     float front_z;  // depth of the front-most point seen so far
   };
   template <bool kGuided>
-  void render_points(const Pose& T_world_cam, const CameraIntrinsics& K);
+  size_t render_points(const Pose& T_world_cam, const CameraIntrinsics& K, size_t chunk_begin,
+                       size_t chunk_end, PixelKeys* keys) const;
+  size_t render_surface_points(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m,
+                               size_t chunk_begin, size_t chunk_end, SurfaceSum* sum) const;
+  // The chunk where the second thread's half of the points starts.
+  size_t split_chunk() const;
   // Point id (offset of its chunk + index) back to chunk slot and index.
   void locate(uint32_t id, int32_t* slot, uint32_t* index) const;
   static constexpr int kIdPageBits = 10;
@@ -121,6 +130,8 @@ class ModelProjection {
   std::vector<uint32_t> offsets_;       // first point id of each chunk, and the total
   std::vector<int32_t> page_slot_;      // per page of 2^kIdPageBits ids: the chunk of its first id
   std::vector<PixelKeys> pixel_keys_;   // per pixel, during render()
+  std::vector<PixelKeys> pixel_keys_2_; // the second thread's, combined into the first
+  int threads_ = 1;
   std::vector<int32_t> front_slot_, cand_slot_;    // per pixel: index into chunks_, -1 = nothing
   std::vector<uint32_t> front_index_, cand_index_; // per pixel: point index within the chunk
   std::vector<float> front_depth_;      // per pixel: z of the front-most point in the camera
@@ -128,6 +139,7 @@ class ModelProjection {
   std::vector<uint8_t> taken_;          // per pixel: candidate merged with a measurement of this frame
   size_t rendered_ = 0;
   std::vector<SurfaceSum> surface_;     // render_surface(): mean point and unit normal, summed weight
+  std::vector<SurfaceSum> surface_2_;   // the second thread's, combined into the first
 };
 
 }  // namespace depthfuse

@@ -73,6 +73,7 @@ CameraIntrinsics model_intrinsics(const CameraIntrinsics& K, int factor) {
 void Registrar::render_model(const MeasurementImage& m, const PointMap& map, const Pose& T_world_cam,
                              double max_corr_m) {
   ModelProjection& proj = *projection_;
+  proj.set_threads(config_.threads);
   // The map is only read; the projection's chunk pointers are non-const for fusion's sake.
   proj.select_chunks(const_cast<PointMap&>(map), m, T_world_cam, static_cast<float>(max_corr_m) + 0.05f);
   model_K_ = model_intrinsics(m.intrinsics, config_.model_downsample);

@@ -35,6 +35,7 @@ struct FusionConfig {
   double visibility_range_fraction = 0.1;    // |s_e - s_n| < f * s_n, paper eq. (3)
   int candidate_radius_px = 1;               // existing points looked up in a (2r+1)^2 window
   int normal_radius_px = 2;                  // normals from central differences over this step
+  int threads = 2;                           // 1 or 2: rendering and fusion split in two halves
 };
 
 struct PostfilterConfig {
@@ -54,6 +55,7 @@ struct RegistrationConfig {
   double model_band_m = 0.05;
   // The model is rendered this many times coarser than the depth camera (1 = full resolution).
   int model_downsample = 2;
+  int threads = 2;                           // 1 or 2: the model rendering split in two halves
   // Tracking without a pose hint: coarse-to-fine levels (subsample 4, 2, 1 ...), iterations each.
   int tracking_levels = 3;
   int tracking_iterations_per_level = 10;

@@ -41,9 +41,11 @@ class Fuser {
                    uint32_t frame_id, PointMap* map);
 
  private:
+  struct Scratch;  // per-frame buffers, kept so that nothing is allocated per frame
   SensorModelConfig sensor_config_;
   FusionConfig config_;
   std::unique_ptr<ModelProjection> projection_;
+  std::unique_ptr<Scratch> scratch_;
 };
 
 // Removes points whose visibility violations outnumber their merges. Returns how many.
