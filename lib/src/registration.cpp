@@ -6,6 +6,7 @@
 #include <Eigen/Cholesky>
 
 #include "model_projection.hpp"
+#include "parallel.hpp"
 
 namespace depthfuse {
 
@@ -44,6 +45,13 @@ struct NormalEquations {
     }
     sq_residual += static_cast<double>(r) * r;
     ++inliers;
+  }
+
+  void merge(const NormalEquations& o) {
+    H += o.H;
+    b += o.b;
+    sq_residual += o.sq_residual;
+    inliers += o.inliers;
   }
 };
 
@@ -112,30 +120,43 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const Pose& initial
     const Eigen::Vector3f t0 = T_cam0_cam.translation().cast<float>();
     const Eigen::Vector3f centre = t;
 
-    for (int v = 0; v < m.height; v += step) {
-      for (int u = 0; u < m.width; u += step) {
-        const size_t i = static_cast<size_t>(v) * m.width + u;
-        if (!m.valid[i] || m.nz[i] == 0.0f) continue;
-        ++sampled;
-        const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);
-        const Eigen::Vector3f p0 = R0 * p_c + t0;
-        int pu, pv;
-        if (!project_to_pixel(p0.x(), p0.y(), p0.z(), fx, fy, cx, cy, MK.width, MK.height, &pu, &pv))
-          continue;
-        const size_t px = static_cast<size_t>(pv) * MK.width + pu;
-        if (!proj.has_surface(px)) continue;
-        const Eigen::Vector3f q = proj.surface_point(px);
-        const Eigen::Vector3f n_q = proj.surface_normal(px);
-        const Eigen::Vector3f p_w = R * p_c + t;
-        const Eigen::Vector3f d = p_w - q;
-        if (d.squaredNorm() > max_d * max_d) continue;
-        const Eigen::Vector3f n_p = R * Eigen::Vector3f(m.nx[i], m.ny[i], m.nz[i]);
-        if (n_p.dot(n_q) < cos_max) continue;
-        const float r = n_q.dot(d);
-        const float w = std::abs(r) <= huber ? 1.0f : huber / std::abs(r);
-        eq.add(p_w - centre, n_q, r, w);
+    // Pairs from two halves of the rows, on two threads if there are two, summed in the same order
+    // either way.
+    auto pairs = [&](int v_begin, int v_end, NormalEquations* out, size_t* out_sampled) {
+      for (int v = v_begin; v < v_end; v += step) {
+        for (int u = 0; u < m.width; u += step) {
+          const size_t i = static_cast<size_t>(v) * m.width + u;
+          if (!m.valid[i] || m.nz[i] == 0.0f) continue;
+          ++*out_sampled;
+          const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);
+          const Eigen::Vector3f p0 = R0 * p_c + t0;
+          int pu, pv;
+          if (!project_to_pixel(p0.x(), p0.y(), p0.z(), fx, fy, cx, cy, MK.width, MK.height, &pu,
+                                &pv))
+            continue;
+          const size_t px = static_cast<size_t>(pv) * MK.width + pu;
+          if (!proj.has_surface(px)) continue;
+          const Eigen::Vector3f q = proj.surface_point(px);
+          const Eigen::Vector3f n_q = proj.surface_normal(px);
+          const Eigen::Vector3f p_w = R * p_c + t;
+          const Eigen::Vector3f d = p_w - q;
+          if (d.squaredNorm() > max_d * max_d) continue;
+          const Eigen::Vector3f n_p = R * Eigen::Vector3f(m.nx[i], m.ny[i], m.nz[i]);
+          if (n_p.dot(n_q) < cos_max) continue;
+          const float r = n_q.dot(d);
+          const float w = std::abs(r) <= huber ? 1.0f : huber / std::abs(r);
+          out->add(p_w - centre, n_q, r, w);
+        }
       }
-    }
+    };
+    const int half_rows = (m.height / 2 + step - 1) / step * step;  // a multiple of the step
+    NormalEquations second;
+    size_t second_sampled = 0;
+    run_pair(
+        config_.threads, [&] { pairs(0, half_rows, &eq, &sampled); },
+        [&] { pairs(half_rows, m.height, &second, &second_sampled); });
+    eq.merge(second);
+    sampled += second_sampled;
     result.iterations = it + 1;
     if (eq.inliers < static_cast<size_t>(std::max(6, config_.min_correspondences))) break;
     Eigen::Matrix<double, 6, 6> H = eq.H.selfadjointView<Eigen::Upper>();

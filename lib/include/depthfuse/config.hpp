@@ -55,7 +55,7 @@ struct RegistrationConfig {
   double model_band_m = 0.05;
   // The model is rendered this many times coarser than the depth camera (1 = full resolution).
   int model_downsample = 2;
-  int threads = 2;                           // 1 or 2: the model rendering split in two halves
+  int threads = 2;                           // 1 or 2: model rendering and ICP in two halves
   // Tracking without a pose hint: coarse-to-fine levels (subsample 4, 2, 1 ...), iterations each.
   int tracking_levels = 3;
   int tracking_iterations_per_level = 10;
