@@ -234,9 +234,9 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
   }
 }
 
-size_t ModelProjection::render_surface_points(const Pose& T_world_cam, const CameraIntrinsics& K,
-                                              float band_m, size_t chunk_begin, size_t chunk_end,
-                                              SurfaceSum* sum) const {
+size_t ModelProjection::render_front_depth(const Pose& T_world_cam, const CameraIntrinsics& K,
+                                           size_t chunk_begin, size_t chunk_end,
+                                           float* front) const {
   const PixelProjector cam(T_world_cam, K);
   uint32_t pixel[PixelProjector::kBlock];
   float depth[PixelProjector::kBlock];
@@ -248,19 +248,46 @@ size_t ModelProjection::render_surface_points(const Pose& T_world_cam, const Cam
       const size_t block = std::min(PixelProjector::kBlock, count - start);
       cam.project_block(a.position_m.data() + start, block, pixel, depth);
       for (size_t i = 0; i < block; ++i) {
-        if (pixel[i] != PixelProjector::kNoPixel) __builtin_prefetch(sum + pixel[i], 1);
+        if (pixel[i] != PixelProjector::kNoPixel) __builtin_prefetch(front + pixel[i], 1);
       }
       for (size_t i = 0; i < block; ++i) {
         if (pixel[i] == PixelProjector::kNoPixel) continue;
         ++rendered;
-        SurfaceSum& s = sum[pixel[i]];
-        const float z = depth[i];
-        if (z > s.front_z + band_m) continue;  // behind the surface seen so far
-        if (z < s.front_z - band_m) s = SurfaceSum{0, 0, 0, 0, 0, 0, 0, z};  // a new front surface
-        s.front_z = std::min(s.front_z, z);
+        front[pixel[i]] = std::min(front[pixel[i]], depth[i]);
+      }
+    }
+  }
+  return rendered;
+}
+
+void ModelProjection::sum_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m,
+                                  size_t chunk_begin, size_t chunk_end, SurfaceSum* sum) const {
+  const PixelProjector cam(T_world_cam, K);
+  const float* front = front_depth_.data();
+  uint32_t pixel[PixelProjector::kBlock];
+  float depth[PixelProjector::kBlock];
+  for (size_t c = chunk_begin; c < chunk_end; ++c) {
+    const PointArrays& a = chunks_[c]->points;
+    const size_t count = a.size();
+    for (size_t start = 0; start < count; start += PixelProjector::kBlock) {
+      const size_t block = std::min(PixelProjector::kBlock, count - start);
+      cam.project_block(a.position_m.data() + start, block, pixel, depth);
+      for (size_t i = 0; i < block; ++i) {
+        if (pixel[i] != PixelProjector::kNoPixel) __builtin_prefetch(front + pixel[i]);
+      }
+      for (size_t i = 0; i < block; ++i) {
+        if (pixel[i] == PixelProjector::kNoPixel || depth[i] > front[pixel[i]] + band_m) {
+          pixel[i] = PixelProjector::kNoPixel;  // behind the surface
+        } else {
+          __builtin_prefetch(sum + pixel[i], 1);
+        }
+      }
+      for (size_t i = 0; i < block; ++i) {
+        if (pixel[i] == PixelProjector::kNoPixel) continue;
         const Eigen::Vector3f& p = a.position_m[start + i];
         const PointState& st = a.state[start + i];
         const float w = 1.0f + st.merges;
+        SurfaceSum& s = sum[pixel[i]];
         s.x += w * p.x();
         s.y += w * p.y();
         s.z += w * p.z();
@@ -271,15 +298,13 @@ size_t ModelProjection::render_surface_points(const Pose& T_world_cam, const Cam
       }
     }
   }
-  return rendered;
 }
 
 void ModelProjection::render_surface(const Pose& T_world_cam, const CameraIntrinsics& K,
                                      float band_m) {
   const size_t n = static_cast<size_t>(K.width) * K.height;
-  const SurfaceSum empty{0, 0, 0, 0, 0, 0, 0, std::numeric_limits<float>::infinity()};
-  surface_.assign(n, empty);
-  // Point ids are not needed here, only the chunk split.
+  // Point ids are not needed here, only the split of the chunks in two halves. There are always
+  // two halves, on two threads if there are two, so that the result does not depend on the count.
   offsets_.resize(chunks_.size() + 1);
   uint64_t total = 0;
   for (size_t c = 0; c < chunks_.size(); ++c) {
@@ -287,39 +312,39 @@ void ModelProjection::render_surface(const Pose& T_world_cam, const CameraIntrin
     total += chunks_[c]->points.size();
   }
   offsets_[chunks_.size()] = static_cast<uint32_t>(std::min<uint64_t>(total, 0xffffffffull));
-  // Always two halves, on two threads if there are two, so that the result does not depend on
-  // the thread count.
-  surface_2_.assign(n, empty);
   const size_t split = split_chunk();
+
+  // Pass 1: the front-most depth per pixel.
+  const float inf = std::numeric_limits<float>::infinity();
+  front_depth_.assign(n, inf);
+  front_depth_2_.assign(n, inf);
   size_t rendered[2] = {0, 0};
   run_pair(
       threads_,
-      [&] { rendered[0] = render_surface_points(T_world_cam, K, band_m, 0, split, surface_.data()); },
+      [&] { rendered[0] = render_front_depth(T_world_cam, K, 0, split, front_depth_.data()); },
       [&] {
-        rendered[1] = render_surface_points(T_world_cam, K, band_m, split, chunks_.size(),
-                                            surface_2_.data());
+        rendered[1] = render_front_depth(T_world_cam, K, split, chunks_.size(), front_depth_2_.data());
       });
   rendered_ = rendered[0] + rendered[1];
+  for (size_t px = 0; px < n; ++px) front_depth_[px] = std::min(front_depth_[px], front_depth_2_[px]);
+
+  // Pass 2: the weighted sums of the points within the band behind it.
+  surface_.assign(n, SurfaceSum{0, 0, 0, 0, 0, 0, 0});
+  surface_2_.assign(n, SurfaceSum{0, 0, 0, 0, 0, 0, 0});
+  run_pair(
+      threads_, [&] { sum_surface(T_world_cam, K, band_m, 0, split, surface_.data()); },
+      [&] { sum_surface(T_world_cam, K, band_m, split, chunks_.size(), surface_2_.data()); });
   SurfaceSum* sum = surface_.data();
-  {
-    // The two halves' surfaces at a pixel: the nearer one, or both where they are within the band.
-    for (size_t px = 0; px < n; ++px) {
-      SurfaceSum& s = sum[px];
-      const SurfaceSum& o = surface_2_[px];
-      if (o.w <= 0.0f || o.front_z > s.front_z + band_m) continue;
-      if (s.w <= 0.0f || o.front_z < s.front_z - band_m) {
-        s = o;
-        continue;
-      }
-      s.x += o.x;
-      s.y += o.y;
-      s.z += o.z;
-      s.nx += o.nx;
-      s.ny += o.ny;
-      s.nz += o.nz;
-      s.w += o.w;
-      s.front_z = std::min(s.front_z, o.front_z);
-    }
+  for (size_t px = 0; px < n; ++px) {
+    SurfaceSum& s = sum[px];
+    const SurfaceSum& o = surface_2_[px];
+    s.x += o.x;
+    s.y += o.y;
+    s.z += o.z;
+    s.nx += o.nx;
+    s.ny += o.ny;
+    s.nz += o.nz;
+    s.w += o.w;
   }
   for (size_t px = 0; px < n; ++px) {
     SurfaceSum& s = sum[px];

@@ -46,13 +46,13 @@ class ModelProjection {
   void render(const Pose& T_world_cam, const CameraIntrinsics& K,
               const MeasurementImage* measured = nullptr);
 
-  // Registration's model, in one pass over the selected chunks instead of render(): per pixel, the
-  // confidence-weighted mean (weight 1 + merges) of the rendered points within band_m behind the
-  // front-most one. Registration aligns to this consensus surface: the nearest point alone is
-  // biased towards the camera wherever the cloud still has several layers (poorly registered
-  // frames), and ICP would pull every camera towards itself. The band follows the front as points
-  // stream in; a point can stay in the mean when a later one moves the front less than band_m
-  // closer, a bias far below the band.
+  // Registration's model, instead of render(): per pixel, the confidence-weighted mean (weight
+  // 1 + merges) of the rendered points within band_m behind the front-most one. Registration aligns
+  // to this consensus surface: the nearest point alone is biased towards the camera wherever the
+  // cloud still has several layers (poorly registered frames), and ICP would pull every camera
+  // towards itself. Two passes: the front depth, then the sums. (A single pass whose band follows
+  // the front as points stream in leaks farther layers into the mean: pose RMSE 3.0 mm against
+  // 2.0 mm on 30 s of the synthetic rooms walk.)
   void render_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m);
   bool has_surface(size_t pixel) const { return surface_[pixel].w > 0.0f; }
   Eigen::Vector3f surface_point(size_t pixel) const {
@@ -112,13 +112,14 @@ class ModelProjection {
   };
   struct SurfaceSum {
     float x, y, z, nx, ny, nz, w;
-    float front_z;  // depth of the front-most point seen so far
   };
   template <bool kGuided>
   size_t render_points(const Pose& T_world_cam, const CameraIntrinsics& K, size_t chunk_begin,
                        size_t chunk_end, PixelKeys* keys) const;
-  size_t render_surface_points(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m,
-                               size_t chunk_begin, size_t chunk_end, SurfaceSum* sum) const;
+  size_t render_front_depth(const Pose& T_world_cam, const CameraIntrinsics& K, size_t chunk_begin,
+                            size_t chunk_end, float* front) const;
+  void sum_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m,
+                   size_t chunk_begin, size_t chunk_end, SurfaceSum* sum) const;
   // The chunk where the second thread's half of the points starts.
   size_t split_chunk() const;
   // Point id (offset of its chunk + index) back to chunk slot and index.
@@ -135,6 +136,7 @@ class ModelProjection {
   std::vector<int32_t> front_slot_, cand_slot_;    // per pixel: index into chunks_, -1 = nothing
   std::vector<uint32_t> front_index_, cand_index_; // per pixel: point index within the chunk
   std::vector<float> front_depth_;      // per pixel: z of the front-most point in the camera
+  std::vector<float> front_depth_2_;    // render_surface(): the second half's
   std::vector<float> cand_x_, cand_y_, cand_z_;  // per pixel: the candidate's world position
   std::vector<uint8_t> taken_;          // per pixel: candidate merged with a measurement of this frame
   size_t rendered_ = 0;

@@ -54,7 +54,7 @@ struct RegistrationConfig {
   // band behind the nearest one (see ModelProjection::render_surface).
   double model_band_m = 0.05;
   // The model is rendered this many times coarser than the depth camera (1 = full resolution).
-  int model_downsample = 2;
+  int model_downsample = 1;
   int threads = 2;                           // 1 or 2: model rendering and ICP in two halves
   // Tracking without a pose hint: coarse-to-fine levels (subsample 4, 2, 1 ...), iterations each.
   int tracking_levels = 3;
