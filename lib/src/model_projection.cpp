@@ -92,40 +92,57 @@ struct PixelProjector {
   }
 };
 
+// Projects the points of chunks [begin, end) a block at a time and hands each block to
+// visit(chunk index, points, first index, count, pixel[], depth[]). The visitor prefetches what the
+// pixels will touch, then updates them: those random accesses then overlap.
+template <typename Visit>
+void for_each_block(const std::vector<Chunk*>& chunks, size_t begin, size_t end,
+                    const PixelProjector& cam, Visit&& visit) {
+  uint32_t pixel[PixelProjector::kBlock];
+  float depth[PixelProjector::kBlock];
+  for (size_t c = begin; c < end; ++c) {
+    const PointArrays& a = chunks[c]->points;
+    const size_t count = a.size();
+    for (size_t start = 0; start < count; start += PixelProjector::kBlock) {
+      const size_t block = std::min(PixelProjector::kBlock, count - start);
+      cam.project_block(a.position_m.data() + start, block, pixel, depth);
+      visit(c, a, start, block, pixel, depth);
+    }
+  }
+}
+
+template <typename T>
+inline void prefetch_pixels(const T* buffer, const uint32_t* pixel, size_t block) {
+  for (size_t i = 0; i < block; ++i) {
+    if (pixel[i] != PixelProjector::kNoPixel) __builtin_prefetch(buffer + pixel[i], 1);
+  }
+}
+
 }  // namespace
 
 template <bool kGuided>
 size_t ModelProjection::render_points(const Pose& T_world_cam, const CameraIntrinsics& K,
                                       size_t chunk_begin, size_t chunk_end, PixelKeys* keys) const {
-  const PixelProjector cam(T_world_cam, K);
-  uint32_t pixel[PixelProjector::kBlock];
-  float depth[PixelProjector::kBlock];
   size_t rendered = 0;
-  for (size_t s = chunk_begin; s < chunk_end; ++s) {
-    const PointArrays& a = chunks_[s]->points;
-    const size_t count = a.size();
-    for (size_t start = 0; start < count; start += PixelProjector::kBlock) {
-      const size_t block = std::min(PixelProjector::kBlock, count - start);
-      cam.project_block(a.position_m.data() + start, block, pixel, depth);
-      for (size_t i = 0; i < block; ++i) {
-        if (pixel[i] != PixelProjector::kNoPixel) __builtin_prefetch(keys + pixel[i], 1);
-      }
-      const uint64_t base = offsets_[s] + start;
-      for (size_t i = 0; i < block; ++i) {
-        if (pixel[i] == PixelProjector::kNoPixel) continue;
-        PixelKeys& k = keys[pixel[i]];
-        ++rendered;
-        const uint64_t id = base + i;
-        // Branch-free minimum: which point wins a pixel is unpredictable.
-        k.front = std::min((uint64_t{float_bits(depth[i])} << 32) | id, k.front);
-        if (kGuided) {
-          // Pixels without a measurement have measured_z = +inf: their keys stay at +inf.
-          const uint64_t cand = (uint64_t{float_bits(std::abs(depth[i] - k.measured_z))} << 32) | id;
-          k.cand = std::min(cand, k.cand);
-        }
+  for_each_block(chunks_, chunk_begin, chunk_end, PixelProjector(T_world_cam, K),
+                 [&](size_t c, const PointArrays&, size_t start, size_t block, const uint32_t* pixel,
+                     const float* depth) {
+    prefetch_pixels(keys, pixel, block);
+    const uint64_t base = offsets_[c] + start;
+    for (size_t i = 0; i < block; ++i) {
+      if (pixel[i] == PixelProjector::kNoPixel) continue;
+      PixelKeys& k = keys[pixel[i]];
+      ++rendered;
+      const uint64_t id = base + i;
+      // Branch-free minimum: which point wins a pixel is unpredictable.
+      k.front = std::min((uint64_t{float_bits(depth[i])} << 32) | id, k.front);
+      if (kGuided) {
+        // Pixels without a measurement have measured_z = +inf: their keys stay at +inf.
+        const uint64_t cand = (uint64_t{float_bits(std::abs(depth[i] - k.measured_z))} << 32) | id;
+        k.cand = std::min(cand, k.cand);
       }
     }
-  }
+  });
   return rendered;
 }
 
@@ -237,67 +254,47 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
 size_t ModelProjection::render_front_depth(const Pose& T_world_cam, const CameraIntrinsics& K,
                                            size_t chunk_begin, size_t chunk_end,
                                            float* front) const {
-  const PixelProjector cam(T_world_cam, K);
-  uint32_t pixel[PixelProjector::kBlock];
-  float depth[PixelProjector::kBlock];
   size_t rendered = 0;
-  for (size_t c = chunk_begin; c < chunk_end; ++c) {
-    const PointArrays& a = chunks_[c]->points;
-    const size_t count = a.size();
-    for (size_t start = 0; start < count; start += PixelProjector::kBlock) {
-      const size_t block = std::min(PixelProjector::kBlock, count - start);
-      cam.project_block(a.position_m.data() + start, block, pixel, depth);
-      for (size_t i = 0; i < block; ++i) {
-        if (pixel[i] != PixelProjector::kNoPixel) __builtin_prefetch(front + pixel[i], 1);
-      }
-      for (size_t i = 0; i < block; ++i) {
-        if (pixel[i] == PixelProjector::kNoPixel) continue;
-        ++rendered;
-        front[pixel[i]] = std::min(front[pixel[i]], depth[i]);
-      }
+  for_each_block(chunks_, chunk_begin, chunk_end, PixelProjector(T_world_cam, K),
+                 [&](size_t, const PointArrays&, size_t, size_t block, const uint32_t* pixel,
+                     const float* depth) {
+    prefetch_pixels(front, pixel, block);
+    for (size_t i = 0; i < block; ++i) {
+      if (pixel[i] == PixelProjector::kNoPixel) continue;
+      ++rendered;
+      front[pixel[i]] = std::min(front[pixel[i]], depth[i]);
     }
-  }
+  });
   return rendered;
 }
 
 void ModelProjection::sum_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m,
                                   size_t chunk_begin, size_t chunk_end, SurfaceSum* sum) const {
-  const PixelProjector cam(T_world_cam, K);
   const float* front = front_depth_.data();
-  uint32_t pixel[PixelProjector::kBlock];
-  float depth[PixelProjector::kBlock];
-  for (size_t c = chunk_begin; c < chunk_end; ++c) {
-    const PointArrays& a = chunks_[c]->points;
-    const size_t count = a.size();
-    for (size_t start = 0; start < count; start += PixelProjector::kBlock) {
-      const size_t block = std::min(PixelProjector::kBlock, count - start);
-      cam.project_block(a.position_m.data() + start, block, pixel, depth);
-      for (size_t i = 0; i < block; ++i) {
-        if (pixel[i] != PixelProjector::kNoPixel) __builtin_prefetch(front + pixel[i]);
-      }
-      for (size_t i = 0; i < block; ++i) {
-        if (pixel[i] == PixelProjector::kNoPixel || depth[i] > front[pixel[i]] + band_m) {
-          pixel[i] = PixelProjector::kNoPixel;  // behind the surface
-        } else {
-          __builtin_prefetch(sum + pixel[i], 1);
-        }
-      }
-      for (size_t i = 0; i < block; ++i) {
-        if (pixel[i] == PixelProjector::kNoPixel) continue;
-        const Eigen::Vector3f& p = a.position_m[start + i];
-        const PointState& st = a.state[start + i];
-        const float w = 1.0f + st.merges;
-        SurfaceSum& s = sum[pixel[i]];
-        s.x += w * p.x();
-        s.y += w * p.y();
-        s.z += w * p.z();
-        s.nx += w * st.nx;
-        s.ny += w * st.ny;
-        s.nz += w * st.nz;
-        s.w += w;
-      }
+  for_each_block(chunks_, chunk_begin, chunk_end, PixelProjector(T_world_cam, K),
+                 [&](size_t, const PointArrays& a, size_t start, size_t block, uint32_t* pixel,
+                     const float* depth) {
+    prefetch_pixels(front, pixel, block);
+    for (size_t i = 0; i < block; ++i) {  // points behind the surface drop out
+      if (pixel[i] != PixelProjector::kNoPixel && depth[i] > front[pixel[i]] + band_m)
+        pixel[i] = PixelProjector::kNoPixel;
     }
-  }
+    prefetch_pixels(sum, pixel, block);
+    for (size_t i = 0; i < block; ++i) {
+      if (pixel[i] == PixelProjector::kNoPixel) continue;
+      const Eigen::Vector3f& p = a.position_m[start + i];
+      const PointState& st = a.state[start + i];
+      const float w = 1.0f + st.merges;
+      SurfaceSum& s = sum[pixel[i]];
+      s.x += w * p.x();
+      s.y += w * p.y();
+      s.z += w * p.z();
+      s.nx += w * st.nx;
+      s.ny += w * st.ny;
+      s.nz += w * st.nz;
+      s.w += w;
+    }
+  });
 }
 
 void ModelProjection::render_surface(const Pose& T_world_cam, const CameraIntrinsics& K,
