@@ -41,13 +41,17 @@ inline Sym3f information_of(const PointState& s) {
   return {s.info_xx, s.info_xy, s.info_xz, s.info_yy, s.info_yz, s.info_zz};
 }
 
+inline void set_information(PointState* s, const Sym3f& L) {
+  s->info_xx = L.xx; s->info_xy = L.xy; s->info_xz = L.xz;
+  s->info_yy = L.yy; s->info_yz = L.yz; s->info_zz = L.zz;
+}
+
 // Refines existing point i of `a` with a measurement.
 inline void refine_point(PointArrays& a, size_t i, const Eigen::Vector3f& p, const Sym3f& L,
                          const Eigen::Vector3f& n_new, const uint8_t* rgb, uint32_t frame_id) {
   a.position_m[i] = p;
   PointState& s = a.state[i];
-  s.info_xx = L.xx; s.info_xy = L.xy; s.info_xz = L.xz;
-  s.info_yy = L.yy; s.info_yz = L.yz; s.info_zz = L.zz;
+  set_information(&s, L);
   // Normal and colour: running means over all measurements of the point.
   const float w = static_cast<float>(s.merges) + 1.0f;
   Eigen::Vector3f n = w * Eigen::Vector3f(s.nx, s.ny, s.nz) + n_new;
@@ -80,29 +84,6 @@ inline bool try_merge(ModelProjection& proj, size_t px, const Eigen::Vector3f& p
   return true;
 }
 
-// The measurement's information from its depth alone: lateral (the pixel footprint) and axial
-// (the time-of-flight noise curve), in 1/m^2.
-struct InformationCurve {
-  float inv_kx, inv_ky;     // 1 / lateral variance coefficient
-  float a0, a1, a2, inv_lambda2;
-
-  explicit InformationCurve(const SensorModel& model)
-      : inv_kx(static_cast<float>(1.0 / model.lateral_variance_x_m2(1.0))),
-        inv_ky(static_cast<float>(1.0 / model.lateral_variance_y_m2(1.0))),
-        a0(static_cast<float>(model.config().alpha0_m)),
-        a1(static_cast<float>(model.config().alpha1)),
-        a2(static_cast<float>(model.config().alpha2_per_m)),
-        inv_lambda2(static_cast<float>(1.0 / model.config().lambda2)) {}
-
-  void at(float z, float* w_x, float* w_y, float* w_z) const {
-    const float inv_z2 = 1.0f / (z * z);
-    const float sigma = (a2 * z + a1) * z + a0;
-    *w_x = inv_kx * inv_z2;
-    *w_y = inv_ky * inv_z2;
-    *w_z = inv_lambda2 / (sigma * sigma);
-  }
-};
-
 // One frame's fusion over a band of image rows. Bands that are two rows apart touch disjoint
 // pixels and points (a point is rendered at exactly one pixel, and the candidate window reaches
 // one row), so two of them can run at once; points a band adds go to its own list and reach the
@@ -110,14 +91,14 @@ struct InformationCurve {
 class FrameFusion {
  public:
   FrameFusion(const MeasurementImage& m, const ColorImage* color, const Pose& T_world_cam,
-              uint32_t frame_id, const InformationCurve& curve, const FusionConfig& config,
+              uint32_t frame_id, const SensorModel& model, const FusionConfig& config,
               ModelProjection* proj)
       : m_(m),
         color_(color && !color->empty() && color->width == m.width && color->height == m.height
                    ? color
                    : nullptr),
         frame_id_(frame_id),
-        curve_(curve),
+        model_(model),
         proj_(*proj),
         R_(T_world_cam.linear().cast<float>()),
         t_(T_world_cam.translation().cast<float>()),
@@ -132,7 +113,7 @@ class FrameFusion {
   const MeasurementImage& m_;
   const ColorImage* color_;
   uint32_t frame_id_;
-  const InformationCurve& curve_;
+  const SensorModel& model_;
   ModelProjection& proj_;
   Eigen::Matrix3f R_;
   Eigen::Vector3f t_, up_w_;
@@ -161,7 +142,7 @@ void FrameFusion::rows(int v0, int v1, PointArrays* added, FusionStats* stats) c
       const float z = m.z[i];
       const float range = p_c.norm();
       float w_x, w_y, w_z;
-      curve_.at(z, &w_x, &w_y, &w_z);
+      model_.information_weights(z, &w_x, &w_y, &w_z);
       const Sym3f L_n = ray_information(ray_w * (1.0f / range), up_w_, w_x, w_y, w_z);
       const uint8_t* rgb = color_ ? &color_->rgb[3 * i] : nullptr;
 
@@ -215,15 +196,14 @@ void FrameFusion::rows(int v0, int v1, PointArrays* added, FusionStats* stats) c
         }
       }
 
-      PointRecord rec;
-      rec.position_m = p_w;
-      rec.normal = n_w;
-      rec.information[0] = L_n.xx; rec.information[1] = L_n.xy;
-      rec.information[2] = L_n.xz; rec.information[3] = L_n.yy;
-      rec.information[4] = L_n.yz; rec.information[5] = L_n.zz;
-      if (rgb) { rec.rgb[0] = rgb[0]; rec.rgb[1] = rgb[1]; rec.rgb[2] = rgb[2]; }
-      rec.last_frame = frame_id_;
-      added->push_back(rec);
+      PointState st{};
+      set_information(&st, L_n);
+      st.nx = n_w.x();
+      st.ny = n_w.y();
+      st.nz = n_w.z();
+      if (rgb) { st.r = rgb[0]; st.g = rgb[1]; st.b = rgb[2]; }
+      st.last_frame = frame_id_;
+      added->push_back(p_w, st);
       ++stats->added;
     }
   }
@@ -242,8 +222,7 @@ void add_points(const PointArrays& added, uint32_t frame_id, PointMap* map) {
       last_chunk->dirty = true;
       last_key = key;
     }
-    last_chunk->points.position_m.push_back(added.position_m[i]);
-    last_chunk->points.state.push_back(added.state[i]);
+    last_chunk->points.push_back(added.position_m[i], added.state[i]);
   }
 }
 
@@ -258,7 +237,7 @@ void add_stats(const FusionStats& s, FusionStats* total) {
 
 FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, const Pose& T_world_cam,
                         uint32_t frame_id, PointMap* map) {
-  const InformationCurve curve(SensorModel(sensor_config_, m.intrinsics));
+  const SensorModel model(sensor_config_, m.intrinsics);
 
   // Existing points near this frame's measurements, rendered into its camera.
   ModelProjection& proj = *projection_;
@@ -266,7 +245,7 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
   proj.select_chunks(*map, m, T_world_cam, 0.1f);
   proj.render(T_world_cam, m.intrinsics, &m);
 
-  const FrameFusion frame(m, color, T_world_cam, frame_id, curve, config_, &proj);
+  const FrameFusion frame(m, color, T_world_cam, frame_id, model, config_, &proj);
   FusionStats stats[3];
   PointArrays* added = scratch_->added;
   for (PointArrays& a : scratch_->added) a.clear();

@@ -23,9 +23,10 @@ void PointArrays::resize(size_t n) {
   state.resize(n, PointState{});
 }
 
-void PointArrays::push_back(const PointRecord& p) {
-  position_m.push_back(p.position_m);
-  PointState s;
+namespace {
+
+PointState state_of(const PointRecord& p) {
+  PointState s{};
   s.info_xx = p.information[0]; s.info_xy = p.information[1]; s.info_xz = p.information[2];
   s.info_yy = p.information[3]; s.info_yz = p.information[4]; s.info_zz = p.information[5];
   s.nx = p.normal.x(); s.ny = p.normal.y(); s.nz = p.normal.z();
@@ -33,9 +34,12 @@ void PointArrays::push_back(const PointRecord& p) {
   s.violations = p.violations;
   s.last_frame = p.last_frame;
   s.r = p.rgb[0]; s.g = p.rgb[1]; s.b = p.rgb[2];
-  s.reserved = 0;
-  state.push_back(s);
+  return s;
 }
+
+}  // namespace
+
+void PointArrays::push_back(const PointRecord& p) { push_back(p.position_m, state_of(p)); }
 
 PointRecord PointArrays::get(size_t i) const {
   const PointState& s = state[i];
@@ -52,10 +56,8 @@ PointRecord PointArrays::get(size_t i) const {
 }
 
 void PointArrays::set(size_t i, const PointRecord& p) {
-  PointArrays one;
-  one.push_back(p);
-  position_m[i] = one.position_m[0];
-  state[i] = one.state[0];
+  position_m[i] = p.position_m;
+  state[i] = state_of(p);
 }
 
 void PointArrays::append(const PointArrays& o) {

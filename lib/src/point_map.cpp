@@ -98,7 +98,7 @@ PointArrays PointMap::gather() const {
 
 void PointMap::add_points(const PointArrays& points) {
   for (size_t i = 0; i < points.size(); ++i) {
-    get_or_create(key_for(points.position_m[i].x(), points.position_m[i].y(), points.position_m[i].z())).points.push_back(points.get(i));
+    get_or_create(key_for(points.position_m[i])).points.push_back(points.position_m[i], points.state[i]);
   }
 }
 

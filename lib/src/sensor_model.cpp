@@ -11,15 +11,19 @@ SensorModel::SensorModel(const SensorModelConfig& config, const CameraIntrinsics
   // A pixel's footprint is a uniform distribution of width beta*z: variance (beta z)^2 / 12.
   kx_ = c_.lambda1 * bx * bx / 12.0;
   ky_ = c_.lambda1 * by * by / 12.0;
+  inv_kx_ = static_cast<float>(1.0 / kx_);
+  inv_ky_ = static_cast<float>(1.0 / ky_);
+  a0_ = static_cast<float>(c_.alpha0_m);
+  a1_ = static_cast<float>(c_.alpha1);
+  a2_ = static_cast<float>(c_.alpha2_per_m);
+  inv_lambda2_ = static_cast<float>(1.0 / c_.lambda2);
 }
 
 Eigen::Matrix3f SensorModel::information_cam(const Eigen::Vector3f& p_cam_m) const {
-  const double z = p_cam_m.z();
+  float w_x, w_y, w_z;
+  information_weights(p_cam_m.z(), &w_x, &w_y, &w_z);
   Eigen::Matrix3f L;
-  ray_information(p_cam_m, Eigen::Vector3f::UnitY(),
-                  static_cast<float>(1.0 / lateral_variance_x_m2(z)),
-                  static_cast<float>(1.0 / lateral_variance_y_m2(z)),
-                  static_cast<float>(1.0 / axial_variance_m2(z)), &L);
+  ray_information(p_cam_m, Eigen::Vector3f::UnitY(), w_x, w_y, w_z, &L);
   return L;
 }
 

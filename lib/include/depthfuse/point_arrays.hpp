@@ -49,6 +49,10 @@ struct PointArrays {
   void clear();
   void resize(size_t n);
   void push_back(const PointRecord& p);
+  void push_back(const Eigen::Vector3f& position, const PointState& s) {
+    position_m.push_back(position);
+    state.push_back(s);
+  }
   PointRecord get(size_t i) const;
   void set(size_t i, const PointRecord& p);
   void append(const PointArrays& other);
@@ -64,7 +68,7 @@ struct PointArrays {
   Eigen::Vector3f normal(size_t i) const { return {state[i].nx, state[i].ny, state[i].nz}; }
 };
 
-// Information matrix helpers (symmetric 3x3 stored as 6 floats).
+// The information matrix of point i as a full 3x3 matrix (reports, tests).
 inline Eigen::Matrix3f information_matrix(const PointArrays& a, size_t i) {
   const PointState& s = a.state[i];
   Eigen::Matrix3f m;
@@ -73,12 +77,6 @@ inline Eigen::Matrix3f information_matrix(const PointArrays& a, size_t i) {
        s.info_xz, s.info_yz, s.info_zz;
   return m;
 }
-inline void set_information(PointArrays& a, size_t i, const Eigen::Matrix3f& m) {
-  PointState& s = a.state[i];
-  s.info_xx = m(0, 0); s.info_xy = m(0, 1); s.info_xz = m(0, 2);
-  s.info_yy = m(1, 1); s.info_yz = m(1, 2); s.info_zz = m(2, 2);
-}
-
 // A scalar uncertainty for reports and export: sqrt of the mean covariance eigenvalue, in metres.
 float uncertainty_m(const PointArrays& a, size_t i);
 

@@ -25,6 +25,16 @@ class SensorModel {
     return c_.lambda2 * s * s;
   }
 
+  // Information (inverse variance, 1/m^2) across the ray in x and y and along it, at depth z: the
+  // same curve as the variances above, in float for the per-measurement path.
+  void information_weights(float z_m, float* w_x, float* w_y, float* w_z) const {
+    const float inv_z2 = 1.0f / (z_m * z_m);
+    const float sigma = (a2_ * z_m + a1_) * z_m + a0_;
+    *w_x = inv_kx_ * inv_z2;
+    *w_y = inv_ky_ * inv_z2;
+    *w_z = inv_lambda2_ / (sigma * sigma);
+  }
+
   // Information matrix (inverse covariance) of a measurement at p_cam_m, in the camera frame: the
   // ellipsoid's third axis is the ray through the point.
   Eigen::Matrix3f information_cam(const Eigen::Vector3f& p_cam_m) const;
@@ -34,6 +44,8 @@ class SensorModel {
  private:
   SensorModelConfig c_;
   double kx_ = 0.0, ky_ = 0.0;  // lambda1 (beta / sqrt 12)^2
+  // The same constants in float for information_weights().
+  float inv_kx_ = 0, inv_ky_ = 0, a0_ = 0, a1_ = 0, a2_ = 0, inv_lambda2_ = 0;
 };
 
 }  // namespace depthfuse
