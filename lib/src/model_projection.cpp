@@ -146,6 +146,27 @@ size_t ModelProjection::render_points(const Pose& T_world_cam, const CameraIntri
   return rendered;
 }
 
+uint64_t ModelProjection::number_points() {
+  offsets_.resize(chunks_.size() + 1);
+  uint64_t total = 0;
+  for (size_t s = 0; s < chunks_.size(); ++s) {
+    offsets_[s] = static_cast<uint32_t>(total);
+    total += chunks_[s]->points.size();
+  }
+  // More points than ids would mean a map of billions of points in view; render a prefix only.
+  if (total >= 0xffffffffull) {
+    size_t keep = 0;
+    uint64_t sum = 0;
+    while (keep < chunks_.size() && sum + chunks_[keep]->points.size() < 0xffffffffull)
+      sum += chunks_[keep++]->points.size();
+    chunks_.resize(keep);
+    offsets_.resize(keep + 1);
+    total = sum;
+  }
+  offsets_[chunks_.size()] = static_cast<uint32_t>(total);
+  return total;
+}
+
 size_t ModelProjection::split_chunk() const {
   const uint32_t half = offsets_.back() / 2;
   size_t s = 0;
@@ -164,23 +185,7 @@ void ModelProjection::locate(uint32_t id, int32_t* slot, uint32_t* index) const 
 void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
                              const MeasurementImage* measured) {
   const size_t n = static_cast<size_t>(K.width) * K.height;
-  offsets_.resize(chunks_.size() + 1);
-  uint64_t total = 0;
-  for (size_t s = 0; s < chunks_.size(); ++s) {
-    offsets_[s] = static_cast<uint32_t>(total);
-    total += chunks_[s]->points.size();
-  }
-  // More points than ids would mean a map of billions of points in view; render a prefix only.
-  if (total >= 0xffffffffull) {
-    size_t keep = 0;
-    uint64_t sum = 0;
-    while (keep < chunks_.size() && sum + chunks_[keep]->points.size() < 0xffffffffull)
-      sum += chunks_[keep++]->points.size();
-    chunks_.resize(keep);
-    offsets_.resize(keep + 1);
-    total = sum;
-  }
-  offsets_[chunks_.size()] = static_cast<uint32_t>(total);
+  const uint64_t total = number_points();
   page_slot_.resize((total >> kIdPageBits) + 1);
   for (size_t page = 0, s = 0; page < page_slot_.size(); ++page) {
     while (s + 1 < chunks_.size() && offsets_[s + 1] <= (uint64_t{page} << kIdPageBits)) ++s;
@@ -206,7 +211,11 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
     rendered[h] = guided ? render_points<true>(T_world_cam, K, begin, end, keys)
                          : render_points<false>(T_world_cam, K, begin, end, keys);
   };
-  run_pair(two ? 2 : 1, [&] { half(0); }, [&] { if (two) half(1); });
+  if (two) {
+    run_pair(2, [&] { half(0); }, [&] { half(1); });
+  } else {
+    half(0);
+  }
   rendered_ = rendered[0] + rendered[1];
   if (two) {
     for (size_t px = 0; px < n; ++px) {
@@ -302,13 +311,7 @@ void ModelProjection::render_surface(const Pose& T_world_cam, const CameraIntrin
   const size_t n = static_cast<size_t>(K.width) * K.height;
   // Point ids are not needed here, only the split of the chunks in two halves. There are always
   // two halves, on two threads if there are two, so that the result does not depend on the count.
-  offsets_.resize(chunks_.size() + 1);
-  uint64_t total = 0;
-  for (size_t c = 0; c < chunks_.size(); ++c) {
-    offsets_[c] = static_cast<uint32_t>(std::min<uint64_t>(total, 0xffffffffull));
-    total += chunks_[c]->points.size();
-  }
-  offsets_[chunks_.size()] = static_cast<uint32_t>(std::min<uint64_t>(total, 0xffffffffull));
+  number_points();
   const size_t split = split_chunk();
 
   // Pass 1: the front-most depth per pixel.

@@ -120,6 +120,8 @@ class ModelProjection {
                             size_t chunk_end, float* front) const;
   void sum_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m,
                    size_t chunk_begin, size_t chunk_end, SurfaceSum* sum) const;
+  // Gives the selected chunks' points consecutive ids (offsets_) and returns how many there are.
+  uint64_t number_points();
   // The chunk where the second thread's half of the points starts.
   size_t split_chunk() const;
   // Point id (offset of its chunk + index) back to chunk slot and index.

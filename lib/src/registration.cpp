@@ -59,9 +59,9 @@ struct NormalEquations {
 
 namespace {
 
-// The camera of the registration model: `factor` times coarser than the depth camera. ICP samples
-// every few pixels, so a coarser model loses nothing it would use, averages more points per pixel,
-// and its per-pixel sums stay in cache.
+// The camera of the registration model: `factor` times coarser than the depth camera. Faster (the
+// per-pixel sums stay in cache) but less accurate where a view holds several surfaces (see
+// registration.model_downsample in config/depthfuse.toml).
 CameraIntrinsics model_intrinsics(const CameraIntrinsics& K, int factor) {
   if (factor <= 1) return K;
   CameraIntrinsics M = K;
