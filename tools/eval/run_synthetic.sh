@@ -35,21 +35,8 @@ iter_args=()
 "$PY" -c "import open3d" 2>/dev/null || { echo "run_synthetic.sh: $PY has no open3d (apt-get install python3-open3d)" >&2; exit 1; }
 mkdir -p "$out"
 
-now() { date +%s.%N; }
-elapsed() { awk -v a="$1" -v b="$(now)" 'BEGIN { printf "%.0f", b - a }'; }
-log() { echo "[$(date +%H:%M:%S)] $*" >&2; }
-have() { [[ $REUSE == 1 && -s "$1" ]]; }
-
-# run TAG CMD...: runs a reconstruction once (or reuses it), its wall time in TAG.seconds.
-run() {
-  local tag=$1 t0
-  shift
-  if have "$out/$tag.seconds"; then log "$tag: reused"; return; fi
-  log "$tag: reconstruct"
-  t0=$(now)
-  "$@" > "$out/$tag.reconstruct.log" 2>&1
-  elapsed "$t0" > "$out/$tag.seconds"
-}
+# shellcheck source=tools/eval/common.sh
+source "$repo/tools/eval/common.sh"
 
 # evaluate TAG EVAL-TAG METHOD POSES-LABEL TRAJECTORY [eval options]: one row of the table.
 evaluate() {

@@ -41,10 +41,8 @@ fi
 mkdir -p "$out"
 
 REUSE=${REUSE:-0}
-now() { date +%s.%N; }
-elapsed() { awk -v a="$1" -v b="$(now)" 'BEGIN { printf "%.0f", b - a }'; }
-log() { echo "[$(date +%H:%M:%S)] $*" >&2; }
-have() { [[ $REUSE == 1 && -s "$1" ]]; }
+# shellcheck source=tools/eval/common.sh
+source "$repo/tools/eval/common.sh"
 
 # The frames every tool uses: every STRIDE-th depth frame with a ground-truth pose within 20 ms.
 sub="$out/fr1_xyz"
@@ -63,17 +61,6 @@ cat "$out/subset.log" "$out/perturb.log"
 manifest="$out/tum.manifest.tsv"
 : > "$manifest"
 ref="$out/full.groundtruth.ply"
-
-# run TAG CMD...: runs a reconstruction once (or reuses it), its wall time in TAG.seconds.
-run() {
-  local tag=$1 t0
-  shift
-  if have "$out/$tag.seconds"; then log "$tag: reused"; return; fi
-  log "$tag: reconstruct"
-  t0=$(now)
-  "$@" > "$out/$tag.reconstruct.log" 2>&1
-  elapsed "$t0" > "$out/$tag.seconds"
-}
 
 reconstruct() {  # TAG METHOD pose-args...
   local tag=$1 method=$2
