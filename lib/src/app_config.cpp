@@ -94,6 +94,8 @@ void read_fusion(TableReader& r, FusionConfig* f) {
   r.read("visibility_range_fraction", &f->visibility_range_fraction, open_closed(0.0, 1.0));
   r.read("candidate_radius_px", &f->candidate_radius_px, non_negative());
   r.read("normal_radius_px", &f->normal_radius_px, at_least(1));
+  r.read("redundancy_gate", &f->redundancy_gate, non_negative());
+  r.read("redundancy_min_merges", &f->redundancy_min_merges, non_negative());
   r.read("threads", &f->threads, closed(1, 2));
   r.reject_unknown();
 }

@@ -104,7 +104,9 @@ class FrameFusion {
         t_(T_world_cam.translation().cast<float>()),
         up_w_(R_.col(1)),
         cr_(std::max(0, config.candidate_radius_px)),
-        range_fraction_(static_cast<float>(config.visibility_range_fraction)) {}
+        range_fraction_(static_cast<float>(config.visibility_range_fraction)),
+        redundancy_gate2_(static_cast<float>(config.redundancy_gate * config.redundancy_gate)),
+        redundancy_min_merges_(std::max(0, config.redundancy_min_merges)) {}
 
   // Fuses rows [v0, v1); new points are appended to *added.
   void rows(int v0, int v1, PointArrays* added, FusionStats* stats) const;
@@ -117,9 +119,31 @@ class FrameFusion {
   ModelProjection& proj_;
   Eigen::Matrix3f R_;
   Eigen::Vector3f t_, up_w_;
+  // Whether an existing point in the (2 cr + 1)^2 window around pixel (u, v) lies within the
+  // redundancy gate of the measurement (p_w, L_n).
+  bool explained(int u, int v, const Eigen::Vector3f& p_w, const Sym3f& L_n) const;
+
   int cr_;
   float range_fraction_;
+  float redundancy_gate2_;  // squared Mahalanobis distance; 0: off
+  int redundancy_min_merges_;
 };
+
+bool FrameFusion::explained(int u, int v, const Eigen::Vector3f& p_w, const Sym3f& L_n) const {
+  const ModelProjection& proj = proj_;
+  const int cr = cr_;
+  for (int vv = std::max(0, v - cr); vv <= std::min(m_.height - 1, v + cr); ++vv) {
+    for (int uu = std::max(0, u - cr); uu <= std::min(m_.width - 1, u + cr); ++uu) {
+      const size_t px = static_cast<size_t>(vv) * m_.width + uu;
+      if (!proj.has_candidate(px)) continue;
+      if (proj.candidate_points(px).state[proj.candidate_index(px)].merges < redundancy_min_merges_)
+        continue;
+      if (mahalanobis2(Eigen::Vector3f(proj.candidate_position(px) - p_w), L_n) <= redundancy_gate2_)
+        return true;
+    }
+  }
+  return false;
+}
 
 void FrameFusion::rows(int v0, int v1, PointArrays* added, FusionStats* stats) const {
   const MeasurementImage& m = m_;
@@ -196,6 +220,13 @@ void FrameFusion::rows(int v0, int v1, PointArrays* added, FusionStats* stats) c
         }
       }
 
+      // Not merged, but an existing point is within the measurement's own (scaled) ellipsoid: the
+      // surface there is already in the map, and a new point would only add a layer.
+      if (redundancy_gate2_ > 0.0f && explained(u, v, p_w, L_n)) {
+        ++stats->redundant;
+        continue;
+      }
+
       PointState st{};
       set_information(&st, L_n);
       st.nx = n_w.x();
@@ -231,6 +262,7 @@ void add_stats(const FusionStats& s, FusionStats* total) {
   total->merged += s.merged;
   total->added += s.added;
   total->violations += s.violations;
+  total->redundant += s.redundant;
 }
 
 }  // namespace

@@ -118,15 +118,22 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
   MeasurementImage m;
   size_t measurements = 0;
 
+  const int rounds = c.registration.enabled ? std::max(0, c.pipeline.outer_iterations) : 0;
+  // While the poses are being refined, every measurement stays in the cloud (no redundancy gate):
+  // re-registration then aligns each frame with the surface of all frames, not with whichever
+  // frame first put points there. The cloud that is returned is fused with the gate once the poses
+  // are final.
+  ReconstructionConfig c_refine = c;
+  if (rounds > 0) c_refine.fusion.redundancy_gate = 0.0;
+
   auto t0 = Clock::now();
-  auto fused = fuse_all(frames, result.T_world_cam, c, &m, &result.prefiltered, &measurements,
+  auto fused = fuse_all(frames, result.T_world_cam, c_refine, &m, &result.prefiltered, &measurements,
                         progress, "fusion 0");
   if (!fused) return fused.status();
   result.map = std::move(fused.value());
   result.input_measurements = measurements;
   result.iterations.push_back({0, result.map->point_count(), 0, 0, 0, 0, ms_since(t0) / 1000});
 
-  const int rounds = c.registration.enabled ? std::max(0, c.pipeline.outer_iterations) : 0;
   Registrar registrar(c.registration);
   for (int round = 1; round <= rounds; ++round) {
     t0 = Clock::now();
@@ -160,7 +167,7 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
       rep.mean_rmse_m /= registered;
     }
     result.T_world_cam = refined;
-    fused = fuse_all(frames, result.T_world_cam, c, &m, &result.prefiltered, &measurements,
+    fused = fuse_all(frames, result.T_world_cam, c_refine, &m, &result.prefiltered, &measurements,
                      progress, "fusion " + std::to_string(round));
     if (!fused) return fused.status();
     result.map = std::move(fused.value());
@@ -172,6 +179,12 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
       result.converged_early = round < rounds;
       break;
     }
+  }
+  if (rounds > 0 && c.fusion.redundancy_gate > 0.0) {
+    fused = fuse_all(frames, result.T_world_cam, c, &m, &result.prefiltered, &measurements,
+                     progress, "final fusion");
+    if (!fused) return fused.status();
+    result.map = std::move(fused.value());
   }
   if (c.postfilter.enabled) result.postfiltered = postfilter(result.map.get());
   return result;

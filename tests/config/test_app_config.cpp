@@ -45,6 +45,8 @@ void expect_config_eq(const AppConfig& a, const AppConfig& b) {
   EXPECT_EQ(ra.fusion.visibility_range_fraction, rb.fusion.visibility_range_fraction);
   EXPECT_EQ(ra.fusion.candidate_radius_px, rb.fusion.candidate_radius_px);
   EXPECT_EQ(ra.fusion.normal_radius_px, rb.fusion.normal_radius_px);
+  EXPECT_EQ(ra.fusion.redundancy_gate, rb.fusion.redundancy_gate);
+  EXPECT_EQ(ra.fusion.redundancy_min_merges, rb.fusion.redundancy_min_merges);
   EXPECT_EQ(ra.postfilter.enabled, rb.postfilter.enabled);
   EXPECT_EQ(ra.registration.enabled, rb.registration.enabled);
   EXPECT_EQ(ra.registration.iterations, rb.registration.iterations);
@@ -130,6 +132,8 @@ chunk_size_m = 0.25
 visibility_range_fraction = 0.2
 candidate_radius_px = 2
 normal_radius_px = 3
+redundancy_gate = 1.5
+redundancy_min_merges = 4
 
 [postfilter]
 enabled = false
@@ -198,6 +202,8 @@ publish_rate_hz = 0.5
   EXPECT_EQ(f.visibility_range_fraction, 0.2);
   EXPECT_EQ(f.candidate_radius_px, 2);
   EXPECT_EQ(f.normal_radius_px, 3);
+  EXPECT_EQ(f.redundancy_gate, 1.5);
+  EXPECT_EQ(f.redundancy_min_merges, 4);
   EXPECT_FALSE(c.reconstruction.postfilter.enabled);
   const RegistrationConfig& g = c.reconstruction.registration;
   EXPECT_FALSE(g.enabled);
@@ -335,6 +341,8 @@ TEST(AppConfig, OutOfRangeValuesAreErrors) {
       {"fusion", "visibility_range_fraction", "1.5", "must be in (0, 1], got 1.5"},
       {"fusion", "candidate_radius_px", "-1", "must be >= 0, got -1"},
       {"fusion", "normal_radius_px", "0", "must be >= 1, got 0"},
+      {"fusion", "redundancy_gate", "-1", "must be >= 0, got -1"},
+      {"fusion", "redundancy_min_merges", "-2", "must be >= 0, got -2"},
       {"registration", "iterations", "-1", "must be >= 0, got -1"},
       {"registration", "subsample_px", "0", "must be >= 1, got 0"},
       {"registration", "max_correspondence_m", "0", "must be > 0, got 0"},

@@ -114,3 +114,52 @@ TEST(Fuser, DistantSurfaceBehindIsNoViolation) {
   EXPECT_EQ(s.violations, 0u);
   EXPECT_EQ(s.merged, 0u);
 }
+
+TEST(Fuser, RedundantMeasurementIsDroppedNotLayered) {
+  // Four views make the points of a plane at 2 m four times as certain as one measurement (three
+  // merges each). At 2 m a measurement's ellipsoid reaches sqrt(lambda2) sigma = 2 x 1.7 mm = 3.4 mm
+  // along the ray. A fifth view 5 mm farther fails the merge rule: the fused point would sit 4 mm
+  // from the new measurement, outside its ellipsoid. Each existing point is 5 / 3.4 = 1.5
+  // ellipsoids away, inside a gate of 2: if the points count as established (min merges 3) the
+  // measurements are dropped instead of adding a second layer. If they are too young (min merges
+  // 10) or the gate is off, the measurements become new points.
+  struct Case {
+    double gate;
+    int min_merges;
+    bool dropped;
+  };
+  for (const Case c : {Case{2.0, 3, true}, Case{2.0, 10, false}, Case{0.0, 0, false}}) {
+    SCOPED_TRACE("gate " + std::to_string(c.gate) + ", min merges " + std::to_string(c.min_merges));
+    Fixture fx;
+    fx.fusion.redundancy_gate = c.gate;
+    fx.fusion.redundancy_min_merges = c.min_merges;
+    Fuser fuser(fx.sensor, fx.fusion);
+    auto fuse = [&](double depth_m) {
+      const Frame f = test::render_plane(Pose::Identity(), Eigen::Vector3d::UnitZ(), depth_m);
+      EXPECT_TRUE(backproject(f, fx.sensor, fx.fusion, &fx.m).is_ok());
+      return fuser.fuse(fx.m, nullptr, Pose::Identity(), fx.frame_id++, &fx.map);
+    };
+    for (int i = 0; i < 4; ++i) fuse(2.0);
+    const size_t points = fx.map.point_count();
+    const FusionStats s = fuse(2.005);
+    EXPECT_LT(s.merged, s.measurements / 100);
+    EXPECT_EQ(fx.map.point_count(), points + s.added);
+    if (c.dropped) {
+      EXPECT_GT(s.redundant, s.measurements * 99 / 100);
+      EXPECT_LT(s.added, s.measurements / 100);
+    } else {
+      EXPECT_EQ(s.redundant, 0u);
+      EXPECT_EQ(s.added, s.measurements - s.merged);
+    }
+  }
+}
+
+TEST(Fuser, NewSurfaceIsAddedDespiteTheGate) {
+  // 2 cm behind a known plane is not the same surface: well outside twice the ellipsoid.
+  Fixture fx;
+  fx.fuse(test::render_plane(Pose::Identity(), Eigen::Vector3d::UnitZ(), 2.0), Pose::Identity());
+  const FusionStats s =
+      fx.fuse(test::render_plane(Pose::Identity(), Eigen::Vector3d::UnitZ(), 2.02), Pose::Identity());
+  EXPECT_EQ(s.redundant, 0u);
+  EXPECT_EQ(s.added, s.measurements);
+}

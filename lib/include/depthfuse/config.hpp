@@ -36,6 +36,14 @@ struct FusionConfig {
   int candidate_radius_px = 1;               // existing points looked up in a (2r+1)^2 window
   int normal_radius_px = 2;                  // normals from central differences over this step
   int threads = 2;                           // 1 or 2: rendering and fusion split in two halves
+  // A measurement that merges with no existing point is dropped as redundant, instead of being
+  // added, when an existing point in its candidate window that has merged at least
+  // redundancy_min_merges times lies inside the measurement's uncertainty ellipsoid scaled by
+  // redundancy_gate (Mahalanobis distance <= gate). Gate 0 adds every such measurement, as the
+  // paper does. Not part of the paper: without it the map grows with every revisit (see
+  // config/depthfuse.toml).
+  double redundancy_gate = 2.0;
+  int redundancy_min_merges = 10;
 };
 
 struct PostfilterConfig {

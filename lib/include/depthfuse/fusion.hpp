@@ -17,6 +17,7 @@ struct FusionStats {
   size_t merged = 0;        // refined an existing point
   size_t added = 0;         // became a new point
   size_t violations = 0;    // existing points seen through
+  size_t redundant = 0;     // did not merge, but an existing point explains it: dropped
 };
 
 // The merge rule in one place: merges the new measurement (p_n, information L_n) into the existing
