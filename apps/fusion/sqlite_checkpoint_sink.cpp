@@ -43,6 +43,7 @@ store::RecorderConfig SqliteCheckpointSink::recorder_config() const {
   rc.bounded_memory = true;
   rc.pager.memory_budget_mib = config_.fusion.memory_budget_mib;
   rc.pager.evict_distance_m = config_.fusion.evict_distance_m;
+  rc.pager.min_age_frames = config_.fusion.evict_min_age_frames;
   rc.keyframe_every_n_frames = config_.fusion.keyframe_every_n_frames;
   return rc;
 }

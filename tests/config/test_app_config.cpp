@@ -76,6 +76,7 @@ void expect_config_eq(const AppConfig& a, const AppConfig& b) {
   EXPECT_EQ(a.fusion.scan_dir, b.fusion.scan_dir);
   EXPECT_EQ(a.fusion.memory_budget_mib, b.fusion.memory_budget_mib);
   EXPECT_EQ(a.fusion.evict_distance_m, b.fusion.evict_distance_m);
+  EXPECT_EQ(a.fusion.evict_min_age_frames, b.fusion.evict_min_age_frames);
   EXPECT_EQ(a.fusion.checkpoint_interval_s, b.fusion.checkpoint_interval_s);
   EXPECT_EQ(a.fusion.keyframe_every_n_frames, b.fusion.keyframe_every_n_frames);
   EXPECT_EQ(a.fusion.heartbeat_rate_hz, b.fusion.heartbeat_rate_hz);
@@ -174,6 +175,7 @@ queue_capacity_frames = 8
 scan_dir = "/srv/scans"
 memory_budget_mib = 512
 evict_distance_m = 8.0
+evict_min_age_frames = 90
 checkpoint_interval_s = 60
 keyframe_every_n_frames = 5
 heartbeat_rate_hz = 2.0
@@ -234,6 +236,7 @@ publish_rate_hz = 0.5
   EXPECT_EQ(c.fusion.scan_dir, "/srv/scans");
   EXPECT_EQ(c.fusion.memory_budget_mib, 512.0);
   EXPECT_EQ(c.fusion.evict_distance_m, 8.0);
+  EXPECT_EQ(c.fusion.evict_min_age_frames, 90);
   EXPECT_EQ(c.fusion.checkpoint_interval_s, 60.0);
   EXPECT_EQ(c.fusion.keyframe_every_n_frames, 5);
   EXPECT_EQ(c.fusion.heartbeat_rate_hz, 2.0);
@@ -326,6 +329,7 @@ TEST(AppConfig, OutOfRangeValuesAreErrors) {
       {"fusion_daemon", "scan_dir", "\"\"", "must not be empty"},
       {"fusion_daemon", "checkpoint_interval_s", "0.0", "must be > 0, got 0"},
       {"fusion_daemon", "evict_distance_m", "-1", "must be > 0, got -1"},
+      {"fusion_daemon", "evict_min_age_frames", "-1", "must be >= 0, got -1"},
       {"fusion_daemon", "keyframe_every_n_frames", "0", "must be >= 1, got 0"},
       {"fusion_daemon", "heartbeat_rate_hz", "0", "must be > 0, got 0"},
       {"sensor", "lambda1", "0", "must be > 0, got 0"},

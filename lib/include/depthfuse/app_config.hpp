@@ -36,6 +36,7 @@ struct FusionDaemonConfig {
   std::string scan_dir = "/var/lib/depthfuse/scans";  // new scan files, PLY and trajectory on stop
   double memory_budget_mib = 256.0;         // fused map resident in memory
   double evict_distance_m = 1.5;            // chunks within this of the camera are never evicted
+  int evict_min_age_frames = 30;            // chunks seen within this many frames go last
   double checkpoint_interval_s = 30.0;
   int keyframe_every_n_frames = 10;         // depth kept for offline refinement
   double heartbeat_rate_hz = 1.0;
