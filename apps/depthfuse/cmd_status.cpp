@@ -121,7 +121,7 @@ void print_table(const depthfuse::status_t& st) {
     else
       std::snprintf(queue, sizeof(queue), "-");
     std::string tail = h.scan_id.empty() ? "" : "scan " + h.scan_id;
-    if (!h.last_error.empty()) tail += (tail.empty() ? "" : "; ") + std::string("error: ") + h.last_error;
+    if (!h.last_error.empty()) tail += (tail.empty() ? "" : "; ") + std::string("last error: ") + h.last_error;
     char alive[16];
     if (d.alive)
       std::snprintf(alive, sizeof(alive), "yes");
