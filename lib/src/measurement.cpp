@@ -4,6 +4,8 @@
 #include <array>
 #include <cmath>
 
+#include "parallel.hpp"
+
 namespace depthfuse {
 
 size_t MeasurementImage::valid_count() const {
@@ -54,7 +56,14 @@ Status backproject(const Frame& frame, const SensorModelConfig& sensor, const Fu
   const float cx = static_cast<float>(K.cx), cy = static_cast<float>(K.cy);
   const float zmin = static_cast<float>(sensor.min_depth_m), zmax = static_cast<float>(sensor.max_depth_m);
   const int W = D.width, H = D.height;
-  for (int v = 0; v < H; ++v) {
+  // Each pass works on rows; the two halves of the rows run at once if there are two threads. Every
+  // pixel is written by one half only, so the result does not depend on the thread count.
+  const int threads = fusion.threads;
+  auto halves = [&](auto&& pass) {
+    run_pair(threads, [&] { pass(0, H / 2); }, [&] { pass(H / 2, H); });
+  };
+  halves([&](int v0, int v1) {
+  for (int v = v0; v < v1; ++v) {
     for (int u = 0; u < W; ++u) {
       const size_t i = static_cast<size_t>(v) * W + u;
       const float z = D.depth_m[i];
@@ -65,6 +74,7 @@ Status backproject(const Frame& frame, const SensorModelConfig& sensor, const Fu
       out->y[i] = ok ? (v - cy) * z * fy_inv : 0.0f;
     }
   }
+  });
 
   // Normals by central differences over `r` pixels; one-sided where a neighbour is missing or
   // lies across a depth discontinuity.
@@ -75,7 +85,8 @@ Status backproject(const Frame& frame, const SensorModelConfig& sensor, const Fu
     const size_t j = static_cast<size_t>(vv) * W + uu;
     return out->valid[j] && std::abs(out->z[j] - z0) < 0.05f * z0 + 0.01f;
   };
-  for (int v = 0; v < H; ++v) {
+  halves([&](int v0, int v1) {
+  for (int v = v0; v < v1; ++v) {
     for (int u = 0; u < W; ++u) {
       const size_t i = static_cast<size_t>(v) * W + u;
       out->nx[i] = out->ny[i] = out->nz[i] = 0.0f;
@@ -96,6 +107,7 @@ Status backproject(const Frame& frame, const SensorModelConfig& sensor, const Fu
       }
     }
   }
+  });
   return Status::ok();
 }
 
@@ -164,7 +176,7 @@ double reference_knn_distance_per_m(const CameraIntrinsics& K, int neighbour_ran
   return n ? sum / n : 0.0;
 }
 
-size_t prefilter(const PrefilterConfig& config, MeasurementImage* m) {
+size_t prefilter(const PrefilterConfig& config, MeasurementImage* m, int threads) {
   if (!config.enabled || m->pixel_count() == 0) return 0;
   const int r = clamp_radius(config.window_radius_px);
   const int k = std::clamp(config.neighbour_rank, 1, (2 * r + 1) * (2 * r + 1) - 1);
@@ -185,11 +197,18 @@ size_t prefilter(const PrefilterConfig& config, MeasurementImage* m) {
   // d_k > gamma d_r(z) exactly when fewer than k neighbours lie within gamma d_r(z): count them
   // instead of sorting distances. Decide on the unfiltered map first, then remove: the test of
   // one pixel must not depend on which of its neighbours were removed before it.
-  thread_local std::vector<uint8_t> remove;
+  thread_local std::vector<uint8_t> remove_buffer;
+  // A plain reference: the second thread must mark this thread's buffer, not a thread_local of its
+  // own.
+  std::vector<uint8_t>& remove = remove_buffer;
   remove.assign(m->pixel_count(), 0);
-  size_t removed = 0;
   const int W = m->width, H = m->height;
-  for (int v = 0; v < H; ++v) {
+  // The two halves of the rows at once if there are two threads: each only reads the map and
+  // marks its own pixels.
+  size_t removed_in[2] = {0, 0};
+  auto decide = [&, per_m, k, r](int v0, int v1, size_t* removed_out) {
+  size_t removed = 0;
+  for (int v = v0; v < v1; ++v) {
     for (int u = 0; u < W; ++u) {
       const size_t i = static_cast<size_t>(v) * W + u;
       if (!m->valid[i]) continue;
@@ -215,6 +234,11 @@ size_t prefilter(const PrefilterConfig& config, MeasurementImage* m) {
       }
     }
   }
+  *removed_out = removed;
+  };
+  run_pair(threads, [&] { decide(0, H / 2, &removed_in[0]); },
+           [&] { decide(H / 2, H, &removed_in[1]); });
+  const size_t removed = removed_in[0] + removed_in[1];
   for (size_t i = 0; i < remove.size(); ++i)
     if (remove[i]) m->valid[i] = 0;
   return removed;

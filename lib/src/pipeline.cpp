@@ -16,7 +16,7 @@ inline double ms_since(Clock::time_point t0) {
 // Back-projection, normals and (if the method has it) the pre-filter. Returns removed count.
 Result<size_t> measure(const Frame& frame, const ReconstructionConfig& c, MeasurementImage* m) {
   DF_RETURN_IF_ERROR(backproject(frame, c.sensor, c.fusion, m));
-  return prefilter(c.prefilter, m);
+  return prefilter(c.prefilter, m, c.fusion.threads);
 }
 
 double rotation_deg(const Pose& a, const Pose& b) {

@@ -98,3 +98,25 @@ TEST(Backproject, NormalsFaceTheCamera) {
   EXPECT_NEAR(m.nz[i], -1.0f, 1e-4f);
   EXPECT_NEAR(m.z[i], 2.0f, 1e-6f);
 }
+
+TEST(Prefilter, TwoThreadsGiveTheSameMeasurements) {
+  // The corner, with a speck of flying pixels and holes scattered over it (some on the rows where
+  // the image splits in two halves).
+  Frame f = test::render_corner(test::look_at({2.0, 2.0, 1.6}, {0.0, 0.0, 0.8}));
+  for (size_t i = 0; i < f.depth.depth_m.size(); i += 97) f.depth.depth_m[i] *= (i % 2) ? 1.3f : 0.0f;
+  SensorModelConfig s;
+  MeasurementImage one, two;
+  FusionConfig fc;
+  fc.threads = 1;
+  ASSERT_TRUE(backproject(f, s, fc, &one).is_ok());
+  fc.threads = 2;
+  ASSERT_TRUE(backproject(f, s, fc, &two).is_ok());
+  const size_t removed_one = prefilter(PrefilterConfig{}, &one, 1);
+  const size_t removed_two = prefilter(PrefilterConfig{}, &two, 2);
+  EXPECT_GT(removed_one, 100u);
+  EXPECT_EQ(removed_one, removed_two);
+  EXPECT_EQ(one.valid, two.valid);
+  for (auto member : {&MeasurementImage::x, &MeasurementImage::y, &MeasurementImage::z,
+                      &MeasurementImage::nx, &MeasurementImage::ny, &MeasurementImage::nz})
+    EXPECT_TRUE(one.*member == two.*member);
+}

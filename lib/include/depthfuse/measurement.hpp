@@ -35,7 +35,8 @@ Status backproject(const Frame& frame, const SensorModelConfig& sensor, const Fu
 double reference_knn_distance_per_m(const CameraIntrinsics& intrinsics, int neighbour_rank,
                                     int window_radius_px);
 
-// The paper's pre-filter (eq. 1). Marks removed measurements invalid; returns how many.
-size_t prefilter(const PrefilterConfig& config, MeasurementImage* m);
+// The paper's pre-filter (eq. 1). Marks removed measurements invalid; returns how many. With two
+// threads the two halves of the rows are tested at once; the result is the same.
+size_t prefilter(const PrefilterConfig& config, MeasurementImage* m, int threads = 1);
 
 }  // namespace depthfuse
