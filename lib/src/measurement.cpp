@@ -206,35 +206,42 @@ size_t prefilter(const PrefilterConfig& config, MeasurementImage* m, int threads
   // The two halves of the rows at once if there are two threads: each only reads the map and
   // marks its own pixels.
   size_t removed_in[2] = {0, 0};
-  auto decide = [&, per_m, k, r](int v0, int v1, size_t* removed_out) {
-  size_t removed = 0;
-  for (int v = v0; v < v1; ++v) {
-    for (int u = 0; u < W; ++u) {
-      const size_t i = static_cast<size_t>(v) * W + u;
-      if (!m->valid[i]) continue;
-      const float limit = per_m * m->z[i];
-      const float limit2 = limit * limit;
-      const float px = m->x[i], py = m->y[i], pz = m->z[i];
-      int within = 0;
-      for (int dv = -r; dv <= r && within < k; ++dv) {
-        const int vv = v + dv;
-        if (vv < 0 || vv >= H) continue;
-        for (int du = -r; du <= r; ++du) {
-          const int uu = u + du;
-          if ((du == 0 && dv == 0) || uu < 0 || uu >= W) continue;
-          const size_t j = static_cast<size_t>(vv) * W + uu;
-          if (!m->valid[j]) continue;
-          const float ex = m->x[j] - px, ey = m->y[j] - py, ez = m->z[j] - pz;
-          within += ex * ex + ey * ey + ez * ez <= limit2;
+  // Raw pointers, held in locals: the inner loop then reads no vector or capture through memory
+  // that a store to `marks` might alias.
+  const uint8_t* const valid = m->valid.data();
+  const float* const X = m->x.data();
+  const float* const Y = m->y.data();
+  const float* const Z = m->z.data();
+  uint8_t* const marks = remove.data();
+  auto decide = [=](int v0, int v1, size_t* removed_out) {
+    size_t removed = 0;
+    for (int v = v0; v < v1; ++v) {
+      for (int u = 0; u < W; ++u) {
+        const size_t i = static_cast<size_t>(v) * W + u;
+        if (!valid[i]) continue;
+        const float limit = per_m * Z[i];
+        const float limit2 = limit * limit;
+        const float px = X[i], py = Y[i], pz = Z[i];
+        int within = 0;
+        for (int dv = -r; dv <= r && within < k; ++dv) {
+          const int vv = v + dv;
+          if (vv < 0 || vv >= H) continue;
+          for (int du = -r; du <= r; ++du) {
+            const int uu = u + du;
+            if ((du == 0 && dv == 0) || uu < 0 || uu >= W) continue;
+            const size_t j = static_cast<size_t>(vv) * W + uu;
+            if (!valid[j]) continue;
+            const float ex = X[j] - px, ey = Y[j] - py, ez = Z[j] - pz;
+            within += ex * ex + ey * ey + ez * ez <= limit2;
+          }
+        }
+        if (within < k) {
+          marks[i] = 1;
+          ++removed;
         }
       }
-      if (within < k) {
-        remove[i] = 1;
-        ++removed;
-      }
     }
-  }
-  *removed_out = removed;
+    *removed_out = removed;
   };
   run_pair(threads, [&] { decide(0, H / 2, &removed_in[0]); },
            [&] { decide(H / 2, H, &removed_in[1]); });
