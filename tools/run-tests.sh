@@ -4,4 +4,15 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cmake --build build -j"$(nproc)"
-ctest --test-dir build --output-on-failure -j"$(nproc)" "$@"
+status=0
+ctest --test-dir build --output-on-failure -j"$(nproc)" "$@" || status=$?
+
+# CTest says that a test was skipped, not why; GoogleTest wrote the reason into the test's log.
+log=build/Testing/Temporary/LastTest.log
+if [[ -f $log ]] && grep -q '^\[  SKIPPED \] ' "$log"; then
+  echo "Skipped, and why:"
+  awk '/: Skipped$/ { why = ""; on = 1; next }
+       /^\[  SKIPPED \] / { if (on) print "  " $4 ": " why; on = 0; next }
+       on && NF { why = why (why == "" ? "" : " ") $0 }' "$log"
+fi
+exit "$status"

@@ -33,6 +33,18 @@ Fuser::~Fuser() = default;
 
 namespace {
 
+// Calls visit(pixel) for each pixel of the (2r + 1)^2 window around (u, v) that lies in the image,
+// row by row, the centre included, until visit returns true. Returns whether it did.
+template <typename Visit>
+inline bool any_in_window(int u, int v, int r, int width, int height, Visit&& visit) {
+  for (int vv = std::max(0, v - r); vv <= std::min(height - 1, v + r); ++vv) {
+    for (int uu = std::max(0, u - r); uu <= std::min(width - 1, u + r); ++uu) {
+      if (visit(static_cast<size_t>(vv) * width + uu)) return true;
+    }
+  }
+  return false;
+}
+
 inline uint16_t saturating_increment(uint16_t v) {
   return v == std::numeric_limits<uint16_t>::max() ? v : static_cast<uint16_t>(v + 1);
 }
@@ -131,18 +143,11 @@ class FrameFusion {
 
 bool FrameFusion::explained(int u, int v, const Eigen::Vector3f& p_w, const Sym3f& L_n) const {
   const ModelProjection& proj = proj_;
-  const int cr = cr_;
-  for (int vv = std::max(0, v - cr); vv <= std::min(m_.height - 1, v + cr); ++vv) {
-    for (int uu = std::max(0, u - cr); uu <= std::min(m_.width - 1, u + cr); ++uu) {
-      const size_t px = static_cast<size_t>(vv) * m_.width + uu;
-      if (!proj.has_candidate(px)) continue;
-      if (proj.candidate_points(px).state[proj.candidate_index(px)].merges < redundancy_min_merges_)
-        continue;
-      if (mahalanobis2(Eigen::Vector3f(proj.candidate_position(px) - p_w), L_n) <= redundancy_gate2_)
-        return true;
-    }
-  }
-  return false;
+  return any_in_window(u, v, cr_, m_.width, m_.height, [&](size_t px) {
+    return proj.has_candidate(px) &&
+           proj.candidate_points(px).state[proj.candidate_index(px)].merges >= redundancy_min_merges_ &&
+           mahalanobis2(Eigen::Vector3f(proj.candidate_position(px) - p_w), L_n) <= redundancy_gate2_;
+  });
 }
 
 void FrameFusion::rows(int v0, int v1, PointArrays* added, FusionStats* stats) const {
@@ -180,21 +185,15 @@ void FrameFusion::rows(int v0, int v1, PointArrays* added, FusionStats* stats) c
       if (!merged && cr > 0) {
         size_t best_px = i;
         float best_d2 = std::numeric_limits<float>::infinity();
-        for (int dv = -cr; dv <= cr; ++dv) {
-          const int vv = v + dv;
-          if (vv < 0 || vv >= m.height) continue;
-          for (int du = -cr; du <= cr; ++du) {
-            const int uu = u + du;
-            if ((du == 0 && dv == 0) || uu < 0 || uu >= m.width) continue;
-            const size_t px = static_cast<size_t>(vv) * m.width + uu;
-            if (!proj.has_candidate(px) || proj.taken_at(px)) continue;
-            const float d2 = (proj.candidate_position(px) - p_w).squaredNorm();
-            if (d2 < best_d2) {
-              best_d2 = d2;
-              best_px = px;
-            }
+        any_in_window(u, v, cr, m.width, m.height, [&](size_t px) {
+          if (px == i || !proj.has_candidate(px) || proj.taken_at(px)) return false;
+          const float d2 = (proj.candidate_position(px) - p_w).squaredNorm();
+          if (d2 < best_d2) {
+            best_d2 = d2;
+            best_px = px;
           }
-        }
+          return false;
+        });
         if (best_px != i) merged = try_merge(proj, best_px, p_w, L_n, n_w, rgb, frame_id_);
       }
       if (merged) {

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 
 #include "parallel.hpp"
@@ -58,22 +59,18 @@ Status backproject(const Frame& frame, const SensorModelConfig& sensor, const Fu
   const int W = D.width, H = D.height;
   // Each pass works on rows; the two halves of the rows run at once if there are two threads. Every
   // pixel is written by one half only, so the result does not depend on the thread count.
-  const int threads = fusion.threads;
-  auto halves = [&](auto&& pass) {
-    run_pair(threads, [&] { pass(0, H / 2); }, [&] { pass(H / 2, H); });
-  };
-  halves([&](int v0, int v1) {
-  for (int v = v0; v < v1; ++v) {
-    for (int u = 0; u < W; ++u) {
-      const size_t i = static_cast<size_t>(v) * W + u;
-      const float z = D.depth_m[i];
-      const bool ok = std::isfinite(z) && z >= zmin && z <= zmax;
-      out->valid[i] = ok;
-      out->z[i] = ok ? z : 0.0f;
-      out->x[i] = ok ? (u - cx) * z * fx_inv : 0.0f;
-      out->y[i] = ok ? (v - cy) * z * fy_inv : 0.0f;
+  run_row_halves(fusion.threads, H, [&](int v0, int v1) {
+    for (int v = v0; v < v1; ++v) {
+      for (int u = 0; u < W; ++u) {
+        const size_t i = static_cast<size_t>(v) * W + u;
+        const float z = D.depth_m[i];
+        const bool ok = std::isfinite(z) && z >= zmin && z <= zmax;
+        out->valid[i] = ok;
+        out->z[i] = ok ? z : 0.0f;
+        out->x[i] = ok ? (u - cx) * z * fx_inv : 0.0f;
+        out->y[i] = ok ? (v - cy) * z * fy_inv : 0.0f;
+      }
     }
-  }
   });
 
   // Normals by central differences over `r` pixels; one-sided where a neighbour is missing or
@@ -85,28 +82,28 @@ Status backproject(const Frame& frame, const SensorModelConfig& sensor, const Fu
     const size_t j = static_cast<size_t>(vv) * W + uu;
     return out->valid[j] && std::abs(out->z[j] - z0) < 0.05f * z0 + 0.01f;
   };
-  halves([&](int v0, int v1) {
-  for (int v = v0; v < v1; ++v) {
-    for (int u = 0; u < W; ++u) {
-      const size_t i = static_cast<size_t>(v) * W + u;
-      out->nx[i] = out->ny[i] = out->nz[i] = 0.0f;
-      if (!out->valid[i]) continue;
-      const float z0 = out->z[i];
-      const bool l = usable(u - r, v, z0), rr = usable(u + r, v, z0);
-      const bool t = usable(u, v - r, z0), b = usable(u, v + r, z0);
-      if (!(l || rr) || !(t || b)) continue;
-      const Eigen::Vector3f p = P(i);
-      const Eigen::Vector3f pu0 = l ? P(i - r) : p, pu1 = rr ? P(i + r) : p;
-      const Eigen::Vector3f pv0 = t ? P(i - static_cast<size_t>(r) * W) : p;
-      const Eigen::Vector3f pv1 = b ? P(i + static_cast<size_t>(r) * W) : p;
-      Eigen::Vector3f n;
-      if (normal_from(pu1 - pu0, pv1 - pv0, p, &n)) {
-        out->nx[i] = n.x();
-        out->ny[i] = n.y();
-        out->nz[i] = n.z();
+  run_row_halves(fusion.threads, H, [&](int v0, int v1) {
+    for (int v = v0; v < v1; ++v) {
+      for (int u = 0; u < W; ++u) {
+        const size_t i = static_cast<size_t>(v) * W + u;
+        out->nx[i] = out->ny[i] = out->nz[i] = 0.0f;
+        if (!out->valid[i]) continue;
+        const float z0 = out->z[i];
+        const bool l = usable(u - r, v, z0), rr = usable(u + r, v, z0);
+        const bool t = usable(u, v - r, z0), b = usable(u, v + r, z0);
+        if (!(l || rr) || !(t || b)) continue;
+        const Eigen::Vector3f p = P(i);
+        const Eigen::Vector3f pu0 = l ? P(i - r) : p, pu1 = rr ? P(i + r) : p;
+        const Eigen::Vector3f pv0 = t ? P(i - static_cast<size_t>(r) * W) : p;
+        const Eigen::Vector3f pv1 = b ? P(i + static_cast<size_t>(r) * W) : p;
+        Eigen::Vector3f n;
+        if (normal_from(pu1 - pu0, pv1 - pv0, p, &n)) {
+          out->nx[i] = n.x();
+          out->ny[i] = n.y();
+          out->nz[i] = n.z();
+        }
       }
     }
-  }
   });
   return Status::ok();
 }
@@ -197,23 +194,21 @@ size_t prefilter(const PrefilterConfig& config, MeasurementImage* m, int threads
   // d_k > gamma d_r(z) exactly when fewer than k neighbours lie within gamma d_r(z): count them
   // instead of sorting distances. Decide on the unfiltered map first, then remove: the test of
   // one pixel must not depend on which of its neighbours were removed before it.
-  thread_local std::vector<uint8_t> remove_buffer;
-  // A plain reference: the second thread must mark this thread's buffer, not a thread_local of its
-  // own.
-  std::vector<uint8_t>& remove = remove_buffer;
+  // The mark buffer is reached through a plain pointer: the second thread must mark this thread's
+  // buffer, not a thread_local of its own. The map's arrays too are read through pointers held in
+  // locals, so that no store to the marks (bytes, which may alias anything) makes the loop reload them.
+  thread_local std::vector<uint8_t> remove;
   remove.assign(m->pixel_count(), 0);
-  const int W = m->width, H = m->height;
-  // The two halves of the rows at once if there are two threads: each only reads the map and
-  // marks its own pixels.
-  size_t removed_in[2] = {0, 0};
-  // Raw pointers, held in locals: the inner loop then reads no vector or capture through memory
-  // that a store to `marks` might alias.
+  uint8_t* const marks = remove.data();
   const uint8_t* const valid = m->valid.data();
   const float* const X = m->x.data();
   const float* const Y = m->y.data();
   const float* const Z = m->z.data();
-  uint8_t* const marks = remove.data();
-  auto decide = [=](int v0, int v1, size_t* removed_out) {
+  const int W = m->width, H = m->height;
+  // The two halves of the rows at once if there are two threads: each only reads the map and
+  // marks its own pixels.
+  std::atomic<size_t> removed_total{0};
+  run_row_halves(threads, H, [=, &removed_total](int v0, int v1) {
     size_t removed = 0;
     for (int v = v0; v < v1; ++v) {
       for (int u = 0; u < W; ++u) {
@@ -241,14 +236,11 @@ size_t prefilter(const PrefilterConfig& config, MeasurementImage* m, int threads
         }
       }
     }
-    *removed_out = removed;
-  };
-  run_pair(threads, [&] { decide(0, H / 2, &removed_in[0]); },
-           [&] { decide(H / 2, H, &removed_in[1]); });
-  const size_t removed = removed_in[0] + removed_in[1];
+    removed_total += removed;
+  });
   for (size_t i = 0; i < remove.size(); ++i)
-    if (remove[i]) m->valid[i] = 0;
-  return removed;
+    if (marks[i]) m->valid[i] = 0;
+  return removed_total;
 }
 
 }  // namespace depthfuse

@@ -29,4 +29,11 @@ void run_pair(int threads, First&& first, Second&& second) {
   other.join();
 }
 
+// Runs pass(0, rows / 2) and pass(rows / 2, rows) through run_pair: a per-pixel pass over the two
+// halves of an image's rows. The pass must write only the rows it is given.
+template <typename Pass>
+void run_row_halves(int threads, int rows, Pass&& pass) {
+  run_pair(threads, [&] { pass(0, rows / 2); }, [&] { pass(rows / 2, rows); });
+}
+
 }  // namespace depthfuse
