@@ -16,12 +16,29 @@ void ModelProjection::select_chunks(PointMap& map, const MeasurementImage& m,
   keys_.clear();
   const Eigen::Matrix3f R = T_world_cam.linear().cast<float>();
   const Eigen::Vector3f t = T_world_cam.translation().cast<float>();
+  // Neighbouring samples name the same few chunks over and over: a small direct-mapped table of
+  // keys already listed keeps most repeats out of the sort. (A collision only lets a repeat
+  // through; the sort and unique below still remove it.)
+  constexpr size_t kSeen = 256;
+  ChunkKey seen[kSeen];
+  bool seen_used[kSeen] = {};
+  ChunkKeyHash hash;
   for (int v = stride / 2; v < m.height; v += stride) {
     for (int u = stride / 2; u < m.width; u += stride) {
       const size_t i = static_cast<size_t>(v) * m.width + u;
       if (!m.valid[i]) continue;
       const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);
-      for (float f : {1.0f, 0.95f, 0.9f}) map.keys_near(R * (f * p_c) + t, margin_m, &keys_);
+      for (float f : {1.0f, 0.95f, 0.9f}) {
+        near_.clear();
+        map.keys_near(R * (f * p_c) + t, margin_m, &near_);
+        for (const ChunkKey& k : near_) {
+          const size_t slot = hash(k) % kSeen;
+          if (seen_used[slot] && seen[slot] == k) continue;
+          seen[slot] = k;
+          seen_used[slot] = true;
+          keys_.push_back(k);
+        }
+      }
     }
   }
   std::sort(keys_.begin(), keys_.end(), [](const ChunkKey& a, const ChunkKey& b) {
@@ -192,37 +209,32 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
     page_slot_[page] = static_cast<int32_t>(s);
   }
 
+  // Every per-pixel pass below runs on the two halves of the pixels (or of the points), on two
+  // threads if there are two; none depends on the thread count.
   const bool guided = measured && measured->pixel_count() == n;
-  pixel_keys_.resize(n);
-  for (size_t px = 0; px < n; ++px) {
-    PixelKeys& k = pixel_keys_[px];
-    k.front = kNoKey;
-    k.cand = kNoKey;
-    k.measured_z = guided && measured->valid[px] ? measured->z[px]
-                                                 : std::numeric_limits<float>::infinity();
-  }
   const bool two = threads_ > 1 && chunks_.size() > 1;
-  if (two) pixel_keys_2_ = pixel_keys_;
+  pixel_keys_.resize(n);
+  pixel_keys_2_.resize(two ? n : 0);
+  const float inf = std::numeric_limits<float>::infinity();
+  auto clear_keys = [&](PixelKeys* keys, size_t begin, size_t end) {
+    for (size_t px = begin; px < end; ++px) {
+      PixelKeys& k = keys[px];
+      k.front = kNoKey;
+      k.cand = kNoKey;
+      k.measured_z = guided && measured->valid[px] ? measured->z[px] : inf;
+    }
+  };
   const size_t split = two ? split_chunk() : chunks_.size();
   size_t rendered[2] = {0, 0};
   auto half = [&](int h) {
     const size_t begin = h == 0 ? 0 : split, end = h == 0 ? split : chunks_.size();
     PixelKeys* keys = h == 0 ? pixel_keys_.data() : pixel_keys_2_.data();
+    if (h == 0 || two) clear_keys(keys, 0, n);  // each thread clears the buffer it renders into
     rendered[h] = guided ? render_points<true>(T_world_cam, K, begin, end, keys)
                          : render_points<false>(T_world_cam, K, begin, end, keys);
   };
-  if (two) {
-    run_pair(2, [&] { half(0); }, [&] { half(1); });
-  } else {
-    half(0);
-  }
+  run_pair(two ? 2 : 1, [&] { half(0); }, [&] { half(1); });
   rendered_ = rendered[0] + rendered[1];
-  if (two) {
-    for (size_t px = 0; px < n; ++px) {
-      pixel_keys_[px].front = std::min(pixel_keys_[px].front, pixel_keys_2_[px].front);
-      pixel_keys_[px].cand = std::min(pixel_keys_[px].cand, pixel_keys_2_[px].cand);
-    }
-  }
 
   front_slot_.resize(n);
   front_index_.resize(n);
@@ -232,32 +244,39 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
   cand_x_.resize(n);
   cand_y_.resize(n);
   cand_z_.resize(n);
-  taken_.assign(n, 0);
-  for (size_t px = 0; px < n; ++px) {
-    const PixelKeys& k = pixel_keys_[px];
-    if (k.front == kNoKey) {
-      front_slot_[px] = -1;
-      front_depth_[px] = std::numeric_limits<float>::infinity();
-    } else {
-      locate(static_cast<uint32_t>(k.front), &front_slot_[px], &front_index_[px]);
-      front_depth_[px] = bits_float(static_cast<uint32_t>(k.front >> 32));
+  taken_.resize(n);
+  run_halves(threads_, n, [&](size_t begin, size_t end) {
+    for (size_t px = begin; px < end; ++px) {
+      PixelKeys& k = pixel_keys_[px];
+      if (two) {
+        k.front = std::min(k.front, pixel_keys_2_[px].front);
+        k.cand = std::min(k.cand, pixel_keys_2_[px].cand);
+      }
+      taken_[px] = 0;
+      if (k.front == kNoKey) {
+        front_slot_[px] = -1;
+        front_depth_[px] = inf;
+      } else {
+        locate(static_cast<uint32_t>(k.front), &front_slot_[px], &front_index_[px]);
+        front_depth_[px] = bits_float(static_cast<uint32_t>(k.front >> 32));
+      }
+      if ((k.cand >> 32) >= kInfBits) {  // no candidate, or no measurement at this pixel
+        cand_slot_[px] = -1;
+        continue;
+      }
+      locate(static_cast<uint32_t>(k.cand), &cand_slot_[px], &cand_index_[px]);
     }
-    if ((k.cand >> 32) >= kInfBits) {  // no candidate, or no measurement at this pixel
-      cand_slot_[px] = -1;
-      continue;
+    // The candidates' positions, pixel-ordered. Each is a random read into the map: prefetching a
+    // few pixels ahead turns a chain of cache misses into overlapping ones.
+    for (size_t px = begin; px < end; ++px) {
+      if (px + kPrefetchPixels < end) prefetch_candidate(px + kPrefetchPixels);
+      if (cand_slot_[px] < 0) continue;
+      const Eigen::Vector3f& p = chunks_[cand_slot_[px]]->points.position_m[cand_index_[px]];
+      cand_x_[px] = p.x();
+      cand_y_[px] = p.y();
+      cand_z_[px] = p.z();
     }
-    locate(static_cast<uint32_t>(k.cand), &cand_slot_[px], &cand_index_[px]);
-  }
-  // The candidates' positions, pixel-ordered. Each is a random read into the map: prefetching a few
-  // pixels ahead turns a chain of cache misses into overlapping ones.
-  for (size_t px = 0; px < n; ++px) {
-    if (px + kPrefetchPixels < n) prefetch_candidate(px + kPrefetchPixels);
-    if (cand_slot_[px] < 0) continue;
-    const Eigen::Vector3f& p = chunks_[cand_slot_[px]]->points.position_m[cand_index_[px]];
-    cand_x_[px] = p.x();
-    cand_y_[px] = p.y();
-    cand_z_[px] = p.z();
-  }
+  });
 }
 
 size_t ModelProjection::render_front_depth(const Pose& T_world_cam, const CameraIntrinsics& K,
@@ -311,59 +330,73 @@ void ModelProjection::render_surface(const Pose& T_world_cam, const CameraIntrin
   const size_t n = static_cast<size_t>(K.width) * K.height;
   // Point ids are not needed here, only the split of the chunks in two halves. There are always
   // two halves, on two threads if there are two, so that the result does not depend on the count.
+  // Each thread clears the buffers it renders into; the per-pixel passes that combine the two
+  // run on the two halves of the pixels.
   number_points();
   const size_t split = split_chunk();
 
   // Pass 1: the front-most depth per pixel.
   const float inf = std::numeric_limits<float>::infinity();
-  front_depth_.assign(n, inf);
-  front_depth_2_.assign(n, inf);
+  front_depth_.resize(n);
+  front_depth_2_.resize(n);
   size_t rendered[2] = {0, 0};
   run_pair(
       threads_,
-      [&] { rendered[0] = render_front_depth(T_world_cam, K, 0, split, front_depth_.data()); },
       [&] {
+        std::fill(front_depth_.begin(), front_depth_.end(), inf);
+        rendered[0] = render_front_depth(T_world_cam, K, 0, split, front_depth_.data());
+      },
+      [&] {
+        std::fill(front_depth_2_.begin(), front_depth_2_.end(), inf);
         rendered[1] = render_front_depth(T_world_cam, K, split, chunks_.size(), front_depth_2_.data());
       });
   rendered_ = rendered[0] + rendered[1];
-  for (size_t px = 0; px < n; ++px) front_depth_[px] = std::min(front_depth_[px], front_depth_2_[px]);
+  run_halves(threads_, n, [&](size_t begin, size_t end) {
+    for (size_t px = begin; px < end; ++px) front_depth_[px] = std::min(front_depth_[px], front_depth_2_[px]);
+  });
 
   // Pass 2: the weighted sums of the points within the band behind it.
-  surface_.assign(n, SurfaceSum{0, 0, 0, 0, 0, 0, 0});
-  surface_2_.assign(n, SurfaceSum{0, 0, 0, 0, 0, 0, 0});
+  const SurfaceSum zero{0, 0, 0, 0, 0, 0, 0};
+  surface_.resize(n);
+  surface_2_.resize(n);
   run_pair(
-      threads_, [&] { sum_surface(T_world_cam, K, band_m, 0, split, surface_.data()); },
-      [&] { sum_surface(T_world_cam, K, band_m, split, chunks_.size(), surface_2_.data()); });
-  SurfaceSum* sum = surface_.data();
-  for (size_t px = 0; px < n; ++px) {
-    SurfaceSum& s = sum[px];
-    const SurfaceSum& o = surface_2_[px];
-    s.x += o.x;
-    s.y += o.y;
-    s.z += o.z;
-    s.nx += o.nx;
-    s.ny += o.ny;
-    s.nz += o.nz;
-    s.w += o.w;
-  }
-  for (size_t px = 0; px < n; ++px) {
-    SurfaceSum& s = sum[px];
-    if (s.w <= 0.0f) continue;
-    const float inv_w = 1.0f / s.w;
-    s.x *= inv_w;
-    s.y *= inv_w;
-    s.z *= inv_w;
-    Eigen::Vector3f nn(s.nx, s.ny, s.nz);
-    const float len = nn.norm();
-    if (len < 0.5f * s.w) {  // normals disagree: no usable plane here
-      s.w = 0.0f;
-      continue;
+      threads_,
+      [&] {
+        std::fill(surface_.begin(), surface_.end(), zero);
+        sum_surface(T_world_cam, K, band_m, 0, split, surface_.data());
+      },
+      [&] {
+        std::fill(surface_2_.begin(), surface_2_.end(), zero);
+        sum_surface(T_world_cam, K, band_m, split, chunks_.size(), surface_2_.data());
+      });
+  run_halves(threads_, n, [&](size_t begin, size_t end) {
+    for (size_t px = begin; px < end; ++px) {
+      SurfaceSum& s = surface_[px];
+      const SurfaceSum& o = surface_2_[px];
+      s.x += o.x;
+      s.y += o.y;
+      s.z += o.z;
+      s.nx += o.nx;
+      s.ny += o.ny;
+      s.nz += o.nz;
+      s.w += o.w;
+      if (s.w <= 0.0f) continue;
+      const float inv_w = 1.0f / s.w;
+      s.x *= inv_w;
+      s.y *= inv_w;
+      s.z *= inv_w;
+      Eigen::Vector3f nn(s.nx, s.ny, s.nz);
+      const float len = nn.norm();
+      if (len < 0.5f * s.w) {  // normals disagree: no usable plane here
+        s.w = 0.0f;
+        continue;
+      }
+      nn /= len;
+      s.nx = nn.x();
+      s.ny = nn.y();
+      s.nz = nn.z();
     }
-    nn /= len;
-    s.nx = nn.x();
-    s.ny = nn.y();
-    s.nz = nn.z();
-  }
+  });
 }
 
 }  // namespace depthfuse

@@ -128,7 +128,7 @@ class ModelProjection {
   void locate(uint32_t id, int32_t* slot, uint32_t* index) const;
   static constexpr int kIdPageBits = 10;
 
-  std::vector<ChunkKey> keys_;          // scratch
+  std::vector<ChunkKey> keys_, near_;   // scratch
   std::vector<Chunk*> chunks_;          // selected, existing, non-empty chunks
   std::vector<uint32_t> offsets_;       // first point id of each chunk, and the total
   std::vector<int32_t> page_slot_;      // per page of 2^kIdPageBits ids: the chunk of its first id

@@ -29,11 +29,16 @@ void run_pair(int threads, First&& first, Second&& second) {
   other.join();
 }
 
-// Runs pass(0, rows / 2) and pass(rows / 2, rows) through run_pair: a per-pixel pass over the two
-// halves of an image's rows. The pass must write only the rows it is given.
+// Runs pass(0, count / 2) and pass(count / 2, count) through run_pair: a pass over the two halves
+// of a range (an image's rows, or its pixels). The pass must write only the part it is given.
+template <typename Index, typename Pass>
+void run_halves(int threads, Index count, Pass&& pass) {
+  run_pair(threads, [&] { pass(Index{0}, count / 2); }, [&] { pass(count / 2, count); });
+}
+
 template <typename Pass>
 void run_row_halves(int threads, int rows, Pass&& pass) {
-  run_pair(threads, [&] { pass(0, rows / 2); }, [&] { pass(rows / 2, rows); });
+  run_halves(threads, rows, std::forward<Pass>(pass));
 }
 
 }  // namespace depthfuse

@@ -2,6 +2,8 @@
 // the previous frames (the steady state of a scan).
 #include <benchmark/benchmark.h>
 
+#include <algorithm>
+
 #include "depthfuse/fusion.hpp"
 #include "depthfuse/measurement.hpp"
 #include "depthfuse/registration.hpp"
@@ -71,11 +73,22 @@ void BM_Fuse(benchmark::State& state) {
   Fuser fuser(s.config.sensor, fc);
   uint32_t id = 100;
   size_t k = 0;
+  FusionStats total;
   for (auto _ : state) {
-    benchmark::DoNotOptimize(fuser.fuse(ms[k], nullptr, s.seq.T_world_cam_true(20 + k), id++, &map));
+    const FusionStats st = fuser.fuse(ms[k], nullptr, s.seq.T_world_cam_true(20 + k), id++, &map);
+    total.measurements += st.measurements;
+    total.merged += st.merged;
+    total.added += st.added;
+    total.redundant += st.redundant;
+    total.violations += st.violations;
     k = (k + 1) % ms.size();
   }
   state.counters["map_points"] = static_cast<double>(map.point_count());
+  // What became of the measurements: the per-frame work depends on the mix.
+  const double n = std::max<double>(1.0, static_cast<double>(total.measurements));
+  state.counters["merged_pct"] = 100.0 * static_cast<double>(total.merged) / n;
+  state.counters["added_pct"] = 100.0 * static_cast<double>(total.added) / n;
+  state.counters["redundant_pct"] = 100.0 * static_cast<double>(total.redundant) / n;
 }
 
 // The whole per-frame fusion path: back-projection, normals, pre-filter, fusion.
