@@ -13,14 +13,39 @@ namespace depthfuse {
 bool merge_measurement(const Eigen::Vector3f& p_e, const Eigen::Matrix3f& L_e,
                        const Eigen::Vector3f& p_n, const Eigen::Matrix3f& L_n,
                        Eigen::Vector3f* p_fused, Eigen::Matrix3f* L_fused) {
+  Eigen::Vector3f p;
   Sym3f L;
-  if (!merge_rule(p_e, Sym3f::from(L_e), p_n, Sym3f::from(L_n), p_fused, &L)) return false;
+  if (!merge_rule(p_e, Sym3f::from(L_e), p_n, Sym3f::from(L_n), &p, &L)) return false;
+  *p_fused = p;
   *L_fused = L.matrix();
   return true;
 }
 
+namespace {
+
+// One image row's measurements, worked out for the whole row at once (a loop without branches that
+// the compiler vectorises): world position and normal, range, information, and the merge with the
+// candidate rendered at the measurement's own pixel.
+struct RowScratch {
+  std::vector<float> p_x, p_y, p_z, n_x, n_y, n_z, range;
+  std::vector<float> l_xx, l_xy, l_xz, l_yy, l_yz, l_zz;  // the measurement's information
+  std::vector<float> f_x, f_y, f_z;                       // the point merged with the candidate
+  std::vector<uint8_t> merges;                            // ... if the merge rule accepts it
+
+  void resize(int width) {
+    const size_t n = static_cast<size_t>(std::max(0, width));
+    for (auto* v : {&p_x, &p_y, &p_z, &n_x, &n_y, &n_z, &range, &l_xx, &l_xy, &l_xz, &l_yy, &l_yz,
+                    &l_zz, &f_x, &f_y, &f_z})
+      v->resize(n);
+    merges.resize(n);
+  }
+};
+
+}  // namespace
+
 struct Fuser::Scratch {
   PointArrays added[3];  // new points of the bands: top, bottom, and the seam between them
+  RowScratch rows[2];    // one per thread
 };
 
 Fuser::Fuser(const SensorModelConfig& sensor, const FusionConfig& fusion)
@@ -47,10 +72,6 @@ inline bool any_in_window(int u, int v, int r, int width, int height, Visit&& vi
 
 inline uint16_t saturating_increment(uint16_t v) {
   return v == std::numeric_limits<uint16_t>::max() ? v : static_cast<uint16_t>(v + 1);
-}
-
-inline Sym3f information_of(const PointState& s) {
-  return {s.info_xx, s.info_xy, s.info_xz, s.info_yy, s.info_yz, s.info_zz};
 }
 
 inline void set_information(PointState* s, const Sym3f& L) {
@@ -82,17 +103,22 @@ inline void refine_point(PointArrays& a, size_t i, const Eigen::Vector3f& p, con
   s.last_frame = frame_id;
 }
 
+// Merges the candidate rendered at `px` into (p_f, L_f), the merge rule's result.
+inline void merge_into_candidate(ModelProjection& proj, size_t px, const Eigen::Vector3f& p_f,
+                                 const Sym3f& L_f, const Eigen::Vector3f& n_w, const uint8_t* rgb,
+                                 uint32_t frame_id) {
+  refine_point(proj.candidate_points(px), proj.candidate_index(px), p_f, L_f, n_w, rgb, frame_id);
+  proj.take(px);
+}
+
 // Merges the measurement into the candidate rendered at `px` if the merge rule allows it.
 inline bool try_merge(ModelProjection& proj, size_t px, const Eigen::Vector3f& p_w, const Sym3f& L_n,
                       const Eigen::Vector3f& n_w, const uint8_t* rgb, uint32_t frame_id) {
-  PointArrays& a = proj.candidate_points(px);
-  const uint32_t j = proj.candidate_index(px);
   Eigen::Vector3f p_f;
   Sym3f L_f;
-  if (!merge_rule(proj.candidate_position(px), information_of(a.state[j]), p_w, L_n, &p_f, &L_f))
+  if (!merge_rule(proj.candidate_position(px), proj.candidate_information(px), p_w, L_n, &p_f, &L_f))
     return false;
-  refine_point(a, j, p_f, L_f, n_w, rgb, frame_id);
-  proj.take(px);
+  merge_into_candidate(proj, px, p_f, L_f, n_w, rgb, frame_id);
   return true;
 }
 
@@ -121,9 +147,11 @@ class FrameFusion {
         redundancy_min_merges_(std::max(0, config.redundancy_min_merges)) {}
 
   // Fuses rows [v0, v1); new points are appended to *added.
-  void rows(int v0, int v1, PointArrays* added, FusionStats* stats) const;
+  void rows(int v0, int v1, RowScratch* row, PointArrays* added, FusionStats* stats) const;
 
  private:
+  // The first pass over row v: RowScratch for every pixel, valid or not.
+  void prepare_row(int v, RowScratch* row) const;
   const MeasurementImage& m_;
   const ColorImage* color_;
   uint32_t frame_id_;
@@ -142,6 +170,7 @@ class FrameFusion {
 };
 
 bool FrameFusion::explained(int u, int v, const Eigen::Vector3f& p_w, const Sym3f& L_n) const {
+  // The merge count as it is now: a merge earlier in this frame counts.
   const ModelProjection& proj = proj_;
   return any_in_window(u, v, cr_, m_.width, m_.height, [&](size_t px) {
     return proj.has_candidate(px) &&
@@ -150,38 +179,105 @@ bool FrameFusion::explained(int u, int v, const Eigen::Vector3f& p_w, const Sym3
   });
 }
 
-void FrameFusion::rows(int v0, int v1, PointArrays* added, FusionStats* stats) const {
+void FrameFusion::prepare_row(int v, RowScratch* row) const {
+  // Plain pointers for the loop; `ivdep` tells the compiler what it cannot prove (GCC ignores
+  // restrict on locals): no store here reaches another iteration's inputs, so it may vectorise.
+  const int W = m_.width;
+  const size_t i0 = static_cast<size_t>(v) * W;
+  const float* X = m_.x.data() + i0;
+  const float* Y = m_.y.data() + i0;
+  const float* Z = m_.z.data() + i0;
+  const float* NX = m_.nx.data() + i0;
+  const float* NY = m_.ny.data() + i0;
+  const float* NZ = m_.nz.data() + i0;
+  const ModelProjection::CandidateColumns c = proj_.candidate_columns(i0);
+  const float* CX = c.x;
+  const float* CY = c.y;
+  const float* CZ = c.z;
+  const float* CXX = c.xx;
+  const float* CXY = c.xy;
+  const float* CXZ = c.xz;
+  const float* CYY = c.yy;
+  const float* CYZ = c.yz;
+  const float* CZZ = c.zz;
+  float* p_x = row->p_x.data();
+  float* p_y = row->p_y.data();
+  float* p_z = row->p_z.data();
+  float* n_x = row->n_x.data();
+  float* n_y = row->n_y.data();
+  float* n_z = row->n_z.data();
+  float* range_m = row->range.data();
+  float* l_xx = row->l_xx.data();
+  float* l_xy = row->l_xy.data();
+  float* l_xz = row->l_xz.data();
+  float* l_yy = row->l_yy.data();
+  float* l_yz = row->l_yz.data();
+  float* l_zz = row->l_zz.data();
+  float* f_x = row->f_x.data();
+  float* f_y = row->f_y.data();
+  float* f_z = row->f_z.data();
+  uint8_t* merges = row->merges.data();
+  const Eigen::Matrix3f R = R_;
+  const Eigen::Vector3f t = t_, up = up_w_;
+  const SensorModel& model = model_;
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC ivdep
+#endif
+  for (int u = 0; u < W; ++u) {
+    const Eigen::Vector3f p_c(X[u], Y[u], Z[u]);
+    const Eigen::Vector3f ray_w = rotate(R, p_c);
+    const Eigen::Vector3f p_w = ray_w + t;
+    const Eigen::Vector3f n_w = rotate(R, Eigen::Vector3f(NX[u], NY[u], NZ[u]));
+    const float range = std::sqrt(p_c.squaredNorm());  // norm() would not vectorise
+    float w_x, w_y, w_z;
+    model.information_weights(Z[u], &w_x, &w_y, &w_z);
+    const Sym3f L_n = ray_information(ray_w * (1.0f / range), up, w_x, w_y, w_z);
+    Eigen::Vector3f p_f;
+    Sym3f L_f;
+    merges[u] = merge_rule(Eigen::Vector3f(CX[u], CY[u], CZ[u]),
+                           Sym3f{CXX[u], CXY[u], CXZ[u], CYY[u], CYZ[u], CZZ[u]}, p_w, L_n, &p_f, &L_f);
+    p_x[u] = p_w.x(); p_y[u] = p_w.y(); p_z[u] = p_w.z();
+    n_x[u] = n_w.x(); n_y[u] = n_w.y(); n_z[u] = n_w.z();
+    range_m[u] = range;
+    l_xx[u] = L_n.xx; l_xy[u] = L_n.xy; l_xz[u] = L_n.xz;
+    l_yy[u] = L_n.yy; l_yz[u] = L_n.yz; l_zz[u] = L_n.zz;
+    f_x[u] = p_f.x(); f_y[u] = p_f.y(); f_z[u] = p_f.z();
+  }
+}
+
+void FrameFusion::rows(int v0, int v1, RowScratch* row, PointArrays* added, FusionStats* stats) const {
   const MeasurementImage& m = m_;
   ModelProjection& proj = proj_;
-  const Eigen::Matrix3f& R = R_;
   const Eigen::Vector3f& t = t_;
   const int cr = cr_;
   const size_t proj_pixels = m.pixel_count();
+  const RowScratch& r = *row;
   for (int v = v0; v < v1; ++v) {
+    prepare_row(v, row);
     for (int u = 0; u < m.width; ++u) {
       const size_t i = static_cast<size_t>(v) * m.width + u;
       if (i + ModelProjection::kPrefetchPixels < proj_pixels)
         proj.prefetch_candidate(i + ModelProjection::kPrefetchPixels);
       if (!m.valid[i]) continue;
       ++stats->measurements;
-      const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);
-      const Eigen::Vector3f ray_w = R * p_c;
-      const Eigen::Vector3f p_w = ray_w + t;
-      const Eigen::Vector3f n_w = R * Eigen::Vector3f(m.nx[i], m.ny[i], m.nz[i]);
+      const Eigen::Vector3f p_w(r.p_x[u], r.p_y[u], r.p_z[u]);
+      const Eigen::Vector3f n_w(r.n_x[u], r.n_y[u], r.n_z[u]);
+      const Sym3f L_n{r.l_xx[u], r.l_xy[u], r.l_xz[u], r.l_yy[u], r.l_yz[u], r.l_zz[u]};
       const float z = m.z[i];
-      const float range = p_c.norm();
-      float w_x, w_y, w_z;
-      model_.information_weights(z, &w_x, &w_y, &w_z);
-      const Sym3f L_n = ray_information(ray_w * (1.0f / range), up_w_, w_x, w_y, w_z);
+      const float range = r.range[u];
       const uint8_t* rgb = color_ ? &color_->rgb[3 * i] : nullptr;
 
       // The candidate at this very pixel (the existing point closest in depth to the measurement)
       // first; only if it is missing, taken, or does not merge, the nearest untaken candidate in
       // the window. Searching the window first would let a pixel take its neighbour's point and
-      // leave the neighbour to add a redundant one.
+      // leave the neighbour to add a redundant one. The merge with the pixel's own candidate was
+      // worked out in prepare_row(); an untaken candidate is as it was rendered.
       bool merged = false;
-      if (proj.has_candidate(i) && !proj.taken_at(i))
-        merged = try_merge(proj, i, p_w, L_n, n_w, rgb, frame_id_);
+      if (proj.has_candidate(i) && !proj.taken_at(i) && r.merges[u]) {
+        merge_into_candidate(proj, i, Eigen::Vector3f(r.f_x[u], r.f_y[u], r.f_z[u]),
+                             proj.candidate_information(i) + L_n, n_w, rgb, frame_id_);
+        merged = true;
+      }
       if (!merged && cr > 0) {
         size_t best_px = i;
         float best_d2 = std::numeric_limits<float>::infinity();
@@ -280,6 +376,8 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
   FusionStats stats[3];
   PointArrays* added = scratch_->added;
   for (PointArrays& a : scratch_->added) a.clear();
+  RowScratch* row = scratch_->rows;
+  for (RowScratch& r : scratch_->rows) r.resize(m.width);
   // Bands: rows [0, h - r) and [h + r, height), on two threads if there are two, then the seam
   // [h - r, h + r) once both are done (r: the candidate window's reach). With one thread the bands
   // run in the same order, so the result does not depend on the thread count.
@@ -287,11 +385,11 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
   const int h = m.height / 2;
   if (m.height > 8 * r) {
     run_pair(
-        config_.threads, [&] { frame.rows(0, h - r, &added[0], &stats[0]); },
-        [&] { frame.rows(h + r, m.height, &added[1], &stats[1]); });
-    frame.rows(h - r, h + r, &added[2], &stats[2]);
+        config_.threads, [&] { frame.rows(0, h - r, &row[0], &added[0], &stats[0]); },
+        [&] { frame.rows(h + r, m.height, &row[1], &added[1], &stats[1]); });
+    frame.rows(h - r, h + r, &row[0], &added[2], &stats[2]);
   } else {
-    frame.rows(0, m.height, &added[0], &stats[0]);
+    frame.rows(0, m.height, &row[0], &added[0], &stats[0]);
   }
   FusionStats total;
   for (int b = 0; b < 3; ++b) {

@@ -1,10 +1,20 @@
 // Internal: small inline per-point math shared by fusion and registration.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+
+// Per-point math that a vectorised loop calls must be inlined into it, whatever the compiler's
+// size heuristics say.
+#if defined(__GNUC__)
+#define DF_INLINE inline __attribute__((always_inline))
+#else
+#define DF_INLINE inline
+#endif
 
 namespace depthfuse {
 
@@ -23,43 +33,54 @@ struct Sym3f {
   }
 };
 
-inline Sym3f operator+(const Sym3f& a, const Sym3f& b) {
+DF_INLINE Sym3f operator+(const Sym3f& a, const Sym3f& b) {
   return {a.xx + b.xx, a.xy + b.xy, a.xz + b.xz, a.yy + b.yy, a.yz + b.yz, a.zz + b.zz};
 }
 
-inline Eigen::Vector3f operator*(const Sym3f& a, const Eigen::Vector3f& v) {
+DF_INLINE Eigen::Vector3f operator*(const Sym3f& a, const Eigen::Vector3f& v) {
   return {a.xx * v.x() + a.xy * v.y() + a.xz * v.z(), a.xy * v.x() + a.yy * v.y() + a.yz * v.z(),
           a.xz * v.x() + a.yz * v.y() + a.zz * v.z()};
 }
 
+// R v written out: Eigen's own product is a call the compiler may leave out of line, and a loop
+// with a call in it is not vectorised.
+DF_INLINE Eigen::Vector3f rotate(const Eigen::Matrix3f& R, const Eigen::Vector3f& v) {
+  return {R(0, 0) * v.x() + R(0, 1) * v.y() + R(0, 2) * v.z(),
+          R(1, 0) * v.x() + R(1, 1) * v.y() + R(1, 2) * v.z(),
+          R(2, 0) * v.x() + R(2, 1) * v.y() + R(2, 2) * v.z()};
+}
+
 // v^T A v: the squared Mahalanobis length of v under information A.
-inline float mahalanobis2(const Eigen::Vector3f& v, const Sym3f& a) {
+DF_INLINE float mahalanobis2(const Eigen::Vector3f& v, const Sym3f& a) {
   const float x = v.x(), y = v.y(), z = v.z();
   return a.xx * x * x + a.yy * y * y + a.zz * z * z + 2.0f * (a.xy * x * y + a.xz * x * z + a.yz * y * z);
 }
 
-// Inverse by cofactors. Returns false if singular.
-inline bool invert(const Sym3f& a, Sym3f* inv) {
+// Inverse by cofactors. Returns false if singular (then *inv holds non-finite values).
+// Branch-free, like everything fusion's per-row loop calls.
+DF_INLINE bool invert(const Sym3f& a, Sym3f* inv) {
   const float c00 = a.yy * a.zz - a.yz * a.yz, c01 = a.xz * a.yz - a.xy * a.zz,
               c02 = a.xy * a.yz - a.xz * a.yy;
   const float det = a.xx * c00 + a.xy * c01 + a.xz * c02;
-  if (!(std::abs(det) > 0.0f) || !std::isfinite(det)) return false;
   const float s = 1.0f / det;
   *inv = {c00 * s, c01 * s, c02 * s, (a.xx * a.zz - a.xz * a.xz) * s,
           (a.xy * a.xz - a.xx * a.yz) * s, (a.xx * a.yy - a.xy * a.xy) * s};
-  return true;
+  // |det| in (0, inf): not zero, not infinite, not NaN.
+  return (std::abs(det) > 0.0f) & (std::abs(det) < std::numeric_limits<float>::infinity());
 }
 
 // Information matrix of an ellipsoid whose third axis is the unit ray direction d, with
 // information w_x, w_y across and w_z along the ray. `up` (unit) is the camera's y axis in the same
 // frame and fixes the lateral axes: e2 is up made orthogonal to d, e1 = e2 x d. Since e1, e2 and d
-// are orthonormal, L = w_x I + (w_y - w_x) e2 e2^T + (w_z - w_x) d d^T.
-inline Sym3f ray_information(const Eigen::Vector3f& d, const Eigen::Vector3f& up, float w_x,
+// are orthonormal, L = w_x I + (w_y - w_x) e2 e2^T + (w_z - w_x) d d^T. Branch-free, so that fusion's
+// per-row loop vectorises: where d runs along `up` (never inside a camera's field of view) e2 is
+// zero and both lateral axes get w_x.
+DF_INLINE Sym3f ray_information(const Eigen::Vector3f& d, const Eigen::Vector3f& up, float w_x,
                              float w_y, float w_z) {
   const float du = d.dot(up);
-  const float s2 = 1.0f - du * du;
-  Eigen::Vector3f e2 = s2 > 1e-12f ? Eigen::Vector3f((up - du * d) * (1.0f / std::sqrt(s2)))
-                                   : Eigen::Vector3f(d.unitOrthogonal());
+  // |.| and the tiny bias instead of a max(): a float max() is a branch the vectoriser refuses.
+  const float s2 = std::abs(1.0f - du * du) + 1e-12f;
+  const Eigen::Vector3f e2 = (up - du * d) * (1.0f / std::sqrt(s2));
   const float a = w_y - w_x, b = w_z - w_x;
   return {w_x + a * e2.x() * e2.x() + b * d.x() * d.x(), a * e2.x() * e2.y() + b * d.x() * d.y(),
           a * e2.x() * e2.z() + b * d.x() * d.z(),       w_x + a * e2.y() * e2.y() + b * d.y() * d.y(),
@@ -75,20 +96,21 @@ inline void ray_information(const Eigen::Vector3f& ray, const Eigen::Vector3f& u
 }
 
 // The paper's merge rule on the six-entry form: the product of the two Gaussians (p_e, L_e) and
-// (p_n, L_n), accepted when the fused point lies inside both unit ellipsoids. merge_measurement()
-// is its public face; fusion calls this inline.
-inline bool merge_rule(const Eigen::Vector3f& p_e, const Sym3f& L_e, const Eigen::Vector3f& p_n,
+// (p_n, L_n), accepted when the fused point lies inside both unit ellipsoids. Writes the fused point
+// and information whether or not it accepts (they are meaningless when it does not), without a
+// branch: fusion evaluates it for a whole image row at once. merge_measurement() is its public face.
+DF_INLINE bool merge_rule(const Eigen::Vector3f& p_e, const Sym3f& L_e, const Eigen::Vector3f& p_n,
                        const Sym3f& L_n, Eigen::Vector3f* p_fused, Sym3f* L_fused) {
   const Sym3f L = L_e + L_n;
   Sym3f C;
-  if (!invert(L, &C)) return false;
+  const bool invertible = invert(L, &C);
   const Eigen::Vector3f delta = p_n - p_e;
   const Eigen::Vector3f from_e = C * (L_n * delta);  // p' - p_e
-  if (mahalanobis2(from_e, L_e) > 1.0f) return false;
-  if (mahalanobis2(Eigen::Vector3f(from_e - delta), L_n) > 1.0f) return false;  // p' - p_n
+  const bool inside_e = mahalanobis2(from_e, L_e) <= 1.0f;
+  const bool inside_n = mahalanobis2(Eigen::Vector3f(from_e - delta), L_n) <= 1.0f;  // p' - p_n
   *p_fused = p_e + from_e;
   *L_fused = L;
-  return true;
+  return invertible & inside_e & inside_n;
 }
 
 }  // namespace depthfuse

@@ -244,6 +244,7 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
   cand_x_.resize(n);
   cand_y_.resize(n);
   cand_z_.resize(n);
+  for (std::vector<float>& column : cand_info_) column.resize(n);
   taken_.resize(n);
   run_halves(threads_, n, [&](size_t begin, size_t end) {
     for (size_t px = begin; px < end; ++px) {
@@ -266,15 +267,25 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
       }
       locate(static_cast<uint32_t>(k.cand), &cand_slot_[px], &cand_index_[px]);
     }
-    // The candidates' positions, pixel-ordered. Each is a random read into the map: prefetching a
-    // few pixels ahead turns a chain of cache misses into overlapping ones.
+    // The candidates' positions and information, pixel-ordered. Each is a random
+    // read into the map: prefetching a few pixels ahead turns a chain of cache misses into
+    // overlapping ones.
     for (size_t px = begin; px < end; ++px) {
       if (px + kPrefetchPixels < end) prefetch_candidate(px + kPrefetchPixels);
       if (cand_slot_[px] < 0) continue;
-      const Eigen::Vector3f& p = chunks_[cand_slot_[px]]->points.position_m[cand_index_[px]];
+      const PointArrays& a = chunks_[cand_slot_[px]]->points;
+      const uint32_t j = cand_index_[px];
+      const Eigen::Vector3f& p = a.position_m[j];
       cand_x_[px] = p.x();
       cand_y_[px] = p.y();
       cand_z_[px] = p.z();
+      const PointState& st = a.state[j];
+      cand_info_[0][px] = st.info_xx;
+      cand_info_[1][px] = st.info_xy;
+      cand_info_[2][px] = st.info_xz;
+      cand_info_[3][px] = st.info_yy;
+      cand_info_[4][px] = st.info_yz;
+      cand_info_[5][px] = st.info_zz;
     }
   });
 }

@@ -8,6 +8,7 @@
 
 #include "depthfuse/measurement.hpp"
 #include "depthfuse/point_map.hpp"
+#include "geometry.hpp"
 
 #include <cmath>
 
@@ -78,6 +79,23 @@ class ModelProjection {
   }
   PointArrays& candidate_points(size_t pixel) const { return chunks_[cand_slot_[pixel]]->points; }
   uint32_t candidate_index(size_t pixel) const { return cand_index_[pixel]; }
+  // The candidate's information matrix as it was when rendered, pixel-ordered like its position. A
+  // candidate that no measurement of this frame has merged with is unchanged.
+  Sym3f candidate_information(size_t pixel) const {
+    return {cand_info_[0][pixel], cand_info_[1][pixel], cand_info_[2][pixel],
+            cand_info_[3][pixel], cand_info_[4][pixel], cand_info_[5][pixel]};
+  }
+  // The same columns as arrays from `pixel` on, for loops over a row. Where a pixel has no
+  // candidate they hold stale but finite values.
+  struct CandidateColumns {
+    const float *x, *y, *z;                     // world position, m
+    const float *xx, *xy, *xz, *yy, *yz, *zz;   // information, 1/m^2
+  };
+  CandidateColumns candidate_columns(size_t pixel) const {
+    return {cand_x_.data() + pixel,       cand_y_.data() + pixel,       cand_z_.data() + pixel,
+            cand_info_[0].data() + pixel, cand_info_[1].data() + pixel, cand_info_[2].data() + pixel,
+            cand_info_[3].data() + pixel, cand_info_[4].data() + pixel, cand_info_[5].data() + pixel};
+  }
   // Starts loading the candidate's position and state at a pixel into the cache (a hint, no effect
   // on results). Loops over pixels call it a few pixels ahead.
   __attribute__((always_inline)) void prefetch_candidate(size_t pixel) const {
@@ -140,6 +158,7 @@ class ModelProjection {
   std::vector<float> front_depth_;      // per pixel: z of the front-most point in the camera
   std::vector<float> front_depth_2_;    // render_surface(): the second half's
   std::vector<float> cand_x_, cand_y_, cand_z_;  // per pixel: the candidate's world position
+  std::vector<float> cand_info_[6];     // per pixel: its information, xx xy xz yy yz zz
   std::vector<uint8_t> taken_;          // per pixel: candidate merged with a measurement of this frame
   size_t rendered_ = 0;
   std::vector<SurfaceSum> surface_;     // render_surface(): mean point and unit normal, summed weight
