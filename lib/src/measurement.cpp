@@ -5,6 +5,7 @@
 #include <atomic>
 #include <cmath>
 
+#include "geometry.hpp"
 #include "parallel.hpp"
 
 namespace depthfuse {
@@ -25,16 +26,45 @@ void MeasurementImage::resize(int w, int h) {
 
 namespace {
 
-// Normal from two difference vectors, oriented towards the camera (origin).
-inline bool normal_from(const Eigen::Vector3f& du, const Eigen::Vector3f& dv,
-                        const Eigen::Vector3f& p, Eigen::Vector3f* n) {
-  Eigen::Vector3f c = du.cross(dv);
-  const float len = c.norm();
-  if (!(len > 1e-12f)) return false;
-  c /= len;
-  if (c.dot(p) > 0) c = -c;
-  *n = c;
-  return true;
+// The back-projected image's columns, for the normal pass.
+struct Columns {
+  const float *x, *y, *z;
+  const uint8_t* valid;
+  float *nx, *ny, *nz;
+};
+
+// The normal of pixel i from its neighbours at distance r: il and ir left and right, it and ib above
+// and below (has_*: the neighbour is in the image; if not, its index may be any pixel). Central
+// differences, one-sided where a neighbour is missing or lies across a depth discontinuity;
+// oriented towards the camera (origin); zero where there is none. Branch-free, so that the loop
+// over a row's interior vectorises.
+DF_INLINE void normal_at(const Columns& c, size_t i, size_t il, size_t ir, size_t it, size_t ib,
+                         bool has_l, bool has_r, bool has_t, bool has_b) {
+  // Every load first and unconditionally (all four indices are in the image), then selects: a
+  // load under a condition would be a branch.
+  const float x0 = c.x[i], y0 = c.y[i], z0 = c.z[i];
+  const float xl = c.x[il], yl = c.y[il], zl = c.z[il], xr = c.x[ir], yr = c.y[ir], zr = c.z[ir];
+  const float xt = c.x[it], yt = c.y[it], zt = c.z[it], xb = c.x[ib], yb = c.y[ib], zb = c.z[ib];
+  const float tol = 0.05f * z0 + 0.01f;
+  const bool l = has_l & (c.valid[il] != 0) & (std::abs(zl - z0) < tol);
+  const bool r = has_r & (c.valid[ir] != 0) & (std::abs(zr - z0) < tol);
+  const bool t = has_t & (c.valid[it] != 0) & (std::abs(zt - z0) < tol);
+  const bool b = has_b & (c.valid[ib] != 0) & (std::abs(zb - z0) < tol);
+  // du = (right or p) - (left or p), dv = (below or p) - (above or p).
+  const float dux = (r ? xr : x0) - (l ? xl : x0);
+  const float duy = (r ? yr : y0) - (l ? yl : y0);
+  const float duz = (r ? zr : z0) - (l ? zl : z0);
+  const float dvx = (b ? xb : x0) - (t ? xt : x0);
+  const float dvy = (b ? yb : y0) - (t ? yt : y0);
+  const float dvz = (b ? zb : z0) - (t ? zt : z0);
+  float nx = duy * dvz - duz * dvy, ny = duz * dvx - dux * dvz, nz = dux * dvy - duy * dvx;
+  const float len2 = nx * nx + ny * ny + nz * nz;
+  const bool ok = (c.valid[i] != 0) & (l | r) & (t | b) & (len2 > 1e-24f);
+  const float s = (nx * x0 + ny * y0 + nz * z0 > 0.0f) ? -1.0f : 1.0f;  // towards the camera
+  const float scale = ok ? s / std::sqrt(ok ? len2 : 1.0f) : 0.0f;
+  c.nx[i] = nx * scale;
+  c.ny[i] = ny * scale;
+  c.nz[i] = nz * scale;
 }
 
 }  // namespace
@@ -73,36 +103,33 @@ Status backproject(const Frame& frame, const SensorModelConfig& sensor, const Fu
     }
   });
 
-  // Normals by central differences over `r` pixels; one-sided where a neighbour is missing or
-  // lies across a depth discontinuity.
-  const int r = std::max(1, fusion.normal_radius_px);
-  auto P = [&](size_t i) { return Eigen::Vector3f(out->x[i], out->y[i], out->z[i]); };
-  auto usable = [&](int uu, int vv, float z0) {
-    if (uu < 0 || vv < 0 || uu >= W || vv >= H) return false;
-    const size_t j = static_cast<size_t>(vv) * W + uu;
-    return out->valid[j] && std::abs(out->z[j] - z0) < 0.05f * z0 + 0.01f;
-  };
+  // Normals by central differences over `r` pixels (normal_at). Columns within r of the left or
+  // right edge take the clamped path; the rest of the row runs vectorised.
+  const int r = std::min(std::max(1, fusion.normal_radius_px), std::max(1, (W - 1) / 2));
+  const Columns cols{out->x.data(),  out->y.data(),  out->z.data(), out->valid.data(),
+                     out->nx.data(), out->ny.data(), out->nz.data()};
   run_row_halves(fusion.threads, H, [&](int v0, int v1) {
     for (int v = v0; v < v1; ++v) {
-      for (int u = 0; u < W; ++u) {
-        const size_t i = static_cast<size_t>(v) * W + u;
-        out->nx[i] = out->ny[i] = out->nz[i] = 0.0f;
-        if (!out->valid[i]) continue;
-        const float z0 = out->z[i];
-        const bool l = usable(u - r, v, z0), rr = usable(u + r, v, z0);
-        const bool t = usable(u, v - r, z0), b = usable(u, v + r, z0);
-        if (!(l || rr) || !(t || b)) continue;
-        const Eigen::Vector3f p = P(i);
-        const Eigen::Vector3f pu0 = l ? P(i - r) : p, pu1 = rr ? P(i + r) : p;
-        const Eigen::Vector3f pv0 = t ? P(i - static_cast<size_t>(r) * W) : p;
-        const Eigen::Vector3f pv1 = b ? P(i + static_cast<size_t>(r) * W) : p;
-        Eigen::Vector3f n;
-        if (normal_from(pu1 - pu0, pv1 - pv0, p, &n)) {
-          out->nx[i] = n.x();
-          out->ny[i] = n.y();
-          out->nz[i] = n.z();
-        }
+      const size_t row = static_cast<size_t>(v) * W;
+      const bool has_t = v - r >= 0, has_b = v + r < H;
+      // Rows beyond the image: any row will do, the flags ignore it.
+      const size_t row_t = has_t ? row - static_cast<size_t>(r) * W : row;
+      const size_t row_b = has_b ? row + static_cast<size_t>(r) * W : row;
+      auto edge = [&](int u) {
+        const size_t i = row + u;
+        const bool has_l = u - r >= 0, has_r = u + r < W;
+        normal_at(cols, i, has_l ? i - r : i, has_r ? i + r : i, row_t + u, row_b + u, has_l, has_r,
+                  has_t, has_b);
+      };
+      for (int u = 0; u < std::min(r, W); ++u) edge(u);
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC ivdep
+#endif
+      for (int u = r; u < W - r; ++u) {
+        const size_t i = row + u;
+        normal_at(cols, i, i - r, i + r, row_t + u, row_b + u, true, true, has_t, has_b);
       }
+      for (int u = std::max(r, W - r); u < W; ++u) edge(u);
     }
   });
   return Status::ok();

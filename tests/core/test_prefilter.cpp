@@ -99,6 +99,48 @@ TEST(Backproject, NormalsFaceTheCamera) {
   EXPECT_NEAR(m.z[i], 2.0f, 1e-6f);
 }
 
+TEST(Backproject, NormalsOfTheCornerArePlaneNormalsAndNoneWithoutNeighbours) {
+  // Three orthogonal planes, seen so that the image holds all three and their edges, with a hole
+  // punched in: where the four neighbours at the normal radius lie on the pixel's own plane, the
+  // normal is that plane's normal turned towards the camera. Each side of a pixel needs one
+  // usable neighbour; a lone pixel (its neighbours all missing) has none.
+  const Pose T = test::look_at({2.0, 1.8, 1.5}, {0.2, 0.2, 0.3});
+  Frame f = test::render_corner(T);
+  const int hu = 300, hv = 150, r = FusionConfig{}.normal_radius_px;
+  for (int v = hv - r; v <= hv + r; ++v)
+    for (int u = hu - r; u <= hu + r; ++u)
+      if (u != hu || v != hv) f.depth.at(u, v) = 0.0f;  // leaves (hu, hv) alone in a hole
+  MeasurementImage m = measure(f);
+  const Eigen::Matrix3d R = T.linear();
+  int checked = 0;
+  for (int v = 0; v < m.height; ++v)
+    for (int u = 0; u < m.width; ++u) {
+      const size_t i = static_cast<size_t>(v) * m.width + u;
+      if (!m.valid[i]) continue;
+      const Eigen::Vector3d p = T * Eigen::Vector3d(m.x[i], m.y[i], m.z[i]);
+      int axis = 0;  // the plane the point lies on: its smallest coordinate
+      for (int a = 1; a < 3; ++a) if (std::abs(p[a]) < std::abs(p[axis])) axis = a;
+      bool same_plane = u >= r && v >= r && u + r < m.width && v + r < m.height;
+      for (int d : {-r, r}) {
+        for (size_t j : {i + d, i + static_cast<size_t>(d) * m.width}) {
+          if (!same_plane || !m.valid[j]) { same_plane = false; break; }
+          const Eigen::Vector3d q = T * Eigen::Vector3d(m.x[j], m.y[j], m.z[j]);
+          same_plane = std::abs(q[axis]) < 1e-4;
+        }
+      }
+      if (!same_plane) continue;
+      const Eigen::Vector3d n = R * Eigen::Vector3d(m.nx[i], m.ny[i], m.nz[i]);
+      ASSERT_NEAR(n[axis], 1.0, 1e-3) << "pixel " << u << ", " << v;  // the planes face +x, +y, +z
+      ++checked;
+    }
+  EXPECT_GT(checked, 100000);
+  const size_t lone = static_cast<size_t>(hv) * m.width + hu;
+  ASSERT_TRUE(m.valid[lone]);
+  EXPECT_EQ(m.nx[lone], 0.0f);
+  EXPECT_EQ(m.ny[lone], 0.0f);
+  EXPECT_EQ(m.nz[lone], 0.0f);
+}
+
 TEST(Prefilter, TwoThreadsGiveTheSameMeasurements) {
   // The corner, with a speck of flying pixels and holes scattered over it (some on the rows where
   // the image splits in two halves).
