@@ -200,6 +200,86 @@ double reference_knn_distance_per_m(const CameraIntrinsics& K, int neighbour_ran
   return n ? sum / n : 0.0;
 }
 
+namespace {
+
+// The pre-filter's count over image rows: marks each valid pixel with fewer than k neighbours
+// (in the (2R + 1)^2 window) within per_m * z of it.
+struct PrefilterPass {
+  const float *X, *Y, *Z;
+  const uint8_t* valid;
+  uint8_t* marks;
+  int W, H, k;
+  float per_m;
+
+  // Neighbours of pixel (u, v) within the limit. kCheckColumns: the window may leave the image
+  // sideways (the R columns at each edge). Rows outside the image count nothing (has_row).
+  // Branch-free: every index is in the image (clamped to the centre where the neighbour is not).
+  template <int R, bool kCheckColumns>
+  DF_INLINE int within(int u, size_t i, const size_t* row, const bool* has_row) const {
+    const float limit = per_m * Z[i];
+    const float limit2 = limit * limit;
+    const float px = X[i], py = Y[i], pz = Z[i];
+    int count = 0;
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC unroll 7
+#endif
+    for (int dv = -R; dv <= R; ++dv) {
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC unroll 7
+#endif
+      for (int du = -R; du <= R; ++du) {
+        if (du == 0 && dv == 0) continue;  // a constant: unrolled away
+        bool in = has_row[dv + R];
+        size_t j = row[dv + R] + u + du;
+        if (kCheckColumns) {
+          in = in && u + du >= 0 && u + du < W;
+          j = in ? j : i;
+        }
+        const float ex = X[j] - px, ey = Y[j] - py, ez = Z[j] - pz;
+        count += in & (valid[j] != 0) & (ex * ex + ey * ey + ez * ez <= limit2);
+      }
+    }
+    return count;
+  }
+
+  template <int R>
+  size_t rows(int v0, int v1) const {
+    // Locals, not members, in the loops: a store to the byte-sized marks may alias any member,
+    // and the compiler would reload them (and could not count the iterations).
+    const PrefilterPass p = *this;
+    const int W = p.W, H = p.H, k = p.k;
+    const uint8_t* valid = p.valid;
+    uint8_t* marks = p.marks;
+    size_t removed = 0;
+    for (int v = v0; v < v1; ++v) {
+      const size_t centre = static_cast<size_t>(v) * W;
+      size_t row[2 * R + 1];
+      bool has_row[2 * R + 1];
+      for (int dv = -R; dv <= R; ++dv) {
+        has_row[dv + R] = v + dv >= 0 && v + dv < H;
+        row[dv + R] = has_row[dv + R] ? centre + static_cast<ptrdiff_t>(dv) * W : centre;
+      }
+      auto edge = [&](int u) {
+        const size_t i = centre + u;
+        marks[i] = valid[i] && p.within<R, true>(u, i, row, has_row) < k;
+      };
+      for (int u = 0; u < std::min(R, W); ++u) edge(u);
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC ivdep
+#endif
+      for (int u = R; u < W - R; ++u) {
+        const size_t i = centre + u;
+        marks[i] = (valid[i] != 0) & (p.within<R, false>(u, i, row, has_row) < k);
+      }
+      for (int u = std::max(R, W - R); u < W; ++u) edge(u);
+      for (int u = 0; u < W; ++u) removed += marks[centre + u];
+    }
+    return removed;
+  }
+};
+
+}  // namespace
+
 size_t prefilter(const PrefilterConfig& config, MeasurementImage* m, int threads) {
   if (!config.enabled || m->pixel_count() == 0) return 0;
   const int r = clamp_radius(config.window_radius_px);
@@ -222,49 +302,24 @@ size_t prefilter(const PrefilterConfig& config, MeasurementImage* m, int threads
   // instead of sorting distances. Decide on the unfiltered map first, then remove: the test of
   // one pixel must not depend on which of its neighbours were removed before it.
   // The mark buffer is reached through a plain pointer: the second thread must mark this thread's
-  // buffer, not a thread_local of its own. The map's arrays too are read through pointers held in
-  // locals, so that no store to the marks (bytes, which may alias anything) makes the loop reload them.
+  // buffer, not a thread_local of its own.
   thread_local std::vector<uint8_t> remove;
   remove.assign(m->pixel_count(), 0);
-  uint8_t* const marks = remove.data();
-  const uint8_t* const valid = m->valid.data();
-  const float* const X = m->x.data();
-  const float* const Y = m->y.data();
-  const float* const Z = m->z.data();
-  const int W = m->width, H = m->height;
+  const PrefilterPass pass{m->x.data(), m->y.data(), m->z.data(), m->valid.data(), remove.data(),
+                           m->width, m->height, k, per_m};
   // The two halves of the rows at once if there are two threads: each only reads the map and
   // marks its own pixels.
   std::atomic<size_t> removed_total{0};
-  run_row_halves(threads, H, [=, &removed_total](int v0, int v1) {
+  run_row_halves(threads, m->height, [&](int v0, int v1) {
     size_t removed = 0;
-    for (int v = v0; v < v1; ++v) {
-      for (int u = 0; u < W; ++u) {
-        const size_t i = static_cast<size_t>(v) * W + u;
-        if (!valid[i]) continue;
-        const float limit = per_m * Z[i];
-        const float limit2 = limit * limit;
-        const float px = X[i], py = Y[i], pz = Z[i];
-        int within = 0;
-        for (int dv = -r; dv <= r && within < k; ++dv) {
-          const int vv = v + dv;
-          if (vv < 0 || vv >= H) continue;
-          for (int du = -r; du <= r; ++du) {
-            const int uu = u + du;
-            if ((du == 0 && dv == 0) || uu < 0 || uu >= W) continue;
-            const size_t j = static_cast<size_t>(vv) * W + uu;
-            if (!valid[j]) continue;
-            const float ex = X[j] - px, ey = Y[j] - py, ez = Z[j] - pz;
-            within += ex * ex + ey * ey + ez * ez <= limit2;
-          }
-        }
-        if (within < k) {
-          marks[i] = 1;
-          ++removed;
-        }
-      }
+    switch (r) {  // the window's radius as a constant: the neighbour loops unroll
+      case 1: removed = pass.rows<1>(v0, v1); break;
+      case 2: removed = pass.rows<2>(v0, v1); break;
+      default: removed = pass.rows<3>(v0, v1); break;
     }
     removed_total += removed;
   });
+  const uint8_t* const marks = remove.data();
   for (size_t i = 0; i < remove.size(); ++i)
     if (marks[i]) m->valid[i] = 0;
   return removed_total;
