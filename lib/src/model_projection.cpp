@@ -337,7 +337,7 @@ void ModelProjection::sum_surface(const Pose& T_world_cam, const CameraIntrinsic
 }
 
 void ModelProjection::render_surface(const Pose& T_world_cam, const CameraIntrinsics& K,
-                                     float band_m) {
+                                     float band_m, SurfaceView* view) {
   const size_t n = static_cast<size_t>(K.width) * K.height;
   // Point ids are not needed here, only the split of the chunks in two halves. There are always
   // two halves, on two threads if there are two, so that the result does not depend on the count.
@@ -368,13 +368,16 @@ void ModelProjection::render_surface(const Pose& T_world_cam, const CameraIntrin
 
   // Pass 2: the weighted sums of the points within the band behind it.
   const SurfaceSum zero{0, 0, 0, 0, 0, 0, 0};
-  surface_.resize(n);
+  view->K = K;
+  view->T_world_cam = T_world_cam;
+  std::vector<SurfaceSum>& surface = view->pixels;
+  surface.resize(n);
   surface_2_.resize(n);
   run_pair(
       threads_,
       [&] {
-        std::fill(surface_.begin(), surface_.end(), zero);
-        sum_surface(T_world_cam, K, band_m, 0, split, surface_.data());
+        std::fill(surface.begin(), surface.end(), zero);
+        sum_surface(T_world_cam, K, band_m, 0, split, surface.data());
       },
       [&] {
         std::fill(surface_2_.begin(), surface_2_.end(), zero);
@@ -382,7 +385,7 @@ void ModelProjection::render_surface(const Pose& T_world_cam, const CameraIntrin
       });
   run_halves(threads_, n, [&](size_t begin, size_t end) {
     for (size_t px = begin; px < end; ++px) {
-      SurfaceSum& s = surface_[px];
+      SurfaceSum& s = surface[px];
       const SurfaceSum& o = surface_2_[px];
       s.x += o.x;
       s.y += o.y;

@@ -8,6 +8,7 @@
 
 #include "depthfuse/measurement.hpp"
 #include "depthfuse/point_map.hpp"
+#include "depthfuse/registration.hpp"
 #include "geometry.hpp"
 
 #include <cmath>
@@ -53,17 +54,9 @@ class ModelProjection {
   // cloud still has several layers (poorly registered frames), and ICP would pull every camera
   // towards itself. Two passes: the front depth, then the sums. (A single pass whose band follows
   // the front as points stream in leaks farther layers into the mean: pose RMSE 3.0 mm against
-  // 2.0 mm on 30 s of the synthetic rooms walk.)
-  void render_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m);
-  bool has_surface(size_t pixel) const { return surface_[pixel].w > 0.0f; }
-  Eigen::Vector3f surface_point(size_t pixel) const {
-    const SurfaceSum& s = surface_[pixel];
-    return {s.x, s.y, s.z};
-  }
-  Eigen::Vector3f surface_normal(size_t pixel) const {
-    const SurfaceSum& s = surface_[pixel];
-    return {s.nx, s.ny, s.nz};
-  }
+  // 2.0 mm on 30 s of the synthetic rooms walk.) The result goes to *view.
+  void render_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m,
+                      SurfaceView* view);
 
   // The front-most point at a pixel.
   bool empty_at(size_t pixel) const { return front_slot_[pixel] < 0; }
@@ -128,9 +121,7 @@ class ModelProjection {
     float measured_z;   // the frame's depth at this pixel, +inf = none
     uint32_t unused;
   };
-  struct SurfaceSum {
-    float x, y, z, nx, ny, nz, w;
-  };
+  using SurfaceSum = SurfaceView::Pixel;  // summed, then normalised
   template <bool kGuided>
   size_t render_points(const Pose& T_world_cam, const CameraIntrinsics& K, size_t chunk_begin,
                        size_t chunk_end, PixelKeys* keys) const;
@@ -161,8 +152,7 @@ class ModelProjection {
   std::vector<float> cand_info_[6];     // per pixel: its information, xx xy xz yy yz zz
   std::vector<uint8_t> taken_;          // per pixel: candidate merged with a measurement of this frame
   size_t rendered_ = 0;
-  std::vector<SurfaceSum> surface_;     // render_surface(): mean point and unit normal, summed weight
-  std::vector<SurfaceSum> surface_2_;   // the second thread's, combined into the first
+  std::vector<SurfaceSum> surface_2_;   // render_surface(): the second thread's sums
 };
 
 }  // namespace depthfuse

@@ -51,8 +51,23 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
 
   t0 = Clock::now();
   if (config_.registration.enabled && map_->point_count() > 0) {
-    report.registration = frame.T_world_cam_hint ? registrar_.refine(scratch_, *map_, T)
-                                                 : registrar_.track(scratch_, *map_, T);
+    const bool hint = frame.T_world_cam_hint.has_value();
+    const RegistrationConfig& rc = config_.registration;
+    const SurfaceView& last = registrar_.model();
+    const bool reuse = frames_since_model_ > 0 && frames_since_model_ < rc.live_model_reuse_frames &&
+                       !last.empty() &&
+                       (T.translation() - last.T_world_cam.translation()).norm() <= rc.live_model_reuse_max_m &&
+                       rotation_deg(T, last.T_world_cam) <= rc.live_model_reuse_max_deg;
+    if (reuse) {
+      report.registration = hint ? registrar_.refine(scratch_, last, T)
+                                 : registrar_.track(scratch_, last, T);
+      ++frames_since_model_;
+      report.model_reused = true;
+    } else {
+      report.registration = hint ? registrar_.refine(scratch_, *map_, T)
+                                 : registrar_.track(scratch_, *map_, T);
+      frames_since_model_ = 1;
+    }
     report.registered = report.registration.converged;
     if (report.registered) T = report.registration.T_world_cam;
   }
@@ -74,6 +89,7 @@ size_t IncrementalReconstructor::finish() {
 void IncrementalReconstructor::reset(std::unique_ptr<PointMap> map, uint32_t next_frame_id,
                                      const std::optional<Pose>& last_T_world_cam) {
   map_ = map ? std::move(map) : std::make_unique<PointMap>(config_.fusion.chunk_size_m);
+  frames_since_model_ = 0;
   next_frame_id_ = std::max<uint32_t>(1, next_frame_id);
   last_T_world_cam_ = last_T_world_cam;
 }

@@ -84,21 +84,22 @@ void Registrar::render_model(const MeasurementImage& m, const PointMap& map, con
   proj.set_threads(config_.threads);
   // The map is only read; the projection's chunk pointers are non-const for fusion's sake.
   proj.select_chunks(const_cast<PointMap&>(map), m, T_world_cam, static_cast<float>(max_corr_m) + 0.05f);
-  model_K_ = model_intrinsics(m.intrinsics, config_.model_downsample);
-  proj.render_surface(T_world_cam, model_K_, static_cast<float>(config_.model_band_m));
-  T_world_model_cam_ = T_world_cam;
+  proj.render_surface(T_world_cam, model_intrinsics(m.intrinsics, config_.model_downsample),
+                      static_cast<float>(config_.model_band_m), &view_);
+  if (proj.rendered_points() == 0) view_.clear();
 }
 
-RegistrationResult Registrar::run(const MeasurementImage& m, const Pose& initial, int subsample,
-                                  int iterations, double max_corr_m) {
+RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& model,
+                                  const Pose& initial, int subsample, int iterations,
+                                  double max_corr_m) {
   RegistrationResult result;
   result.T_world_cam = initial;
-  const ModelProjection& proj = *projection_;
-  if (proj.rendered_points() == 0) return result;
+  const CameraIntrinsics& MK = model.K;
+  if (model.empty() || model.pixels.size() != static_cast<size_t>(MK.width) * MK.height) return result;
+  const SurfaceView::Pixel* surface = model.pixels.data();
 
   // Associations are made in the camera the model was rendered from.
-  const Pose T_cam0_world = T_world_model_cam_.inverse();
-  const CameraIntrinsics& MK = model_K_;
+  const Pose T_cam0_world = model.T_world_cam.inverse();
   const float fx = static_cast<float>(MK.fx), fy = static_cast<float>(MK.fy);
   const float cx = static_cast<float>(MK.cx), cy = static_cast<float>(MK.cy);
   const float cos_max = static_cast<float>(std::cos(config_.max_normal_angle_deg * M_PI / 180.0));
@@ -134,10 +135,10 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const Pose& initial
           if (!project_to_pixel(p0.x(), p0.y(), p0.z(), fx, fy, cx, cy, MK.width, MK.height, &pu,
                                 &pv))
             continue;
-          const size_t px = static_cast<size_t>(pv) * MK.width + pu;
-          if (!proj.has_surface(px)) continue;
-          const Eigen::Vector3f q = proj.surface_point(px);
-          const Eigen::Vector3f n_q = proj.surface_normal(px);
+          const SurfaceView::Pixel& s = surface[static_cast<size_t>(pv) * MK.width + pu];
+          if (!(s.w > 0.0f)) continue;
+          const Eigen::Vector3f q(s.x, s.y, s.z);
+          const Eigen::Vector3f n_q(s.nx, s.ny, s.nz);
           const Eigen::Vector3f p_w = R * p_c + t;
           const Eigen::Vector3f d = p_w - q;
           if (d.squaredNorm() > max_d * max_d) continue;
@@ -182,24 +183,39 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const Pose& initial
 RegistrationResult Registrar::refine(const MeasurementImage& m, const PointMap& map,
                                      const Pose& T_world_cam_initial) {
   render_model(m, map, T_world_cam_initial, config_.max_correspondence_m);
-  return run(m, T_world_cam_initial, config_.subsample_px, config_.iterations,
+  return refine(m, view_, T_world_cam_initial);
+}
+
+RegistrationResult Registrar::refine(const MeasurementImage& m, const SurfaceView& model,
+                                     const Pose& T_world_cam_initial) {
+  return run(m, model, T_world_cam_initial, config_.subsample_px, config_.iterations,
              config_.max_correspondence_m);
 }
 
 RegistrationResult Registrar::track(const MeasurementImage& m, const PointMap& map,
                                     const Pose& T_world_cam_initial) {
-  // Coarse to fine: every level halves the pixel step and the correspondence gate.
+  // One rendering of the model, at the initial pose and wide enough for the coarsest gate, serves
+  // every level: associations go through the rendered camera whatever the current estimate.
+  const int levels = std::max(1, config_.tracking_levels);
+  render_model(m, map, T_world_cam_initial, config_.max_correspondence_m * (1 << (levels - 1)));
+  return coarse_to_fine(m, view_, T_world_cam_initial);
+}
+
+RegistrationResult Registrar::track(const MeasurementImage& m, const SurfaceView& model,
+                                    const Pose& T_world_cam_initial) {
+  return coarse_to_fine(m, model, T_world_cam_initial);
+}
+
+RegistrationResult Registrar::coarse_to_fine(const MeasurementImage& m, const SurfaceView& model,
+                                             const Pose& T_world_cam_initial) {
   const int levels = std::max(1, config_.tracking_levels);
   RegistrationResult r;
   r.T_world_cam = T_world_cam_initial;
   Pose T = T_world_cam_initial;
-  // One rendering of the model, at the initial pose and wide enough for the coarsest gate, serves
-  // every level: associations go through the rendered camera whatever the current estimate.
-  render_model(m, map, T, config_.max_correspondence_m * (1 << (levels - 1)));
   for (int level = levels - 1; level >= 0; --level) {
     const int step = std::max(1, config_.subsample_px) << level;
     const double gate = config_.max_correspondence_m * (1 << level);
-    r = run(m, T, step, config_.tracking_iterations_per_level, gate);
+    r = run(m, model, T, step, config_.tracking_iterations_per_level, gate);
     if (r.converged) T = r.T_world_cam;
   }
   r.T_world_cam = T;

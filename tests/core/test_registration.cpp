@@ -82,6 +82,33 @@ TEST(Registration, TrackingHandlesLargerMotionCoarseToFine) {
   EXPECT_LT(rotation_deg(r.T_world_cam, truth), 0.1);
 }
 
+TEST(Registration, AlignsToAModelRenderedFromAnotherPose) {
+  // The fusion daemon may align a frame to the model rendered for the frame before: associations
+  // then go through that model's camera. 1.5 cm and 1 degree away, the pose is still recovered.
+  CornerMap corner;
+  const Pose before = test::look_at({1.8, 1.9, 1.5}, {0.3, 0.3, 0.3});
+  const Pose truth = perturb(before, {0.012, -0.008, 0.004}, {0.2, 1, 0.1}, 1.0);
+  MeasurementImage m_before, m;
+  ASSERT_TRUE(backproject(test::render_corner(before), corner.sensor, corner.fusion, &m_before).is_ok());
+  ASSERT_TRUE(backproject(test::render_corner(truth), corner.sensor, corner.fusion, &m).is_ok());
+  Registrar reg(RegistrationConfig{});
+  ASSERT_TRUE(reg.refine(m_before, corner.map, before).converged);
+  const SurfaceView model = reg.model();
+  ASSERT_FALSE(model.empty());
+  EXPECT_TRUE(model.T_world_cam.isApprox(before));
+
+  const Pose initial = perturb(truth, {0.01, 0.005, -0.005}, {1, 0, 0.3}, 0.5);
+  const RegistrationResult r = reg.refine(m, model, initial);
+  ASSERT_TRUE(r.converged);
+  EXPECT_LT((r.T_world_cam.translation() - truth.translation()).norm(), 1e-3);
+  EXPECT_LT(rotation_deg(r.T_world_cam, truth), 0.05);
+
+  // An empty model: no registration, the initial pose stays.
+  const RegistrationResult none = reg.refine(m, SurfaceView{}, initial);
+  EXPECT_FALSE(none.converged);
+  EXPECT_TRUE(none.T_world_cam.isApprox(initial));
+}
+
 TEST(Registration, EmptyMapKeepsThePose) {
   PointMap empty(0.5);
   const Pose truth = test::look_at({1.8, 1.9, 1.5}, {0.3, 0.3, 0.3});

@@ -67,6 +67,13 @@ struct RegistrationConfig {
   // Tracking without a pose hint: coarse-to-fine levels (subsample 4, 2, 1 ...), iterations each.
   int tracking_levels = 3;
   int tracking_iterations_per_level = 10;
+  // Frame-by-frame registration (IncrementalReconstructor, the fusion daemon) may align a frame
+  // to the model rendered for the frame before, instead of rendering the map again: for at most
+  // live_model_reuse_frames frames in a row (1: never), and only while the initial pose is within
+  // live_model_reuse_max_m and live_model_reuse_max_deg of where that model was rendered.
+  int live_model_reuse_frames = 2;
+  double live_model_reuse_max_m = 0.025;
+  double live_model_reuse_max_deg = 2.0;
 };
 
 enum class Method { kKyostila13, kYlimaki17, kFull };

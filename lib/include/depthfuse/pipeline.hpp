@@ -22,6 +22,7 @@ struct FrameReport {
   uint32_t frame_id = 0;
   Pose T_world_cam = Pose::Identity();   // the pose the frame was fused with
   bool registered = false;               // ICP ran and converged
+  bool model_reused = false;             // ICP aligned to the previous frame's model (no render)
   RegistrationResult registration;
   FusionStats fusion;
   size_t prefiltered = 0;                // measurements the pre-filter removed
@@ -36,6 +37,8 @@ class IncrementalReconstructor {
   // Pre-filter; initial pose (the frame's hint if any, otherwise the given prediction, otherwise
   // the last refined pose); re-registration against the map (if the method has it and the map is
   // not empty); fusion. With a hint, ICP refines it; without one, coarse-to-fine tracking runs.
+  // The model is the map rendered at the initial pose, for every frame or, with
+  // registration.live_model_reuse_frames = n, for every n-th (the first after a reset renders).
   Result<FrameReport> process(const Frame& frame,
                               const std::optional<Pose>& T_world_cam_prediction = std::nullopt);
 
@@ -57,6 +60,7 @@ class IncrementalReconstructor {
   Fuser fuser_;
   Registrar registrar_;
   MeasurementImage scratch_;
+  int frames_since_model_ = 0;  // frames registered to the Registrar's last rendered model
   std::optional<Pose> last_T_world_cam_;
   uint32_t next_frame_id_ = 1;
 };

@@ -18,6 +18,22 @@ struct RegistrationResult {
   int iterations = 0;
 };
 
+// The fused surface as one camera sees it: per pixel a world point and unit normal, or nothing
+// (w = 0). ICP aligns a depth map to this.
+struct SurfaceView {
+  struct Pixel {
+    float x, y, z;     // world frame, m
+    float nx, ny, nz;  // unit normal, world frame
+    float w;           // confidence weight; 0: no surface at this pixel
+  };
+  CameraIntrinsics K;                   // the camera the view was made with
+  Pose T_world_cam = Pose::Identity();  // and where it was
+  std::vector<Pixel> pixels;            // K.width * K.height, row by row
+
+  bool empty() const { return pixels.empty(); }
+  void clear() { pixels.clear(); }
+};
+
 class ModelProjection;
 
 class Registrar {
@@ -27,24 +43,37 @@ class Registrar {
   Registrar(const Registrar&) = delete;
   Registrar& operator=(const Registrar&) = delete;
 
-  // `iterations` ICP steps at full resolution (the paper's re-registration).
+  // `iterations` ICP steps at full resolution (the paper's re-registration), against the map
+  // rendered at the initial pose.
   RegistrationResult refine(const MeasurementImage& m, const PointMap& map,
                             const Pose& T_world_cam_initial);
   // Coarse-to-fine for larger motions (tracking without a pose hint).
   RegistrationResult track(const MeasurementImage& m, const PointMap& map,
                            const Pose& T_world_cam_initial);
 
+  // The same against a view of the map made before, e.g. model() for the next frame.
+  // Associations go through the view's camera, whatever the current estimate.
+  RegistrationResult refine(const MeasurementImage& m, const SurfaceView& model,
+                            const Pose& T_world_cam_initial);
+  RegistrationResult track(const MeasurementImage& m, const SurfaceView& model,
+                           const Pose& T_world_cam_initial);
+
+  // The model the last refine() or track() against the map rendered (empty before any).
+  const SurfaceView& model() const { return view_; }
+
  private:
-  // Projects the map around the frame's measurements into the camera at T_world_cam.
+  // Projects the map around the frame's measurements into the camera at T_world_cam: view_.
   void render_model(const MeasurementImage& m, const PointMap& map, const Pose& T_world_cam,
                     double max_corr_m);
-  // ICP against the last rendered model, from `initial`.
-  RegistrationResult run(const MeasurementImage& m, const Pose& initial, int subsample,
-                         int iterations, double max_corr_m);
+  // ICP against `model`, from `initial`.
+  RegistrationResult run(const MeasurementImage& m, const SurfaceView& model, const Pose& initial,
+                         int subsample, int iterations, double max_corr_m);
+  // Coarse to fine: every level halves the pixel step and the correspondence gate.
+  RegistrationResult coarse_to_fine(const MeasurementImage& m, const SurfaceView& model,
+                                    const Pose& T_world_cam_initial);
   RegistrationConfig config_;
   std::unique_ptr<ModelProjection> projection_;
-  Pose T_world_model_cam_ = Pose::Identity();  // where the model was rendered from
-  CameraIntrinsics model_K_;                    // and with which camera
+  SurfaceView view_;  // the last rendered model
 };
 
 }  // namespace depthfuse
