@@ -173,8 +173,7 @@ bool FrameFusion::explained(int u, int v, const Eigen::Vector3f& p_w, const Sym3
   // The merge count as it is now: a merge earlier in this frame counts.
   const ModelProjection& proj = proj_;
   return any_in_window(u, v, cr_, m_.width, m_.height, [&](size_t px) {
-    return proj.has_candidate(px) &&
-           proj.candidate_points(px).state[proj.candidate_index(px)].merges >= redundancy_min_merges_ &&
+    return proj.has_candidate(px) && proj.candidate_merges(px) >= redundancy_min_merges_ &&
            mahalanobis2(Eigen::Vector3f(proj.candidate_position(px) - p_w), L_n) <= redundancy_gate2_;
   });
 }
@@ -281,13 +280,14 @@ void FrameFusion::rows(int v0, int v1, RowScratch* row, PointArrays* added, Fusi
       if (!merged && cr > 0) {
         size_t best_px = i;
         float best_d2 = std::numeric_limits<float>::infinity();
+        // Without branches: which neighbour is free and nearest is unpredictable. (A pixel
+        // without a candidate holds a stale but finite position.)
         any_in_window(u, v, cr, m.width, m.height, [&](size_t px) {
-          if (px == i || !proj.has_candidate(px) || proj.taken_at(px)) return false;
+          const bool free = (px != i) & proj.has_candidate(px) & !proj.taken_at(px);
           const float d2 = (proj.candidate_position(px) - p_w).squaredNorm();
-          if (d2 < best_d2) {
-            best_d2 = d2;
-            best_px = px;
-          }
+          const bool better = free & (d2 < best_d2);
+          best_d2 = better ? d2 : best_d2;
+          best_px = better ? px : best_px;
           return false;
         });
         if (best_px != i) merged = try_merge(proj, best_px, p_w, L_n, n_w, rgb, frame_id_);

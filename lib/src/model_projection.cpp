@@ -245,6 +245,7 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
   cand_y_.resize(n);
   cand_z_.resize(n);
   for (std::vector<float>& column : cand_info_) column.resize(n);
+  cand_merges_.resize(n);
   taken_.resize(n);
   run_halves(threads_, n, [&](size_t begin, size_t end) {
     for (size_t px = begin; px < end; ++px) {
@@ -267,7 +268,7 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
       }
       locate(static_cast<uint32_t>(k.cand), &cand_slot_[px], &cand_index_[px]);
     }
-    // The candidates' positions and information, pixel-ordered. Each is a random
+    // The candidates' positions, information and merge counts, pixel-ordered. Each is a random
     // read into the map: prefetching a few pixels ahead turns a chain of cache misses into
     // overlapping ones.
     for (size_t px = begin; px < end; ++px) {
@@ -286,6 +287,7 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
       cand_info_[3][px] = st.info_yy;
       cand_info_[4][px] = st.info_yz;
       cand_info_[5][px] = st.info_zz;
+      cand_merges_[px] = st.merges;
     }
   });
 }

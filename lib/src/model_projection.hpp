@@ -3,6 +3,7 @@
 // are projected, so the cost follows the frame, not the map.
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <vector>
 
@@ -78,6 +79,11 @@ class ModelProjection {
     return {cand_info_[0][pixel], cand_info_[1][pixel], cand_info_[2][pixel],
             cand_info_[3][pixel], cand_info_[4][pixel], cand_info_[5][pixel]};
   }
+  // The candidate's merge count now: as rendered, plus one if a measurement of this frame merged
+  // with it (one merge per point per frame; the count saturates as refine_point's does).
+  uint16_t candidate_merges(size_t pixel) const {
+    return static_cast<uint16_t>(std::min<int>(cand_merges_[pixel] + taken_[pixel], 0xffff));
+  }
   // The same columns as arrays from `pixel` on, for loops over a row. Where a pixel has no
   // candidate they hold stale but finite values.
   struct CandidateColumns {
@@ -150,6 +156,7 @@ class ModelProjection {
   std::vector<float> front_depth_2_;    // render_surface(): the second half's
   std::vector<float> cand_x_, cand_y_, cand_z_;  // per pixel: the candidate's world position
   std::vector<float> cand_info_[6];     // per pixel: its information, xx xy xz yy yz zz
+  std::vector<uint16_t> cand_merges_;   // per pixel: its merge count, as rendered
   std::vector<uint8_t> taken_;          // per pixel: candidate merged with a measurement of this frame
   size_t rendered_ = 0;
   std::vector<SurfaceSum> surface_2_;   // render_surface(): the second thread's sums
