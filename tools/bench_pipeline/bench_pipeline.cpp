@@ -43,7 +43,9 @@ struct Scan {
 void BM_Backproject(benchmark::State& state) {
   Scan& s = Scan::get();
   MeasurementImage m;
-  for (auto _ : state) (void)backproject(s.frames[20], s.config.sensor, s.config.fusion, &m);
+  FusionConfig fc = s.config.fusion;
+  fc.threads = 1;
+  for (auto _ : state) (void)backproject(s.frames[20], s.config.sensor, fc, &m);
 }
 
 void BM_Prefilter(benchmark::State& state) {
@@ -102,8 +104,8 @@ void BM_PrefilterPlusFusion(benchmark::State& state) {
   uint32_t id = 100;
   size_t k = 0;
   for (auto _ : state) {
-    (void)backproject(s.frames[20 + k], s.config.sensor, s.config.fusion, &m);
-    prefilter(s.config.prefilter, &m);
+    (void)backproject(s.frames[20 + k], s.config.sensor, fc, &m);
+    prefilter(s.config.prefilter, &m, fc.threads);
     benchmark::DoNotOptimize(fuser.fuse(m, nullptr, s.seq.T_world_cam_true(20 + k), id++, &map));
     k = (k + 1) % 10;
   }
