@@ -52,14 +52,20 @@ struct Args {
   std::string lcm_url;
   std::string fusion = std::string(DEPTHFUSE_BIN_DIR) + "/depthfuse-fusion";
   bool color = true;
+  bool hint = true;  // frames carry their true pose as a hint; without, the daemon tracks
+  double hint_noise_m = 0.0;  // hints perturbed by N(0, this) per axis, as a front end's would be
 };
 
 void usage() {
   std::printf(
       "usage: bench_live [--duration S] [--rate HZ] [--scene corner|room] [--frames N] [--queue N]\n"
       "                  [--config FILE] [--lcm URL] [--fusion PATH] [--no-color]\n"
+      "                  [--no-hint | --hint-noise-m X]\n"
       "  --frames N   distinct frames rendered up front; the trajectory loops over them (default 300)\n"
-      "  --lcm URL    default: a private loopback port, so a running appliance is not disturbed\n");
+      "  --lcm URL    default: a private loopback port, so a running appliance is not disturbed\n"
+      "  --no-hint    frames without a pose hint, as from a Kinect: the daemon tracks each frame\n"
+      "               from the last refined pose (coarse to fine)\n"
+      "  --hint-noise-m X  hints off the true pose by N(0, X) m per axis (default 0: exact)\n");
 }
 
 double percentile(std::vector<double> v, double p) {
@@ -112,12 +118,15 @@ int main(int argc, char** argv) {
     else if (k == "--lcm") a.lcm_url = next();
     else if (k == "--fusion") a.fusion = next();
     else if (k == "--no-color") a.color = false;
+    else if (k == "--no-hint") a.hint = false;
+    else if (k == "--hint-noise-m") a.hint_noise_m = std::atof(next().c_str());
     else {
       usage();
       return k == "--help" || k == "-h" ? 0 : 2;
     }
   }
-  if (!(a.duration_s > 0) || !(a.rate_hz > 0) || a.distinct_frames < 2 || a.queue < 1) {
+  if (!(a.duration_s > 0) || !(a.rate_hz > 0) || a.distinct_frames < 2 || a.queue < 1 ||
+      !(a.hint_noise_m >= 0)) {
     usage();
     return 2;
   }
@@ -125,7 +134,8 @@ int main(int argc, char** argv) {
 
   auto spec = depthfuse::synthetic::parse_synthetic_spec(
       a.scene + "?frames=" + std::to_string(a.distinct_frames) + "&seed=1&rate_hz=" +
-      std::to_string(a.rate_hz));
+      std::to_string(a.rate_hz) + "&pose_noise_m=" + std::to_string(a.hint_noise_m) +
+      "&pose_noise_deg=0");
   if (!spec) {
     std::fprintf(stderr, "bench_live: %s\n", spec.status().to_string().c_str());
     return 2;
@@ -146,7 +156,8 @@ int main(int argc, char** argv) {
       jpeg_bytes, jpeg_ms, color_ms, plain_bytes, plain_ms;
   size_t raw_depth_bytes = 0;
   for (int i = 0; i < a.distinct_frames; ++i) {
-    const depthfuse::Frame f = seq->render(static_cast<size_t>(i));
+    depthfuse::Frame f = seq->render(static_cast<size_t>(i));
+    if (!a.hint) f.T_world_cam_hint.reset();  // as from a Kinect: the daemon tracks
     raw_depth_bytes = f.depth.depth_m.size() * 2;
     lcmio::CodecTiming t;
     if (!lcmio::encode_depth_frame(f, {}, &depth_msgs[i], &t).is_ok()) return 1;
