@@ -26,6 +26,19 @@ void MeasurementImage::resize(int w, int h) {
 
 namespace {
 
+// A row of W pixels whose per-pixel work reaches r columns to either side: edge(u) for the r
+// columns at each end (which must check the columns), interior(u) for the rest, in a loop the
+// compiler may vectorise (interior must not write what another pixel reads).
+template <typename Edge, typename Interior>
+DF_INLINE void split_row(int W, int r, Edge&& edge, Interior&& interior) {
+  for (int u = 0; u < std::min(r, W); ++u) edge(u);
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC ivdep
+#endif
+  for (int u = r; u < W - r; ++u) interior(u);
+  for (int u = std::max(r, W - r); u < W; ++u) edge(u);
+}
+
 // The back-projected image's columns, for the normal pass.
 struct Columns {
   const float *x, *y, *z;
@@ -115,21 +128,18 @@ Status backproject(const Frame& frame, const SensorModelConfig& sensor, const Fu
       // Rows beyond the image: any row will do, the flags ignore it.
       const size_t row_t = has_t ? row - static_cast<size_t>(r) * W : row;
       const size_t row_b = has_b ? row + static_cast<size_t>(r) * W : row;
-      auto edge = [&](int u) {
-        const size_t i = row + u;
-        const bool has_l = u - r >= 0, has_r = u + r < W;
-        normal_at(cols, i, has_l ? i - r : i, has_r ? i + r : i, row_t + u, row_b + u, has_l, has_r,
-                  has_t, has_b);
-      };
-      for (int u = 0; u < std::min(r, W); ++u) edge(u);
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC ivdep
-#endif
-      for (int u = r; u < W - r; ++u) {
-        const size_t i = row + u;
-        normal_at(cols, i, i - r, i + r, row_t + u, row_b + u, true, true, has_t, has_b);
-      }
-      for (int u = std::max(r, W - r); u < W; ++u) edge(u);
+      split_row(
+          W, r,
+          [&](int u) {
+            const size_t i = row + u;
+            const bool has_l = u - r >= 0, has_r = u + r < W;
+            normal_at(cols, i, has_l ? i - r : i, has_r ? i + r : i, row_t + u, row_b + u, has_l,
+                      has_r, has_t, has_b);
+          },
+          [&](int u) {
+            const size_t i = row + u;
+            normal_at(cols, i, i - r, i + r, row_t + u, row_b + u, true, true, has_t, has_b);
+          });
     }
   });
   return Status::ok();
@@ -259,19 +269,16 @@ struct PrefilterPass {
         has_row[dv + R] = v + dv >= 0 && v + dv < H;
         row[dv + R] = has_row[dv + R] ? centre + static_cast<ptrdiff_t>(dv) * W : centre;
       }
-      auto edge = [&](int u) {
-        const size_t i = centre + u;
-        marks[i] = valid[i] && p.within<R, true>(u, i, row, has_row) < k;
-      };
-      for (int u = 0; u < std::min(R, W); ++u) edge(u);
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC ivdep
-#endif
-      for (int u = R; u < W - R; ++u) {
-        const size_t i = centre + u;
-        marks[i] = (valid[i] != 0) & (p.within<R, false>(u, i, row, has_row) < k);
-      }
-      for (int u = std::max(R, W - R); u < W; ++u) edge(u);
+      split_row(
+          W, R,
+          [&](int u) {
+            const size_t i = centre + u;
+            marks[i] = valid[i] && p.within<R, true>(u, i, row, has_row) < k;
+          },
+          [&](int u) {
+            const size_t i = centre + u;
+            marks[i] = (valid[i] != 0) & (p.within<R, false>(u, i, row, has_row) < k);
+          });
       for (int u = 0; u < W; ++u) removed += marks[centre + u];
     }
     return removed;
