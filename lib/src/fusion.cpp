@@ -116,7 +116,8 @@ inline bool try_merge(ModelProjection& proj, size_t px, const Eigen::Vector3f& p
                       const Eigen::Vector3f& n_w, const uint8_t* rgb, uint32_t frame_id) {
   Eigen::Vector3f p_f;
   Sym3f L_f;
-  if (!merge_rule(proj.candidate_position(px), proj.candidate_information(px), p_w, L_n, &p_f, &L_f))
+  if (!merge_rule(proj.candidate_position(px), proj.candidate_information(px), p_w, L_n, &p_f,
+                  &L_f))
     return false;
   merge_into_candidate(proj, px, p_f, L_f, n_w, rgb, frame_id);
   return true;
@@ -174,7 +175,8 @@ bool FrameFusion::explained(int u, int v, const Eigen::Vector3f& p_w, const Sym3
   const ModelProjection& proj = proj_;
   return any_in_window(u, v, cr_, m_.width, m_.height, [&](size_t px) {
     return proj.has_candidate(px) && proj.candidate_merges(px) >= redundancy_min_merges_ &&
-           mahalanobis2(Eigen::Vector3f(proj.candidate_position(px) - p_w), L_n) <= redundancy_gate2_;
+           mahalanobis2(Eigen::Vector3f(proj.candidate_position(px) - p_w), L_n) <=
+               redundancy_gate2_;
   });
 }
 
@@ -219,9 +221,7 @@ void FrameFusion::prepare_row(int v, RowScratch* row) const {
   const Eigen::Matrix3f R = R_;
   const Eigen::Vector3f t = t_, up = up_w_;
   const SensorModel& model = model_;
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC ivdep
-#endif
+  DF_IVDEP
   for (int u = 0; u < W; ++u) {
     const Eigen::Vector3f p_c(X[u], Y[u], Z[u]);
     const Eigen::Vector3f ray_w = rotate(R, p_c);
@@ -233,8 +233,8 @@ void FrameFusion::prepare_row(int v, RowScratch* row) const {
     const Sym3f L_n = ray_information(ray_w * (1.0f / range), up, w_x, w_y, w_z);
     Eigen::Vector3f p_f;
     Sym3f L_f;
-    merges[u] = merge_rule(Eigen::Vector3f(CX[u], CY[u], CZ[u]),
-                           Sym3f{CXX[u], CXY[u], CXZ[u], CYY[u], CYZ[u], CZZ[u]}, p_w, L_n, &p_f, &L_f);
+    const Sym3f L_e{CXX[u], CXY[u], CXZ[u], CYY[u], CYZ[u], CZZ[u]};
+    merges[u] = merge_rule(Eigen::Vector3f(CX[u], CY[u], CZ[u]), L_e, p_w, L_n, &p_f, &L_f);
     p_x[u] = p_w.x(); p_y[u] = p_w.y(); p_z[u] = p_w.z();
     n_x[u] = n_w.x(); n_y[u] = n_w.y(); n_z[u] = n_w.z();
     range_m[u] = range;
@@ -244,7 +244,8 @@ void FrameFusion::prepare_row(int v, RowScratch* row) const {
   }
 }
 
-void FrameFusion::rows(int v0, int v1, RowScratch* row, PointArrays* added, FusionStats* stats) const {
+void FrameFusion::rows(int v0, int v1, RowScratch* row, PointArrays* added,
+                       FusionStats* stats) const {
   const MeasurementImage& m = m_;
   ModelProjection& proj = proj_;
   const Eigen::Vector3f& t = t_;

@@ -16,6 +16,14 @@
 #define DF_INLINE inline
 #endif
 
+// Before a loop whose iterations are independent but which the compiler cannot prove so (GCC
+// ignores restrict on locals): lets it vectorise without run-time alias checks.
+#if defined(__GNUC__) && !defined(__clang__)
+#define DF_IVDEP _Pragma("GCC ivdep")
+#else
+#define DF_IVDEP
+#endif
+
 namespace depthfuse {
 
 // A symmetric 3x3 matrix as its six distinct entries (information matrices, in 1/m^2): the
@@ -72,9 +80,9 @@ DF_INLINE bool invert(const Sym3f& a, Sym3f* inv) {
 // Information matrix of an ellipsoid whose third axis is the unit ray direction d, with
 // information w_x, w_y across and w_z along the ray. `up` (unit) is the camera's y axis in the same
 // frame and fixes the lateral axes: e2 is up made orthogonal to d, e1 = e2 x d. Since e1, e2 and d
-// are orthonormal, L = w_x I + (w_y - w_x) e2 e2^T + (w_z - w_x) d d^T. Branch-free, so that fusion's
-// per-row loop vectorises: where d runs along `up` (never inside a camera's field of view) e2 is
-// zero and both lateral axes get w_x.
+// are orthonormal, L = w_x I + (w_y - w_x) e2 e2^T + (w_z - w_x) d d^T. Branch-free, so that
+// fusion's per-row loop vectorises: where d runs along `up` (never inside a camera's field of view)
+// e2 is zero and both lateral axes get w_x.
 DF_INLINE Sym3f ray_information(const Eigen::Vector3f& d, const Eigen::Vector3f& up, float w_x,
                              float w_y, float w_z) {
   const float du = d.dot(up);
@@ -96,9 +104,10 @@ inline void ray_information(const Eigen::Vector3f& ray, const Eigen::Vector3f& u
 }
 
 // The paper's merge rule on the six-entry form: the product of the two Gaussians (p_e, L_e) and
-// (p_n, L_n), accepted when the fused point lies inside both unit ellipsoids. Writes the fused point
-// and information whether or not it accepts (they are meaningless when it does not), without a
-// branch: fusion evaluates it for a whole image row at once. merge_measurement() is its public face.
+// (p_n, L_n), accepted when the fused point lies inside both unit ellipsoids. Writes the fused
+// point and information whether or not it accepts (they are meaningless when it does not), without
+// a branch: fusion evaluates it for a whole image row at once. merge_measurement() is its public
+// face.
 DF_INLINE bool merge_rule(const Eigen::Vector3f& p_e, const Sym3f& L_e, const Eigen::Vector3f& p_n,
                        const Sym3f& L_n, Eigen::Vector3f* p_fused, Sym3f* L_fused) {
   const Sym3f L = L_e + L_n;

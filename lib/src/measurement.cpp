@@ -32,9 +32,7 @@ namespace {
 template <typename Edge, typename Interior>
 DF_INLINE void split_row(int W, int r, Edge&& edge, Interior&& interior) {
   for (int u = 0; u < std::min(r, W); ++u) edge(u);
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC ivdep
-#endif
+  DF_IVDEP
   for (int u = r; u < W - r; ++u) interior(u);
   for (int u = std::max(r, W - r); u < W; ++u) edge(u);
 }
@@ -46,9 +44,9 @@ struct Columns {
   float *nx, *ny, *nz;
 };
 
-// The normal of pixel i from its neighbours at distance r: il and ir left and right, it and ib above
-// and below (has_*: the neighbour is in the image; if not, its index may be any pixel). Central
-// differences, one-sided where a neighbour is missing or lies across a depth discontinuity;
+// The normal of pixel i from its neighbours at distance r: il and ir left and right, it and ib
+// above and below (has_*: the neighbour is in the image; if not, its index may be any pixel).
+// Central differences, one-sided where a neighbour is missing or lies across a depth discontinuity;
 // oriented towards the camera (origin); zero where there is none. Branch-free, so that the loop
 // over a row's interior vectorises.
 DF_INLINE void normal_at(const Columns& c, size_t i, size_t il, size_t ir, size_t it, size_t ib,

@@ -365,7 +365,8 @@ void ModelProjection::render_surface(const Pose& T_world_cam, const CameraIntrin
       });
   rendered_ = rendered[0] + rendered[1];
   run_halves(threads_, n, [&](size_t begin, size_t end) {
-    for (size_t px = begin; px < end; ++px) front_depth_[px] = std::min(front_depth_[px], front_depth_2_[px]);
+    for (size_t px = begin; px < end; ++px)
+      front_depth_[px] = std::min(front_depth_[px], front_depth_2_[px]);
   });
 
   // Pass 2: the weighted sums of the points within the band behind it.

@@ -91,9 +91,9 @@ class ModelProjection {
     const float *xx, *xy, *xz, *yy, *yz, *zz;   // information, 1/m^2
   };
   CandidateColumns candidate_columns(size_t pixel) const {
-    return {cand_x_.data() + pixel,       cand_y_.data() + pixel,       cand_z_.data() + pixel,
-            cand_info_[0].data() + pixel, cand_info_[1].data() + pixel, cand_info_[2].data() + pixel,
-            cand_info_[3].data() + pixel, cand_info_[4].data() + pixel, cand_info_[5].data() + pixel};
+    auto at = [pixel](const std::vector<float>& column) { return column.data() + pixel; };
+    return {at(cand_x_),       at(cand_y_),       at(cand_z_),       at(cand_info_[0]), at(cand_info_[1]),
+            at(cand_info_[2]), at(cand_info_[3]), at(cand_info_[4]), at(cand_info_[5])};
   }
   // Starts loading the candidate's position and state at a pixel into the cache (a hint, no effect
   // on results). Loops over pixels call it a few pixels ahead.

@@ -24,6 +24,16 @@ double rotation_deg(const Pose& a, const Pose& b) {
   return std::abs(d.angle()) * 180.0 / M_PI;
 }
 
+// Whether a frame whose initial pose is T may be aligned to `last`, the model rendered for the
+// frame before, after `reused` frames registered to it in a row (0: none rendered since a reset).
+// Without a hint T is the previous refined pose, so the distance says how far the last ICP moved
+// the camera rather than how far it moved since; the frame count bounds the reuse either way.
+bool may_reuse(const RegistrationConfig& c, int reused, const SurfaceView& last, const Pose& T) {
+  return reused > 0 && reused < c.live_model_reuse_frames && !last.empty() &&
+         (T.translation() - last.T_world_cam.translation()).norm() <= c.live_model_reuse_max_m &&
+         rotation_deg(T, last.T_world_cam) <= c.live_model_reuse_max_deg;
+}
+
 }  // namespace
 
 IncrementalReconstructor::IncrementalReconstructor(const ReconstructionConfig& config)
@@ -52,13 +62,8 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   t0 = Clock::now();
   if (config_.registration.enabled && map_->point_count() > 0) {
     const bool hint = frame.T_world_cam_hint.has_value();
-    const RegistrationConfig& rc = config_.registration;
     const SurfaceView& last = registrar_.model();
-    const bool reuse = frames_since_model_ > 0 && frames_since_model_ < rc.live_model_reuse_frames &&
-                       !last.empty() &&
-                       (T.translation() - last.T_world_cam.translation()).norm() <= rc.live_model_reuse_max_m &&
-                       rotation_deg(T, last.T_world_cam) <= rc.live_model_reuse_max_deg;
-    if (reuse) {
+    if (may_reuse(config_.registration, frames_since_model_, last, T)) {
       report.registration = hint ? registrar_.refine(scratch_, last, T)
                                  : registrar_.track(scratch_, last, T);
       ++frames_since_model_;

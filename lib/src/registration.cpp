@@ -95,7 +95,8 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
   RegistrationResult result;
   result.T_world_cam = initial;
   const CameraIntrinsics& MK = model.K;
-  if (model.empty() || model.pixels.size() != static_cast<size_t>(MK.width) * MK.height) return result;
+  if (model.empty() || model.pixels.size() != static_cast<size_t>(MK.width) * MK.height)
+    return result;
   const SurfaceView::Pixel* surface = model.pixels.data();
 
   // Associations are made in the camera the model was rendered from.
