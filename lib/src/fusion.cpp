@@ -107,8 +107,10 @@ inline void refine_point(PointArrays& a, size_t i, const Eigen::Vector3f& p, con
 inline void merge_into_candidate(ModelProjection& proj, size_t px, const Eigen::Vector3f& p_f,
                                  const Sym3f& L_f, const Eigen::Vector3f& n_w, const uint8_t* rgb,
                                  uint32_t frame_id) {
-  refine_point(proj.candidate_points(px), proj.candidate_index(px), p_f, L_f, n_w, rgb, frame_id);
-  proj.take(px);
+  PointArrays& a = proj.candidate_points(px);
+  const size_t j = proj.candidate_index(px);
+  refine_point(a, j, p_f, L_f, n_w, rgb, frame_id);
+  proj.record_merge(px, p_f, L_f, a.state[j].merges);
 }
 
 // Merges the measurement into the candidate rendered at `px` if the merge rule allows it.
@@ -268,25 +270,32 @@ void FrameFusion::rows(int v0, int v1, RowScratch* row, PointArrays* added,
       const uint8_t* rgb = color_ ? &color_->rgb[3 * i] : nullptr;
 
       // The candidate at this very pixel (the existing point closest in depth to the measurement)
-      // first; only if it is missing, taken, or does not merge, the nearest untaken candidate in
-      // the window. Searching the window first would let a pixel take its neighbour's point and
-      // leave the neighbour to add a redundant one. The merge with the pixel's own candidate was
-      // worked out in prepare_row(); an untaken candidate is as it was rendered.
+      // first; only if it is missing or does not merge, the nearest other candidate in the window.
+      // Searching the window first would merge the measurement with its neighbour's point and
+      // leave its own pixel's point unrefined. The merge with the pixel's own candidate as rendered
+      // was worked out in prepare_row(); if a measurement of this frame has refined that candidate
+      // since, the merge is worked out again.
       bool merged = false;
-      if (proj.has_candidate(i) && !proj.taken_at(i) && r.merges[u]) {
-        merge_into_candidate(proj, i, Eigen::Vector3f(r.f_x[u], r.f_y[u], r.f_z[u]),
-                             proj.candidate_information(i) + L_n, n_w, rgb, frame_id_);
-        merged = true;
+      if (proj.has_candidate(i)) {
+        if (!proj.merged_this_frame(i)) {
+          if (r.merges[u]) {
+            merge_into_candidate(proj, i, Eigen::Vector3f(r.f_x[u], r.f_y[u], r.f_z[u]),
+                                 proj.candidate_information(i) + L_n, n_w, rgb, frame_id_);
+            merged = true;
+          }
+        } else {
+          merged = try_merge(proj, i, p_w, L_n, n_w, rgb, frame_id_);
+        }
       }
       if (!merged && cr > 0) {
         size_t best_px = i;
         float best_d2 = std::numeric_limits<float>::infinity();
-        // Without branches: which neighbour is free and nearest is unpredictable. (A pixel
-        // without a candidate holds a stale but finite position.)
+        // Without branches: which neighbour is nearest is unpredictable. (A pixel without a
+        // candidate holds a stale but finite position.)
         any_in_window(u, v, cr, m.width, m.height, [&](size_t px) {
-          const bool free = (px != i) & proj.has_candidate(px) & !proj.taken_at(px);
+          const bool other = (px != i) & proj.has_candidate(px);
           const float d2 = (proj.candidate_position(px) - p_w).squaredNorm();
-          const bool better = free & (d2 < best_d2);
+          const bool better = other & (d2 < best_d2);
           best_d2 = better ? d2 : best_d2;
           best_px = better ? px : best_px;
           return false;

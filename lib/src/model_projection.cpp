@@ -246,7 +246,7 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
   cand_z_.resize(n);
   for (std::vector<float>& column : cand_info_) column.resize(n);
   cand_merges_.resize(n);
-  taken_.resize(n);
+  merged_.resize(n);
   run_halves(threads_, n, [&](size_t begin, size_t end) {
     for (size_t px = begin; px < end; ++px) {
       PixelKeys& k = pixel_keys_[px];
@@ -254,7 +254,7 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
         k.front = std::min(k.front, pixel_keys_2_[px].front);
         k.cand = std::min(k.cand, pixel_keys_2_[px].cand);
       }
-      taken_[px] = 0;
+      merged_[px] = 0;
       if (k.front == kNoKey) {
         front_slot_[px] = -1;
         front_depth_[px] = inf;

@@ -73,17 +73,13 @@ class ModelProjection {
   }
   PointArrays& candidate_points(size_t pixel) const { return chunks_[cand_slot_[pixel]]->points; }
   uint32_t candidate_index(size_t pixel) const { return cand_index_[pixel]; }
-  // The candidate's information matrix as it was when rendered, pixel-ordered like its position. A
-  // candidate that no measurement of this frame has merged with is unchanged.
+  // The candidate's information matrix, pixel-ordered like its position (see record_merge()).
   Sym3f candidate_information(size_t pixel) const {
     return {cand_info_[0][pixel], cand_info_[1][pixel], cand_info_[2][pixel],
             cand_info_[3][pixel], cand_info_[4][pixel], cand_info_[5][pixel]};
   }
-  // The candidate's merge count now: as rendered, plus one if a measurement of this frame merged
-  // with it (one merge per point per frame; the count saturates as refine_point's does).
-  uint16_t candidate_merges(size_t pixel) const {
-    return static_cast<uint16_t>(std::min<int>(cand_merges_[pixel] + taken_[pixel], 0xffff));
-  }
+  // The candidate's merge count now, this frame's merges included.
+  uint16_t candidate_merges(size_t pixel) const { return cand_merges_[pixel]; }
   // The same columns as arrays from `pixel` on, for loops over a row. Where a pixel has no
   // candidate they hold stale but finite values.
   struct CandidateColumns {
@@ -111,9 +107,26 @@ class ModelProjection {
   }
   static constexpr size_t kPrefetchPixels = 16;
 
-  // One merge per point per frame: a point is a candidate at one pixel at most, so a flag suffices.
-  bool taken_at(size_t pixel) const { return taken_[pixel] != 0; }
-  void take(size_t pixel) { taken_[pixel] = 1; }
+  // Whether a measurement of this frame has merged with the candidate at a pixel. Until one has,
+  // the candidate's columns are as rendered.
+  bool merged_this_frame(size_t pixel) const { return merged_[pixel] != 0; }
+  // Records that the candidate at a pixel was refined to (p_w, L), now merged `merges` times. Its
+  // columns follow, so that a later measurement of the same frame merges with the point as it is
+  // now: a point may merge with several measurements of one frame, as in the paper's loop over
+  // pixels. (A point is the candidate of one pixel at most, so per-pixel columns suffice.)
+  void record_merge(size_t pixel, const Eigen::Vector3f& p_w, const Sym3f& L, uint16_t merges) {
+    cand_x_[pixel] = p_w.x();
+    cand_y_[pixel] = p_w.y();
+    cand_z_[pixel] = p_w.z();
+    cand_info_[0][pixel] = L.xx;
+    cand_info_[1][pixel] = L.xy;
+    cand_info_[2][pixel] = L.xz;
+    cand_info_[3][pixel] = L.yy;
+    cand_info_[4][pixel] = L.yz;
+    cand_info_[5][pixel] = L.zz;
+    cand_merges_[pixel] = merges;
+    merged_[pixel] = 1;
+  }
 
   size_t rendered_points() const { return rendered_; }
   const std::vector<Chunk*>& chunks() const { return chunks_; }
@@ -156,8 +169,8 @@ class ModelProjection {
   std::vector<float> front_depth_2_;    // render_surface(): the second half's
   std::vector<float> cand_x_, cand_y_, cand_z_;  // per pixel: the candidate's world position
   std::vector<float> cand_info_[6];     // per pixel: its information, xx xy xz yy yz zz
-  std::vector<uint16_t> cand_merges_;   // per pixel: its merge count, as rendered
-  std::vector<uint8_t> taken_;          // per pixel: candidate merged with a measurement of this frame
+  std::vector<uint16_t> cand_merges_;   // per pixel: its merge count
+  std::vector<uint8_t> merged_;         // per pixel: candidate merged with a measurement of this frame
   size_t rendered_ = 0;
   std::vector<SurfaceSum> surface_2_;   // render_surface(): the second thread's sums
 };

@@ -37,7 +37,8 @@ class Fuser {
   Fuser(const Fuser&) = delete;
   Fuser& operator=(const Fuser&) = delete;
 
-  // frame_id must increase from call to call (one merge per point per frame); color may be null.
+  // frame_id must increase from call to call (points and chunks record the last frame that
+  // touched them); color may be null.
   FusionStats fuse(const MeasurementImage& m, const ColorImage* color, const Pose& T_world_cam,
                    uint32_t frame_id, PointMap* map);
 

@@ -19,7 +19,7 @@ struct PointRecord {
   uint8_t rgb[3] = {0, 0, 0};
   uint16_t merges = 0;       // how many measurements refined this point
   uint16_t violations = 0;   // how often a camera saw through it
-  uint32_t last_frame = 0;   // id of the last frame that merged into it (one merge per frame)
+  uint32_t last_frame = 0;   // id of the last frame that merged into it
 };
 
 // What fusion reads and writes together on every merge, in one 48-byte record: a merge then touches
@@ -30,7 +30,7 @@ struct PointState {
   float nx, ny, nz;         // unit normal, world frame
   uint16_t merges;          // how many measurements refined this point
   uint16_t violations;      // how often a camera saw through it
-  uint32_t last_frame;      // id of the last frame that merged into it (one merge per frame)
+  uint32_t last_frame;      // id of the last frame that merged into it
   uint8_t r, g, b;          // colour, 0 when the input has none
   uint8_t reserved;         // always 0
 };
