@@ -78,8 +78,9 @@ int run(int argc, char** argv) {
   r << "  input measurements: " << measurements << "\n";
   r << "  reduction ratio:   " << 100.0 * (1.0 - static_cast<double>(cloud->size()) / std::max<size_t>(1, measurements)) << " %\n";
 
-  // The ATE's rigid alignment also places the cloud in the truth's frame: a reconstruction from
-  // perturbed poses is only defined up to such a motion (its gauge).
+  // A reconstruction from perturbed poses is only defined up to a rigid motion (its gauge): the
+  // cameras' alignment to the truth places the cloud in the truth's frame. (Not the ATE's
+  // position-only alignment: see align_cameras().)
   std::optional<Pose> alignment;
   if (args.has("trajectory")) {
     auto est = read_tum_trajectory(args.get("trajectory"));
@@ -101,7 +102,9 @@ int run(int argc, char** argv) {
     std::snprintf(line, sizeof line, "  ATE RMSE:          %.2f mm aligned (%.2f mm unaligned, max %.2f mm, %zu poses)\n",
                   ate->rmse_m * 1e3, ate->unaligned_rmse_m * 1e3, ate->max_m * 1e3, ate->pairs);
     r << line;
-    alignment = ate->T_truth_estimate;
+    auto cameras = align_cameras(a, b);
+    if (!cameras) return cli::fail(kCmd, cameras.status().message());
+    alignment = *cameras;
   }
   if (alignment && !args.has("no-align")) {
     const Eigen::Matrix3f R = alignment->linear().cast<float>();
@@ -109,7 +112,7 @@ int run(int argc, char** argv) {
     for (size_t i = 0; i < cloud->size(); ++i) {
       cloud->position_m[i] = R * cloud->position_m[i] + t;
     }
-    r << "  cloud aligned to the truth by the trajectory's rigid alignment (--no-align to skip)\n";
+    r << "  cloud aligned to the truth by the cameras' rigid alignment (--no-align to skip)\n";
   }
   // Ground truth: the synthetic scene's analytic surfaces, or a reference cloud.
   std::optional<DistanceSummary> dist;

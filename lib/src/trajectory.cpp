@@ -117,4 +117,24 @@ Result<AteResult> absolute_trajectory_error(const std::vector<Pose>& est, const 
   return r;
 }
 
+Result<Pose> align_cameras(const std::vector<Pose>& est, const std::vector<Pose>& truth,
+                           double view_m) {
+  if (est.size() != truth.size()) return invalid_argument("trajectories differ in length");
+  if (est.empty()) return invalid_argument("need at least one pose to align cameras");
+  if (!(view_m > 0)) return invalid_argument("the view distance must be > 0");
+  const size_t n = est.size();
+  Eigen::Matrix3Xd A(3, 4 * n), B(3, 4 * n);
+  for (size_t i = 0; i < n; ++i) {
+    A.col(4 * i) = est[i].translation();
+    B.col(4 * i) = truth[i].translation();
+    for (int axis = 0; axis < 3; ++axis) {
+      A.col(4 * i + 1 + axis) = est[i].translation() + view_m * est[i].linear().col(axis);
+      B.col(4 * i + 1 + axis) = truth[i].translation() + view_m * truth[i].linear().col(axis);
+    }
+  }
+  Pose T;
+  T.matrix() = Eigen::umeyama(A, B, false);
+  return T;
+}
+
 }  // namespace depthfuse

@@ -28,4 +28,12 @@ struct AteResult {
 Result<AteResult> absolute_trajectory_error(const std::vector<Pose>& T_world_cam_estimate,
                                             const std::vector<Pose>& T_world_cam_truth);
 
+// The rigid motion (estimate -> truth frame) that best aligns the cameras themselves: each pose
+// contributes its position and the points view_m in front of it along its three axes. Where a
+// path is nearly straight or planar, positions alone leave a rotation about it free, and the ATE's
+// alignment picks one from the noise; a cloud placed with it would carry that rotation as error.
+// The cameras' orientations pin it.
+Result<Pose> align_cameras(const std::vector<Pose>& T_world_cam_estimate,
+                           const std::vector<Pose>& T_world_cam_truth, double view_m = 1.0);
+
 }  // namespace depthfuse
