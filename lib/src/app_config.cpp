@@ -114,6 +114,7 @@ void read_registration(TableReader& r, RegistrationConfig* g) {
   r.read("huber_delta_m", &g->huber_delta_m, positive());
   // A rigid pose has 6 degrees of freedom: fewer pairs cannot determine it.
   r.read("min_correspondences", &g->min_correspondences, at_least(6));
+  r.read("degenerate_ratio", &g->degenerate_ratio, closed(0.0, 1.0));
   r.read("model_band_m", &g->model_band_m, positive());
   r.read("model_downsample", &g->model_downsample, closed(1, 8));
   r.read("threads", &g->threads, closed(1, 2));

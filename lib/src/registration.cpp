@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 
 #include "model_projection.hpp"
 #include "parallel.hpp"
@@ -33,9 +33,11 @@ struct NormalEquations {
   Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
   Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
   double sq_residual = 0;
+  double sq_lever_m2 = 0;  // sum of |p - c|^2: the rotations' lever arm
   size_t inliers = 0;
 
   inline void add(const Eigen::Vector3f& p_rel, const Eigen::Vector3f& n, float r, float w) {
+    sq_lever_m2 += static_cast<double>(p_rel.squaredNorm());
     const Eigen::Vector3f c = p_rel.cross(n);
     const float J[6] = {c.x(), c.y(), c.z(), n.x(), n.y(), n.z()};
     for (int a = 0; a < 6; ++a) {
@@ -51,9 +53,32 @@ struct NormalEquations {
     H += o.H;
     b += o.b;
     sq_residual += o.sq_residual;
+    sq_lever_m2 += o.sq_lever_m2;
     inliers += o.inliers;
   }
 };
+
+// The Gauss-Newton step of the normal equations, in the directions the pairs constrain. A view of
+// one wall constrains three of the six directions, a wall and a floor five: in a direction with
+// (almost) no information the solution follows the noise and the pose slides. The step is solved in
+// the eigenbasis of H with the rotations scaled by the pairs' RMS lever arm (so that both halves
+// are in metres of point motion), and directions whose eigenvalue is below `degenerate_ratio`
+// times the largest keep their current value (0: solve in all six).
+inline Eigen::Matrix<double, 6, 1> solve_step(const NormalEquations& eq, double degenerate_ratio) {
+  Eigen::Matrix<double, 6, 6> H = eq.H.selfadjointView<Eigen::Upper>();
+  const double lever_m = std::sqrt(eq.sq_lever_m2 / std::max<size_t>(1, eq.inliers));
+  Eigen::Matrix<double, 6, 1> scale;  // twist = scale .* (twist in metres)
+  const double inv_lever = lever_m > 1e-6 ? 1.0 / lever_m : 1.0;
+  scale << inv_lever, inv_lever, inv_lever, 1.0, 1.0, 1.0;
+  const Eigen::Matrix<double, 6, 6> Hs = scale.asDiagonal() * H * scale.asDiagonal();
+  const Eigen::Matrix<double, 6, 1> bs = scale.asDiagonal() * eq.b;
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> es(Hs);
+  const Eigen::Matrix<double, 6, 1>& lambda = es.eigenvalues();  // ascending
+  const double floor = std::max(degenerate_ratio * lambda(5), 1e-12 * lambda(5) + 1e-30);
+  Eigen::Matrix<double, 6, 1> coeff = es.eigenvectors().transpose() * (-bs);
+  for (int k = 0; k < 6; ++k) coeff(k) = lambda(k) > floor ? coeff(k) / lambda(k) : 0.0;
+  return scale.asDiagonal() * (es.eigenvectors() * coeff);
+}
 
 }  // namespace
 
@@ -161,9 +186,7 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
     sampled += second_sampled;
     result.iterations = it + 1;
     if (eq.inliers < static_cast<size_t>(std::max(6, config_.min_correspondences))) break;
-    Eigen::Matrix<double, 6, 6> H = eq.H.selfadjointView<Eigen::Upper>();
-    H.diagonal().array() += 1e-9 * H.diagonal().maxCoeff() + 1e-12;  // damp degenerate directions
-    const Eigen::Matrix<double, 6, 1> xi = H.ldlt().solve(-eq.b);
+    const Eigen::Matrix<double, 6, 1> xi = solve_step(eq, config_.degenerate_ratio);
     if (!xi.allFinite()) break;
     // The twist is about `centre`: T' = Tc * exp(xi) * Tc^-1 * T.
     Pose Tc = Pose::Identity();

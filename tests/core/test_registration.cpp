@@ -109,6 +109,54 @@ TEST(Registration, AlignsToAModelRenderedFromAnotherPose) {
   EXPECT_TRUE(none.T_world_cam.isApprox(initial));
 }
 
+TEST(Registration, AViewOfOneWallMovesThePoseOnlyWhereTheWallConstrainsIt) {
+  // A plane 2 m in front of the camera fixes the distance to it and the two tilts; it says nothing
+  // about sliding along it or turning about its normal. Every frame carries +-2 mm of noise, which
+  // tilts the normals a little and so gives those directions a little information and a random
+  // pull. With degenerate_ratio the slide keeps its initial value; the distance is still corrected.
+  SensorModelConfig sensor;
+  FusionConfig fusion;
+  PointMap map(0.5);
+  Fuser fuser(sensor, fusion);
+  MeasurementImage m;
+  uint32_t state = 12345;  // a fixed LCG: the same noise on every run
+  auto noisy_plane = [&] {
+    Frame f = test::render_plane(Pose::Identity(), Eigen::Vector3d::UnitZ(), 2.0);
+    for (float& z : f.depth.depth_m) {
+      state = state * 1664525u + 1013904223u;
+      z += 2e-3f * (static_cast<float>(state >> 8) / static_cast<float>(1u << 24) * 2.0f - 1.0f);
+    }
+    return f;
+  };
+  for (uint32_t id = 1; id <= 3; ++id) {
+    ASSERT_TRUE(backproject(noisy_plane(), sensor, fusion, &m).is_ok());
+    fuser.fuse(m, nullptr, Pose::Identity(), id, &map);
+  }
+  ASSERT_TRUE(backproject(noisy_plane(), sensor, fusion, &m).is_ok());
+  const Pose initial = perturb(Pose::Identity(), {0.01, -0.01, 0.01}, {0, 0, 1}, 0.5);
+
+  for (const double ratio : {0.0, 0.005}) {
+    SCOPED_TRACE("degenerate_ratio " + std::to_string(ratio));
+    RegistrationConfig config;
+    config.degenerate_ratio = ratio;
+    const RegistrationResult r = Registrar(config).refine(m, map, initial);
+    ASSERT_TRUE(r.converged);
+    EXPECT_LT(std::abs(r.T_world_cam.translation().z()), 1e-3);  // 1 cm off the plane: corrected
+    const double slide_m =
+        (r.T_world_cam.translation() - initial.translation()).head<2>().norm();
+    const double turn_deg = std::abs(rotation_deg(r.T_world_cam, Pose::Identity()) - 0.5);
+    if (ratio > 0) {
+      EXPECT_LT(slide_m, 1e-4);
+      EXPECT_LT(turn_deg, 0.01);
+    } else {
+      // Without it the noise moves the pose along the wall (the reason for the option).
+      EXPECT_GT(slide_m + turn_deg * 1e-2, 1e-3);
+    }
+    std::printf("degenerate_ratio %.3f: slide %.2f mm, turn %.3f deg\n", ratio, slide_m * 1e3,
+                turn_deg);
+  }
+}
+
 TEST(Registration, EmptyMapKeepsThePose) {
   PointMap empty(0.5);
   const Pose truth = test::look_at({1.8, 1.9, 1.5}, {0.3, 0.3, 0.3});

@@ -58,6 +58,9 @@ struct RegistrationConfig {
   double max_normal_angle_deg = 35.0;        // reject pairs whose normals disagree more
   double huber_delta_m = 0.005;              // robust loss scale
   int min_correspondences = 500;             // fewer: keep the initial pose, report failure
+  // Directions of the pose whose information is below this fraction of the best-constrained one's
+  // are left as they are (a view of one wall does not say where along the wall the camera is).
+  double degenerate_ratio = 0.005;
   // The model surface at a pixel is the confidence-weighted mean of the points within this depth
   // band behind the nearest one (see ModelProjection::render_surface).
   double model_band_m = 0.05;
