@@ -116,7 +116,7 @@ void Registrar::render_model(const MeasurementImage& m, const PointMap& map, con
 
 RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& model,
                                   const Pose& initial, int subsample, int iterations,
-                                  double max_corr_m) {
+                                  double max_corr_m, size_t min_pairs) {
   RegistrationResult result;
   result.T_world_cam = initial;
   const CameraIntrinsics& MK = model.K;
@@ -132,6 +132,7 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
   const float max_d = static_cast<float>(max_corr_m);
   const float huber = static_cast<float>(config_.huber_delta_m);
   const int step = std::max(1, subsample);
+  min_pairs = std::max<size_t>(6, min_pairs);
 
   Pose T = initial;
   size_t sampled = 0;
@@ -185,7 +186,7 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
     eq.merge(second);
     sampled += second_sampled;
     result.iterations = it + 1;
-    if (eq.inliers < static_cast<size_t>(std::max(6, config_.min_correspondences))) break;
+    if (eq.inliers < min_pairs) break;
     const Eigen::Matrix<double, 6, 1> xi = solve_step(eq, config_.degenerate_ratio);
     if (!xi.allFinite()) break;
     // The twist is about `centre`: T' = Tc * exp(xi) * Tc^-1 * T.
@@ -199,7 +200,7 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
   result.correspondences = eq.inliers;
   result.fitness = sampled ? static_cast<double>(eq.inliers) / sampled : 0.0;
   result.rmse_m = eq.inliers ? std::sqrt(eq.sq_residual / eq.inliers) : 0.0;
-  result.converged = eq.inliers >= static_cast<size_t>(std::max(6, config_.min_correspondences));
+  result.converged = eq.inliers >= min_pairs;
   if (result.converged) result.T_world_cam = T;
   return result;
 }
@@ -213,7 +214,8 @@ RegistrationResult Registrar::refine(const MeasurementImage& m, const PointMap& 
 RegistrationResult Registrar::refine(const MeasurementImage& m, const SurfaceView& model,
                                      const Pose& T_world_cam_initial) {
   return run(m, model, T_world_cam_initial, config_.subsample_px, config_.iterations,
-             config_.max_correspondence_m);
+             config_.max_correspondence_m,
+             static_cast<size_t>(std::max(0, config_.min_correspondences)));
 }
 
 RegistrationResult Registrar::track(const MeasurementImage& m, const PointMap& map,
@@ -239,7 +241,13 @@ RegistrationResult Registrar::coarse_to_fine(const MeasurementImage& m, const Su
   for (int level = levels - 1; level >= 0; --level) {
     const int step = std::max(1, config_.subsample_px) << level;
     const double gate = config_.max_correspondence_m * (1 << level);
-    r = run(m, model, T, step, config_.tracking_iterations_per_level, gate);
+    // min_correspondences holds at subsample_px. A level samples 4^level times fewer pixels, so it
+    // needs as many times fewer pairs for the same overlap: otherwise the coarse levels, the only
+    // ones whose gates reach a large motion, rarely run on a VGA frame with holes (TUM fr1/xyz:
+    // the coarsest level ran on 7 of 39 frames, and a 9-degree turn was lost).
+    const size_t min_pairs =
+        static_cast<size_t>(std::max(0, config_.min_correspondences)) >> (2 * level);
+    r = run(m, model, T, step, config_.tracking_iterations_per_level, gate, min_pairs);
     if (r.converged) T = r.T_world_cam;
   }
   r.T_world_cam = T;

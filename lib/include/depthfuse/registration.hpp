@@ -65,10 +65,12 @@ class Registrar {
   // Projects the map around the frame's measurements into the camera at T_world_cam: view_.
   void render_model(const MeasurementImage& m, const PointMap& map, const Pose& T_world_cam,
                     double max_corr_m);
-  // ICP against `model`, from `initial`.
+  // ICP against `model`, from `initial`, on every `subsample`-th pixel. Fewer than `min_pairs`
+  // (at least 6) inlier pairs: not converged, the initial pose stays.
   RegistrationResult run(const MeasurementImage& m, const SurfaceView& model, const Pose& initial,
-                         int subsample, int iterations, double max_corr_m);
-  // Coarse to fine: every level halves the pixel step and the correspondence gate.
+                         int subsample, int iterations, double max_corr_m, size_t min_pairs);
+  // Coarse to fine: every level halves the pixel step and the correspondence gate and needs four
+  // times the pairs (registration.min_correspondences at the finest).
   RegistrationResult coarse_to_fine(const MeasurementImage& m, const SurfaceView& model,
                                     const Pose& T_world_cam_initial);
   RegistrationConfig config_;
