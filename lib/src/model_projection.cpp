@@ -276,18 +276,10 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
       if (cand_slot_[px] < 0) continue;
       const PointArrays& a = chunks_[cand_slot_[px]]->points;
       const uint32_t j = cand_index_[px];
-      const Eigen::Vector3f& p = a.position_m[j];
-      cand_x_[px] = p.x();
-      cand_y_[px] = p.y();
-      cand_z_[px] = p.z();
       const PointState& st = a.state[j];
-      cand_info_[0][px] = st.info_xx;
-      cand_info_[1][px] = st.info_xy;
-      cand_info_[2][px] = st.info_xz;
-      cand_info_[3][px] = st.info_yy;
-      cand_info_[4][px] = st.info_yz;
-      cand_info_[5][px] = st.info_zz;
-      cand_merges_[px] = st.merges;
+      set_candidate_columns(px, a.position_m[j],
+                            {st.info_xx, st.info_xy, st.info_xz, st.info_yy, st.info_yz, st.info_zz},
+                            st.merges);
     }
   });
 }

@@ -115,16 +115,7 @@ class ModelProjection {
   // now: a point may merge with several measurements of one frame, as in the paper's loop over
   // pixels. (A point is the candidate of one pixel at most, so per-pixel columns suffice.)
   void record_merge(size_t pixel, const Eigen::Vector3f& p_w, const Sym3f& L, uint16_t merges) {
-    cand_x_[pixel] = p_w.x();
-    cand_y_[pixel] = p_w.y();
-    cand_z_[pixel] = p_w.z();
-    cand_info_[0][pixel] = L.xx;
-    cand_info_[1][pixel] = L.xy;
-    cand_info_[2][pixel] = L.xz;
-    cand_info_[3][pixel] = L.yy;
-    cand_info_[4][pixel] = L.yz;
-    cand_info_[5][pixel] = L.zz;
-    cand_merges_[pixel] = merges;
+    set_candidate_columns(pixel, p_w, L, merges);
     merged_[pixel] = 1;
   }
 
@@ -148,6 +139,20 @@ class ModelProjection {
                             size_t chunk_end, float* front) const;
   void sum_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m,
                    size_t chunk_begin, size_t chunk_end, SurfaceSum* sum) const;
+  // The candidate columns at a pixel: world position, information, merge count.
+  void set_candidate_columns(size_t pixel, const Eigen::Vector3f& p_w, const Sym3f& L,
+                             uint16_t merges) {
+    cand_x_[pixel] = p_w.x();
+    cand_y_[pixel] = p_w.y();
+    cand_z_[pixel] = p_w.z();
+    cand_info_[0][pixel] = L.xx;
+    cand_info_[1][pixel] = L.xy;
+    cand_info_[2][pixel] = L.xz;
+    cand_info_[3][pixel] = L.yy;
+    cand_info_[4][pixel] = L.yz;
+    cand_info_[5][pixel] = L.zz;
+    cand_merges_[pixel] = merges;
+  }
   // Gives the selected chunks' points consecutive ids (offsets_) and returns how many there are.
   uint64_t number_points();
   // The chunk where the second thread's half of the points starts.
