@@ -28,7 +28,8 @@ inline Pose twist_to_pose(const Eigen::Matrix<double, 6, 1>& xi) {
 }
 
 // One point-to-plane term: residual n.(p - q) with Jacobian [ (p - c) x n, n ] for a twist about
-// the centre c (conditioning: rotations about the data, not the world origin).
+// the centre c, the camera's position (conditioning: rotations about the camera, not the world
+// origin).
 struct NormalEquations {
   Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
   Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
