@@ -164,3 +164,33 @@ TEST(Fuser, NewSurfaceIsAddedDespiteTheGate) {
   EXPECT_EQ(s.redundant, 0u);
   EXPECT_EQ(s.added, s.measurements);
 }
+
+TEST(Fuser, APointMergesWithSeveralMeasurementsOfOneFrame) {
+  // A plane first seen from 2 m, then from 1.2 m straight on: the second camera's pixels are
+  // smaller than the first's, so about 2.8 of its pixels see each existing point, and only one
+  // of them has that point rendered at its own pixel. The others find it in their window and may
+  // merge with it too (the paper loops over every pixel; a point is not limited to one merge per
+  // frame). The frame's merges all land on existing points, and each is counted once.
+  Fixture fx;
+  const Eigen::Vector3d n = Eigen::Vector3d::UnitZ();
+  fx.fuse(test::render_plane(Pose::Identity(), n, 2.0), Pose::Identity());
+  const size_t points = fx.map.point_count();
+  Pose closer = Pose::Identity();
+  closer.translation().z() = 0.8;
+  const FusionStats s = fx.fuse(test::render_plane(closer, n, 2.0), closer);
+  const PointArrays a = fx.map.gather();
+  size_t merges = 0, refined = 0, several = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    merges += a.state[i].merges;
+    refined += a.state[i].merges >= 1;
+    several += a.state[i].merges >= 2;
+  }
+  EXPECT_EQ(merges, s.merged);
+  EXPECT_EQ(s.merged, s.measurements);  // every measurement merged: nothing added or dropped
+  EXPECT_GT(s.merged, 2 * refined);     // more than two merges per refined point ...
+  EXPECT_GT(several, refined / 2);      // ... and most refined points merged several times
+  EXPECT_EQ(fx.map.point_count(), points + s.added);
+  std::printf("%zu points; second frame: %zu measurements, %zu merged into %zu points, %zu of "
+              "them twice or more\n",
+              points, s.measurements, s.merged, refined, several);
+}
