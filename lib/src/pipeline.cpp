@@ -73,6 +73,18 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
                                  : registrar_.track(scratch_, *map_, T);
       frames_since_model_ = 1;
     }
+    // A constant-velocity prediction overshoots where the camera stops or turns back; a poor
+    // track from it gets a second start at the last refined pose.
+    const double retry_fitness = config_.registration.tracking_retry_fitness;
+    if (!hint && prediction && last_T_world_cam_ &&
+        (!report.registration.converged || report.registration.fitness < retry_fitness)) {
+      const RegistrationResult second = registrar_.track(scratch_, *map_, *last_T_world_cam_);
+      frames_since_model_ = 1;
+      if (second.converged && (!report.registration.converged ||
+                               second.fitness > report.registration.fitness))
+        report.registration = second;
+      report.tracking_retried = true;
+    }
     report.registered = report.registration.converged;
     if (report.registered) T = report.registration.T_world_cam;
   }

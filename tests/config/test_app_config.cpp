@@ -57,6 +57,7 @@ void expect_config_eq(const AppConfig& a, const AppConfig& b) {
   EXPECT_EQ(ra.registration.min_correspondences, rb.registration.min_correspondences);
   EXPECT_EQ(ra.registration.degenerate_ratio, rb.registration.degenerate_ratio);
   EXPECT_EQ(ra.registration.tracking_levels, rb.registration.tracking_levels);
+  EXPECT_EQ(ra.registration.tracking_retry_fitness, rb.registration.tracking_retry_fitness);
   EXPECT_EQ(ra.registration.tracking_iterations_per_level,
             rb.registration.tracking_iterations_per_level);
   EXPECT_EQ(ra.pipeline.method, rb.pipeline.method);
@@ -151,6 +152,7 @@ min_correspondences = 100
 degenerate_ratio = 0.01
 tracking_levels = 2
 tracking_iterations_per_level = 5
+tracking_retry_fitness = 0.25
 
 [pipeline]
 method = "ylimaki17"
@@ -220,6 +222,7 @@ publish_rate_hz = 0.5
   EXPECT_EQ(g.degenerate_ratio, 0.01);
   EXPECT_EQ(g.tracking_levels, 2);
   EXPECT_EQ(g.tracking_iterations_per_level, 5);
+  EXPECT_EQ(g.tracking_retry_fitness, 0.25);
   const PipelineConfig& pl = c.reconstruction.pipeline;
   EXPECT_EQ(pl.method, Method::kYlimaki17);
   EXPECT_EQ(pl.outer_iterations, 3);
@@ -361,6 +364,7 @@ TEST(AppConfig, OutOfRangeValuesAreErrors) {
       {"registration", "tracking_levels", "0", "must be in [1, 8], got 0"},
       {"registration", "tracking_levels", "9", "must be in [1, 8], got 9"},
       {"registration", "tracking_iterations_per_level", "-2", "must be >= 0, got -2"},
+      {"registration", "tracking_retry_fitness", "1.5", "must be in [0, 1], got 1.5"},
       {"registration", "live_model_reuse_frames", "0", "must be in [1, 30], got 0"},
       {"registration", "live_model_reuse_max_m", "-0.01", "must be >= 0, got -0.01"},
       {"registration", "live_model_reuse_max_deg", "200", "must be in [0, 180], got 200"},

@@ -75,3 +75,33 @@ TEST(Incremental, ReusesTheModelOnlyForNearbyFramesAndNotTwiceInARow) {
     EXPECT_FALSE(r->model_reused);
   }
 }
+
+TEST(Incremental, APoorTrackFromThePredictionStartsAgainFromTheLastPose) {
+  // The camera stops, but the prediction (as a constant-velocity model would give after a fast
+  // move) is 20 cm and 20 degrees on. Tracking from there does not find the corner; with the
+  // retry it starts again from the last refined pose, which is right.
+  const Pose stop = test::look_at({2.4 * std::cos(0.6), 2.4 * std::sin(0.6), 1.4}, {0.3, 0.3, 0.3});
+  Pose overshoot = stop;
+  overshoot.linear() = Eigen::AngleAxisd(20.0 * M_PI / 180.0, Eigen::Vector3d::UnitZ()) * stop.linear();
+  overshoot.translation() += Eigen::Vector3d(0.2, -0.1, 0.05).normalized() * 0.2;
+  for (const double retry : {0.0, 0.5}) {
+    SCOPED_TRACE("tracking_retry_fitness " + std::to_string(retry));
+    ReconstructionConfig c;
+    c.registration.tracking_retry_fitness = retry;
+    IncrementalReconstructor rec(c);
+    ASSERT_TRUE(rec.process(test::render_corner(stop), stop).is_ok());
+    auto r = rec.process(test::render_corner(stop), overshoot);
+    ASSERT_TRUE(r.is_ok()) << r.status().to_string();
+    const double error_m = (r->T_world_cam.translation() - stop.translation()).norm();
+    std::printf("retry %.1f: error %.1f mm, fitness %.2f, retried %d\n", retry, error_m * 1e3,
+                r->registration.fitness, r->tracking_retried);
+    if (retry > 0) {
+      EXPECT_TRUE(r->tracking_retried);
+      EXPECT_LT(error_m, 1e-3);
+      EXPECT_GT(r->registration.fitness, 0.9);
+    } else {
+      EXPECT_FALSE(r->tracking_retried);
+      EXPECT_GT(error_m, 0.05);  // lost: the reason for the retry
+    }
+  }
+}

@@ -70,6 +70,9 @@ struct RegistrationConfig {
   // Tracking without a pose hint: coarse-to-fine levels (subsample 4, 2, 1 ...), iterations each.
   int tracking_levels = 3;
   int tracking_iterations_per_level = 10;
+  // Tracking from a prediction whose result has an ICP fitness below this (or fails) starts again
+  // from the last refined pose; 0 = never.
+  double tracking_retry_fitness = 0.5;
   // Frame-by-frame registration (IncrementalReconstructor, the fusion daemon) may align a frame
   // to the model rendered for the frame before, instead of rendering the map again: for at most
   // live_model_reuse_frames frames in a row (1: never), and only while the initial pose is within

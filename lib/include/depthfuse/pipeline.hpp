@@ -23,6 +23,7 @@ struct FrameReport {
   Pose T_world_cam = Pose::Identity();   // the pose the frame was fused with
   bool registered = false;               // ICP ran and converged
   bool model_reused = false;             // ICP aligned to the previous frame's model (no render)
+  bool tracking_retried = false;         // a poor track from the prediction started again
   RegistrationResult registration;
   FusionStats fusion;
   size_t prefiltered = 0;                // measurements the pre-filter removed
@@ -39,6 +40,8 @@ class IncrementalReconstructor {
   // not empty); fusion. With a hint, ICP refines it; without one, coarse-to-fine tracking runs.
   // The model is the map rendered at the initial pose, for every frame or, with
   // registration.live_model_reuse_frames = n, for every n-th (the first after a reset renders).
+  // A track from a prediction whose fitness is below registration.tracking_retry_fitness starts
+  // again from the last refined pose, and the better of the two (by fitness) is kept.
   Result<FrameReport> process(const Frame& frame,
                               const std::optional<Pose>& T_world_cam_prediction = std::nullopt);
 
