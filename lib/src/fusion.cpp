@@ -276,16 +276,12 @@ void FrameFusion::rows(int v0, int v1, RowScratch* row, PointArrays* added,
       // was worked out in prepare_row(); if a measurement of this frame has refined that candidate
       // since, the merge is worked out again.
       bool merged = false;
-      if (proj.has_candidate(i)) {
-        if (!proj.merged_this_frame(i)) {
-          if (r.merges[u]) {
-            merge_into_candidate(proj, i, Eigen::Vector3f(r.f_x[u], r.f_y[u], r.f_z[u]),
-                                 proj.candidate_information(i) + L_n, n_w, rgb, frame_id_);
-            merged = true;
-          }
-        } else {
-          merged = try_merge(proj, i, p_w, L_n, n_w, rgb, frame_id_);
-        }
+      if (proj.has_candidate(i) && proj.merged_this_frame(i)) {
+        merged = try_merge(proj, i, p_w, L_n, n_w, rgb, frame_id_);
+      } else if (proj.has_candidate(i) && r.merges[u]) {
+        merge_into_candidate(proj, i, Eigen::Vector3f(r.f_x[u], r.f_y[u], r.f_z[u]),
+                             proj.candidate_information(i) + L_n, n_w, rgb, frame_id_);
+        merged = true;
       }
       if (!merged && cr > 0) {
         size_t best_px = i;

@@ -18,10 +18,14 @@
 
 // Before a loop whose iterations are independent but which the compiler cannot prove so (GCC
 // ignores restrict on locals): lets it vectorise without run-time alias checks.
+// DF_UNROLL(n): unroll the next loop n times (a short fixed-count loop whose body is branch-free).
 #if defined(__GNUC__) && !defined(__clang__)
 #define DF_IVDEP _Pragma("GCC ivdep")
+#define DF_PRAGMA(x) _Pragma(#x)
+#define DF_UNROLL(n) DF_PRAGMA(GCC unroll n)
 #else
 #define DF_IVDEP
+#define DF_UNROLL(n)
 #endif
 
 namespace depthfuse {

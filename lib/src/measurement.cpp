@@ -228,13 +228,9 @@ struct PrefilterPass {
     const float limit2 = limit * limit;
     const float px = X[i], py = Y[i], pz = Z[i];
     int count = 0;
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC unroll 7
-#endif
+    DF_UNROLL(7)
     for (int dv = -R; dv <= R; ++dv) {
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC unroll 7
-#endif
+      DF_UNROLL(7)
       for (int du = -R; du <= R; ++du) {
         if (du == 0 && dv == 0) continue;  // a constant: unrolled away
         bool in = has_row[dv + R];

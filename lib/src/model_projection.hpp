@@ -3,7 +3,6 @@
 // are projected, so the cost follows the frame, not the map.
 #pragma once
 
-#include <algorithm>
 #include <cstdint>
 #include <vector>
 

@@ -81,8 +81,10 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
       const RegistrationResult second = registrar_.track(scratch_, *map_, *last_T_world_cam_);
       frames_since_model_ = 1;
       if (second.converged && (!report.registration.converged ||
-                               second.fitness > report.registration.fitness))
+                               second.fitness > report.registration.fitness)) {
         report.registration = second;
+        report.model_reused = false;  // the second track rendered the map
+      }
       report.tracking_retried = true;
     }
     report.registered = report.registration.converged;

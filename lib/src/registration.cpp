@@ -66,7 +66,7 @@ struct NormalEquations {
 // are in metres of point motion), and directions whose eigenvalue is below `degenerate_ratio`
 // times the largest keep their current value (0: solve in all six).
 inline Eigen::Matrix<double, 6, 1> solve_step(const NormalEquations& eq, double degenerate_ratio) {
-  Eigen::Matrix<double, 6, 6> H = eq.H.selfadjointView<Eigen::Upper>();
+  const Eigen::Matrix<double, 6, 6> H = eq.H.selfadjointView<Eigen::Upper>();
   const double lever_m = std::sqrt(eq.sq_lever_m2 / std::max<size_t>(1, eq.inliers));
   Eigen::Matrix<double, 6, 1> scale;  // twist = scale .* (twist in metres)
   const double inv_lever = lever_m > 1e-6 ? 1.0 / lever_m : 1.0;
@@ -206,6 +206,14 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
   return result;
 }
 
+// min_correspondences holds at subsample_px. A tracking level samples 4^level times fewer pixels, so
+// it needs as many times fewer pairs for the same overlap: otherwise the coarse levels, the only
+// ones whose gates reach a large motion, rarely run on a VGA frame with holes (TUM fr1/xyz: the
+// coarsest level ran on 7 of 39 frames, and a 9-degree turn was lost).
+size_t Registrar::min_pairs(int level) const {
+  return static_cast<size_t>(std::max(0, config_.min_correspondences)) >> (2 * level);
+}
+
 RegistrationResult Registrar::refine(const MeasurementImage& m, const PointMap& map,
                                      const Pose& T_world_cam_initial) {
   render_model(m, map, T_world_cam_initial, config_.max_correspondence_m);
@@ -215,8 +223,7 @@ RegistrationResult Registrar::refine(const MeasurementImage& m, const PointMap& 
 RegistrationResult Registrar::refine(const MeasurementImage& m, const SurfaceView& model,
                                      const Pose& T_world_cam_initial) {
   return run(m, model, T_world_cam_initial, config_.subsample_px, config_.iterations,
-             config_.max_correspondence_m,
-             static_cast<size_t>(std::max(0, config_.min_correspondences)));
+             config_.max_correspondence_m, min_pairs(0));
 }
 
 RegistrationResult Registrar::track(const MeasurementImage& m, const PointMap& map,
@@ -242,13 +249,7 @@ RegistrationResult Registrar::coarse_to_fine(const MeasurementImage& m, const Su
   for (int level = levels - 1; level >= 0; --level) {
     const int step = std::max(1, config_.subsample_px) << level;
     const double gate = config_.max_correspondence_m * (1 << level);
-    // min_correspondences holds at subsample_px. A level samples 4^level times fewer pixels, so it
-    // needs as many times fewer pairs for the same overlap: otherwise the coarse levels, the only
-    // ones whose gates reach a large motion, rarely run on a VGA frame with holes (TUM fr1/xyz:
-    // the coarsest level ran on 7 of 39 frames, and a 9-degree turn was lost).
-    const size_t min_pairs =
-        static_cast<size_t>(std::max(0, config_.min_correspondences)) >> (2 * level);
-    r = run(m, model, T, step, config_.tracking_iterations_per_level, gate, min_pairs);
+    r = run(m, model, T, step, config_.tracking_iterations_per_level, gate, min_pairs(level));
     if (r.converged) T = r.T_world_cam;
   }
   r.T_world_cam = T;
