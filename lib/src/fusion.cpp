@@ -149,8 +149,11 @@ class FrameFusion {
         redundancy_gate2_(static_cast<float>(config.redundancy_gate * config.redundancy_gate)),
         redundancy_min_merges_(std::max(0, config.redundancy_min_merges)) {}
 
-  // Fuses rows [v0, v1); new points are appended to *added.
-  void rows(int v0, int v1, RowScratch* row, PointArrays* added, FusionStats* stats) const;
+  // Fuses rows [v0, v1); new points are appended to *added. Gathers the candidates of rows
+  // [g0, g1) (see ModelProjection::gather_candidates()), each before the first row whose candidate
+  // window reaches it: the rows a band gathers are the rows it alone touches.
+  void rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArrays* added,
+            FusionStats* stats) const;
 
  private:
   // The first pass over row v: RowScratch for every pixel, valid or not.
@@ -246,15 +249,22 @@ void FrameFusion::prepare_row(int v, RowScratch* row) const {
   }
 }
 
-void FrameFusion::rows(int v0, int v1, RowScratch* row, PointArrays* added,
+void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArrays* added,
                        FusionStats* stats) const {
   const MeasurementImage& m = m_;
   ModelProjection& proj = proj_;
   const Eigen::Vector3f& t = t_;
   const int cr = cr_;
   const size_t proj_pixels = m.pixel_count();
+  const size_t W = static_cast<size_t>(m.width);
   const RowScratch& r = *row;
+  int gathered = g0;  // rows [g0, gathered) are gathered
   for (int v = v0; v < v1; ++v) {
+    const int g = std::min(g1, v + cr + 1);
+    if (gathered < g) {
+      proj.gather_candidates(gathered * W, g * W);
+      gathered = g;
+    }
     prepare_row(v, row);
     for (int u = 0; u < m.width; ++u) {
       const size_t i = static_cast<size_t>(v) * m.width + u;
@@ -385,17 +395,21 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
   RowScratch* row = scratch_->rows;
   for (RowScratch& r : scratch_->rows) r.resize(m.width);
   // Bands: rows [0, h - r) and [h + r, height), on two threads if there are two, then the seam
-  // [h - r, h + r) once both are done (r: the candidate window's reach). With one thread the bands
-  // run in the same order, so the result does not depend on the thread count.
-  const int r = std::max(1, config_.candidate_radius_px);
+  // [h - r, h + r) once both are done (r: at least the candidate window's reach cr). With one
+  // thread the bands run in the same order, so the result does not depend on the thread count.
+  // Each band gathers the candidates of the rows its windows reach; the seam, those left.
+  const int cr = std::max(0, config_.candidate_radius_px);
+  const int r = std::max(1, cr);
   const int h = m.height / 2;
-  if (m.height > 8 * r) {
+  const int H = m.height;
+  if (H > 8 * r) {
     run_pair(
-        config_.threads, [&] { frame.rows(0, h - r, &row[0], &added[0], &stats[0]); },
-        [&] { frame.rows(h + r, m.height, &row[1], &added[1], &stats[1]); });
-    frame.rows(h - r, h + r, &row[0], &added[2], &stats[2]);
+        config_.threads,
+        [&] { frame.rows(0, h - r, 0, h - r + cr, &row[0], &added[0], &stats[0]); },
+        [&] { frame.rows(h + r, H, h + r - cr, H, &row[1], &added[1], &stats[1]); });
+    frame.rows(h - r, h + r, h - r + cr, h + r - cr, &row[0], &added[2], &stats[2]);
   } else {
-    frame.rows(0, m.height, &row[0], &added[0], &stats[0]);
+    frame.rows(0, H, 0, H, &row[0], &added[0], &stats[0]);
   }
   FusionStats total;
   for (int b = 0; b < 3; ++b) {

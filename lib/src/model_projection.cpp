@@ -268,20 +268,22 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
       }
       locate(static_cast<uint32_t>(k.cand), &cand_slot_[px], &cand_index_[px]);
     }
-    // The candidates' positions, information and merge counts, pixel-ordered. Each is a random
-    // read into the map: prefetching a few pixels ahead turns a chain of cache misses into
-    // overlapping ones.
-    for (size_t px = begin; px < end; ++px) {
-      if (px + kPrefetchPixels < end) prefetch_candidate(px + kPrefetchPixels);
-      if (cand_slot_[px] < 0) continue;
-      const PointArrays& a = chunks_[cand_slot_[px]]->points;
-      const uint32_t j = cand_index_[px];
-      const PointState& st = a.state[j];
-      set_candidate_columns(px, a.position_m[j],
-                            {st.info_xx, st.info_xy, st.info_xz, st.info_yy, st.info_yz, st.info_zz},
-                            st.merges);
-    }
   });
+}
+
+void ModelProjection::gather_candidates(size_t begin, size_t end) {
+  // Each is a random read into the map: prefetching a few pixels ahead turns a chain of cache
+  // misses into overlapping ones.
+  for (size_t px = begin; px < end; ++px) {
+    if (px + kPrefetchPixels < end) prefetch_candidate(px + kPrefetchPixels);
+    if (cand_slot_[px] < 0) continue;
+    const PointArrays& a = chunks_[cand_slot_[px]]->points;
+    const uint32_t j = cand_index_[px];
+    const PointState& st = a.state[j];
+    set_candidate_columns(px, a.position_m[j],
+                          {st.info_xx, st.info_xy, st.info_xz, st.info_yy, st.info_yz, st.info_zz},
+                          st.merges);
+  }
 }
 
 size_t ModelProjection::render_front_depth(const Pose& T_world_cam, const CameraIntrinsics& K,

@@ -64,8 +64,12 @@ class ModelProjection {
   PointArrays& front_points(size_t pixel) const { return chunks_[front_slot_[pixel]]->points; }
   uint32_t front_index(size_t pixel) const { return front_index_[pixel]; }
 
-  // The merge candidate at a pixel (render() with measurements only). Its world position is stored
-  // pixel-ordered, so that neighbourhood searches read contiguous memory.
+  // The merge candidate at a pixel (render() with measurements only). Its world position,
+  // information and merge count are copied pixel-ordered, so that neighbourhood searches and
+  // vectorised loops read contiguous memory; gather_candidates() copies them for a range of pixels,
+  // and must have run on a pixel before these are read there. Fusion gathers a row just before it
+  // works on it: the points it then refines are still in the cache.
+  void gather_candidates(size_t begin, size_t end);
   bool has_candidate(size_t pixel) const { return cand_slot_[pixel] >= 0; }
   Eigen::Vector3f candidate_position(size_t pixel) const {
     return {cand_x_[pixel], cand_y_[pixel], cand_z_[pixel]};
@@ -107,7 +111,7 @@ class ModelProjection {
   static constexpr size_t kPrefetchPixels = 16;
 
   // Whether a measurement of this frame has merged with the candidate at a pixel. Until one has,
-  // the candidate's columns are as rendered.
+  // the candidate's columns are as gathered.
   bool merged_this_frame(size_t pixel) const { return merged_[pixel] != 0; }
   // Records that the candidate at a pixel was refined to (p_w, L), now merged `merges` times. Its
   // columns follow, so that a later measurement of the same frame merges with the point as it is
