@@ -94,16 +94,36 @@ struct PixelProjector {
   // prefetched and overlap, instead of waiting on each one in turn.
   static constexpr uint32_t kNoPixel = ~uint32_t{0};
   static constexpr size_t kBlock = 64;
+  // A whole block without branches, so that it vectorises (a loop of a fixed count; the points
+  // first copied out to one array per coordinate): the same pixels as project_to_pixel(). Entries
+  // from `count` on are padding.
   void project_block(const Eigen::Vector3f* pos, size_t count, uint32_t* pixel, float* depth) const {
-    for (size_t i = 0; i < count; ++i) {
-      const Eigen::Vector3f& p = pos[i];
-      const float x = R(0, 0) * p.x() + R(0, 1) * p.y() + R(0, 2) * p.z() + t.x();
-      const float y = R(1, 0) * p.x() + R(1, 1) * p.y() + R(1, 2) * p.z() + t.y();
-      const float z = R(2, 0) * p.x() + R(2, 1) * p.y() + R(2, 2) * p.z() + t.z();
-      int u, v;
-      pixel[i] = project_to_pixel(x, y, z, fx, fy, cx, cy, width, height, &u, &v)
-                     ? static_cast<uint32_t>(v * width + u)
-                     : kNoPixel;
+    float X[kBlock], Y[kBlock], Z[kBlock];
+    for (size_t i = 0; i < kBlock; ++i) {
+      const bool real = i < count;  // padding: z = 0 falls outside
+      X[i] = real ? pos[i].x() : 0.0f;
+      Y[i] = real ? pos[i].y() : 0.0f;
+      Z[i] = real ? pos[i].z() : 0.0f;
+    }
+    const float r00 = R(0, 0), r01 = R(0, 1), r02 = R(0, 2), r10 = R(1, 0), r11 = R(1, 1),
+                r12 = R(1, 2), r20 = R(2, 0), r21 = R(2, 1), r22 = R(2, 2);
+    const float tx = t.x(), ty = t.y(), tz = t.z();
+    const float w = static_cast<float>(width), h = static_cast<float>(height);
+    const float cu = cx, cv = cy;
+    const int32_t W = width;
+    DF_IVDEP
+    for (size_t i = 0; i < kBlock; ++i) {
+      const float x = r00 * X[i] + r01 * Y[i] + r02 * Z[i] + tx;
+      const float y = r10 * X[i] + r11 * Y[i] + r12 * Z[i] + ty;
+      const float z = r20 * X[i] + r21 * Y[i] + r22 * Z[i] + tz;
+      const float inv_z = 1.0f / z;  // inf or nonsense where z <= 1e-3: masked below
+      const float fu = fx * x * inv_z + cu + 0.5f, fv = fy * y * inv_z + cv + 0.5f;
+      const bool inside =
+          (z > 1e-3f) & (fu >= 0.0f) & (fv >= 0.0f) & (fu < w) & (fv < h);
+      // Outside, fu and fv may be anything: zero them before converting.
+      const int32_t u = static_cast<int32_t>(inside ? fu : 0.0f);
+      const int32_t v = static_cast<int32_t>(inside ? fv : 0.0f);
+      pixel[i] = inside ? static_cast<uint32_t>(v * W + u) : kNoPixel;
       depth[i] = z;
     }
   }
