@@ -318,8 +318,8 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArr
       if (!proj.empty_at(i)) {
         const float z_e = proj.depth_at(i);
         if (z_e < z) {
-          PointArrays& a = proj.front_points(i);
-          const uint32_t j = proj.front_index(i);
+          uint32_t j;
+          PointArrays& a = proj.front_points(i, &j);
           const Eigen::Vector3f& p_e = a.position(j);
           const float s_e = (p_e - t).norm();
           const bool facing_e = a.normal(j).dot(t - p_e) > 0.0f;

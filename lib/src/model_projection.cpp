@@ -256,8 +256,7 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
   run_pair(two ? 2 : 1, [&] { half(0); }, [&] { half(1); });
   rendered_ = rendered[0] + rendered[1];
 
-  front_slot_.resize(n);
-  front_index_.resize(n);
+  front_id_.resize(n);
   front_depth_.resize(n);
   cand_slot_.resize(n);
   cand_index_.resize(n);
@@ -276,10 +275,9 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
       }
       merged_[px] = 0;
       if (k.front == kNoKey) {
-        front_slot_[px] = -1;
-        front_depth_[px] = inf;
+        front_depth_[px] = kNoDepth;
       } else {
-        locate(static_cast<uint32_t>(k.front), &front_slot_[px], &front_index_[px]);
+        front_id_[px] = static_cast<uint32_t>(k.front);
         front_depth_[px] = bits_float(static_cast<uint32_t>(k.front >> 32));
       }
       if ((k.cand >> 32) >= kInfBits) {  // no candidate, or no measurement at this pixel

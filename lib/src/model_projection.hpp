@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 #include "depthfuse/measurement.hpp"
@@ -59,10 +60,15 @@ class ModelProjection {
                       SurfaceView* view);
 
   // The front-most point at a pixel.
-  bool empty_at(size_t pixel) const { return front_slot_[pixel] < 0; }
+  bool empty_at(size_t pixel) const { return !(front_depth_[pixel] < kNoDepth); }
   float depth_at(size_t pixel) const { return front_depth_[pixel]; }
-  PointArrays& front_points(size_t pixel) const { return chunks_[front_slot_[pixel]]->points; }
-  uint32_t front_index(size_t pixel) const { return front_index_[pixel]; }
+  // The front-most point's chunk and index (a pixel that is not empty_at()). Fusion needs it only
+  // where a measurement does not merge, so it is looked up here rather than for every pixel.
+  PointArrays& front_points(size_t pixel, uint32_t* index) const {
+    int32_t slot;
+    locate(front_id_[pixel], &slot, index);
+    return chunks_[slot]->points;
+  }
 
   // The merge candidate at a pixel (render() with measurements only). Its world position,
   // information and merge count are copied pixel-ordered, so that neighbourhood searches and
@@ -171,9 +177,11 @@ class ModelProjection {
   std::vector<PixelKeys> pixel_keys_;   // per pixel, during render()
   std::vector<PixelKeys> pixel_keys_2_; // the second thread's, combined into the first
   int threads_ = 1;
-  std::vector<int32_t> front_slot_, cand_slot_;    // per pixel: index into chunks_, -1 = nothing
-  std::vector<uint32_t> front_index_, cand_index_; // per pixel: point index within the chunk
-  std::vector<float> front_depth_;      // per pixel: z of the front-most point in the camera
+  std::vector<uint32_t> front_id_;      // per pixel: the front-most point's id (see locate())
+  std::vector<int32_t> cand_slot_;      // per pixel: index into chunks_, -1 = nothing
+  std::vector<uint32_t> cand_index_;    // per pixel: point index within the chunk
+  static constexpr float kNoDepth = std::numeric_limits<float>::infinity();
+  std::vector<float> front_depth_;      // per pixel: z of the front-most point, kNoDepth = none
   std::vector<float> front_depth_2_;    // render_surface(): the second half's
   std::vector<float> cand_x_, cand_y_, cand_z_;  // per pixel: the candidate's world position
   std::vector<float> cand_info_[6];     // per pixel: its information, xx xy xz yy yz zz
