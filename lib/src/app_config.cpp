@@ -116,6 +116,7 @@ void read_registration(TableReader& r, RegistrationConfig* g) {
   r.read("min_correspondences", &g->min_correspondences, at_least(6));
   r.read("degenerate_ratio", &g->degenerate_ratio, closed(0.0, 1.0));
   r.read("model_band_m", &g->model_band_m, positive());
+  r.read("tracking_model_band_m", &g->tracking_model_band_m, positive());
   r.read("model_downsample", &g->model_downsample, closed(1, 8));
   r.read("threads", &g->threads, closed(1, 2));
   r.read("tracking_levels", &g->tracking_levels, closed(1, 8));  // pixel steps grow as 2^level

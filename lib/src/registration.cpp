@@ -105,13 +105,13 @@ CameraIntrinsics model_intrinsics(const CameraIntrinsics& K, int factor) {
 }  // namespace
 
 void Registrar::render_model(const MeasurementImage& m, const PointMap& map, const Pose& T_world_cam,
-                             double max_corr_m) {
+                             double band_m, double max_corr_m) {
   ModelProjection& proj = *projection_;
   proj.set_threads(config_.threads);
   // The map is only read; the projection's chunk pointers are non-const for fusion's sake.
   proj.select_chunks(const_cast<PointMap&>(map), m, T_world_cam, static_cast<float>(max_corr_m) + 0.05f);
   proj.render_surface(T_world_cam, model_intrinsics(m.intrinsics, config_.model_downsample),
-                      static_cast<float>(config_.model_band_m), &view_);
+                      static_cast<float>(band_m), &view_);
   if (proj.rendered_points() == 0) view_.clear();
 }
 
@@ -216,7 +216,7 @@ size_t Registrar::min_pairs(int level) const {
 
 RegistrationResult Registrar::refine(const MeasurementImage& m, const PointMap& map,
                                      const Pose& T_world_cam_initial) {
-  render_model(m, map, T_world_cam_initial, config_.max_correspondence_m);
+  render_model(m, map, T_world_cam_initial, config_.model_band_m, config_.max_correspondence_m);
   return refine(m, view_, T_world_cam_initial);
 }
 
@@ -231,7 +231,8 @@ RegistrationResult Registrar::track(const MeasurementImage& m, const PointMap& m
   // One rendering of the model, at the initial pose and wide enough for the coarsest gate, serves
   // every level: associations go through the rendered camera whatever the current estimate.
   const int levels = std::max(1, config_.tracking_levels);
-  render_model(m, map, T_world_cam_initial, config_.max_correspondence_m * (1 << (levels - 1)));
+  render_model(m, map, T_world_cam_initial, config_.tracking_model_band_m,
+               config_.max_correspondence_m * (1 << (levels - 1)));
   return coarse_to_fine(m, view_, T_world_cam_initial);
 }
 

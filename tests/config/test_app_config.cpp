@@ -56,6 +56,8 @@ void expect_config_eq(const AppConfig& a, const AppConfig& b) {
   EXPECT_EQ(ra.registration.huber_delta_m, rb.registration.huber_delta_m);
   EXPECT_EQ(ra.registration.min_correspondences, rb.registration.min_correspondences);
   EXPECT_EQ(ra.registration.degenerate_ratio, rb.registration.degenerate_ratio);
+  EXPECT_EQ(ra.registration.model_band_m, rb.registration.model_band_m);
+  EXPECT_EQ(ra.registration.tracking_model_band_m, rb.registration.tracking_model_band_m);
   EXPECT_EQ(ra.registration.tracking_levels, rb.registration.tracking_levels);
   EXPECT_EQ(ra.registration.tracking_retry_fitness, rb.registration.tracking_retry_fitness);
   EXPECT_EQ(ra.registration.tracking_iterations_per_level,
@@ -150,6 +152,8 @@ max_normal_angle_deg = 45.0
 huber_delta_m = 0.01
 min_correspondences = 100
 degenerate_ratio = 0.01
+model_band_m = 0.04
+tracking_model_band_m = 0.2
 tracking_levels = 2
 tracking_iterations_per_level = 5
 tracking_retry_fitness = 0.25
@@ -220,6 +224,8 @@ publish_rate_hz = 0.5
   EXPECT_EQ(g.huber_delta_m, 0.01);
   EXPECT_EQ(g.min_correspondences, 100);
   EXPECT_EQ(g.degenerate_ratio, 0.01);
+  EXPECT_EQ(g.model_band_m, 0.04);
+  EXPECT_EQ(g.tracking_model_band_m, 0.2);
   EXPECT_EQ(g.tracking_levels, 2);
   EXPECT_EQ(g.tracking_iterations_per_level, 5);
   EXPECT_EQ(g.tracking_retry_fitness, 0.25);
@@ -361,6 +367,7 @@ TEST(AppConfig, OutOfRangeValuesAreErrors) {
       {"registration", "min_correspondences", "5", "must be >= 6, got 5"},
       {"registration", "degenerate_ratio", "-0.1", "must be in [0, 1], got -0.1"},
       {"registration", "degenerate_ratio", "2", "must be in [0, 1], got 2"},
+      {"registration", "tracking_model_band_m", "0", "must be > 0, got 0"},
       {"registration", "tracking_levels", "0", "must be in [1, 8], got 0"},
       {"registration", "tracking_levels", "9", "must be in [1, 8], got 9"},
       {"registration", "tracking_iterations_per_level", "-2", "must be >= 0, got -2"},

@@ -64,6 +64,10 @@ struct RegistrationConfig {
   // The model surface at a pixel is the confidence-weighted mean of the points within this depth
   // band behind the nearest one (see ModelProjection::render_surface).
   double model_band_m = 0.05;
+  // The same for tracking (track(): the first re-registration round, and live frames without a
+  // pose hint). There the map is still as blurred as the initial poses are wrong, and a band
+  // narrower than the blur keeps only its front layers: ICP then pulls every camera back.
+  double tracking_model_band_m = 0.1;
   // The model is rendered this many times coarser than the depth camera (1 = full resolution).
   int model_downsample = 1;
   int threads = 2;                           // 1 or 2: model rendering and ICP in two halves

@@ -62,9 +62,10 @@ class Registrar {
   const SurfaceView& model() const { return view_; }
 
  private:
-  // Projects the map around the frame's measurements into the camera at T_world_cam: view_.
+  // Projects the map around the frame's measurements into the camera at T_world_cam: view_, the
+  // consensus surface of the points within band_m behind the front-most, for pairs up to max_corr_m.
   void render_model(const MeasurementImage& m, const PointMap& map, const Pose& T_world_cam,
-                    double max_corr_m);
+                    double band_m, double max_corr_m);
   // ICP against `model`, from `initial`, on every `subsample`-th pixel. Fewer than `min_pairs`
   // (at least 6) inlier pairs: not converged, the initial pose stays.
   RegistrationResult run(const MeasurementImage& m, const SurfaceView& model, const Pose& initial,
