@@ -157,7 +157,7 @@ class FrameFusion {
 
  private:
   // The first pass over row v: RowScratch for every pixel, valid or not.
-  void prepare_row(int v, RowScratch* row) const;
+  DF_VECTOR_CLONES void prepare_row(int v, RowScratch* row) const;
   const MeasurementImage& m_;
   const ColorImage* color_;
   uint32_t frame_id_;

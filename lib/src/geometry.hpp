@@ -28,6 +28,15 @@
 #define DF_UNROLL(n)
 #endif
 
+// Before a function whose loops vectorise: on x86-64 it is compiled twice, for the baseline and
+// for AVX2 (8 floats a vector instead of 4), and the loader picks the one the CPU runs. AVX2
+// without FMA: the same operations, rounded the same, so results do not depend on the CPU.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
+#define DF_VECTOR_CLONES __attribute__((target_clones("default", "avx2")))
+#else
+#define DF_VECTOR_CLONES
+#endif
+
 namespace depthfuse {
 
 // A symmetric 3x3 matrix as its six distinct entries (information matrices, in 1/m^2): the

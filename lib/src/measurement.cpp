@@ -247,7 +247,7 @@ struct PrefilterPass {
   }
 
   template <int R>
-  size_t rows(int v0, int v1) const {
+  DF_VECTOR_CLONES size_t rows(int v0, int v1) const {
     // Locals, not members, in the loops: a store to the byte-sized marks may alias any member,
     // and the compiler would reload them (and could not count the iterations).
     const PrefilterPass p = *this;

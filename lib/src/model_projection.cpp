@@ -97,7 +97,8 @@ struct PixelProjector {
   // A whole block without branches, so that it vectorises (a loop of a fixed count; the points
   // first copied out to one array per coordinate): the same pixels as project_to_pixel(). Entries
   // from `count` on are padding.
-  void project_block(const Eigen::Vector3f* pos, size_t count, uint32_t* pixel, float* depth) const {
+  DF_VECTOR_CLONES void project_block(const Eigen::Vector3f* pos, size_t count, uint32_t* pixel,
+                                      float* depth) const {
     float X[kBlock], Y[kBlock], Z[kBlock];
     for (size_t i = 0; i < kBlock; ++i) {
       const bool real = i < count;  // padding: z = 0 falls outside
