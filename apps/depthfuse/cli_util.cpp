@@ -111,6 +111,20 @@ void Progress::operator()(const std::string& stage, size_t done, size_t total) {
   }
 }
 
+std::string describe_iteration(const BatchIterationReport& it, size_t frames) {
+  char line[256];
+  if (it.iteration == 0) {
+    std::snprintf(line, sizeof line, "    0: points %zu, %.1f s\n", it.points, it.seconds);
+  } else {
+    std::snprintf(line, sizeof line,
+                  "    %d: points %zu, registered %zu/%zu frames, max pose change %.2f mm / %.3f deg, "
+                  "ICP fitness %.2f, rmse %.2f mm, %.1f s\n",
+                  it.iteration, it.points, it.registered, frames, it.max_translation_change_m * 1000,
+                  it.max_rotation_change_deg, it.mean_fitness, it.mean_rmse_m * 1000, it.seconds);
+  }
+  return line;
+}
+
 int fail(const char* command, const std::string& message) {
   std::fprintf(stderr, "depthfuse %s: %s\n", command, message.c_str());
   return 1;

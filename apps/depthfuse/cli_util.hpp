@@ -50,6 +50,10 @@ class Progress {
   int last_decile_ = -1;
 };
 
+// One line of a batch run's report: "    1: points ..., registered 18/20 frames, ...". Iteration 0 is
+// the first fusion, without registration.
+std::string describe_iteration(const BatchIterationReport& it, size_t frames);
+
 int fail(const char* command, const std::string& message);  // prints "depthfuse <command>: ..." → 1
 
 }  // namespace depthfuse::cli

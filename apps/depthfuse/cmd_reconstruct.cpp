@@ -165,14 +165,7 @@ int run(int argc, char** argv) {
     << 100.0 * (1.0 - static_cast<double>(cloud.size()) / std::max<size_t>(1, result->input_measurements))
     << " %)\n"
     << "  iterations:\n";
-  for (const auto& it : result->iterations) {
-    char line[200];
-    std::snprintf(line, sizeof line,
-                  "    %d: points %zu, max pose change %.2f mm / %.3f deg, ICP fitness %.2f, rmse %.2f mm, %.1f s\n",
-                  it.iteration, it.points, it.max_translation_change_m * 1000, it.max_rotation_change_deg,
-                  it.mean_fitness, it.mean_rmse_m * 1000, it.seconds);
-    r << line;
-  }
+  for (const auto& it : result->iterations) r << cli::describe_iteration(it, frames.size());
   if (result->converged_early) r << "  stopped early: the poses stopped moving\n";
   r << "  cloud:        " << args.get("output") << "\n";
   if (args.has("trajectory-out")) r << "  trajectory:   " << args.get("trajectory-out") << "\n";

@@ -143,9 +143,7 @@ int run(int argc, char** argv) {
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   std::printf("depthfuse refine\n  scan:        %s\n  keyframes:   %zu\n  iterations:\n", path.c_str(), frames.size());
   for (const auto& it : result->iterations)
-    std::printf("    %d: points %zu, max pose change %.2f mm / %.3f deg, ICP fitness %.2f, rmse %.2f mm, %.1f s\n",
-                it.iteration, it.points, it.max_translation_change_m * 1000, it.max_rotation_change_deg,
-                it.mean_fitness, it.mean_rmse_m * 1000, it.seconds);
+    std::fputs(cli::describe_iteration(it, frames.size()).c_str(), stdout);
   if (result->converged_early) std::printf("  stopped early: the poses stopped moving\n");
   std::printf("  checkpoint:  #%lld, %llu points in %llu chunks\n  time:        %.1f s\n",
               static_cast<long long>(rec->id), static_cast<unsigned long long>(rec->point_count),

@@ -167,7 +167,10 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
   if (!fused) return fused.status();
   result.map = std::move(fused.value());
   result.input_measurements = measurements;
-  result.iterations.push_back({0, result.map->point_count(), 0, 0, 0, 0, ms_since(t0) / 1000});
+  BatchIterationReport first;  // the first fusion: no registration yet
+  first.points = result.map->point_count();
+  first.seconds = ms_since(t0) / 1000;
+  result.iterations.push_back(first);
 
   Registrar registrar(c.registration);
   for (int round = 1; round <= rounds; ++round) {
@@ -197,6 +200,7 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
       }
       if (progress) progress("re-registration " + std::to_string(round), i + 1, frames.size());
     }
+    rep.registered = registered;
     if (registered) {
       rep.mean_fitness /= registered;
       rep.mean_rmse_m /= registered;

@@ -345,17 +345,27 @@ TEST(Refine, ReRegistersTheKeyframesAndWritesACheckpoint) {
     ASSERT_TRUE(s);
     points_before = (*(*s)->last_checkpoint())->point_count;
   }
+  // The scan's camera has 1/16 of a Kinect's pixels: ICP's default of 500 pairs is more than its
+  // sampled pixels give on most keyframes, which would then keep their poses (9 of 20 registered).
+  const std::string config = dir.file("small_camera.toml");
+  std::ofstream(config) << "[registration]\nmin_correspondences = 100\n";
   // --out leaves the original alone.
   const std::string copy = dir.file("refined.db");
-  Proc r = run(cli() + " refine " + scan + " --iterations 3 --out " + copy);
+  Proc r = run(cli() + " refine " + scan + " --iterations 3 --config " + config + " --out " + copy);
   ASSERT_EQ(r.code, 0) << r.output;
+  // Every keyframe was re-registered in each of the three rounds, and the report says so.
+  size_t all_registered = 0;
+  for (size_t at = r.output.find("registered 20/20 frames"); at != std::string::npos;
+       at = r.output.find("registered 20/20 frames", at + 1))
+    ++all_registered;
+  EXPECT_EQ(all_registered, 3u) << r.output;
   EXPECT_EQ(mean_error_m(scan, scene.truth), before);
   const double after = mean_error_m(copy, scene.truth);
   std::printf("keyframe pose error (ATE): %.2f mm before, %.2f mm after refine\n",
               before * 1000, after * 1000);
-  EXPECT_LT(after, 0.8 * before);
+  EXPECT_LT(after, 0.7 * before);
   // In place: one new checkpoint, the cloud replaced, the file intact.
-  r = run(cli() + " refine " + scan + " --iterations 3");
+  r = run(cli() + " refine " + scan + " --iterations 3 --config " + config);
   ASSERT_EQ(r.code, 0) << r.output;
   auto s = ScanStore::open(scan, OpenMode::kReadOnly);
   ASSERT_TRUE(s);

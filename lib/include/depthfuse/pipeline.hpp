@@ -76,7 +76,9 @@ struct BatchIterationReport {
   size_t points = 0;
   double max_translation_change_m = 0;  // pose change made by this iteration's re-registration
   double max_rotation_change_deg = 0;
-  double mean_fitness = 0;
+  size_t registered = 0;                // frames whose re-registration converged; the rest kept
+                                        // their pose (too few pairs)
+  double mean_fitness = 0;              // over the registered frames
   double mean_rmse_m = 0;
   double seconds = 0;
 };
