@@ -110,7 +110,6 @@ struct PixelProjector {
                 r12 = R(1, 2), r20 = R(2, 0), r21 = R(2, 1), r22 = R(2, 2);
     const float tx = t.x(), ty = t.y(), tz = t.z();
     const float w = static_cast<float>(width), h = static_cast<float>(height);
-    const float cu = cx, cv = cy;
     const int32_t W = width;
     DF_IVDEP
     for (size_t i = 0; i < kBlock; ++i) {
@@ -118,9 +117,8 @@ struct PixelProjector {
       const float y = r10 * X[i] + r11 * Y[i] + r12 * Z[i] + ty;
       const float z = r20 * X[i] + r21 * Y[i] + r22 * Z[i] + tz;
       const float inv_z = 1.0f / z;  // inf or nonsense where z <= 1e-3: masked below
-      const float fu = fx * x * inv_z + cu + 0.5f, fv = fy * y * inv_z + cv + 0.5f;
-      const bool inside =
-          (z > 1e-3f) & (fu >= 0.0f) & (fv >= 0.0f) & (fu < w) & (fv < h);
+      const float fu = fx * x * inv_z + cx + 0.5f, fv = fy * y * inv_z + cy + 0.5f;
+      const bool inside = (z > 1e-3f) & (fu >= 0.0f) & (fv >= 0.0f) & (fu < w) & (fv < h);
       // Outside, fu and fv may be anything: zero them before converting.
       const int32_t u = static_cast<int32_t>(inside ? fu : 0.0f);
       const int32_t v = static_cast<int32_t>(inside ? fv : 0.0f);
