@@ -91,12 +91,10 @@ struct PixelProjector {
 
   // Pixel index and camera depth of each point in a block; kNoPixel where it falls outside.
   // Projecting a block first and updating the pixels after lets the random pixel accesses be
-  // prefetched and overlap, instead of waiting on each one in turn.
-  static constexpr uint32_t kNoPixel = ~uint32_t{0};
+  // prefetched and overlap, instead of waiting on each one in turn. The whole block is projected
+  // at once, so that it vectorises (a loop of a fixed count; the points first copied out to one
+  // array per coordinate); entries from `count` on are padding.
   static constexpr size_t kBlock = 64;
-  // A whole block without branches, so that it vectorises (a loop of a fixed count; the points
-  // first copied out to one array per coordinate): the same pixels as project_to_pixel(). Entries
-  // from `count` on are padding.
   DF_VECTOR_CLONES void project_block(const Eigen::Vector3f* pos, size_t count, uint32_t* pixel,
                                       float* depth) const {
     float X[kBlock], Y[kBlock], Z[kBlock];
@@ -109,20 +107,12 @@ struct PixelProjector {
     const float r00 = R(0, 0), r01 = R(0, 1), r02 = R(0, 2), r10 = R(1, 0), r11 = R(1, 1),
                 r12 = R(1, 2), r20 = R(2, 0), r21 = R(2, 1), r22 = R(2, 2);
     const float tx = t.x(), ty = t.y(), tz = t.z();
-    const float w = static_cast<float>(width), h = static_cast<float>(height);
-    const int32_t W = width;
     DF_IVDEP
     for (size_t i = 0; i < kBlock; ++i) {
       const float x = r00 * X[i] + r01 * Y[i] + r02 * Z[i] + tx;
       const float y = r10 * X[i] + r11 * Y[i] + r12 * Z[i] + ty;
       const float z = r20 * X[i] + r21 * Y[i] + r22 * Z[i] + tz;
-      const float inv_z = 1.0f / z;  // inf or nonsense where z <= 1e-3: masked below
-      const float fu = fx * x * inv_z + cx + 0.5f, fv = fy * y * inv_z + cy + 0.5f;
-      const bool inside = (z > 1e-3f) & (fu >= 0.0f) & (fv >= 0.0f) & (fu < w) & (fv < h);
-      // Outside, fu and fv may be anything: zero them before converting.
-      const int32_t u = static_cast<int32_t>(inside ? fu : 0.0f);
-      const int32_t v = static_cast<int32_t>(inside ? fv : 0.0f);
-      pixel[i] = inside ? static_cast<uint32_t>(v * W + u) : kNoPixel;
+      pixel[i] = pixel_index(x, y, z, fx, fy, cx, cy, width, height);
       depth[i] = z;
     }
   }
@@ -150,7 +140,7 @@ void for_each_block(const std::vector<Chunk*>& chunks, size_t begin, size_t end,
 template <typename T>
 inline void prefetch_pixels(const T* buffer, const uint32_t* pixel, size_t block) {
   for (size_t i = 0; i < block; ++i) {
-    if (pixel[i] != PixelProjector::kNoPixel) __builtin_prefetch(buffer + pixel[i], 1);
+    if (pixel[i] != kNoPixel) __builtin_prefetch(buffer + pixel[i], 1);
   }
 }
 
@@ -166,7 +156,7 @@ size_t ModelProjection::render_points(const Pose& T_world_cam, const CameraIntri
     prefetch_pixels(keys, pixel, block);
     const uint64_t base = offsets_[c] + start;
     for (size_t i = 0; i < block; ++i) {
-      if (pixel[i] == PixelProjector::kNoPixel) continue;
+      if (pixel[i] == kNoPixel) continue;
       PixelKeys& k = keys[pixel[i]];
       ++rendered;
       const uint64_t id = base + i;
@@ -312,7 +302,7 @@ size_t ModelProjection::render_front_depth(const Pose& T_world_cam, const Camera
                      const float* depth) {
     prefetch_pixels(front, pixel, block);
     for (size_t i = 0; i < block; ++i) {
-      if (pixel[i] == PixelProjector::kNoPixel) continue;
+      if (pixel[i] == kNoPixel) continue;
       ++rendered;
       front[pixel[i]] = std::min(front[pixel[i]], depth[i]);
     }
@@ -328,12 +318,12 @@ void ModelProjection::sum_surface(const Pose& T_world_cam, const CameraIntrinsic
                      const float* depth) {
     prefetch_pixels(front, pixel, block);
     for (size_t i = 0; i < block; ++i) {  // points behind the surface drop out
-      if (pixel[i] != PixelProjector::kNoPixel && depth[i] > front[pixel[i]] + band_m)
-        pixel[i] = PixelProjector::kNoPixel;
+      if (pixel[i] != kNoPixel && depth[i] > front[pixel[i]] + band_m)
+        pixel[i] = kNoPixel;
     }
     prefetch_pixels(sum, pixel, block);
     for (size_t i = 0; i < block; ++i) {
-      if (pixel[i] == PixelProjector::kNoPixel) continue;
+      if (pixel[i] == kNoPixel) continue;
       const Eigen::Vector3f& p = a.position_m[start + i];
       const PointState& st = a.state[start + i];
       const float w = 1.0f + st.merges;

@@ -16,17 +16,21 @@
 
 namespace depthfuse {
 
-// Pixel of a camera-frame point, or false outside the image. Rounds without libm.
-inline bool project_to_pixel(float x, float y, float z, float fx, float fy, float cx, float cy,
-                             int width, int height, int* u, int* v) {
-  if (z <= 1e-3f) return false;
-  const float inv_z = 1.0f / z;
+constexpr uint32_t kNoPixel = ~uint32_t{0};
+
+// The pixel (row-major index) of a camera-frame point, or kNoPixel where it lies behind the camera
+// or outside the image. Without branches, so that a loop over a block of points vectorises; rounds
+// without libm.
+DF_INLINE uint32_t pixel_index(float x, float y, float z, float fx, float fy, float cx, float cy,
+                               int width, int height) {
+  const float inv_z = 1.0f / z;  // inf or nonsense where z <= 1e-3: masked below
   const float fu = fx * x * inv_z + cx + 0.5f, fv = fy * y * inv_z + cy + 0.5f;
-  if (!(fu >= 0.0f && fv >= 0.0f && fu < static_cast<float>(width) && fv < static_cast<float>(height)))
-    return false;
-  *u = static_cast<int>(fu);
-  *v = static_cast<int>(fv);
-  return true;
+  const bool inside = (z > 1e-3f) & (fu >= 0.0f) & (fv >= 0.0f) &
+                      (fu < static_cast<float>(width)) & (fv < static_cast<float>(height));
+  // Outside, fu and fv may be anything: zero them before converting.
+  const int32_t u = static_cast<int32_t>(inside ? fu : 0.0f);
+  const int32_t v = static_cast<int32_t>(inside ? fv : 0.0f);
+  return inside ? static_cast<uint32_t>(v * width + u) : kNoPixel;
 }
 
 class ModelProjection {

@@ -159,11 +159,10 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
           ++*out_sampled;
           const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);
           const Eigen::Vector3f p0 = R0 * p_c + t0;
-          int pu, pv;
-          if (!project_to_pixel(p0.x(), p0.y(), p0.z(), fx, fy, cx, cy, MK.width, MK.height, &pu,
-                                &pv))
-            continue;
-          const SurfaceView::Pixel& s = surface[static_cast<size_t>(pv) * MK.width + pu];
+          const uint32_t px =
+              pixel_index(p0.x(), p0.y(), p0.z(), fx, fy, cx, cy, MK.width, MK.height);
+          if (px == kNoPixel) continue;
+          const SurfaceView::Pixel& s = surface[px];
           if (!(s.w > 0.0f)) continue;
           const Eigen::Vector3f q(s.x, s.y, s.z);
           const Eigen::Vector3f n_q(s.nx, s.ny, s.nz);

@@ -70,10 +70,10 @@ class Registrar {
   // (at least 6) inlier pairs: not converged, the initial pose stays.
   RegistrationResult run(const MeasurementImage& m, const SurfaceView& model, const Pose& initial,
                          int subsample, int iterations, double max_corr_m, size_t min_pairs);
-  // Coarse to fine: every level halves the pixel step and the correspondence gate and needs four
-  // times the pairs (registration.min_correspondences at the finest).
   // Inlier pairs a level of coarse-to-fine needs (level 0: refine() and the finest level).
   size_t min_pairs(int level) const;
+  // Coarse to fine: every level halves the pixel step and the correspondence gate and needs four
+  // times the pairs (registration.min_correspondences at the finest).
   RegistrationResult coarse_to_fine(const MeasurementImage& m, const SurfaceView& model,
                                     const Pose& T_world_cam_initial);
   RegistrationConfig config_;
