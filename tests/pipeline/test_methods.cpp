@@ -8,6 +8,7 @@
 #include "depthfuse/pipeline.hpp"
 #include "depthfuse/synthetic/synthetic_sequence.hpp"
 #include "depthfuse/trajectory.hpp"
+#include "rendered_scan.hpp"
 
 using namespace depthfuse;
 
@@ -22,25 +23,17 @@ struct Outcome {
 class Methods : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    synthetic::SyntheticConfig c;
-    c.frames = 16;
-    c.seed = 7;
-    c.pose_noise_m = 0.02;
-    c.pose_noise_deg = 1.0;
-    auto seq = synthetic::SyntheticSequence::create(c);
+    auto seq = synthetic::SyntheticSequence::create(
+        test::perturbed_scan(synthetic::SceneKind::kCorner, 16, 7));
     ASSERT_TRUE(seq.is_ok()) << seq.status().to_string();
     seq_ = new synthetic::SyntheticSequence(std::move(*seq));
-    for (size_t i = 0; i < seq_->size(); ++i) {
-      frames_.push_back(seq_->render(i));
-      perturbed_.push_back(seq_->T_world_cam_perturbed(i));
-      truth_.push_back(seq_->T_world_cam_true(i));
-    }
+    scan_ = test::RenderedScan::of(*seq_);
     for (Method m : {Method::kKyostila13, Method::kYlimaki17, Method::kFull}) {
       ReconstructionConfig rc;
       rc.pipeline.method = m;
-      auto r = reconstruct_batch(frames_, perturbed_, rc);
+      auto r = reconstruct_batch(scan_.frames, scan_.perturbed, rc);
       ASSERT_TRUE(r.is_ok()) << r.status().to_string();
-      auto ate = absolute_trajectory_error(r->T_world_cam, truth_);
+      auto ate = absolute_trajectory_error(r->T_world_cam, scan_.truth);
       ASSERT_TRUE(ate.is_ok());
       // Measure in the truth's frame (the reconstruction's gauge is the perturbed poses').
       const PointArrays cloud = r->map->gather();
@@ -58,14 +51,12 @@ class Methods : public ::testing::Test {
   static const Outcome& of(Method m) { return outcome_[static_cast<int>(m)]; }
 
   static synthetic::SyntheticSequence* seq_;
-  static std::vector<Frame> frames_;
-  static std::vector<Pose> perturbed_, truth_;
+  static test::RenderedScan scan_;
   static Outcome outcome_[3];
 };
 
 synthetic::SyntheticSequence* Methods::seq_ = nullptr;
-std::vector<Frame> Methods::frames_;
-std::vector<Pose> Methods::perturbed_, Methods::truth_;
+test::RenderedScan Methods::scan_;
 Outcome Methods::outcome_[3];
 
 }  // namespace
@@ -109,10 +100,10 @@ TEST_F(Methods, RevisitsDoNotGrowTheMap) {
     uint32_t id = 1;
     size_t first = 0;
     for (int pass = 0; pass < 2; ++pass) {
-      for (size_t i = 0; i < frames_.size(); ++i) {
-        EXPECT_TRUE(backproject(frames_[i], rc.sensor, rc.fusion, &m).is_ok());
+      for (size_t i = 0; i < scan_.frames.size(); ++i) {
+        EXPECT_TRUE(backproject(scan_.frames[i], rc.sensor, rc.fusion, &m).is_ok());
         prefilter(rc.prefilter, &m);
-        fuser.fuse(m, nullptr, truth_[i], id++, &map);
+        fuser.fuse(m, nullptr, scan_.truth[i], id++, &map);
       }
       if (pass == 0) first = map.point_count();
     }

@@ -11,6 +11,7 @@
 #include "depthfuse/pipeline.hpp"
 #include "depthfuse/synthetic/synthetic_sequence.hpp"
 #include "depthfuse/trajectory.hpp"
+#include "rendered_scan.hpp"
 
 using namespace depthfuse;
 
@@ -20,25 +21,12 @@ class RoomTracking : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
     // The evaluation's room (tools/eval/run_synthetic.sh): 40 frames, 2 cm / 1 degree.
-    synthetic::SyntheticConfig c;
-    c.scene = synthetic::SceneKind::kRoom;
-    c.frames = 40;
-    c.seed = 1;
-    c.pose_noise_m = 0.02;
-    c.pose_noise_deg = 1.0;
-    auto seq = synthetic::SyntheticSequence::create(c);
+    auto seq = synthetic::SyntheticSequence::create(
+        test::perturbed_scan(synthetic::SceneKind::kRoom, 40, 1));
     ASSERT_TRUE(seq.is_ok()) << seq.status().to_string();
-    for (size_t i = 0; i < seq->size(); ++i) {
-      frames_.push_back(seq->render(i));
-      perturbed_.push_back(seq->T_world_cam_perturbed(i));
-      truth_.push_back(seq->T_world_cam_true(i));
-    }
+    scan_ = test::RenderedScan::of(*seq);
   }
-  static void TearDownTestSuite() {
-    frames_.clear();
-    perturbed_.clear();
-    truth_.clear();
-  }
+  static void TearDownTestSuite() { scan_ = {}; }
 
   // The mean, over the frames, of each camera's offset from the truth along its true viewing
   // direction after one round of re-registration (m; negative: behind), in the truth's frame.
@@ -47,30 +35,28 @@ class RoomTracking : public ::testing::Test {
     rc.pipeline.method = Method::kFull;
     rc.pipeline.outer_iterations = 1;
     rc.registration.tracking_model_band_m = tracking_band_m;
-    auto r = reconstruct_batch(frames_, perturbed_, rc);
+    auto r = reconstruct_batch(scan_.frames, scan_.perturbed, rc);
     EXPECT_TRUE(r.is_ok()) << r.status().to_string();
     if (!r.is_ok()) return 0.0;
-    auto ate = absolute_trajectory_error(r->T_world_cam, truth_);
+    auto ate = absolute_trajectory_error(r->T_world_cam, scan_.truth);
     EXPECT_TRUE(ate.is_ok());
     if (!ate.is_ok()) return 0.0;
     double sum = 0.0;
-    for (size_t i = 0; i < truth_.size(); ++i) {
+    for (size_t i = 0; i < scan_.truth.size(); ++i) {
       const Eigen::Vector3d offset =
-          ate->T_truth_estimate * r->T_world_cam[i].translation() - truth_[i].translation();
-      sum += offset.dot(truth_[i].linear().col(2));
+          ate->T_truth_estimate * r->T_world_cam[i].translation() - scan_.truth[i].translation();
+      sum += offset.dot(scan_.truth[i].linear().col(2));
     }
-    const double mean = sum / static_cast<double>(truth_.size());
+    const double mean = sum / static_cast<double>(scan_.truth.size());
     std::printf("tracking band %.2f m: mean offset along the view %.1f mm, ATE %.1f mm\n",
                 tracking_band_m, mean * 1e3, ate->rmse_m * 1e3);
     return mean;
   }
 
-  static std::vector<Frame> frames_;
-  static std::vector<Pose> perturbed_, truth_;
+  static test::RenderedScan scan_;
 };
 
-std::vector<Frame> RoomTracking::frames_;
-std::vector<Pose> RoomTracking::perturbed_, RoomTracking::truth_;
+test::RenderedScan RoomTracking::scan_;
 
 TEST_F(RoomTracking, TheFirstRoundLeavesTheCamerasWhereTheyLook) {
   // The shipped band: within a few millimetres (measured: -0.2 mm).
