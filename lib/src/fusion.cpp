@@ -255,7 +255,6 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArr
   ModelProjection& proj = proj_;
   const Eigen::Vector3f& t = t_;
   const int cr = cr_;
-  const size_t proj_pixels = m.pixel_count();
   const size_t W = static_cast<size_t>(m.width);
   const RowScratch& r = *row;
   int gathered = g0;  // rows [g0, gathered) are gathered
@@ -268,8 +267,6 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArr
     prepare_row(v, row);
     for (int u = 0; u < m.width; ++u) {
       const size_t i = static_cast<size_t>(v) * m.width + u;
-      if (i + ModelProjection::kPrefetchPixels < proj_pixels)
-        proj.prefetch_candidate(i + ModelProjection::kPrefetchPixels);
       if (!m.valid[i]) continue;
       ++stats->measurements;
       const Eigen::Vector3f p_w(r.p_x[u], r.p_y[u], r.p_z[u]);
