@@ -30,12 +30,13 @@ struct RowScratch {
   std::vector<float> p_x, p_y, p_z, n_x, n_y, n_z, range;
   std::vector<float> l_xx, l_xy, l_xz, l_yy, l_yz, l_zz;  // the measurement's information
   std::vector<float> f_x, f_y, f_z;                       // the point merged with the candidate
+  std::vector<float> fn_x, fn_y, fn_z;                    // ... and its normal
   std::vector<uint8_t> merges;                            // ... if the merge rule accepts it
 
   void resize(int width) {
     const size_t n = static_cast<size_t>(std::max(0, width));
     for (auto* v : {&p_x, &p_y, &p_z, &n_x, &n_y, &n_z, &range, &l_xx, &l_xy, &l_xz, &l_yy, &l_yz,
-                    &l_zz, &f_x, &f_y, &f_z})
+                    &l_zz, &f_x, &f_y, &f_z, &fn_x, &fn_y, &fn_z})
       v->resize(n);
     merges.resize(n);
   }
@@ -79,17 +80,15 @@ inline void set_information(PointState* s, const Sym3f& L) {
   s->info_yy = L.yy; s->info_yz = L.yz; s->info_zz = L.zz;
 }
 
-// Refines existing point i of `a` with a measurement.
+// Refines existing point i of `a` with a measurement: the merge rule's position p and information
+// L, and n, the running mean of the normals (running_mean_normal()).
 inline void refine_point(PointArrays& a, size_t i, const Eigen::Vector3f& p, const Sym3f& L,
-                         const Eigen::Vector3f& n_new, const uint8_t* rgb, uint32_t frame_id) {
+                         const Eigen::Vector3f& n, const uint8_t* rgb, uint32_t frame_id) {
   a.position_m[i] = p;
   PointState& s = a.state[i];
   set_information(&s, L);
-  // Normal and colour: running means over all measurements of the point.
+  // Colour: the running mean over all measurements of the point, like the normal.
   const float w = static_cast<float>(s.merges) + 1.0f;
-  Eigen::Vector3f n = w * Eigen::Vector3f(s.nx, s.ny, s.nz) + n_new;
-  const float len2 = n.squaredNorm();
-  if (len2 > 1e-12f) n *= 1.0f / std::sqrt(len2);
   s.nx = n.x();
   s.ny = n.y();
   s.nz = n.z();
@@ -103,13 +102,13 @@ inline void refine_point(PointArrays& a, size_t i, const Eigen::Vector3f& p, con
   s.last_frame = frame_id;
 }
 
-// Merges the candidate rendered at `px` into (p_f, L_f), the merge rule's result.
+// Merges the candidate rendered at `px` into (p_f, L_f), the merge rule's result, with normal n_f.
 inline void merge_into_candidate(ModelProjection& proj, size_t px, const Eigen::Vector3f& p_f,
-                                 const Sym3f& L_f, const Eigen::Vector3f& n_w, const uint8_t* rgb,
+                                 const Sym3f& L_f, const Eigen::Vector3f& n_f, const uint8_t* rgb,
                                  uint32_t frame_id) {
   PointArrays& a = proj.candidate_points(px);
   const size_t j = proj.candidate_index(px);
-  refine_point(a, j, p_f, L_f, n_w, rgb, frame_id);
+  refine_point(a, j, p_f, L_f, n_f, rgb, frame_id);
   proj.record_merge(px, p_f, L_f, a.state[j].merges);
 }
 
@@ -121,7 +120,10 @@ inline bool try_merge(ModelProjection& proj, size_t px, const Eigen::Vector3f& p
   if (!merge_rule(proj.candidate_position(px), proj.candidate_information(px), p_w, L_n, &p_f,
                   &L_f))
     return false;
-  merge_into_candidate(proj, px, p_f, L_f, n_w, rgb, frame_id);
+  const PointState& s = proj.candidate_points(px).state[proj.candidate_index(px)];
+  const Eigen::Vector3f n_f =
+      running_mean_normal(static_cast<float>(s.merges), Eigen::Vector3f(s.nx, s.ny, s.nz), n_w);
+  merge_into_candidate(proj, px, p_f, L_f, n_f, rgb, frame_id);
   return true;
 }
 
@@ -206,6 +208,10 @@ void FrameFusion::prepare_row(int v, RowScratch* row) const {
   const float* CYY = c.yy;
   const float* CYZ = c.yz;
   const float* CZZ = c.zz;
+  const float* CNX = c.nx;
+  const float* CNY = c.ny;
+  const float* CNZ = c.nz;
+  const uint16_t* CM = c.merges;
   float* p_x = row->p_x.data();
   float* p_y = row->p_y.data();
   float* p_z = row->p_z.data();
@@ -222,6 +228,9 @@ void FrameFusion::prepare_row(int v, RowScratch* row) const {
   float* f_x = row->f_x.data();
   float* f_y = row->f_y.data();
   float* f_z = row->f_z.data();
+  float* fn_x = row->fn_x.data();
+  float* fn_y = row->fn_y.data();
+  float* fn_z = row->fn_z.data();
   uint8_t* merges = row->merges.data();
   const Eigen::Matrix3f R = R_;
   const Eigen::Vector3f t = t_, up = up_w_;
@@ -246,6 +255,9 @@ void FrameFusion::prepare_row(int v, RowScratch* row) const {
     l_xx[u] = L_n.xx; l_xy[u] = L_n.xy; l_xz[u] = L_n.xz;
     l_yy[u] = L_n.yy; l_yz[u] = L_n.yz; l_zz[u] = L_n.zz;
     f_x[u] = p_f.x(); f_y[u] = p_f.y(); f_z[u] = p_f.z();
+    const Eigen::Vector3f n_f =
+        running_mean_normal(static_cast<float>(CM[u]), Eigen::Vector3f(CNX[u], CNY[u], CNZ[u]), n_w);
+    fn_x[u] = n_f.x(); fn_y[u] = n_f.y(); fn_z[u] = n_f.z();
   }
 }
 
@@ -279,15 +291,16 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArr
       // The candidate at this very pixel (the existing point closest in depth to the measurement)
       // first; only if it is missing or does not merge, the nearest other candidate in the window.
       // Searching the window first would merge the measurement with its neighbour's point and
-      // leave its own pixel's point unrefined. The merge with the pixel's own candidate as rendered
-      // was worked out in prepare_row(); if a measurement of this frame has refined that candidate
-      // since, the merge is worked out again.
+      // leave its own pixel's point unrefined. The merge with the pixel's own candidate as gathered,
+      // normal included, was worked out in prepare_row(); if a measurement of this frame has
+      // refined that candidate since, the merge is worked out again.
       bool merged = false;
       if (proj.has_candidate(i) && proj.merged_this_frame(i)) {
         merged = try_merge(proj, i, p_w, L_n, n_w, rgb, frame_id_);
       } else if (proj.has_candidate(i) && r.merges[u]) {
         merge_into_candidate(proj, i, Eigen::Vector3f(r.f_x[u], r.f_y[u], r.f_z[u]),
-                             proj.candidate_information(i) + L_n, n_w, rgb, frame_id_);
+                             proj.candidate_information(i) + L_n,
+                             Eigen::Vector3f(r.fn_x[u], r.fn_y[u], r.fn_z[u]), rgb, frame_id_);
         merged = true;
       }
       if (!merged && cr > 0) {

@@ -135,4 +135,16 @@ DF_INLINE bool merge_rule(const Eigen::Vector3f& p_e, const Sym3f& L_e, const Ei
   return invertible & inside_e & inside_n;
 }
 
+// A point's normal after one more measurement: the running mean of the normals of its `merges`
+// measurements so far (n_old) and the new one, renormalised. Branch-free, for the row loop.
+DF_INLINE Eigen::Vector3f running_mean_normal(float merges, const Eigen::Vector3f& n_old,
+                                              const Eigen::Vector3f& n_new) {
+  const float w = merges + 1.0f;
+  const Eigen::Vector3f n(w * n_old.x() + n_new.x(), w * n_old.y() + n_new.y(),
+                          w * n_old.z() + n_new.z());
+  const float len2 = n.x() * n.x() + n.y() * n.y() + n.z() * n.z();
+  const float s = len2 > 1e-12f ? 1.0f / std::sqrt(len2) : 1.0f;
+  return n * s;
+}
+
 }  // namespace depthfuse

@@ -253,6 +253,7 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
   cand_y_.resize(n);
   cand_z_.resize(n);
   for (std::vector<float>& column : cand_info_) column.resize(n);
+  for (std::vector<float>& column : cand_n_) column.resize(n);
   cand_merges_.resize(n);
   merged_.resize(n);
   run_halves(threads_, n, [&](size_t begin, size_t end) {
@@ -290,6 +291,9 @@ void ModelProjection::gather_candidates(size_t begin, size_t end) {
     set_candidate_columns(px, a.position_m[j],
                           {st.info_xx, st.info_xy, st.info_xz, st.info_yy, st.info_yz, st.info_zz},
                           st.merges);
+    cand_n_[0][px] = st.nx;
+    cand_n_[1][px] = st.ny;
+    cand_n_[2][px] = st.nz;
   }
 }
 

@@ -95,14 +95,19 @@ class ModelProjection {
   uint16_t candidate_merges(size_t pixel) const { return cand_merges_[pixel]; }
   // The same columns as arrays from `pixel` on, for loops over a row. Where a pixel has no
   // candidate they hold stale but finite values.
+  // The normal is as gathered: it does not follow record_merge().
   struct CandidateColumns {
     const float *x, *y, *z;                     // world position, m
     const float *xx, *xy, *xz, *yy, *yz, *zz;   // information, 1/m^2
+    const float *nx, *ny, *nz;                  // unit normal
+    const uint16_t* merges;
   };
   CandidateColumns candidate_columns(size_t pixel) const {
     auto at = [pixel](const std::vector<float>& column) { return column.data() + pixel; };
-    return {at(cand_x_),       at(cand_y_),       at(cand_z_),       at(cand_info_[0]), at(cand_info_[1]),
-            at(cand_info_[2]), at(cand_info_[3]), at(cand_info_[4]), at(cand_info_[5])};
+    return {at(cand_x_),       at(cand_y_),       at(cand_z_),       at(cand_info_[0]),
+            at(cand_info_[1]), at(cand_info_[2]), at(cand_info_[3]), at(cand_info_[4]),
+            at(cand_info_[5]), at(cand_n_[0]),    at(cand_n_[1]),    at(cand_n_[2]),
+            cand_merges_.data() + pixel};
   }
   // Starts loading the candidate's position and state at a pixel into the cache (a hint, no effect
   // on results). Loops over pixels call it a few pixels ahead.
@@ -189,6 +194,7 @@ class ModelProjection {
   std::vector<float> front_depth_2_;    // render_surface(): the second half's
   std::vector<float> cand_x_, cand_y_, cand_z_;  // per pixel: the candidate's world position
   std::vector<float> cand_info_[6];     // per pixel: its information, xx xy xz yy yz zz
+  std::vector<float> cand_n_[3];        // per pixel: its normal as gathered
   std::vector<uint16_t> cand_merges_;   // per pixel: its merge count
   std::vector<uint8_t> merged_;         // per pixel: candidate merged with a measurement of this frame
   size_t rendered_ = 0;
