@@ -55,19 +55,12 @@ void ModelProjection::select_chunks(PointMap& map, const MeasurementImage& m,
 
 namespace {
 
-constexpr uint64_t kNoKey = ~uint64_t{0};
 constexpr uint32_t kInfBits = 0x7f800000u;  // bit pattern of +inf
 
 inline uint32_t float_bits(float f) {
   uint32_t b;
   std::memcpy(&b, &f, sizeof(b));
   return b;
-}
-
-inline float bits_float(uint32_t b) {
-  float f;
-  std::memcpy(&f, &b, sizeof(f));
-  return f;
 }
 
 // The camera that render() and render_surface() project into: world to pixel.
@@ -245,8 +238,17 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
   run_pair(two ? 2 : 1, [&] { half(0); }, [&] { half(1); });
   rendered_ = rendered[0] + rendered[1];
 
-  front_id_.resize(n);
-  front_depth_.resize(n);
+  // The keys are the result: fusion reads the front-most point from them, and gather_candidates()
+  // finds the candidates, a row at a time. Only the two halves need combining.
+  if (two) {
+    run_halves(threads_, n, [&](size_t begin, size_t end) {
+      for (size_t px = begin; px < end; ++px) {
+        PixelKeys& k = pixel_keys_[px];
+        k.front = std::min(k.front, pixel_keys_2_[px].front);
+        k.cand = std::min(k.cand, pixel_keys_2_[px].cand);
+      }
+    });
+  }
   cand_slot_.resize(n);
   cand_index_.resize(n);
   cand_x_.resize(n);
@@ -256,30 +258,19 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
   for (std::vector<float>& column : cand_n_) column.resize(n);
   cand_merges_.resize(n);
   merged_.resize(n);
-  run_halves(threads_, n, [&](size_t begin, size_t end) {
-    for (size_t px = begin; px < end; ++px) {
-      PixelKeys& k = pixel_keys_[px];
-      if (two) {
-        k.front = std::min(k.front, pixel_keys_2_[px].front);
-        k.cand = std::min(k.cand, pixel_keys_2_[px].cand);
-      }
-      merged_[px] = 0;
-      if (k.front == kNoKey) {
-        front_depth_[px] = kNoDepth;
-      } else {
-        front_id_[px] = static_cast<uint32_t>(k.front);
-        front_depth_[px] = bits_float(static_cast<uint32_t>(k.front >> 32));
-      }
-      if ((k.cand >> 32) >= kInfBits) {  // no candidate, or no measurement at this pixel
-        cand_slot_[px] = -1;
-        continue;
-      }
-      locate(static_cast<uint32_t>(k.cand), &cand_slot_[px], &cand_index_[px]);
-    }
-  });
 }
 
 void ModelProjection::gather_candidates(size_t begin, size_t end) {
+  // Which point each pixel's candidate is, first for the whole range: the prefetches below need it.
+  for (size_t px = begin; px < end; ++px) {
+    merged_[px] = 0;
+    const uint64_t key = pixel_keys_[px].cand;
+    if ((key >> 32) >= kInfBits) {  // no candidate, or no measurement at this pixel
+      cand_slot_[px] = -1;
+      continue;
+    }
+    locate(static_cast<uint32_t>(key), &cand_slot_[px], &cand_index_[px]);
+  }
   // Each is a random read into the map: prefetching a few pixels ahead turns a chain of cache
   // misses into overlapping ones.
   for (size_t px = begin; px < end; ++px) {

@@ -13,6 +13,7 @@
 #include "geometry.hpp"
 
 #include <cmath>
+#include <cstring>
 
 namespace depthfuse {
 
@@ -63,22 +64,22 @@ class ModelProjection {
   void render_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m,
                       SurfaceView* view);
 
-  // The front-most point at a pixel.
-  bool empty_at(size_t pixel) const { return !(front_depth_[pixel] < kNoDepth); }
-  float depth_at(size_t pixel) const { return front_depth_[pixel]; }
+  // The front-most point at a pixel (render()), read from its z-buffer key.
+  bool empty_at(size_t pixel) const { return pixel_keys_[pixel].front == kNoKey; }
+  float depth_at(size_t pixel) const { return key_value(pixel_keys_[pixel].front); }
   // The front-most point's chunk and index (a pixel that is not empty_at()). Fusion needs it only
   // where a measurement does not merge, so it is looked up here rather than for every pixel.
   PointArrays& front_points(size_t pixel, uint32_t* index) const {
     int32_t slot;
-    locate(front_id_[pixel], &slot, index);
+    locate(static_cast<uint32_t>(pixel_keys_[pixel].front), &slot, index);
     return chunks_[slot]->points;
   }
 
-  // The merge candidate at a pixel (render() with measurements only). Its world position,
-  // information and merge count are copied pixel-ordered, so that neighbourhood searches and
-  // vectorised loops read contiguous memory; gather_candidates() copies them for a range of pixels,
-  // and must have run on a pixel before these are read there. Fusion gathers a row just before it
-  // works on it: the points it then refines are still in the cache.
+  // The merge candidate at a pixel (render() with measurements only). gather_candidates() finds it
+  // for a range of pixels, and must have run on a pixel before these are read there. Its world
+  // position, information, normal and merge count are copied pixel-ordered, so that neighbourhood
+  // searches and vectorised loops read contiguous memory. Fusion gathers a row just before it works
+  // on it: the points it then refines are still in the cache.
   void gather_candidates(size_t begin, size_t end);
   bool has_candidate(size_t pixel) const { return cand_slot_[pixel] >= 0; }
   Eigen::Vector3f candidate_position(size_t pixel) const {
@@ -142,7 +143,14 @@ class ModelProjection {
 
  private:
   // A pixel's z-buffer entries as 64-bit keys, (key bits << 32) | point id, so that one integer
-  // comparison keeps the minimum (non-negative floats order like their bit patterns).
+  // comparison keeps the minimum (non-negative floats order like their bit patterns). kNoKey: none.
+  static constexpr uint64_t kNoKey = ~uint64_t{0};
+  static float key_value(uint64_t key) {
+    const uint32_t bits = static_cast<uint32_t>(key >> 32);
+    float f;
+    std::memcpy(&f, &bits, sizeof(f));
+    return f;
+  }
   struct PixelKeys {
     uint64_t front;     // key: depth in the camera
     uint64_t cand;      // key: |depth - measured depth|
@@ -183,14 +191,12 @@ class ModelProjection {
   std::vector<Chunk*> chunks_;          // selected, existing, non-empty chunks
   std::vector<uint32_t> offsets_;       // first point id of each chunk, and the total
   std::vector<int32_t> page_slot_;      // per page of 2^kIdPageBits ids: the chunk of its first id
-  std::vector<PixelKeys> pixel_keys_;   // per pixel, during render()
+  std::vector<PixelKeys> pixel_keys_;   // per pixel: render()'s result
   std::vector<PixelKeys> pixel_keys_2_; // the second thread's, combined into the first
   int threads_ = 1;
-  std::vector<uint32_t> front_id_;      // per pixel: the front-most point's id (see locate())
-  std::vector<int32_t> cand_slot_;      // per pixel: index into chunks_, -1 = nothing
-  std::vector<uint32_t> cand_index_;    // per pixel: point index within the chunk
-  static constexpr float kNoDepth = std::numeric_limits<float>::infinity();
-  std::vector<float> front_depth_;      // per pixel: z of the front-most point, kNoDepth = none
+  std::vector<int32_t> cand_slot_;      // per pixel, once gathered: index into chunks_, -1 = none
+  std::vector<uint32_t> cand_index_;    // per pixel, once gathered: point index within the chunk
+  std::vector<float> front_depth_;      // render_surface(), per pixel: z of the front-most point
   std::vector<float> front_depth_2_;    // render_surface(): the second half's
   std::vector<float> cand_x_, cand_y_, cand_z_;  // per pixel: the candidate's world position
   std::vector<float> cand_info_[6];     // per pixel: its information, xx xy xz yy yz zz
