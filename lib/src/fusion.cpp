@@ -102,19 +102,20 @@ inline void refine_point(PointArrays& a, size_t i, const Eigen::Vector3f& p, con
   s.last_frame = frame_id;
 }
 
-// Merges the candidate rendered at `px` into (p_f, L_f), the merge rule's result, with normal n_f.
+// Merges the candidate rendered at `px` into (p_f, L_f), the merge rule's result, with normal n_f;
+// `row` is the image row being fused.
 inline void merge_into_candidate(ModelProjection& proj, size_t px, const Eigen::Vector3f& p_f,
                                  const Sym3f& L_f, const Eigen::Vector3f& n_f, const uint8_t* rgb,
-                                 uint32_t frame_id) {
+                                 uint32_t frame_id, int row) {
   PointArrays& a = proj.candidate_points(px);
   const size_t j = proj.candidate_index(px);
   refine_point(a, j, p_f, L_f, n_f, rgb, frame_id);
-  proj.record_merge(px, p_f, L_f, a.state[j].merges);
+  proj.record_merge(px, p_f, L_f, n_f, a.state[j].merges, row);
 }
 
 // Merges the measurement into the candidate rendered at `px` if the merge rule allows it.
 inline bool try_merge(ModelProjection& proj, size_t px, const Eigen::Vector3f& p_w, const Sym3f& L_n,
-                      const Eigen::Vector3f& n_w, const uint8_t* rgb, uint32_t frame_id) {
+                      const Eigen::Vector3f& n_w, const uint8_t* rgb, uint32_t frame_id, int row) {
   Eigen::Vector3f p_f;
   Sym3f L_f;
   if (!merge_rule(proj.candidate_position(px), proj.candidate_information(px), p_w, L_n, &p_f,
@@ -123,7 +124,7 @@ inline bool try_merge(ModelProjection& proj, size_t px, const Eigen::Vector3f& p
   const PointState& s = proj.candidate_points(px).state[proj.candidate_index(px)];
   const Eigen::Vector3f n_f =
       running_mean_normal(static_cast<float>(s.merges), Eigen::Vector3f(s.nx, s.ny, s.nz), n_w);
-  merge_into_candidate(proj, px, p_f, L_f, n_f, rgb, frame_id);
+  merge_into_candidate(proj, px, p_f, L_f, n_f, rgb, frame_id, row);
   return true;
 }
 
@@ -291,16 +292,16 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArr
       // The candidate at this very pixel (the existing point closest in depth to the measurement)
       // first; only if it is missing or does not merge, the nearest other candidate in the window.
       // Searching the window first would merge the measurement with its neighbour's point and
-      // leave its own pixel's point unrefined. The merge with the pixel's own candidate as gathered,
-      // normal included, was worked out in prepare_row(); if a measurement of this frame has
-      // refined that candidate since, the merge is worked out again.
+      // leave its own pixel's point unrefined. The merge with the pixel's own candidate as its
+      // columns stood before this row was fused was worked out in prepare_row(); if a measurement
+      // of this row has refined that candidate since, the merge is worked out again.
       bool merged = false;
-      if (proj.has_candidate(i) && proj.merged_this_frame(i)) {
-        merged = try_merge(proj, i, p_w, L_n, n_w, rgb, frame_id_);
+      if (proj.has_candidate(i) && proj.merged_in_row(i) == v) {
+        merged = try_merge(proj, i, p_w, L_n, n_w, rgb, frame_id_, v);
       } else if (proj.has_candidate(i) && r.merges[u]) {
         merge_into_candidate(proj, i, Eigen::Vector3f(r.f_x[u], r.f_y[u], r.f_z[u]),
                              proj.candidate_information(i) + L_n,
-                             Eigen::Vector3f(r.fn_x[u], r.fn_y[u], r.fn_z[u]), rgb, frame_id_);
+                             Eigen::Vector3f(r.fn_x[u], r.fn_y[u], r.fn_z[u]), rgb, frame_id_, v);
         merged = true;
       }
       if (!merged && cr > 0) {
@@ -316,7 +317,7 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArr
           best_px = better ? px : best_px;
           return false;
         });
-        if (best_px != i) merged = try_merge(proj, best_px, p_w, L_n, n_w, rgb, frame_id_);
+        if (best_px != i) merged = try_merge(proj, best_px, p_w, L_n, n_w, rgb, frame_id_, v);
       }
       if (merged) {
         ++stats->merged;

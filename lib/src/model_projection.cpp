@@ -257,13 +257,13 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
   for (std::vector<float>& column : cand_info_) column.resize(n);
   for (std::vector<float>& column : cand_n_) column.resize(n);
   cand_merges_.resize(n);
-  merged_.resize(n);
+  merged_row_.resize(n);
 }
 
 void ModelProjection::gather_candidates(size_t begin, size_t end) {
   // Which point each pixel's candidate is, first for the whole range: the prefetches below need it.
   for (size_t px = begin; px < end; ++px) {
-    merged_[px] = 0;
+    merged_row_[px] = -1;
     const uint64_t key = pixel_keys_[px].cand;
     if ((key >> 32) >= kInfBits) {  // no candidate, or no measurement at this pixel
       cand_slot_[px] = -1;
@@ -281,10 +281,7 @@ void ModelProjection::gather_candidates(size_t begin, size_t end) {
     const PointState& st = a.state[j];
     set_candidate_columns(px, a.position_m[j],
                           {st.info_xx, st.info_xy, st.info_xz, st.info_yy, st.info_yz, st.info_zz},
-                          st.merges);
-    cand_n_[0][px] = st.nx;
-    cand_n_[1][px] = st.ny;
-    cand_n_[2][px] = st.nz;
+                          {st.nx, st.ny, st.nz}, st.merges);
   }
 }
 

@@ -96,7 +96,6 @@ class ModelProjection {
   uint16_t candidate_merges(size_t pixel) const { return cand_merges_[pixel]; }
   // The same columns as arrays from `pixel` on, for loops over a row. Where a pixel has no
   // candidate they hold stale but finite values.
-  // The normal is as gathered: it does not follow record_merge().
   struct CandidateColumns {
     const float *x, *y, *z;                     // world position, m
     const float *xx, *xy, *xz, *yy, *yz, *zz;   // information, 1/m^2
@@ -126,16 +125,18 @@ class ModelProjection {
   }
   static constexpr size_t kPrefetchPixels = 16;
 
-  // Whether a measurement of this frame has merged with the candidate at a pixel. Until one has,
-  // the candidate's columns are as gathered.
-  bool merged_this_frame(size_t pixel) const { return merged_[pixel] != 0; }
-  // Records that the candidate at a pixel was refined to (p_w, L), now merged `merges` times. Its
-  // columns follow, so that a later measurement of the same frame merges with the point as it is
-  // now: a point may merge with several measurements of one frame, as in the paper's loop over
-  // pixels. (A point is the candidate of one pixel at most, so per-pixel columns suffice.)
-  void record_merge(size_t pixel, const Eigen::Vector3f& p_w, const Sym3f& L, uint16_t merges) {
-    set_candidate_columns(pixel, p_w, L, merges);
-    merged_[pixel] = 1;
+  // The image row whose fusion last merged a measurement with the candidate at a pixel, or -1 if
+  // none has this frame.
+  int merged_in_row(size_t pixel) const { return merged_row_[pixel]; }
+  // Records that the candidate at a pixel was refined to (p_w, L) with normal n, now merged
+  // `merges` times, while fusing image row `row`. Its columns follow, so that a later measurement
+  // of the same frame merges with the point as it is now: a point may merge with several
+  // measurements of one frame, as in the paper's loop over pixels. (A point is the candidate of one
+  // pixel at most, so per-pixel columns suffice.)
+  void record_merge(size_t pixel, const Eigen::Vector3f& p_w, const Sym3f& L,
+                    const Eigen::Vector3f& n, uint16_t merges, int row) {
+    set_candidate_columns(pixel, p_w, L, n, merges);
+    merged_row_[pixel] = row;
   }
 
   size_t rendered_points() const { return rendered_; }
@@ -165,9 +166,9 @@ class ModelProjection {
                             size_t chunk_end, float* front) const;
   void sum_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m,
                    size_t chunk_begin, size_t chunk_end, SurfaceSum* sum) const;
-  // The candidate columns at a pixel: world position, information, merge count.
+  // The candidate columns at a pixel: world position, information, normal, merge count.
   void set_candidate_columns(size_t pixel, const Eigen::Vector3f& p_w, const Sym3f& L,
-                             uint16_t merges) {
+                             const Eigen::Vector3f& n, uint16_t merges) {
     cand_x_[pixel] = p_w.x();
     cand_y_[pixel] = p_w.y();
     cand_z_[pixel] = p_w.z();
@@ -177,6 +178,9 @@ class ModelProjection {
     cand_info_[3][pixel] = L.yy;
     cand_info_[4][pixel] = L.yz;
     cand_info_[5][pixel] = L.zz;
+    cand_n_[0][pixel] = n.x();
+    cand_n_[1][pixel] = n.y();
+    cand_n_[2][pixel] = n.z();
     cand_merges_[pixel] = merges;
   }
   // Gives the selected chunks' points consecutive ids (offsets_) and returns how many there are.
@@ -200,9 +204,9 @@ class ModelProjection {
   std::vector<float> front_depth_2_;    // render_surface(): the second half's
   std::vector<float> cand_x_, cand_y_, cand_z_;  // per pixel: the candidate's world position
   std::vector<float> cand_info_[6];     // per pixel: its information, xx xy xz yy yz zz
-  std::vector<float> cand_n_[3];        // per pixel: its normal as gathered
+  std::vector<float> cand_n_[3];        // per pixel: its normal
   std::vector<uint16_t> cand_merges_;   // per pixel: its merge count
-  std::vector<uint8_t> merged_;         // per pixel: candidate merged with a measurement of this frame
+  std::vector<int32_t> merged_row_;     // per pixel: see merged_in_row()
   size_t rendered_ = 0;
   std::vector<SurfaceSum> surface_2_;   // render_surface(): the second thread's sums
 };
