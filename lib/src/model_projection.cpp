@@ -147,7 +147,7 @@ size_t ModelProjection::render_points(const Pose& T_world_cam, const CameraIntri
                  [&](size_t c, const PointArrays&, size_t start, size_t block, const uint32_t* pixel,
                      const float* depth) {
     prefetch_pixels(keys, pixel, block);
-    const uint64_t base = offsets_[c] + start;
+    const uint64_t base = (uint64_t{c} << id_bits_) + start;
     for (size_t i = 0; i < block; ++i) {
       if (pixel[i] == kNoPixel) continue;
       PixelKeys& k = keys[pixel[i]];
@@ -165,51 +165,35 @@ size_t ModelProjection::render_points(const Pose& T_world_cam, const CameraIntri
   return rendered;
 }
 
-uint64_t ModelProjection::number_points() {
+void ModelProjection::number_points() {
+  size_t largest = 0;
+  for (const Chunk* c : chunks_) largest = std::max(largest, c->points.size());
+  id_bits_ = 0;
+  while (id_bits_ < 64 && (uint64_t{largest} >> id_bits_) != 0) ++id_bits_;
+  // More chunks than the ids can tell apart would mean billions of points in view: render a
+  // prefix only. (The last id stays below kNoKey's low half.)
+  const uint64_t max_chunks = id_bits_ >= 32 ? 0 : (uint64_t{1} << (32 - id_bits_)) - 1;
+  if (chunks_.size() > max_chunks) chunks_.resize(max_chunks);
   offsets_.resize(chunks_.size() + 1);
   uint64_t total = 0;
   for (size_t s = 0; s < chunks_.size(); ++s) {
-    offsets_[s] = static_cast<uint32_t>(total);
+    offsets_[s] = total;
     total += chunks_[s]->points.size();
   }
-  // More points than ids would mean a map of billions of points in view; render a prefix only.
-  if (total >= 0xffffffffull) {
-    size_t keep = 0;
-    uint64_t sum = 0;
-    while (keep < chunks_.size() && sum + chunks_[keep]->points.size() < 0xffffffffull)
-      sum += chunks_[keep++]->points.size();
-    chunks_.resize(keep);
-    offsets_.resize(keep + 1);
-    total = sum;
-  }
-  offsets_[chunks_.size()] = static_cast<uint32_t>(total);
-  return total;
+  offsets_[chunks_.size()] = total;
 }
 
 size_t ModelProjection::split_chunk() const {
-  const uint32_t half = offsets_.back() / 2;
+  const uint64_t half = offsets_.back() / 2;
   size_t s = 0;
   while (s < chunks_.size() && offsets_[s] < half) ++s;
   return s;
 }
 
-void ModelProjection::locate(uint32_t id, int32_t* slot, uint32_t* index) const {
-  // The page table gives the chunk holding the page's first id; the id is in it or a later one.
-  size_t s = static_cast<size_t>(page_slot_[id >> kIdPageBits]);
-  while (offsets_[s + 1] <= id) ++s;
-  *slot = static_cast<int32_t>(s);
-  *index = id - offsets_[s];
-}
-
 void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
                              const MeasurementImage* measured) {
   const size_t n = static_cast<size_t>(K.width) * K.height;
-  const uint64_t total = number_points();
-  page_slot_.resize((total >> kIdPageBits) + 1);
-  for (size_t page = 0, s = 0; page < page_slot_.size(); ++page) {
-    while (s + 1 < chunks_.size() && offsets_[s + 1] <= (uint64_t{page} << kIdPageBits)) ++s;
-    page_slot_[page] = static_cast<int32_t>(s);
-  }
+  number_points();
 
   // Every per-pixel pass below runs on the two halves of the pixels (or of the points), on two
   // threads if there are two; none depends on the thread count.

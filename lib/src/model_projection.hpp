@@ -183,18 +183,22 @@ class ModelProjection {
     cand_n_[2][pixel] = n.z();
     cand_merges_[pixel] = merges;
   }
-  // Gives the selected chunks' points consecutive ids (offsets_) and returns how many there are.
-  uint64_t number_points();
+  // Sizes the point ids to the selected chunks (id_bits_) and sums their points (offsets_).
+  void number_points();
   // The chunk where the second thread's half of the points starts.
   size_t split_chunk() const;
-  // Point id (offset of its chunk + index) back to chunk slot and index.
-  void locate(uint32_t id, int32_t* slot, uint32_t* index) const;
-  static constexpr int kIdPageBits = 10;
+  // Point id back to chunk slot and index.
+  void locate(uint32_t id, int32_t* slot, uint32_t* index) const {
+    *slot = static_cast<int32_t>(id >> id_bits_);
+    *index = id & static_cast<uint32_t>((uint64_t{1} << id_bits_) - 1);
+  }
 
   std::vector<ChunkKey> keys_, near_;   // scratch
   std::vector<Chunk*> chunks_;          // selected, existing, non-empty chunks
-  std::vector<uint32_t> offsets_;       // first point id of each chunk, and the total
-  std::vector<int32_t> page_slot_;      // per page of 2^kIdPageBits ids: the chunk of its first id
+  // A point's id in the z-buffer keys: (its chunk's slot in chunks_ << id_bits_) | its index, so
+  // that ids order like (slot, index) and locate() is two bit operations.
+  int id_bits_ = 0;
+  std::vector<uint64_t> offsets_;       // points before each selected chunk, and the total
   std::vector<PixelKeys> pixel_keys_;   // per pixel: render()'s result
   std::vector<PixelKeys> pixel_keys_2_; // the second thread's, combined into the first
   int threads_ = 1;
