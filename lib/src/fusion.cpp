@@ -71,6 +71,14 @@ inline bool any_in_window(int u, int v, int r, int width, int height, Visit&& vi
   return false;
 }
 
+void add_stats(const FusionStats& s, FusionStats* total) {
+  total->measurements += s.measurements;
+  total->merged += s.merged;
+  total->added += s.added;
+  total->violations += s.violations;
+  total->redundant += s.redundant;
+}
+
 inline uint16_t saturating_increment(uint16_t v) {
   return v == std::numeric_limits<uint16_t>::max() ? v : static_cast<uint16_t>(v + 1);
 }
@@ -121,9 +129,8 @@ inline bool try_merge(ModelProjection& proj, size_t px, const Eigen::Vector3f& p
   if (!merge_rule(proj.candidate_position(px), proj.candidate_information(px), p_w, L_n, &p_f,
                   &L_f))
     return false;
-  const PointState& s = proj.candidate_points(px).state[proj.candidate_index(px)];
-  const Eigen::Vector3f n_f =
-      running_mean_normal(static_cast<float>(s.merges), Eigen::Vector3f(s.nx, s.ny, s.nz), n_w);
+  const Eigen::Vector3f n_f = running_mean_normal(static_cast<float>(proj.candidate_merges(px)),
+                                                  proj.candidate_normal(px), n_w);
   merge_into_candidate(proj, px, p_f, L_f, n_f, rgb, frame_id, row);
   return true;
 }
@@ -156,7 +163,7 @@ class FrameFusion {
   // [g0, g1) (see ModelProjection::gather_candidates()), each before the first row whose candidate
   // window reaches it: the rows a band gathers are the rows it alone touches.
   void rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArrays* added,
-            FusionStats* stats) const;
+            FusionStats* total) const;
 
  private:
   // The first pass over row v: RowScratch for every pixel, valid or not.
@@ -263,7 +270,10 @@ void FrameFusion::prepare_row(int v, RowScratch* row) const {
 }
 
 void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArrays* added,
-                       FusionStats* stats) const {
+                       FusionStats* total) const {
+  // Counted here, added to *total at the end: the loop's byte stores (flags, colours) may alias
+  // *total, which would cost a load and a store per count.
+  FusionStats counts;
   const MeasurementImage& m = m_;
   ModelProjection& proj = proj_;
   const Eigen::Vector3f& t = t_;
@@ -281,7 +291,7 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArr
     for (int u = 0; u < m.width; ++u) {
       const size_t i = static_cast<size_t>(v) * m.width + u;
       if (!m.valid[i]) continue;
-      ++stats->measurements;
+      ++counts.measurements;
       const Eigen::Vector3f p_w(r.p_x[u], r.p_y[u], r.p_z[u]);
       const Eigen::Vector3f n_w(r.n_x[u], r.n_y[u], r.n_z[u]);
       const Sym3f L_n{r.l_xx[u], r.l_xy[u], r.l_xz[u], r.l_yy[u], r.l_yz[u], r.l_zz[u]};
@@ -320,7 +330,7 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArr
         if (best_px != i) merged = try_merge(proj, best_px, p_w, L_n, n_w, rgb, frame_id_, v);
       }
       if (merged) {
-        ++stats->merged;
+        ++counts.merged;
         continue;
       }
 
@@ -337,7 +347,7 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArr
           const bool facing_n = n_w.dot(t - p_w) > 0.0f;
           if (facing_e && facing_n && std::abs(s_e - range) < range_fraction_ * range) {
             a.state[j].violations = saturating_increment(a.state[j].violations);
-            ++stats->violations;
+            ++counts.violations;
           }
         }
       }
@@ -345,7 +355,7 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArr
       // Not merged, but an existing point is within the measurement's own (scaled) ellipsoid: the
       // surface there is already in the map, and a new point would only add a layer.
       if (redundancy_gate2_ > 0.0f && explained(u, v, p_w, L_n)) {
-        ++stats->redundant;
+        ++counts.redundant;
         continue;
       }
 
@@ -357,9 +367,10 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArr
       if (rgb) { st.r = rgb[0]; st.g = rgb[1]; st.b = rgb[2]; }
       st.last_frame = frame_id_;
       added->push_back(p_w, st);
-      ++stats->added;
+      ++counts.added;
     }
   }
+  add_stats(counts, total);
 }
 
 // Appends a band's new points to their chunks, in order.
@@ -377,14 +388,6 @@ void add_points(const PointArrays& added, uint32_t frame_id, PointMap* map) {
     }
     last_chunk->points.push_back(added.position_m[i], added.state[i]);
   }
-}
-
-void add_stats(const FusionStats& s, FusionStats* total) {
-  total->measurements += s.measurements;
-  total->merged += s.merged;
-  total->added += s.added;
-  total->violations += s.violations;
-  total->redundant += s.redundant;
 }
 
 }  // namespace

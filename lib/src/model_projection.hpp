@@ -94,6 +94,9 @@ class ModelProjection {
   }
   // The candidate's merge count now, this frame's merges included.
   uint16_t candidate_merges(size_t pixel) const { return cand_merges_[pixel]; }
+  Eigen::Vector3f candidate_normal(size_t pixel) const {
+    return {cand_n_[0][pixel], cand_n_[1][pixel], cand_n_[2][pixel]};
+  }
   // The same columns as arrays from `pixel` on, for loops over a row. Where a pixel has no
   // candidate they hold stale but finite values.
   struct CandidateColumns {
