@@ -165,7 +165,7 @@ size_t ModelProjection::render_points(const Pose& T_world_cam, const CameraIntri
   return rendered;
 }
 
-void ModelProjection::number_points() {
+void ModelProjection::size_ids() {
   size_t largest = 0;
   for (const Chunk* c : chunks_) largest = std::max(largest, c->points.size());
   id_bits_ = 0;
@@ -174,26 +174,22 @@ void ModelProjection::number_points() {
   // prefix only. (The last id stays below kNoKey's low half.)
   const uint64_t max_chunks = id_bits_ >= 32 ? 0 : (uint64_t{1} << (32 - id_bits_)) - 1;
   if (chunks_.size() > max_chunks) chunks_.resize(max_chunks);
-  offsets_.resize(chunks_.size() + 1);
-  uint64_t total = 0;
-  for (size_t s = 0; s < chunks_.size(); ++s) {
-    offsets_[s] = total;
-    total += chunks_[s]->points.size();
-  }
-  offsets_[chunks_.size()] = total;
 }
 
 size_t ModelProjection::split_chunk() const {
-  const uint64_t half = offsets_.back() / 2;
+  uint64_t total = 0;
+  for (const Chunk* c : chunks_) total += c->points.size();
+  // The first chunk with at least half of the points before it.
   size_t s = 0;
-  while (s < chunks_.size() && offsets_[s] < half) ++s;
+  for (uint64_t before = 0; s < chunks_.size() && before < total / 2; ++s)
+    before += chunks_[s]->points.size();
   return s;
 }
 
 void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
                              const MeasurementImage* measured) {
   const size_t n = static_cast<size_t>(K.width) * K.height;
-  number_points();
+  size_ids();
 
   // Every per-pixel pass below runs on the two halves of the pixels (or of the points), on two
   // threads if there are two; none depends on the thread count.
@@ -322,7 +318,6 @@ void ModelProjection::render_surface(const Pose& T_world_cam, const CameraIntrin
   // two halves, on two threads if there are two, so that the result does not depend on the count.
   // Each thread clears the buffers it renders into; the per-pixel passes that combine the two
   // run on the two halves of the pixels.
-  number_points();
   const size_t split = split_chunk();
 
   // Pass 1: the front-most depth per pixel.

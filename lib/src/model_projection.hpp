@@ -186,8 +186,8 @@ class ModelProjection {
     cand_n_[2][pixel] = n.z();
     cand_merges_[pixel] = merges;
   }
-  // Sizes the point ids to the selected chunks (id_bits_) and sums their points (offsets_).
-  void number_points();
+  // Sizes the point ids to the selected chunks (id_bits_).
+  void size_ids();
   // The chunk where the second thread's half of the points starts.
   size_t split_chunk() const;
   // Point id back to chunk slot and index.
@@ -201,7 +201,6 @@ class ModelProjection {
   // A point's id in the z-buffer keys: (its chunk's slot in chunks_ << id_bits_) | its index, so
   // that ids order like (slot, index) and locate() is two bit operations.
   int id_bits_ = 0;
-  std::vector<uint64_t> offsets_;       // points before each selected chunk, and the total
   std::vector<PixelKeys> pixel_keys_;   // per pixel: render()'s result
   std::vector<PixelKeys> pixel_keys_2_; // the second thread's, combined into the first
   int threads_ = 1;

@@ -38,6 +38,18 @@ struct Scan {
     }();
     return *s;
   }
+
+  // The steady-state frames 20-29, back-projected (and pre-filtered if asked): what each
+  // iteration of a fusion benchmark cycles over.
+  static constexpr size_t kSteadyFrames = 10;
+  std::vector<MeasurementImage> steady_frames(const FusionConfig& fc, bool prefiltered) const {
+    std::vector<MeasurementImage> ms(kSteadyFrames);
+    for (size_t k = 0; k < ms.size(); ++k) {
+      (void)backproject(frames[20 + k], config.sensor, fc, &ms[k]);
+      if (prefiltered) prefilter(config.prefilter, &ms[k]);
+    }
+    return ms;
+  }
 };
 
 void BM_Backproject(benchmark::State& state) {
@@ -64,14 +76,10 @@ void BM_Prefilter(benchmark::State& state) {
 // one growing map that already holds the first 20 frames.
 void BM_Fuse(benchmark::State& state) {
   Scan& s = Scan::get();
-  std::vector<MeasurementImage> ms(10);
-  for (size_t k = 0; k < ms.size(); ++k) {
-    (void)backproject(s.frames[20 + k], s.config.sensor, s.config.fusion, &ms[k]);
-    prefilter(s.config.prefilter, &ms[k]);
-  }
-  PointMap map = s.map;
   FusionConfig fc = s.config.fusion;
   fc.threads = static_cast<int>(state.range(0));
+  const std::vector<MeasurementImage> ms = s.steady_frames(fc, true);
+  PointMap map = s.map;
   Fuser fuser(s.config.sensor, fc);
   uint32_t id = 100;
   size_t k = 0;
@@ -99,9 +107,7 @@ void BM_PrefilterPlusFusion(benchmark::State& state) {
   Scan& s = Scan::get();
   FusionConfig fc = s.config.fusion;
   fc.threads = static_cast<int>(state.range(0));
-  std::vector<MeasurementImage> ms(10);
-  for (size_t k = 0; k < ms.size(); ++k)
-    (void)backproject(s.frames[20 + k], s.config.sensor, fc, &ms[k]);
+  const std::vector<MeasurementImage> ms = s.steady_frames(fc, false);
   MeasurementImage m;
   PointMap map = s.map;
   Fuser fuser(s.config.sensor, fc);
@@ -132,7 +138,7 @@ void BM_FramePath(benchmark::State& state) {
     (void)backproject(s.frames[20 + k], s.config.sensor, fc, &m);
     prefilter(s.config.prefilter, &m, fc.threads);
     benchmark::DoNotOptimize(fuser.fuse(m, nullptr, s.seq.T_world_cam_true(20 + k), id++, &map));
-    k = (k + 1) % 10;
+    k = (k + 1) % Scan::kSteadyFrames;
   }
   state.counters["map_points"] = static_cast<double>(map.point_count());
 }
