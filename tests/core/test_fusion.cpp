@@ -194,3 +194,57 @@ TEST(Fuser, APointMergesWithSeveralMeasurementsOfOneFrame) {
               "them twice or more\n",
               points, s.measurements, s.merged, refined, several);
 }
+
+TEST(Fuser, AMergeSeesTheEarlierMergesOfItsRow) {
+  // One point P at pixel (u, v). The next frame measures pixels (u - 1, v) and (u, v) of one row.
+  // Pixel u - 1 has no candidate of its own and merges with P from its window; pixel u then
+  // merges with P as that merge left it, not with P as it was when the row was prepared
+  // (fusion works out each pixel's merge with its own candidate for the whole row in advance).
+  // Wide lateral ellipsoids (lambda1 = 32: 1.6 pixel footprints) let the neighbour merge.
+  Fixture fx;
+  fx.sensor.lambda1 = 32.0;
+  Fuser fuser(fx.sensor, fx.fusion);
+  const CameraIntrinsics K = CameraIntrinsics::kinect_v2();
+  // Fusion looks for the map's chunks near every 8th pixel from (4, 4): (260, 100) is one.
+  const int u = 260, v = 100;
+  auto frame = [&](std::initializer_list<std::pair<int, float>> pixels) {
+    Frame f;
+    f.intrinsics = K;
+    f.depth = DepthImage(K.width, K.height);
+    for (const auto& [pu, depth_m] : pixels) f.depth.at(pu, v) = depth_m;
+    EXPECT_TRUE(backproject(f, fx.sensor, fx.fusion, &fx.m).is_ok());
+    return fx.m;
+  };
+  auto position = [&](const MeasurementImage& m, int pu) {
+    const size_t i = static_cast<size_t>(v) * K.width + pu;
+    return Eigen::Vector3f(m.x[i], m.y[i], m.z[i]);
+  };
+  const SensorModel model(fx.sensor, K);
+
+  const MeasurementImage first = frame({{u, 2.0f}});
+  ASSERT_EQ(first.valid_count(), 1u);
+  fuser.fuse(first, nullptr, Pose::Identity(), 1, &fx.map);
+  ASSERT_EQ(fx.map.point_count(), 1u);
+  const Eigen::Vector3f p = position(first, u);
+
+  const MeasurementImage second = frame({{u - 1, 2.001f}, {u, 1.999f}});
+  const FusionStats s = fuser.fuse(second, nullptr, Pose::Identity(), 2, &fx.map);
+  EXPECT_EQ(s.merged, 2u);
+  ASSERT_EQ(fx.map.point_count(), 1u);
+  const PointArrays a = fx.map.gather();
+  EXPECT_EQ(a.state[0].merges, 2);
+
+  // The expected point: P merged with the measurement of u - 1, then with that of u.
+  const Eigen::Vector3f m1 = position(second, u - 1), m2 = position(second, u);
+  Eigen::Vector3f p1, p2, stale;
+  Eigen::Matrix3f L1, L2, L_stale;
+  ASSERT_TRUE(merge_measurement(p, model.information_cam(p), m1, model.information_cam(m1), &p1,
+                                &L1));
+  ASSERT_TRUE(merge_measurement(p1, L1, m2, model.information_cam(m2), &p2, &L2));
+  ASSERT_TRUE(merge_measurement(p, model.information_cam(p), m2, model.information_cam(m2),
+                                &stale, &L_stale));
+  // The test can tell the two apart: P merged with u's measurement alone lies 1.9 mm away.
+  ASSERT_GT((stale - p2).norm(), 1e-3f);
+  EXPECT_LT((a.position(0) - p2).norm(), 1e-6f);
+  EXPECT_NEAR(information_matrix(a, 0)(2, 2), L2(2, 2), 1e-3f * L2(2, 2));
+}
