@@ -23,8 +23,16 @@ void ModelProjection::select_chunks(PointMap& map, const MeasurementImage& m,
   ChunkKey seen[kSeen];
   bool seen_used[kSeen] = {};
   ChunkKeyHash hash;
-  for (int v = stride / 2; v < m.height; v += stride) {
-    for (int u = stride / 2; u < m.width; u += stride) {
+  // One sample per stride x stride block, not at the same place in every block: the column moves
+  // with the block's row and the row with the block's column (by 3 each time, which runs through
+  // all eight places when the stride is 8). An object narrower than the stride then still gets
+  // sampled if it spans a few blocks in the other direction; with a fixed grid a pole between two
+  // sampled columns went unseen, its chunk unselected, and every view added it again.
+  const int s = std::max(1, stride);
+  for (int bv = 0; bv * s < m.height; ++bv) {
+    for (int bu = 0; bu * s < m.width; ++bu) {
+      const int u = bu * s + (3 * bv) % s, v = bv * s + (3 * bu) % s;
+      if (u >= m.width || v >= m.height) continue;
       const size_t i = static_cast<size_t>(v) * m.width + u;
       if (!m.valid[i]) continue;
       const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);

@@ -205,13 +205,16 @@ TEST(Fuser, AMergeSeesTheEarlierMergesOfItsRow) {
   fx.sensor.lambda1 = 32.0;
   Fuser fuser(fx.sensor, fx.fusion);
   const CameraIntrinsics K = CameraIntrinsics::kinect_v2();
-  // Fusion looks for the map's chunks near every 8th pixel from (4, 4): (260, 100) is one.
   const int u = 260, v = 100;
-  auto frame = [&](std::initializer_list<std::pair<int, float>> pixels) {
+  // Both frames also see a 16 x 16 pixel patch 20 rows above, in P's map chunk: fusion finds the
+  // chunks from a sample of the pixels (one per 8 x 8 block), and two pixels alone may hold none.
+  auto frame = [&](std::initializer_list<std::pair<int, float>> row_pixels) {
     Frame f;
     f.intrinsics = K;
     f.depth = DepthImage(K.width, K.height);
-    for (const auto& [pu, depth_m] : pixels) f.depth.at(pu, v) = depth_m;
+    for (int pv = v - 36; pv < v - 20; ++pv)
+      for (int pu = u - 8; pu < u + 8; ++pu) f.depth.at(pu, pv) = 2.0f;
+    for (const auto& [pu, depth_m] : row_pixels) f.depth.at(pu, v) = depth_m;
     EXPECT_TRUE(backproject(f, fx.sensor, fx.fusion, &fx.m).is_ok());
     return fx.m;
   };
@@ -222,17 +225,20 @@ TEST(Fuser, AMergeSeesTheEarlierMergesOfItsRow) {
   const SensorModel model(fx.sensor, K);
 
   const MeasurementImage first = frame({{u, 2.0f}});
-  ASSERT_EQ(first.valid_count(), 1u);
   fuser.fuse(first, nullptr, Pose::Identity(), 1, &fx.map);
-  ASSERT_EQ(fx.map.point_count(), 1u);
+  ASSERT_EQ(fx.map.point_count(), 1u + 256u);
   const Eigen::Vector3f p = position(first, u);
 
   const MeasurementImage second = frame({{u - 1, 2.001f}, {u, 1.999f}});
   const FusionStats s = fuser.fuse(second, nullptr, Pose::Identity(), 2, &fx.map);
-  EXPECT_EQ(s.merged, 2u);
-  ASSERT_EQ(fx.map.point_count(), 1u);
+  EXPECT_EQ(s.added, 0u);
+  EXPECT_EQ(s.merged, 2u + 256u);
   const PointArrays a = fx.map.gather();
-  EXPECT_EQ(a.state[0].merges, 2);
+  ASSERT_EQ(a.size(), 1u + 256u);
+  size_t j = 0;  // P: the point nearest where it was (the patch is over 10 cm away)
+  for (size_t k = 1; k < a.size(); ++k)
+    if ((a.position(k) - p).norm() < (a.position(j) - p).norm()) j = k;
+  EXPECT_EQ(a.state[j].merges, 2);
 
   // The expected point: P merged with the measurement of u - 1, then with that of u.
   const Eigen::Vector3f m1 = position(second, u - 1), m2 = position(second, u);
@@ -245,6 +251,28 @@ TEST(Fuser, AMergeSeesTheEarlierMergesOfItsRow) {
                                 &stale, &L_stale));
   // The test can tell the two apart: P merged with u's measurement alone lies 1.9 mm away.
   ASSERT_GT((stale - p2).norm(), 1e-3f);
-  EXPECT_LT((a.position(0) - p2).norm(), 1e-6f);
-  EXPECT_NEAR(information_matrix(a, 0)(2, 2), L2(2, 2), 1e-3f * L2(2, 2));
+  EXPECT_LT((a.position(j) - p2).norm(), 1e-6f);
+  EXPECT_NEAR(information_matrix(a, j)(2, 2), L2(2, 2), 1e-3f * L2(2, 2));
+}
+
+TEST(Fuser, AThinObjectMergesLikeAWall) {
+  // A pole 4 pixels wide (2.2 cm at 2 m) in front of a wall at 3 m, seen twice from the same pose:
+  // the second view refines the pole's points as it does the wall's, instead of adding a second
+  // pole. Fusion finds the map's chunks from a sample of the pixels; the pole lies between
+  // sampled columns, and its chunk holds nothing else.
+  Fixture fx;
+  const CameraIntrinsics K = CameraIntrinsics::kinect_v2();
+  Frame f = test::render_plane(Pose::Identity(), Eigen::Vector3d::UnitZ(), 3.0);
+  const int u0 = 261;  // columns 261-264
+  for (int v = 0; v < K.height; ++v)
+    for (int u = u0; u < u0 + 4; ++u) f.depth.at(u, v) = 2.0f;
+  const size_t pole = 4 * static_cast<size_t>(K.height);
+  fx.fuse(f, Pose::Identity());
+  const size_t points = fx.map.point_count();
+  const FusionStats s = fx.fuse(f, Pose::Identity());
+  EXPECT_EQ(s.added, 0u);
+  EXPECT_GE(s.merged, s.measurements - s.redundant);
+  EXPECT_EQ(fx.map.point_count(), points);
+  std::printf("%zu points, %zu of them on the pole; second view: %zu merged, %zu added\n", points,
+              pole, s.merged, s.added);
 }
