@@ -30,8 +30,10 @@
 
 // Before a function whose loops vectorise: on x86-64 it is compiled twice, for the baseline and
 // for AVX2 (8 floats a vector instead of 4), and the loader picks the one the CPU runs. AVX2
-// without FMA: the same operations, rounded the same, so results do not depend on the CPU.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__)
+// without FMA: the same operations, rounded the same, so results do not depend on the CPU
+// (tests/pipeline/vector_clones_same_results.sh; DF_NO_VECTOR_CLONES builds the baseline only).
+#if !defined(DF_NO_VECTOR_CLONES) && defined(__GNUC__) && !defined(__clang__) && \
+    defined(__x86_64__) && defined(__ELF__)
 #define DF_VECTOR_CLONES __attribute__((target_clones("default", "avx2")))
 #else
 #define DF_VECTOR_CLONES
