@@ -25,7 +25,7 @@ echo "building the CLI without the AVX2 clones in $bdir"
 cmake -S "$src" -B "$bdir" -G "$generator" -DCMAKE_BUILD_TYPE="$build_type" \
   -DDEPTHFUSE_VECTOR_CLONES=OFF >"$bdir.configure.log" 2>&1 ||
   { cat "$bdir.configure.log"; exit 1; }
-cmake --build "$bdir" --target depthfuse >"$bdir.build.log" 2>&1 || { tail -50 "$bdir.build.log"; exit 1; }
+cmake --build "$bdir" --target depthfuse --parallel 2 >"$bdir.build.log" 2>&1 || { tail -50 "$bdir.build.log"; exit 1; }
 BASE="$bdir/bin/depthfuse"
 if [[ $(clones "$BASE") != 0 ]]; then
   echo "FAIL: $BASE still has AVX2 clones"; exit 1
