@@ -258,12 +258,13 @@ TEST(Fuser, AMergeSeesTheEarlierMergesOfItsRow) {
 TEST(Fuser, AThinObjectMergesLikeAWall) {
   // A pole 4 pixels wide (2.2 cm at 2 m) in front of a wall at 3 m, seen twice from the same pose:
   // the second view refines the pole's points as it does the wall's, instead of adding a second
-  // pole. Fusion finds the map's chunks from a sample of the pixels; the pole lies between
-  // sampled columns, and its chunk holds nothing else.
+  // pole. Fusion finds the map's chunks from one sampled pixel per 8 x 8 block, and the pole's
+  // chunk holds nothing else. The pole lies between the columns a fixed grid of samples would use
+  // (the block centres, 4 + 8k), which never saw it.
   Fixture fx;
   const CameraIntrinsics K = CameraIntrinsics::kinect_v2();
   Frame f = test::render_plane(Pose::Identity(), Eigen::Vector3d::UnitZ(), 3.0);
-  const int u0 = 261;  // columns 261-264
+  const int u0 = 261;  // columns 261-264, between 260 and 268
   for (int v = 0; v < K.height; ++v)
     for (int u = u0; u < u0 + 4; ++u) f.depth.at(u, v) = 2.0f;
   const size_t pole = 4 * static_cast<size_t>(K.height);
