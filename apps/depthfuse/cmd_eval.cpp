@@ -144,7 +144,7 @@ int run(int argc, char** argv) {
     char line[256];
     r << "  ground truth:      " << truth_name << "\n";
     std::snprintf(line, sizeof line,
-                  "  distance to truth: mean %.2f mm, median %.2f mm, p90 %.2f mm, p95 %.2f mm; %.1f %% within 5 mm\n",
+                  "  distance to truth: mean %.2f mm, median %.3f mm, p90 %.2f mm, p95 %.2f mm; %.1f %% within 5 mm\n",
                   dist->mean_m * 1e3, dist->median_m * 1e3, dist->p90_m * 1e3, dist->p95_m * 1e3, dist->within_5mm * 100);
     r << line;
     r << "  truth points:      " << truth->size() << "\n";

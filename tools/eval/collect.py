@@ -41,7 +41,7 @@ def fmt(v, spec):
 def row(method, poses, r, seconds):
     g = lambda k, i=0: r[k][i] if k in r else None  # noqa: E731
     cells = [method, poses, fmt(g("points"), ".0f"), fmt(g("reduction"), ".1f") + " %",
-             fmt(g("dist", 0), ".2f"), fmt(g("dist", 1), ".2f"), fmt(g("dist", 3), ".2f"),
+             fmt(g("dist", 0), ".2f"), fmt(g("dist", 1), ".3f"), fmt(g("dist", 3), ".2f"),
              fmt(g("dist", 4), ".1f"), fmt(g("compression"), ".3f")]
     cells += [fmt(g("jaccard", i), ".3f") for i in range(4)]
     cells += [fmt(g("ate", 0), ".2f"), fmt(g("ate", 1), ".2f"), seconds]
