@@ -299,8 +299,10 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArr
       const float range = r.range[u];
       const uint8_t* rgb = color_ ? &color_->rgb[3 * i] : nullptr;
 
-      // The candidate at this very pixel (the existing point closest in depth to the measurement)
-      // first; only if it is missing or does not merge, the nearest other candidate in the window.
+      // The candidate at this very pixel (ModelProjection::render()) first; only if it is missing
+      // or does not merge, the other candidate in the window nearest in the measurement's own
+      // metric (its information L_n, which weighs depth less than the lateral offset: by plain
+      // distance the neighbour whose error matches the measurement's noise would win).
       // Searching the window first would merge the measurement with its neighbour's point and
       // leave its own pixel's point unrefined. The merge with the pixel's own candidate as its
       // columns stood before this row was fused was worked out in prepare_row(); if a measurement
@@ -321,7 +323,7 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArr
         // candidate holds a stale but finite position.)
         any_in_window(u, v, cr, m.width, m.height, [&](size_t px) {
           const bool other = (px != i) & proj.has_candidate(px);
-          const float d2 = (proj.candidate_position(px) - p_w).squaredNorm();
+          const float d2 = mahalanobis2(Eigen::Vector3f(proj.candidate_position(px) - p_w), L_n);
           const bool better = other & (d2 < best_d2);
           best_d2 = better ? d2 : best_d2;
           best_px = better ? px : best_px;
@@ -400,7 +402,7 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
   ModelProjection& proj = *projection_;
   proj.set_threads(config_.threads);
   proj.select_chunks(*map, m, T_world_cam, 0.1f);
-  proj.render(T_world_cam, m.intrinsics, &m);
+  proj.render(T_world_cam, m.intrinsics, &m, &model);
 
   const FrameFusion frame(m, color, T_world_cam, frame_id, model, config_, &proj);
   FusionStats stats[3];

@@ -97,7 +97,7 @@ struct PixelProjector {
   // array per coordinate); entries from `count` on are padding.
   static constexpr size_t kBlock = 64;
   DF_VECTOR_CLONES void project_block(const Eigen::Vector3f* pos, size_t count, uint32_t* pixel,
-                                      float* depth) const {
+                                      float* depth, float* offset2) const {
     float X[kBlock], Y[kBlock], Z[kBlock];
     for (size_t i = 0; i < kBlock; ++i) {
       const bool real = i < count;  // padding: z = 0 falls outside
@@ -115,6 +115,7 @@ struct PixelProjector {
       const float z = r20 * X[i] + r21 * Y[i] + r22 * Z[i] + tz;
       pixel[i] = pixel_index(x, y, z, fx, fy, cx, cy, width, height);
       depth[i] = z;
+      offset2[i] = pixel_offset2(x, y, z, fx, fy, cx, cy);
     }
   }
 };
@@ -126,14 +127,14 @@ template <typename Visit>
 void for_each_block(const std::vector<Chunk*>& chunks, size_t begin, size_t end,
                     const PixelProjector& cam, Visit&& visit) {
   uint32_t pixel[PixelProjector::kBlock];
-  float depth[PixelProjector::kBlock];
+  float depth[PixelProjector::kBlock], offset2[PixelProjector::kBlock];
   for (size_t c = begin; c < end; ++c) {
     const PointArrays& a = chunks[c]->points;
     const size_t count = a.size();
     for (size_t start = 0; start < count; start += PixelProjector::kBlock) {
       const size_t block = std::min(PixelProjector::kBlock, count - start);
-      cam.project_block(a.position_m.data() + start, block, pixel, depth);
-      visit(c, a, start, block, pixel, depth);
+      cam.project_block(a.position_m.data() + start, block, pixel, depth, offset2);
+      visit(c, a, start, block, pixel, depth, offset2);
     }
   }
 }
@@ -153,7 +154,7 @@ size_t ModelProjection::render_points(const Pose& T_world_cam, const CameraIntri
   size_t rendered = 0;
   for_each_block(chunks_, chunk_begin, chunk_end, PixelProjector(T_world_cam, K),
                  [&](size_t c, const PointArrays&, size_t start, size_t block, const uint32_t* pixel,
-                     const float* depth) {
+                     const float* depth, const float* offset2) {
     prefetch_pixels(keys, pixel, block);
     const uint64_t base = (uint64_t{c} << id_bits_) + start;
     for (size_t i = 0; i < block; ++i) {
@@ -164,8 +165,15 @@ size_t ModelProjection::render_points(const Pose& T_world_cam, const CameraIntri
       // Branch-free minimum: which point wins a pixel is unpredictable.
       k.front = std::min((uint64_t{float_bits(depth[i])} << 32) | id, k.front);
       if (kGuided) {
-        // Pixels without a measurement have measured_z = +inf: their keys stay at +inf.
-        const uint64_t cand = (uint64_t{float_bits(std::abs(depth[i] - k.measured_z))} << 32) | id;
+        // The merge candidate: among the points within the measurement's axial reach, the one
+        // that projects nearest the pixel's centre (ranks 0 to 0.5); failing that, the one
+        // nearest in depth (ranks from 1). Ranking points on the measured surface by depth too
+        // would pick the one whose own error happens to match the measurement's noise, and
+        // neighbouring points would drift apart. Pixels without a measurement have measured_z =
+        // +inf: their keys stay at +inf.
+        const float dz = std::abs(depth[i] - k.measured_z);
+        const float rank = dz <= k.band_m ? offset2[i] : 1.0f + dz;
+        const uint64_t cand = (uint64_t{float_bits(rank)} << 32) | id;
         k.cand = std::min(cand, k.cand);
       }
     }
@@ -195,7 +203,7 @@ size_t ModelProjection::split_chunk() const {
 }
 
 void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
-                             const MeasurementImage* measured) {
+                             const MeasurementImage* measured, const SensorModel* model) {
   const size_t n = static_cast<size_t>(K.width) * K.height;
   size_ids();
 
@@ -212,6 +220,8 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
       k.front = kNoKey;
       k.cand = kNoKey;
       k.measured_z = guided && measured->valid[px] ? measured->z[px] : inf;
+      // Without a sensor model, no band: every candidate is ranked by depth alone.
+      k.band_m = model && k.measured_z < inf ? model->axial_reach_m(k.measured_z) : -1.0f;
     }
   };
   const size_t split = two ? split_chunk() : chunks_.size();
@@ -279,7 +289,7 @@ size_t ModelProjection::render_front_depth(const Pose& T_world_cam, const Camera
   size_t rendered = 0;
   for_each_block(chunks_, chunk_begin, chunk_end, PixelProjector(T_world_cam, K),
                  [&](size_t, const PointArrays&, size_t, size_t block, const uint32_t* pixel,
-                     const float* depth) {
+                     const float* depth, const float*) {
     prefetch_pixels(front, pixel, block);
     for (size_t i = 0; i < block; ++i) {
       if (pixel[i] == kNoPixel) continue;
@@ -295,7 +305,7 @@ void ModelProjection::sum_surface(const Pose& T_world_cam, const CameraIntrinsic
   const float* front = front_depth_.data();
   for_each_block(chunks_, chunk_begin, chunk_end, PixelProjector(T_world_cam, K),
                  [&](size_t, const PointArrays& a, size_t start, size_t block, uint32_t* pixel,
-                     const float* depth) {
+                     const float* depth, const float*) {
     prefetch_pixels(front, pixel, block);
     for (size_t i = 0; i < block; ++i) {  // points behind the surface drop out
       if (pixel[i] != kNoPixel && depth[i] > front[pixel[i]] + band_m)

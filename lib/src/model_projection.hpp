@@ -10,6 +10,7 @@
 #include "depthfuse/measurement.hpp"
 #include "depthfuse/point_map.hpp"
 #include "depthfuse/registration.hpp"
+#include "depthfuse/sensor_model.hpp"
 #include "geometry.hpp"
 
 #include <cmath>
@@ -34,6 +35,17 @@ DF_INLINE uint32_t pixel_index(float x, float y, float z, float fx, float fy, fl
   return inside ? static_cast<uint32_t>(v * width + u) : kNoPixel;
 }
 
+// The squared distance, in pixels, from a camera-frame point's projection to the centre of its
+// pixel (pixel_index()); only meaningful where that is not kNoPixel.
+DF_INLINE float pixel_offset2(float x, float y, float z, float fx, float fy, float cx, float cy) {
+  const float inv_z = 1.0f / z;
+  const float fu = fx * x * inv_z + cx, fv = fy * y * inv_z + cy;
+  // The centre of pixel u is u itself (pixel_index() rounds fu + 0.5 down).
+  const float du = fu - static_cast<float>(static_cast<int32_t>(fu + 0.5f));
+  const float dv = fv - static_cast<float>(static_cast<int32_t>(fv + 0.5f));
+  return du * du + dv * dv;
+}
+
 class ModelProjection {
  public:
   // Chunks touched by the measurements seen from T_world_cam (sampled every `stride` pixels), and
@@ -48,11 +60,15 @@ class ModelProjection {
 
   // Projects the points of the selected chunks into the camera at T_world_cam. Per pixel it keeps
   // the front-most point (a z-buffer: visibility and registration) and, given the frame's own
-  // measurements, the point whose depth is closest to the measured depth there: fusion's merge
-  // candidate. Where earlier frames left several layers of points over a pixel, the front-most
-  // point is often not the one the measurement belongs to.
+  // measurements, fusion's merge candidate: of the points within the measurement's axial reach
+  // (`model`'s sqrt(lambda2) sigma), the one that projects nearest the pixel's centre; where
+  // there is none, the point nearest the measured depth. Where earlier frames left several layers
+  // of points over a pixel, the front-most point is often not the one the measurement belongs to;
+  // and where one surface has several points over a pixel, the one nearest in depth is the one
+  // whose error matches the measurement's noise. Without `model` the candidate is the point
+  // nearest in depth.
   void render(const Pose& T_world_cam, const CameraIntrinsics& K,
-              const MeasurementImage* measured = nullptr);
+              const MeasurementImage* measured = nullptr, const SensorModel* model = nullptr);
 
   // Registration's model, instead of render(): per pixel, the confidence-weighted mean (weight
   // 1 + merges) of the rendered points within band_m behind the front-most one. Registration aligns
@@ -157,9 +173,9 @@ class ModelProjection {
   }
   struct PixelKeys {
     uint64_t front;     // key: depth in the camera
-    uint64_t cand;      // key: |depth - measured depth|
+    uint64_t cand;      // key: the candidate's rank (render_points())
     float measured_z;   // the frame's depth at this pixel, +inf = none
-    uint32_t unused;
+    float band_m;       // candidates within this depth of measured_z are ranked by pixel offset
   };
   using SurfaceSum = SurfaceView::Pixel;  // summed, then normalised
   template <bool kGuided>

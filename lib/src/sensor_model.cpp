@@ -1,5 +1,7 @@
 #include "depthfuse/sensor_model.hpp"
 
+#include <cmath>
+
 #include "geometry.hpp"
 
 namespace depthfuse {
@@ -17,6 +19,7 @@ SensorModel::SensorModel(const SensorModelConfig& config, const CameraIntrinsics
   a1_ = static_cast<float>(c_.alpha1);
   a2_ = static_cast<float>(c_.alpha2_per_m);
   inv_lambda2_ = static_cast<float>(1.0 / c_.lambda2);
+  sqrt_lambda2_ = static_cast<float>(std::sqrt(c_.lambda2));
 }
 
 Eigen::Matrix3f SensorModel::information_cam(const Eigen::Vector3f& p_cam_m) const {

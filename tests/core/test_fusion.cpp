@@ -1,6 +1,10 @@
 // Fusion against analytic expectations: the merge rule, uncertainty, violations, post-filter.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <random>
+#include <tuple>
+
 #include "analytic.hpp"
 #include "depthfuse/fusion.hpp"
 
@@ -276,4 +280,98 @@ TEST(Fuser, AThinObjectMergesLikeAWall) {
   EXPECT_EQ(fx.map.point_count(), points);
   std::printf("%zu points, %zu of them on the pole; second view: %zu merged, %zu added\n", points,
               pole, s.merged, s.added);
+}
+
+namespace {
+
+// A wall seen first from first_m, exactly, then twenty times from then_m, each view shifted by a
+// few millimetres and with the sensor model's Gaussian depth noise. Each point should come out as
+// the information-weighted mean of the measurements merged into it: a point that k of the later
+// measurements refined has the axial standard deviation sigma sqrt(k) / (r + k), where sigma is
+// the noise at then_m and r = (sigma / sigma(first_m))^2 weighs its exact first measurement.
+// Returns the rms over the points of their errors scaled by that prediction (1: as
+// predicted), with their mean error and median |error|.
+struct WallRefinement {
+  size_t points = 0, unrefined = 0;
+  double rms_normalised = 0, mean_m = 0, median_abs_m = 0;
+};
+
+WallRefinement refine_wall(double first_m, double then_m) {
+  Fixture fx;
+  const SensorModel model(fx.sensor, CameraIntrinsics::kinect_v2());
+  const double sigma = model.axial_sigma_m(then_m);
+  const double r = std::pow(sigma / model.axial_sigma_m(first_m), 2);
+  const Eigen::Vector3d n = Eigen::Vector3d::UnitZ();
+  const double wall_m = 3.0;
+  Pose first = Pose::Identity();
+  first.translation().z() = wall_m - first_m;
+  fx.fuse(test::render_plane(first, n, wall_m), first);
+  std::mt19937 rng(7);
+  std::normal_distribution<float> noise(0.0f, static_cast<float>(sigma));
+  std::uniform_real_distribution<double> shift(-4e-3, 4e-3);
+  for (int k = 0; k < 20; ++k) {
+    Pose then = Pose::Identity();
+    then.translation() = Eigen::Vector3d(shift(rng), shift(rng), wall_m - then_m);
+    Frame f = test::render_plane(then, n, wall_m);
+    for (float& z : f.depth.depth_m)
+      if (z > 0.0f) z += noise(rng);
+    fx.fuse(f, then);
+  }
+  // The points that every later view saw (the middle of the nearer view): each should be refined.
+  const double half_width_m = 0.25 * std::min(first_m, then_m);
+  const PointArrays a = fx.map.gather();
+  WallRefinement w;
+  std::vector<double> abs_err;
+  double sum = 0, z2 = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    const Eigen::Vector3f& p = a.position_m[i];
+    if (std::abs(p.x()) > half_width_m || std::abs(p.y()) > half_width_m) continue;
+    const double e = p.z() - wall_m, k = a.state[i].merges;
+    if (k < 1) {
+      ++w.unrefined;
+      continue;
+    }
+    const double expected = sigma * std::sqrt(k) / (r + k);
+    abs_err.push_back(std::abs(e));
+    sum += e;
+    z2 += (e / expected) * (e / expected);
+  }
+  w.points = abs_err.size();
+  if (w.points == 0) return w;
+  std::sort(abs_err.begin(), abs_err.end());
+  w.rms_normalised = std::sqrt(z2 / w.points);
+  w.mean_m = sum / w.points;
+  w.median_abs_m = abs_err[w.points / 2];
+  std::printf("first from %.1f m, then from %.1f m: %zu points (%zu not refined), mean error %.3f mm, median |error| "
+              "%.3f mm, rms %.3f of what their merges predict\n",
+              first_m, then_m, w.points, w.unrefined, 1e3 * w.mean_m, 1e3 * w.median_abs_m, w.rms_normalised);
+  return w;
+}
+
+}  // namespace
+
+TEST(Fuser, FarViewsRefineADenseCloudWithoutSpreadingIt) {
+  // Each pixel of the views from 2 m covers about four of the points left by the view from 1 m.
+  // A measurement refines the one of them that projects nearest its pixel's centre. Picking the
+  // one nearest the measured depth instead paired each measurement with the point whose error
+  // matched its noise, and the points drifted apart: rms 2.02 of the prediction, median |error|
+  // 0.83 mm against 0.38, and 3.5 % of the points were never refined.
+  const WallRefinement w = refine_wall(1.0, 2.0);
+  ASSERT_GT(w.points, 30000u);
+  EXPECT_EQ(w.unrefined, 0u);
+  EXPECT_NEAR(w.rms_normalised, 1.0, 0.1);
+  EXPECT_LT(std::abs(w.mean_m), 5e-5);
+}
+
+TEST(Fuser, NearViewsRefineASparseCloudWithoutSpreadingIt) {
+  // Each point left by the view from 2 m is seen by about four pixels of the views from 1 m, and
+  // only one of them has it as its own candidate: the others find it in their 3 x 3 window. The
+  // window's nearest point is the nearest in the measurement's own metric, which weighs depth
+  // less than the offset across the ray. By plain distance the neighbour whose error matched the
+  // measurement's noise won: rms 1.26 of the prediction, median |error| 0.15 mm against 0.12.
+  const WallRefinement w = refine_wall(2.0, 1.0);
+  ASSERT_GT(w.points, 8000u);
+  EXPECT_EQ(w.unrefined, 0u);
+  EXPECT_NEAR(w.rms_normalised, 1.0, 0.1);
+  EXPECT_LT(std::abs(w.mean_m), 5e-5);
 }

@@ -35,6 +35,12 @@ class SensorModel {
     *w_z = inv_lambda2_ / (sigma * sigma);
   }
 
+  // How far the measurement's ellipsoid reaches along its ray at depth z (m): sqrt(lambda2)
+  // sigma(z), in float for the per-pixel path.
+  float axial_reach_m(float z_m) const {
+    return ((a2_ * z_m + a1_) * z_m + a0_) * sqrt_lambda2_;
+  }
+
   // Information matrix (inverse covariance) of a measurement at p_cam_m, in the camera frame: the
   // ellipsoid's third axis is the ray through the point.
   Eigen::Matrix3f information_cam(const Eigen::Vector3f& p_cam_m) const;
@@ -45,7 +51,7 @@ class SensorModel {
   SensorModelConfig c_;
   double kx_ = 0.0, ky_ = 0.0;  // lambda1 (beta / sqrt 12)^2
   // The same constants in float for information_weights().
-  float inv_kx_ = 0, inv_ky_ = 0, a0_ = 0, a1_ = 0, a2_ = 0, inv_lambda2_ = 0;
+  float inv_kx_ = 0, inv_ky_ = 0, a0_ = 0, a1_ = 0, a2_ = 0, inv_lambda2_ = 0, sqrt_lambda2_ = 0;
 };
 
 }  // namespace depthfuse
