@@ -135,7 +135,8 @@ TEST(Fuser, RedundantMeasurementIsDroppedNotLayered) {
   for (const Case c : {Case{2.0, 3, true}, Case{2.0, 10, false}, Case{0.0, 0, false}}) {
     SCOPED_TRACE("gate " + std::to_string(c.gate) + ", min merges " + std::to_string(c.min_merges));
     Fixture fx;
-    fx.sensor.lambda2 = 4.0;  // the ellipsoid above, whatever the default
+    fx.sensor.lambda1 = 8.0;  // the ellipsoid above, whatever the defaults: 0.82 footprints wide
+    fx.sensor.lambda2 = 4.0;  // ... and 2 sigma deep
     fx.fusion.redundancy_gate = c.gate;
     fx.fusion.redundancy_min_merges = c.min_merges;
     Fuser fuser(fx.sensor, fx.fusion);

@@ -10,7 +10,7 @@ namespace depthfuse {
 //   C = diag(lambda1 (beta_x z / sqrt 12)^2, lambda1 (beta_y z / sqrt 12)^2,
 //            lambda2 (alpha2 z^2 + alpha1 z + alpha0)^2)
 struct SensorModelConfig {
-  double lambda1 = 8.0;            // lateral variance scale (ellipsoid size), dimensionless
+  double lambda1 = 12.0;           // lateral variance scale (ellipsoid size), dimensionless
   double lambda2 = 16.0;           // axial variance scale, dimensionless
   double beta_x_rad = 0.0;         // pixel width at 1 m; 0 = 1/fx of the frame's intrinsics
   double beta_y_rad = 0.0;         // pixel height at 1 m; 0 = 1/fy
