@@ -402,7 +402,7 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
   ModelProjection& proj = *projection_;
   proj.set_threads(config_.threads);
   proj.select_chunks(*map, m, T_world_cam, 0.1f);
-  proj.render(T_world_cam, m.intrinsics, &m, &model);
+  proj.render(T_world_cam, m, model);
 
   const FrameFusion frame(m, color, T_world_cam, frame_id, model, config_, &proj);
   FusionStats stats[3];

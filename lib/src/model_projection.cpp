@@ -90,11 +90,12 @@ struct PixelProjector {
     height = K.height;
   }
 
-  // Pixel index and camera depth of each point in a block; kNoPixel where it falls outside.
-  // Projecting a block first and updating the pixels after lets the random pixel accesses be
-  // prefetched and overlap, instead of waiting on each one in turn. The whole block is projected
-  // at once, so that it vectorises (a loop of a fixed count; the points first copied out to one
-  // array per coordinate); entries from `count` on are padding.
+  // Pixel index, camera depth and squared offset from the pixel's centre (pixel_offset2()) of each
+  // point in a block; kNoPixel where it falls outside. Projecting a block first and updating the
+  // pixels after lets the random pixel accesses be prefetched and overlap, instead of waiting on
+  // each one in turn. The whole block is projected at once, so that it vectorises (a loop of a
+  // fixed count; the points first copied out to one array per coordinate); entries from `count`
+  // on are padding.
   static constexpr size_t kBlock = 64;
   DF_VECTOR_CLONES void project_block(const Eigen::Vector3f* pos, size_t count, uint32_t* pixel,
                                       float* depth, float* offset2) const {
@@ -121,8 +122,8 @@ struct PixelProjector {
 };
 
 // Projects the points of chunks [begin, end) a block at a time and hands each block to
-// visit(chunk index, points, first index, count, pixel[], depth[]). The visitor prefetches what the
-// pixels will touch, then updates them: those random accesses then overlap.
+// visit(chunk index, points, first index, count, pixel[], depth[], offset2[]). The visitor
+// prefetches what the pixels will touch, then updates them: those random accesses then overlap.
 template <typename Visit>
 void for_each_block(const std::vector<Chunk*>& chunks, size_t begin, size_t end,
                     const PixelProjector& cam, Visit&& visit) {
@@ -148,7 +149,6 @@ inline void prefetch_pixels(const T* buffer, const uint32_t* pixel, size_t block
 
 }  // namespace
 
-template <bool kGuided>
 size_t ModelProjection::render_points(const Pose& T_world_cam, const CameraIntrinsics& K,
                                       size_t chunk_begin, size_t chunk_end, PixelKeys* keys) const {
   size_t rendered = 0;
@@ -164,18 +164,16 @@ size_t ModelProjection::render_points(const Pose& T_world_cam, const CameraIntri
       const uint64_t id = base + i;
       // Branch-free minimum: which point wins a pixel is unpredictable.
       k.front = std::min((uint64_t{float_bits(depth[i])} << 32) | id, k.front);
-      if (kGuided) {
-        // The merge candidate: among the points within the measurement's axial reach, the one
-        // that projects nearest the pixel's centre (ranks 0 to 0.5); failing that, the one
-        // nearest in depth (ranks from 1). Ranking points on the measured surface by depth too
-        // would pick the one whose own error happens to match the measurement's noise, and
-        // neighbouring points would drift apart. Pixels without a measurement have measured_z =
-        // +inf: their keys stay at +inf.
-        const float dz = std::abs(depth[i] - k.measured_z);
-        const float rank = dz <= k.band_m ? offset2[i] : 1.0f + dz;
-        const uint64_t cand = (uint64_t{float_bits(rank)} << 32) | id;
-        k.cand = std::min(cand, k.cand);
-      }
+      // The merge candidate: among the points within the measurement's axial reach, the one that
+      // projects nearest the pixel's centre (ranks 0 to 0.5); failing that, the one nearest in
+      // depth (ranks from 1). Ranking points on the measured surface by depth too would pick the
+      // one whose own error happens to match the measurement's noise, and neighbouring points
+      // would drift apart. Pixels without a measurement have measured_z = +inf: their keys stay
+      // at +inf.
+      const float dz = std::abs(depth[i] - k.measured_z);
+      const float rank = dz <= k.band_m ? offset2[i] : 1.0f + dz;
+      const uint64_t cand = (uint64_t{float_bits(rank)} << 32) | id;
+      k.cand = std::min(cand, k.cand);
     }
   });
   return rendered;
@@ -202,14 +200,14 @@ size_t ModelProjection::split_chunk() const {
   return s;
 }
 
-void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
-                             const MeasurementImage* measured, const SensorModel* model) {
+void ModelProjection::render(const Pose& T_world_cam, const MeasurementImage& measured,
+                             const SensorModel& model) {
+  const CameraIntrinsics& K = measured.intrinsics;
   const size_t n = static_cast<size_t>(K.width) * K.height;
   size_ids();
 
   // Every per-pixel pass below runs on the two halves of the pixels (or of the points), on two
   // threads if there are two; none depends on the thread count.
-  const bool guided = measured && measured->pixel_count() == n;
   const bool two = threads_ > 1 && chunks_.size() > 1;
   pixel_keys_.resize(n);
   pixel_keys_2_.resize(two ? n : 0);
@@ -219,9 +217,9 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
       PixelKeys& k = keys[px];
       k.front = kNoKey;
       k.cand = kNoKey;
-      k.measured_z = guided && measured->valid[px] ? measured->z[px] : inf;
-      // Without a sensor model, no band: every candidate is ranked by depth alone.
-      k.band_m = model && k.measured_z < inf ? model->axial_reach_m(k.measured_z) : -1.0f;
+      const bool valid = measured.valid[px];
+      k.measured_z = valid ? measured.z[px] : inf;
+      k.band_m = valid ? model.axial_reach_m(measured.z[px]) : 0.0f;
     }
   };
   const size_t split = two ? split_chunk() : chunks_.size();
@@ -230,8 +228,7 @@ void ModelProjection::render(const Pose& T_world_cam, const CameraIntrinsics& K,
     const size_t begin = h == 0 ? 0 : split, end = h == 0 ? split : chunks_.size();
     PixelKeys* keys = h == 0 ? pixel_keys_.data() : pixel_keys_2_.data();
     if (h == 0 || two) clear_keys(keys, 0, n);  // each thread clears the buffer it renders into
-    rendered[h] = guided ? render_points<true>(T_world_cam, K, begin, end, keys)
-                         : render_points<false>(T_world_cam, K, begin, end, keys);
+    rendered[h] = render_points(T_world_cam, K, begin, end, keys);
   };
   run_pair(two ? 2 : 1, [&] { half(0); }, [&] { half(1); });
   rendered_ = rendered[0] + rendered[1];

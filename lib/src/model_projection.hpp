@@ -58,17 +58,15 @@ class ModelProjection {
   // own buffers, combined after). The results do not depend on it.
   void set_threads(int threads) { threads_ = threads; }
 
-  // Projects the points of the selected chunks into the camera at T_world_cam. Per pixel it keeps
-  // the front-most point (a z-buffer: visibility and registration) and, given the frame's own
-  // measurements, fusion's merge candidate: of the points within the measurement's axial reach
-  // (`model`'s sqrt(lambda2) sigma), the one that projects nearest the pixel's centre; where
-  // there is none, the point nearest the measured depth. Where earlier frames left several layers
-  // of points over a pixel, the front-most point is often not the one the measurement belongs to;
-  // and where one surface has several points over a pixel, the one nearest in depth is the one
-  // whose error matches the measurement's noise. Without `model` the candidate is the point
-  // nearest in depth.
-  void render(const Pose& T_world_cam, const CameraIntrinsics& K,
-              const MeasurementImage* measured = nullptr, const SensorModel* model = nullptr);
+  // Projects the points of the selected chunks into the camera at T_world_cam, the camera of the
+  // frame's measurements. Per pixel it keeps the front-most point (a z-buffer: visibility) and
+  // fusion's merge candidate: of the points within the measurement's axial reach (`model`'s
+  // sqrt(lambda2) sigma), the one that projects nearest the pixel's centre; where there is none,
+  // the point nearest the measured depth. Where earlier frames left several layers of points over
+  // a pixel, the front-most point is often not the one the measurement belongs to; and where one
+  // surface has several points over a pixel, the one nearest in depth is the one whose error
+  // matches the measurement's noise. `measured` has the size of its intrinsics (backproject()).
+  void render(const Pose& T_world_cam, const MeasurementImage& measured, const SensorModel& model);
 
   // Registration's model, instead of render(): per pixel, the confidence-weighted mean (weight
   // 1 + merges) of the rendered points within band_m behind the front-most one. Registration aligns
@@ -178,7 +176,6 @@ class ModelProjection {
     float band_m;       // candidates within this depth of measured_z are ranked by pixel offset
   };
   using SurfaceSum = SurfaceView::Pixel;  // summed, then normalised
-  template <bool kGuided>
   size_t render_points(const Pose& T_world_cam, const CameraIntrinsics& K, size_t chunk_begin,
                        size_t chunk_end, PixelKeys* keys) const;
   size_t render_front_depth(const Pose& T_world_cam, const CameraIntrinsics& K, size_t chunk_begin,
