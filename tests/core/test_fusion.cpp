@@ -3,7 +3,6 @@
 
 #include <algorithm>
 #include <random>
-#include <tuple>
 
 #include "analytic.hpp"
 #include "depthfuse/fusion.hpp"
