@@ -320,9 +320,11 @@ size_t prefilter(const PrefilterConfig& config, MeasurementImage* m, int threads
     }
     removed_total += removed;
   });
+  // A select, not a conditional store, so that it vectorises.
   const uint8_t* const marks = remove.data();
-  for (size_t i = 0; i < remove.size(); ++i)
-    if (marks[i]) m->valid[i] = 0;
+  uint8_t* const valid = m->valid.data();
+  DF_IVDEP
+  for (size_t i = 0; i < remove.size(); ++i) valid[i] = marks[i] ? uint8_t{0} : valid[i];
   return removed_total;
 }
 
