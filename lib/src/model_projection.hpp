@@ -118,13 +118,14 @@ class ModelProjection {
     const float *xx, *xy, *xz, *yy, *yz, *zz;   // information, 1/m^2
     const float *nx, *ny, *nz;                  // unit normal
     const uint16_t* merges;
+    const int32_t* slot;                        // >= 0 where the pixel has a candidate
   };
   CandidateColumns candidate_columns(size_t pixel) const {
     auto at = [pixel](const std::vector<float>& column) { return column.data() + pixel; };
     return {at(cand_x_),       at(cand_y_),       at(cand_z_),       at(cand_info_[0]),
             at(cand_info_[1]), at(cand_info_[2]), at(cand_info_[3]), at(cand_info_[4]),
             at(cand_info_[5]), at(cand_n_[0]),    at(cand_n_[1]),    at(cand_n_[2]),
-            cand_merges_.data() + pixel};
+            cand_merges_.data() + pixel, cand_slot_.data() + pixel};
   }
   // Starts loading the candidate's position and state at a pixel into the cache (a hint, no effect
   // on results). Loops over pixels call it a few pixels ahead.
