@@ -320,11 +320,14 @@ size_t prefilter(const PrefilterConfig& config, MeasurementImage* m, int threads
     }
     removed_total += removed;
   });
-  // A select, not a conditional store, so that it vectorises.
+  // A select, not a conditional store, and the count read once (a byte store may alias the
+  // vector's size, which would then be read again from thread-local storage every pixel): it
+  // then vectorises.
   const uint8_t* const marks = remove.data();
   uint8_t* const valid = m->valid.data();
+  const size_t n = remove.size();
   DF_IVDEP
-  for (size_t i = 0; i < remove.size(); ++i) valid[i] = marks[i] ? uint8_t{0} : valid[i];
+  for (size_t i = 0; i < n; ++i) valid[i] = marks[i] ? uint8_t{0} : valid[i];
   return removed_total;
 }
 
