@@ -255,17 +255,28 @@ void ModelProjection::render(const Pose& T_world_cam, const MeasurementImage& me
   merged_row_.resize(n);
 }
 
+void ModelProjection::locate_candidates(size_t begin, size_t end) {
+  const PixelKeys* keys = pixel_keys_.data();
+  int32_t* slot = cand_slot_.data();
+  uint32_t* index = cand_index_.data();
+  int32_t* merged_row = merged_row_.data();
+  const int id_bits = id_bits_;
+  const uint32_t mask = static_cast<uint32_t>((uint64_t{1} << id_bits) - 1);
+  DF_IVDEP
+  for (size_t px = begin; px < end; ++px) {
+    const uint64_t key = keys[px].cand;
+    // No candidate, or no measurement at this pixel: the key is +inf or kNoKey.
+    const bool none = (key >> 32) >= kInfBits;
+    const uint32_t id = static_cast<uint32_t>(key);
+    slot[px] = none ? -1 : static_cast<int32_t>(id >> id_bits);
+    index[px] = id & mask;
+    merged_row[px] = -1;
+  }
+}
+
 void ModelProjection::gather_candidates(size_t begin, size_t end) {
   // Which point each pixel's candidate is, first for the whole range: the prefetches below need it.
-  for (size_t px = begin; px < end; ++px) {
-    merged_row_[px] = -1;
-    const uint64_t key = pixel_keys_[px].cand;
-    if ((key >> 32) >= kInfBits) {  // no candidate, or no measurement at this pixel
-      cand_slot_[px] = -1;
-      continue;
-    }
-    locate(static_cast<uint32_t>(key), &cand_slot_[px], &cand_index_[px]);
-  }
+  locate_candidates(begin, end);
   // Each is a random read into the map: prefetching a few pixels ahead turns a chain of cache
   // misses into overlapping ones.
   for (size_t px = begin; px < end; ++px) {

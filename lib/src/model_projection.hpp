@@ -200,6 +200,9 @@ class ModelProjection {
     cand_n_[2][pixel] = n.z();
     cand_merges_[pixel] = merges;
   }
+  // gather_candidates()' first pass: cand_slot_ and cand_index_ from the keys, merged_row_
+  // cleared. Without branches and through plain pointers, so that it vectorises.
+  DF_VECTOR_CLONES void locate_candidates(size_t begin, size_t end);
   // Sizes the point ids to the selected chunks (id_bits_).
   void size_ids();
   // The chunk where the second thread's half of the points starts.
