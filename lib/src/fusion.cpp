@@ -32,9 +32,9 @@ struct RowScratch {
   std::vector<float> f_x, f_y, f_z;                       // the point merged with the candidate
   std::vector<float> fn_x, fn_y, fn_z;                    // ... and its normal
   std::vector<uint8_t> merges;                            // ... if the merge rule accepts it
-  // The candidate in the pixel's window, its own excluded, nearest in the measurement's metric,
-  // as the candidates stood before the row was fused (FrameFusion::select_window()): its pixel,
-  // -1 if none.
+  // With the usual 3x3 window: the candidate in the pixel's window, its own excluded, nearest in
+  // the measurement's metric, as the candidates stood before the row was fused
+  // (FrameFusion::select_window()): its pixel, -1 if none.
   std::vector<int32_t> window_px;
 
   void resize(int width) {
@@ -173,7 +173,8 @@ class FrameFusion {
  private:
   // The first pass over row v: RowScratch for every pixel, valid or not.
   DF_VECTOR_CLONES void prepare_row(int v, RowScratch* row) const;
-  // The second, after prepare_row(): RowScratch::window_px for every pixel of row v.
+  // The second with a 3x3 window, after prepare_row(): RowScratch::window_px for every pixel of
+  // row v. (With other windows the row loop searches where it needs to.)
   void select_window(int v, RowScratch* row) const;
   DF_VECTOR_CLONES void select_window_3x3(int v, RowScratch* row) const;  // 3x3, inner pixels
   // The candidate in the window around pixel (u, v), its own excluded, nearest to the measurement
@@ -312,7 +313,7 @@ void FrameFusion::select_window(int v, RowScratch* row) const {
         u, v, Eigen::Vector3f(row->p_x[u], row->p_y[u], row->p_z[u]),
         Sym3f{row->l_xx[u], row->l_xy[u], row->l_xz[u], row->l_yy[u], row->l_yz[u], row->l_zz[u]});
   };
-  if (cr_ != 1 || v == 0 || v == m_.height - 1 || W < 3) {
+  if (v == 0 || v == m_.height - 1 || W < 3) {
     for (int u = 0; u < W; ++u) at(u);
     return;
   }
@@ -387,7 +388,7 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArr
       gathered = g;
     }
     prepare_row(v, row);
-    select_window(v, row);
+    if (cr == 1) select_window(v, row);
     for (int u = 0; u < m.width; ++u) {
       const size_t i = static_cast<size_t>(v) * m.width + u;
       if (!m.valid[i]) continue;
@@ -406,11 +407,12 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArr
       // Searching the window first would merge the measurement with its neighbour's point and
       // leave its own pixel's point unrefined. The merge with the pixel's own candidate as its
       // columns stood before this row was fused was worked out in prepare_row(); if a measurement
-      // of this row has refined that candidate since, the merge is worked out again. The window's
-      // candidate was chosen on the candidates as they stood before this row too (select_window());
-      // if it does not merge, the one nearest as they stand now gets a try, for this row's merges
-      // may have moved it. (Without that second try a sparse cloud seen from nearer grows layers:
-      // Fuser.NearViewsRefineASparseCloudWithoutSpreadingIt, 14 k points instead of 9 k.)
+      // of this row has refined that candidate since, the merge is worked out again. A 3x3
+      // window's candidate was chosen on the candidates as they stood before this row too
+      // (select_window()); if it does not merge, the one nearest as they stand now gets a try,
+      // for this row's merges may have moved it. (Without that second try a sparse cloud seen
+      // from nearer grows layers: Fuser.NearViewsRefineASparseCloudWithoutSpreadingIt, 14 k
+      // points instead of 9 k.) Other windows are searched as they stand now.
       bool merged = false;
       if (proj.has_candidate(i) && proj.merged_in_row(i) == v) {
         merged = try_merge(proj, i, p_w, L_n, n_w, rgb, frame_id_, v);
@@ -420,10 +422,10 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArr
                              Eigen::Vector3f(r.fn_x[u], r.fn_y[u], r.fn_z[u]), rgb, frame_id_, v);
         merged = true;
       }
-      if (!merged && r.window_px[u] >= 0) {
-        const int32_t chosen = r.window_px[u];
-        merged = try_merge(proj, chosen, p_w, L_n, n_w, rgb, frame_id_, v);
-        if (!merged) {
+      if (!merged && cr > 0) {
+        const int32_t chosen = cr == 1 ? r.window_px[u] : nearest_in_window(u, v, p_w, L_n);
+        if (chosen >= 0) merged = try_merge(proj, chosen, p_w, L_n, n_w, rgb, frame_id_, v);
+        if (!merged && chosen >= 0 && cr == 1) {
           const int32_t now = nearest_in_window(u, v, p_w, L_n);
           if (now >= 0 && now != chosen)
             merged = try_merge(proj, now, p_w, L_n, n_w, rgb, frame_id_, v);

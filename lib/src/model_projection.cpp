@@ -261,15 +261,14 @@ void ModelProjection::locate_candidates(size_t begin, size_t end) {
   uint32_t* index = cand_index_.data();
   int32_t* merged_row = merged_row_.data();
   const int id_bits = id_bits_;
-  const uint32_t mask = static_cast<uint32_t>((uint64_t{1} << id_bits) - 1);
   DF_IVDEP
   for (size_t px = begin; px < end; ++px) {
     const uint64_t key = keys[px].cand;
     // No candidate, or no measurement at this pixel: the key is +inf or kNoKey.
     const bool none = (key >> 32) >= kInfBits;
-    const uint32_t id = static_cast<uint32_t>(key);
-    slot[px] = none ? -1 : static_cast<int32_t>(id >> id_bits);
-    index[px] = id & mask;
+    int32_t s;
+    locate(static_cast<uint32_t>(key), id_bits, &s, &index[px]);
+    slot[px] = none ? -1 : s;
     merged_row[px] = -1;
   }
 }

@@ -85,7 +85,7 @@ class ModelProjection {
   // where a measurement does not merge, so it is looked up here rather than for every pixel.
   PointArrays& front_points(size_t pixel, uint32_t* index) const {
     int32_t slot;
-    locate(static_cast<uint32_t>(pixel_keys_[pixel].front), &slot, index);
+    locate(static_cast<uint32_t>(pixel_keys_[pixel].front), id_bits_, &slot, index);
     return chunks_[slot]->points;
   }
 
@@ -207,10 +207,10 @@ class ModelProjection {
   void size_ids();
   // The chunk where the second thread's half of the points starts.
   size_t split_chunk() const;
-  // Point id back to chunk slot and index.
-  void locate(uint32_t id, int32_t* slot, uint32_t* index) const {
-    *slot = static_cast<int32_t>(id >> id_bits_);
-    *index = id & static_cast<uint32_t>((uint64_t{1} << id_bits_) - 1);
+  // Point id back to chunk slot and index, for ids of id_bits index bits (id_bits_).
+  static DF_INLINE void locate(uint32_t id, int id_bits, int32_t* slot, uint32_t* index) {
+    *slot = static_cast<int32_t>(id >> id_bits);
+    *index = id & static_cast<uint32_t>((uint64_t{1} << id_bits) - 1);
   }
 
   std::vector<ChunkKey> keys_, near_;   // scratch
