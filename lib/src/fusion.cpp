@@ -37,6 +37,13 @@ struct RowScratch {
   // (FrameFusion::select_window()): its pixel, -1 if none.
   std::vector<int32_t> window_px;
 
+  // Measurement u of the row: world position, normal and information.
+  Eigen::Vector3f position(int u) const { return {p_x[u], p_y[u], p_z[u]}; }
+  Eigen::Vector3f normal(int u) const { return {n_x[u], n_y[u], n_z[u]}; }
+  Sym3f information(int u) const {
+    return {l_xx[u], l_xy[u], l_xz[u], l_yy[u], l_yz[u], l_zz[u]};
+  }
+
   void resize(int width) {
     const size_t n = static_cast<size_t>(std::max(0, width));
     for (auto* v : {&p_x, &p_y, &p_z, &n_x, &n_y, &n_z, &range, &l_xx, &l_xy, &l_xz, &l_yy, &l_yz,
@@ -309,9 +316,7 @@ int32_t FrameFusion::nearest_in_window(int u, int v, const Eigen::Vector3f& p_w,
 void FrameFusion::select_window(int v, RowScratch* row) const {
   const int W = m_.width;
   auto at = [&](int u) {
-    row->window_px[u] = nearest_in_window(
-        u, v, Eigen::Vector3f(row->p_x[u], row->p_y[u], row->p_z[u]),
-        Sym3f{row->l_xx[u], row->l_xy[u], row->l_xz[u], row->l_yy[u], row->l_yz[u], row->l_zz[u]});
+    row->window_px[u] = nearest_in_window(u, v, row->position(u), row->information(u));
   };
   if (v == 0 || v == m_.height - 1 || W < 3) {
     for (int u = 0; u < W; ++u) at(u);
@@ -393,9 +398,9 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArr
       const size_t i = static_cast<size_t>(v) * m.width + u;
       if (!m.valid[i]) continue;
       ++counts.measurements;
-      const Eigen::Vector3f p_w(r.p_x[u], r.p_y[u], r.p_z[u]);
-      const Eigen::Vector3f n_w(r.n_x[u], r.n_y[u], r.n_z[u]);
-      const Sym3f L_n{r.l_xx[u], r.l_xy[u], r.l_xz[u], r.l_yy[u], r.l_yz[u], r.l_zz[u]};
+      const Eigen::Vector3f p_w = r.position(u);
+      const Eigen::Vector3f n_w = r.normal(u);
+      const Sym3f L_n = r.information(u);
       const float z = m.z[i];
       const float range = r.range[u];
       const uint8_t* rgb = color_ ? &color_->rgb[3 * i] : nullptr;
