@@ -6,6 +6,7 @@
 
 #include "cli_util.hpp"
 #include "command.hpp"
+#include "error_curve.hpp"
 #include "depthfuse/evaluation.hpp"
 #include "depthfuse/measurement.hpp"
 #include "depthfuse/ply.hpp"
@@ -157,9 +158,9 @@ int run(int argc, char** argv) {
       r << line;
     }
     r << "\n";
-    const Status c = write_cumulative_csv(prefix + ".errors.csv", *dist);
+    const Status c = cli::write_cumulative_csv(prefix + ".errors.csv", *dist);
     if (!c) return cli::fail(kCmd, c.message());
-    const Status p = write_cumulative_png(prefix + ".errors.png", {{label, &*dist}});
+    const Status p = cli::write_cumulative_png(prefix + ".errors.png", {{label, &*dist}});
     if (!p) return cli::fail(kCmd, p.message());
     r << "  cumulative curve:  " << prefix << ".errors.csv, " << prefix << ".errors.png\n";
   }

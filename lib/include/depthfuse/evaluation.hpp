@@ -31,12 +31,7 @@ double jaccard_index(const PointArrays& reconstruction, const PointArrays& truth
 // Keeps one point per voxel (the first): for sampling a ground-truth surface at a fixed density.
 PointArrays voxel_downsample(const PointArrays& points, double voxel_m);
 
-// The cumulative curve as CSV ("error_m,fraction") at the given resolution, and as a PNG plot of
-// one or more labelled curves.
-Status write_cumulative_csv(const std::string& path, const DistanceSummary& s, double step_m = 0.0005,
-                            double max_m = 0.02);
-Status write_cumulative_png(const std::string& path,
-                            const std::vector<std::pair<std::string, const DistanceSummary*>>& curves,
-                            double max_m = 0.02);
+// The share of the summarised points whose error is at most error_m: the cumulative curve.
+double fraction_within(const DistanceSummary& s, double error_m);
 
 }  // namespace depthfuse
