@@ -4,13 +4,33 @@
 # input (a synthetic scan of a concave corner with perturbed poses), leaving a fused cloud and a
 # short report in out/demo/.
 #
-#   tools/setup.sh            everything
-#   tools/setup.sh --no-demo  install and build only
+#   tools/setup.sh                         everything
+#   tools/setup.sh --no-demo               install and build only
+#   tools/setup.sh --libfreenect2 SOURCE   build the kinect2 driver's libfreenect2 from SOURCE
+#
+# libfreenect2 (the Kinect V2's USB driver) is not a Debian package. When it is not installed,
+# set-up builds it from a source at hand (tools/install-libfreenect2.sh): the one given with
+# --libfreenect2 (or $DEPTHFUSE_LIBFREENECT2_SOURCE), else the snapshot in
+# ../shared/third_party/ when there is one, else a clone of the upstream repository when the
+# network allows. Without any, the kinect2 driver is skipped and set-up says why.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 DEMO=1
-[[ "${1:-}" == "--no-demo" ]] && DEMO=0
+LIBFREENECT2_SOURCE=${DEPTHFUSE_LIBFREENECT2_SOURCE:-}
+while (($#)); do
+  case "$1" in
+    --no-demo) DEMO=0 ;;
+    --libfreenect2)
+      [[ $# -ge 2 ]] || { echo "setup: --libfreenect2 needs a folder, tarball or git URL" >&2; exit 2; }
+      LIBFREENECT2_SOURCE=$2
+      shift ;;
+    -h|--help) sed -n '2,17s/^# \{0,1\}//p' "$0"; exit 0 ;;
+    *) echo "setup: unknown option '$1' (see --help)" >&2; exit 2 ;;
+  esac
+  shift
+done
+LIBFREENECT2_UPSTREAM=https://github.com/OpenKinect/libfreenect2.git
 
 PACKAGES=(
   build-essential cmake ninja-build pkg-config git
@@ -18,7 +38,7 @@ PACKAGES=(
   libsqlite3-dev sqlite3 libsystemd-dev systemd
   liblcm-dev liblcm-bin liblcm-java libglib2.0-dev default-jdk-headless
   libgtest-dev libgmock-dev libbenchmark-dev
-  libtomlplusplus-dev libzstd-dev
+  libtomlplusplus-dev libzstd-dev libturbojpeg0-dev
   python3-open3d python3-numpy
   iproute2 procps dpkg-dev file udev
 )
@@ -44,6 +64,30 @@ if [[ $(id -u) -eq 0 ]]; then
   fi
 else
   echo "note: not root, skipping package installation and network set-up"
+fi
+
+# The kinect2 driver's libfreenect2, from the first source at hand.
+if pkg-config --exists freenect2; then
+  echo "== libfreenect2 $(pkg-config --modversion freenect2) is installed: the kinect2 driver is built"
+elif [[ $(id -u) -ne 0 ]]; then
+  echo "== kinect2 driver skipped: libfreenect2 is not installed, and installing it needs root"
+else
+  lf2_source=""
+  if [[ -n $LIBFREENECT2_SOURCE ]]; then
+    lf2_source=$LIBFREENECT2_SOURCE
+  elif compgen -G "../shared/third_party/libfreenect2-*.tar.gz" >/dev/null; then
+    lf2_source=$(compgen -G "../shared/third_party/libfreenect2-*.tar.gz" | sort | tail -n 1)
+  elif timeout 20 git ls-remote --heads "$LIBFREENECT2_UPSTREAM" >/dev/null 2>&1; then
+    lf2_source=$LIBFREENECT2_UPSTREAM
+  fi
+  if [[ -n $lf2_source ]]; then
+    echo "== libfreenect2 is not installed: building it from $lf2_source"
+    tools/install-libfreenect2.sh "$lf2_source"
+  else
+    echo "== kinect2 driver skipped: libfreenect2 is not installed, and no source is at hand" \
+         "(no --libfreenect2 SOURCE, no ../shared/third_party/libfreenect2-*.tar.gz, and" \
+         "$LIBFREENECT2_UPSTREAM is not reachable). See docs/kinect2.md."
+  fi
 fi
 
 echo "== building"
