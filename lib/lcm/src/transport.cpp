@@ -12,8 +12,28 @@
 #include <cstring>
 #include <fstream>
 #include <lcm/lcm.h>
+#include <regex.h>
+
+#include "depthfuse/base/clock.hpp"
+#include "depthfuse/base/log.hpp"
+#include "udpm_socket.hpp"
+
+DF_LOG_CATEGORY(Lcm)
 
 namespace depthfuse::lcmio {
+
+// A channel expression, anchored at both ends as in liblcm, and its handler.
+struct LcmTransport::Subscription {
+  regex_t regex{};
+  bool valid = false;
+  Handler handler;
+  ~Subscription() {
+    if (valid) regfree(&regex);
+  }
+  bool matches(const char* channel) const {
+    return valid && regexec(&regex, channel, 0, nullptr, 0) == 0;
+  }
+};
 
 namespace {
 
@@ -171,8 +191,20 @@ Result<std::unique_ptr<LcmTransport>> LcmTransport::open(const std::string& url,
     }
     return unavailable(why);
   }
-  return std::unique_ptr<LcmTransport>(new LcmTransport(lcm, url));
+  std::unique_ptr<UdpmSocket> udpm;
+  if (parsed->provider == "udpm") {
+    auto socket = UdpmSocket::open(*parsed);
+    if (!socket) {
+      lcm_destroy(lcm);
+      return socket.status();
+    }
+    udpm = std::move(socket).value();
+  }
+  return std::unique_ptr<LcmTransport>(new LcmTransport(lcm, url, std::move(udpm)));
 }
+
+LcmTransport::LcmTransport(lcm_t* lcm, std::string url, std::unique_ptr<UdpmSocket> udpm)
+    : lcm_(lcm), url_(std::move(url)), udpm_(std::move(udpm)) {}
 
 LcmTransport::~LcmTransport() {
   if (lcm_) lcm_destroy(lcm_);
@@ -194,16 +226,59 @@ void LcmTransport::dispatch(const void* rbuf_v, const char* channel, void* user)
 }
 
 void LcmTransport::subscribe(const std::string& channel_regex, Handler handler) {
-  handlers_.push_back(std::make_unique<Handler>(std::move(handler)));
-  lcm_subscribe(
-      lcm_, channel_regex.c_str(),
-      [](const lcm_recv_buf_t* rbuf, const char* channel, void* user) {
-        dispatch(rbuf, channel, user);
-      },
-      handlers_.back().get());
+  auto sub = std::make_unique<Subscription>();
+  sub->handler = std::move(handler);
+  if (udpm_) {
+    const std::string anchored = "^(" + channel_regex + ")$";
+    sub->valid = regcomp(&sub->regex, anchored.c_str(), REG_EXTENDED | REG_NOSUB) == 0;
+    if (!sub->valid) DF_LOG(Lcm, Error) << "invalid LCM channel expression '" << channel_regex << "'";
+  } else {
+    lcm_subscribe(
+        lcm_, channel_regex.c_str(),
+        [](const lcm_recv_buf_t* rbuf, const char* channel, void* user) {
+          dispatch(rbuf, channel, user);
+        },
+        &sub->handler);
+  }
+  subscriptions_.push_back(std::move(sub));
+}
+
+void LcmTransport::dispatch_udpm(const udpm::Message& message, int64_t recv_utime) {
+  const std::string channel(message.channel);
+  for (const auto& sub : subscriptions_) {
+    if (sub->matches(channel.c_str())) sub->handler(channel, message.data, message.size, recv_utime);
+  }
+}
+
+Result<bool> LcmTransport::handle_udpm(int timeout_ms) {
+  const int64_t deadline_ns = steady_ns() + int64_t{timeout_ms} * 1'000'000;
+  for (;;) {
+    const int64_t left_ms = (deadline_ns - steady_ns()) / 1'000'000;
+    auto datagram = udpm_->receive(static_cast<int>(std::max<int64_t>(left_ms, 0)));
+    if (!datagram) return datagram.status();
+    if (!*datagram) return false;  // a timeout, or a signal: the caller checks its flags
+    const auto& d = **datagram;
+    const int64_t recv_utime = now_utime();
+    const auto message = reassembler_.feed(d.data, d.size, d.sender);
+    {
+      std::lock_guard<std::mutex> lock(counters_mutex_);
+      counters_ = reassembler_.counters();
+    }
+    if (message) {
+      dispatch_udpm(*message, recv_utime);
+      return true;
+    }
+    if (steady_ns() >= deadline_ns) return false;
+  }
+}
+
+udpm::Counters LcmTransport::receive_counters() const {
+  std::lock_guard<std::mutex> lock(counters_mutex_);
+  return counters_;
 }
 
 Result<bool> LcmTransport::handle(int timeout_ms) {
+  if (udpm_) return handle_udpm(timeout_ms);
   errno = 0;
   const int rc = lcm_handle_timeout(lcm_, timeout_ms);
   // A signal (SIGTERM, SIGINT) interrupts the wait: not an error, the caller checks its flag.
@@ -223,6 +298,5 @@ Status LcmTransport::handle_for(int budget_ms) {
   }
 }
 
-int LcmTransport::fileno() const { return lcm_get_fileno(lcm_); }
 
 }  // namespace depthfuse::lcmio

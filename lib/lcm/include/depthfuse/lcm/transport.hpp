@@ -11,11 +11,14 @@
 #include <string>
 #include <vector>
 
+#include "depthfuse/lcm/udpm.hpp"
 #include "depthfuse/status.hpp"
 
 typedef struct _lcm_t lcm_t;
 
 namespace depthfuse::lcmio {
+
+class UdpmSocket;
 
 // The parts of an LCM URL that matter for the diagnosis. Only udpm is inspected; other providers
 // (memq, file, tcpq) are passed to LCM unchanged.
@@ -50,6 +53,9 @@ struct LcmDiagnosis {
 };
 LcmDiagnosis diagnose_lcm_url(const LcmUrl& url);
 
+// Publishing goes through liblcm. Receiving on an udpm URL goes through depthfuse's own udpm
+// receiver (udpm.hpp says why), with every datagram checked before it is used; other providers
+// (memq, file) receive through liblcm.
 class LcmTransport {
  public:
   // channel, payload, size, receive time (microseconds, LCM's clock = wall clock)
@@ -80,7 +86,9 @@ class LcmTransport {
     return publish(channel, encode_buffer_.data(), encode_buffer_.size());
   }
 
-  // channel_regex as in lcm_subscribe ("DEPTHFUSE_.*"). Call before handle() runs.
+  // channel_regex as in lcm_subscribe ("DEPTHFUSE_.*": the whole channel name must match). Call
+  // before handle() runs. An invalid expression (a programming error: channels are constants) is
+  // logged and matches nothing.
   void subscribe(const std::string& channel_regex, Handler handler);
 
   // Waits up to timeout_ms for one message and dispatches it. Returns true when one was handled,
@@ -89,19 +97,29 @@ class LcmTransport {
   // Dispatches messages until `budget_ms` has passed.
   Status handle_for(int budget_ms);
 
-  int fileno() const;
-  lcm_t* raw() { return lcm_; }
+  // What the udpm receiver took in and dropped, by reason (all zero on other providers).
+  udpm::Counters receive_counters() const;
 
  private:
-  LcmTransport(lcm_t* lcm, std::string url) : lcm_(lcm), url_(std::move(url)) {}
+  struct Subscription;
+
+  LcmTransport(lcm_t* lcm, std::string url, std::unique_ptr<UdpmSocket> udpm);
   static void dispatch(const void* rbuf, const char* channel, void* user);
+  Result<bool> handle_udpm(int timeout_ms);
+  void dispatch_udpm(const udpm::Message& message, int64_t recv_utime);
 
   lcm_t* lcm_ = nullptr;
   std::string url_;
   std::mutex publish_mutex_;
   std::mutex encode_mutex_;
   std::vector<uint8_t> encode_buffer_;
-  std::vector<std::unique_ptr<Handler>> handlers_;
+  std::vector<std::unique_ptr<Subscription>> subscriptions_;
+
+  // The udpm receiver; null on other providers. Used by the thread that calls handle().
+  std::unique_ptr<UdpmSocket> udpm_;
+  udpm::Reassembler reassembler_;
+  mutable std::mutex counters_mutex_;  // guards counters_, a copy for other threads
+  udpm::Counters counters_;
 };
 
 }  // namespace depthfuse::lcmio
