@@ -11,6 +11,7 @@
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/store/scan_store.hpp"
+#include "store_test_util.hpp"
 #include "test_support.hpp"
 
 namespace depthfuse::testing {
@@ -37,14 +38,10 @@ class FusionPaging : public ::testing::Test {
   void SetUp() override {
     url_ = test_url();
     require_multicast_route(url_);
-    dir_ = temp_dir("fusion-paging");
-  }
-  void TearDown() override {
-    if (!HasFailure()) std::filesystem::remove_all(dir_);
   }
   void configure(DaemonRun* run, const std::string& name, double budget_mib) {
     run->name = name;
-    run->dir = dir_ + "/" + name;
+    run->dir = dir_.file(name);
     std::filesystem::create_directories(run->dir);
     run->config = run->dir + "/depthfuse.toml";
     run->db = run->dir + "/scan.db";
@@ -62,7 +59,8 @@ class FusionPaging : public ::testing::Test {
                                  std::to_string(kFrames + 50), "--autostart", "paging"},
         run->dir + "/fusion.log");
   }
-  std::string url_, dir_;
+  std::string url_;
+  store::test::TempDir dir_{"fusion-paging"};
 };
 
 std::string read_bytes(const std::string& path) {
@@ -112,7 +110,7 @@ TEST_F(FusionPaging, TinyBudgetEvictsReloadsAndGivesTheUnboundedCloud) {
       << bounded.process->log() << unbounded.process->log();
   Process capture({bin("depthfuse-capture"), "--source", kSource, "--lcm", url_, "--color", "none",
                    "--rate", "6"},
-                  dir_ + "/capture.log");
+                  dir_.file("capture.log"));
   ASSERT_TRUE(capture.wait(seconds(120))) << capture.log();
   ASSERT_EQ(capture.exit_code(), 0) << capture.log();
   // Both daemons work through their queues.
