@@ -21,7 +21,7 @@
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "kinect2_heartbeat.hpp"
-#include "test_support.hpp"
+#include "lcm_test_util.hpp"
 
 namespace depthfuse {
 namespace {

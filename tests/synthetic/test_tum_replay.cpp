@@ -7,7 +7,7 @@
 
 #include "depthfuse/replay/tum_source.hpp"
 #include "depthfuse/synthetic/tum_writer.hpp"
-#include "test_util.hpp"
+#include "synthetic_test_util.hpp"
 
 namespace depthfuse::synthetic {
 namespace {

@@ -8,7 +8,7 @@
 #include "depthfuse/command_t.hpp"
 #include "depthfuse/heartbeat_t.hpp"
 #include "depthfuse/lcm/codec.hpp"
-#include "test_support.hpp"
+#include "lcm_test_util.hpp"
 
 namespace depthfuse {
 namespace {

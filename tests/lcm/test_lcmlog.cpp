@@ -15,7 +15,7 @@
 #include "depthfuse/lcm/frame_codec.hpp"
 #include "depthfuse/lcmlog/lcmlog_source.hpp"
 #include "depthfuse/source_factory.hpp"
-#include "test_support.hpp"
+#include "lcm_test_util.hpp"
 
 namespace depthfuse {
 namespace {

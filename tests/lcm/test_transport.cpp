@@ -8,7 +8,7 @@
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/lcm/frame_codec.hpp"
-#include "test_support.hpp"
+#include "lcm_test_util.hpp"
 
 namespace depthfuse {
 namespace {

@@ -12,7 +12,7 @@
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/store/scan_store.hpp"
 #include "store_test_util.hpp"
-#include "test_support.hpp"
+#include "lcm_test_util.hpp"
 
 namespace depthfuse::testing {
 namespace {

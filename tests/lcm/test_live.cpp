@@ -31,7 +31,7 @@
 #include "depthfuse/status_t.hpp"
 #include "depthfuse/synthetic/synthetic_source.hpp"
 #include "depthfuse/trajectory.hpp"
-#include "test_support.hpp"
+#include "lcm_test_util.hpp"
 
 namespace depthfuse {
 namespace {
