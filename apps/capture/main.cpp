@@ -14,6 +14,7 @@
 #include <thread>
 
 #include "depthfuse/app_config.hpp"
+#include "depthfuse/base/clock.hpp"
 #include "depthfuse/command_t.hpp"
 #include "depthfuse/daemon/heartbeat.hpp"
 #include "depthfuse/daemon/rate_meter.hpp"
@@ -536,7 +537,7 @@ int main(int argc, char** argv) {
     }
     auto st = lcmio::encode_depth_frame(frame, depth_options, &depth_msg);
     if (st.is_ok()) {
-      depth_msg.publish_utime = dd::wall_utime();
+      depth_msg.publish_utime = depthfuse::now_utime();
       depth_msg.source = source_spec;
       st = lcm->publish_message(lcmio::kDepthChannel, depth_msg);
       bytes += depth_msg.getEncodedSize();

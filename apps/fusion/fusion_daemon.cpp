@@ -6,6 +6,7 @@
 #include <ctime>
 #include <filesystem>
 
+#include "depthfuse/base/clock.hpp"
 #include "depthfuse/color_frame_t.hpp"
 #include "depthfuse/daemon/process_info.hpp"
 #include "depthfuse/daemon/systemd_notify.hpp"
@@ -199,7 +200,7 @@ Status FusionDaemon::start_scan(const std::string& requested_name, std::string* 
   if (ec)
     return io_error("cannot create the scan directory '" + config_.fusion.scan_dir + "': " +
                     ec.message() + " (set fusion_daemon.scan_dir in the config)");
-  scan_ = ScanContext{name, config_.fusion.scan_dir, daemon::wall_utime(), &config_};
+  scan_ = ScanContext{name, config_.fusion.scan_dir, now_utime(), &config_};
   DF_RETURN_IF_ERROR(sink_->begin_scan(scan_).with_context("checkpoint store"));
   reconstructor_ = std::make_unique<IncrementalReconstructor>(config_.reconstruction);
   trajectory_.clear();
@@ -403,7 +404,7 @@ void FusionDaemon::fuse(QueuedFrame& item) {
   pose.prefilter_ms = static_cast<float>(rep.prefilter_ms);
   pose.registration_ms = static_cast<float>(rep.registration_ms);
   pose.fusion_ms = static_cast<float>(rep.fusion_ms);
-  pose.publish_utime = daemon::wall_utime();
+  pose.publish_utime = now_utime();
   if (auto st = lcm_->publish_message(lcmio::kPoseChannel, pose); !st.is_ok()) set_error(st.message());
 
   {

@@ -11,6 +11,7 @@
 #include <string>
 
 #include "depthfuse/app_config.hpp"
+#include "depthfuse/base/clock.hpp"
 #include "depthfuse/daemon/heartbeat.hpp"
 #include "depthfuse/daemon/signals.hpp"
 #include "depthfuse/daemon/systemd_notify.hpp"
@@ -142,7 +143,7 @@ int main(int argc, char** argv) {
     const auto now = Clock::now();
     depthfuse::status_t st;
     st.protocol_version = depthfuse::status_t::PROTOCOL_VERSION;
-    st.utime = dd::wall_utime();
+    st.utime = depthfuse::now_utime();
     st.monitor_host = dd::host_name();
     st.stale_after_s = stale_after_s;
     st.messages_malformed = counters.malformed.load();

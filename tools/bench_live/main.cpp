@@ -27,7 +27,7 @@
 #include <thread>
 #include <vector>
 
-#include "depthfuse/daemon/process_info.hpp"
+#include "depthfuse/base/clock.hpp"
 #include "depthfuse/depth_frame_t.hpp"
 #include "depthfuse/heartbeat_t.hpp"
 #include "depthfuse/lcm/channels.hpp"
@@ -254,7 +254,7 @@ int main(int argc, char** argv) {
   bool have_hb = false;
   int64_t poses = 0;
   lcm->subscribe(lcmio::kPoseChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
-    const int64_t now = depthfuse::daemon::wall_utime();
+    const int64_t now = depthfuse::now_utime();
     depthfuse::pose_t p;
     if (lcmio::decode_message(d, n, &p) != lcmio::DecodeResult::kOk) return;
     std::lock_guard<std::mutex> lock(m);
@@ -317,12 +317,12 @@ int main(int argc, char** argv) {
     const int idx = static_cast<int>(published % a.distinct_frames);
     auto& dm = depth_msgs[idx];
     dm.sequence = published;
-    dm.utime = depthfuse::daemon::wall_utime();
+    dm.utime = depthfuse::now_utime();
     if (a.color && !color_msgs[idx].data.empty()) {
       color_msgs[idx].sequence = published;
       (void)lcm->publish_message(lcmio::kColorChannel, color_msgs[idx]);
     }
-    dm.publish_utime = depthfuse::daemon::wall_utime();
+    dm.publish_utime = depthfuse::now_utime();
     {
       std::lock_guard<std::mutex> lock(m);
       publish_utime_by_seq[published] = dm.publish_utime;

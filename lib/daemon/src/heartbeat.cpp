@@ -1,11 +1,13 @@
 #include "depthfuse/daemon/heartbeat.hpp"
 
+#include "depthfuse/base/clock.hpp"
+
 namespace depthfuse::daemon {
 
 depthfuse::heartbeat_t HeartbeatBase::make(int8_t state) const {
   depthfuse::heartbeat_t hb{};
   hb.protocol_version = depthfuse::heartbeat_t::PROTOCOL_VERSION;
-  hb.utime = wall_utime();
+  hb.utime = now_utime();
   hb.name = name_;
   hb.host = host_;
   hb.pid = process_id();
