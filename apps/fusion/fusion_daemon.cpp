@@ -2,11 +2,11 @@
 
 #include <algorithm>
 #include <cctype>
-#include <cstdio>
 #include <ctime>
 #include <filesystem>
 
 #include "depthfuse/base/clock.hpp"
+#include "depthfuse/base/log.hpp"
 #include "depthfuse/color_frame_t.hpp"
 #include "depthfuse/daemon/process_info.hpp"
 #include "depthfuse/daemon/systemd_notify.hpp"
@@ -16,6 +16,8 @@
 #include "depthfuse/ply.hpp"
 #include "depthfuse/pose_t.hpp"
 #include "depthfuse/trajectory.hpp"
+
+DF_LOG_CATEGORY(Fusion)
 
 namespace depthfuse::fusiond {
 
@@ -34,10 +36,6 @@ void ewma(double* mean, double value) { *mean += kMeanWeight * (value - *mean); 
 
 // Saving a very large scan may take a while; a frame takes well under a second.
 constexpr double kStuckWorkerS = 60.0;
-
-int64_t steady_ns() {
-  return std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now().time_since_epoch()).count();
-}
 
 std::string generated_scan_name() {
   const std::time_t t = std::time(nullptr);
@@ -222,7 +220,7 @@ Status FusionDaemon::start_scan(const std::string& requested_name, std::string* 
   *message = "scan " + name + (reconstructor_->next_frame_id() > 1
                                    ? " resumed at frame " + std::to_string(reconstructor_->next_frame_id())
                                    : std::string(" started"));
-  std::fprintf(stderr, "depthfuse-fusion: %s\n", message->c_str());
+  DF_LOG(Fusion, Info) << *message;
   return Status::ok();
 }
 
@@ -291,7 +289,7 @@ Status FusionDaemon::stop_scan(const std::string& reason, std::string* message) 
     *message += "; checkpoint store: " + sink_status.to_string();
     set_error(sink_status.to_string());
   }
-  std::fprintf(stderr, "depthfuse-fusion: %s\n", message->c_str());
+  DF_LOG(Fusion, Info) << *message;
   return Status::ok();
 }
 
@@ -354,8 +352,8 @@ void FusionDaemon::execute(const command_t& cmd) {
     default:
       st = invalid_argument("unknown action " + std::to_string(cmd.action));
   }
-  std::fprintf(stderr, "depthfuse-fusion: command %s from %s: %s\n", action_name(cmd.action),
-               cmd.sender.c_str(), st.is_ok() ? message.c_str() : st.to_string().c_str());
+  DF_LOG(Fusion, Info) << "command " << action_name(cmd.action) << " from " << cmd.sender << ": "
+                       << (st.is_ok() ? message : st.to_string());
   {
     std::lock_guard<std::mutex> lock(mutex_);
     ack_.id = cmd.command_id;
@@ -462,12 +460,12 @@ void FusionDaemon::worker_loop() {
   if (reconstructor_) {
     std::string message;
     if (auto st = stop_scan("sigterm", &message); !st.is_ok()) {
-      std::fprintf(stderr, "depthfuse-fusion: %s\n", st.to_string().c_str());
+      DF_LOG(Fusion, Error) << st.to_string();
       scan_.scan_dir = (std::filesystem::temp_directory_path() / "depthfuse-rescue").string();
-      std::fprintf(stderr, "depthfuse-fusion: saving scan %s to %s instead\n", scan_.scan_id.c_str(),
-                   scan_.scan_dir.c_str());
+      DF_LOG(Fusion, Info) << "saving scan " << scan_.scan_id << " to " << scan_.scan_dir
+                           << " instead";
       if (auto again = stop_scan("sigterm", &message); !again.is_ok()) {
-        std::fprintf(stderr, "depthfuse-fusion: %s\n", again.to_string().c_str());
+        DF_LOG(Fusion, Error) << again.to_string();
         set_error(again.to_string());
       }
     }
@@ -545,7 +543,7 @@ int FusionDaemon::run(const std::function<bool()>& stop_requested) {
     auto r = lcm_->handle(20);
     if (!r && !stop_requested()) {
       set_error(r.status().to_string());
-      std::fprintf(stderr, "depthfuse-fusion: %s\n", r.status().to_string().c_str());
+      DF_LOG(Fusion, Error) << r.status().to_string();
       exit_code = 1;
       break;
     }

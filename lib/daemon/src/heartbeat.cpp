@@ -33,6 +33,19 @@ double counter_value(const depthfuse::heartbeat_t& hb, const std::string& key, d
   return fallback;
 }
 
+void add_device_status(const DeviceStatus& device, depthfuse::heartbeat_t* hb) {
+  using depthfuse::heartbeat_t;
+  if (hb->state == heartbeat_t::STATE_RUNNING || hb->state == heartbeat_t::STATE_IDLE) {
+    switch (device.reading) {
+      case DeviceStatus::Reading::kStreaming: hb->state = heartbeat_t::STATE_RUNNING; break;
+      case DeviceStatus::Reading::kWaiting: hb->state = heartbeat_t::STATE_IDLE; break;
+      case DeviceStatus::Reading::kFailing: hb->state = heartbeat_t::STATE_ERROR; break;
+    }
+    if (device.reading != DeviceStatus::Reading::kStreaming) hb->last_error = device.summary;
+  }
+  for (const auto& [key, value] : device.counters) add_counter(hb, key, value);
+}
+
 const char* state_name(int8_t state) {
   switch (state) {
     case depthfuse::heartbeat_t::STATE_STARTING: return "starting";

@@ -65,7 +65,7 @@ Startup::Startup(Program program, int argc, char** argv)
     return;
   }
   config_ = std::move(loaded).value();
-  if (args_.has("lcm")) config_.lcm.url = args_.get("lcm");
+  if (!args_.get("lcm").empty()) config_.lcm.url = args_.get("lcm");
 }
 
 int Startup::usage_error(const std::string& problem) const {

@@ -41,8 +41,8 @@ Result<AppConfig> load_config(const Args& args);
 
 class Startup {
  public:
-  // Names the log, parses argv[1..], applies --log-level and loads the config. --lcm, when given,
-  // replaces the config's lcm.url.
+  // Names the log, parses argv[1..], applies --log-level and loads the config. --lcm, when given
+  // (and not empty), replaces the config's lcm.url.
   Startup(Program program, int argc, char** argv);
 
   // Set when the program ends here: 0 after --help (the usage on stdout), 2 after a bad argument
