@@ -9,10 +9,10 @@ DF_LOG_CATEGORY(Cli)
 
 namespace depthfuse::cli {
 
-std::optional<AppConfig> load_config_or_report(const Args& args, const char* command) {
+std::optional<AppConfig> load_config_or_report(const Args& args) {
   auto c = daemon::load_config(args);
   if (!c) {
-    fail(command, c.status().message());
+    fail(c.status().message());
     return std::nullopt;
   }
   return *c;
@@ -57,7 +57,7 @@ std::string describe_iteration(const BatchIterationReport& it, size_t frames) {
   return line;
 }
 
-int fail(const char* /*command*/, const std::string& message) {
+int fail(const std::string& message) {
   DF_LOG(Cli, Error) << message;
   return 1;
 }

@@ -15,7 +15,7 @@ namespace depthfuse::cli {
 using Args = daemon::Args;
 
 // Loads --config if given (else defaults); prints the error and returns nullopt on failure.
-std::optional<AppConfig> load_config_or_report(const Args& args, const char* command);
+std::optional<AppConfig> load_config_or_report(const Args& args);
 
 // A bar on a terminal, a plain line every 10 % otherwise (logs, CI).
 class Progress {
@@ -35,8 +35,8 @@ class Progress {
 // the first fusion, without registration.
 std::string describe_iteration(const BatchIterationReport& it, size_t frames);
 
-// Logs `message` as an error ("depthfuse <command>: ..."; main() names the log after the command)
+// Logs `message` as an error ("depthfuse <command>: ...": main() names the log after the command)
 // and returns exit code 1.
-int fail(const char* command, const std::string& message);
+int fail(const std::string& message);
 
 }  // namespace depthfuse::cli
