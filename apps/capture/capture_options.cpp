@@ -1,3 +1,4 @@
+// The capture daemon's command line (see capture_options.hpp), read once by main().
 #include "capture_options.hpp"
 
 namespace depthfuse::capture {

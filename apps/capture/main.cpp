@@ -13,19 +13,20 @@ namespace {
 
 constexpr const char* kUsage =
     "usage: depthfuse-capture [--source SPEC] [--rate HZ|max|recorded] [--loop] [--lcm URL]\n"
-    "                         [--config FILE] [--name NAME] [--color zstd|raw|jpeg|none]\n"
-    "                         [--depth-encoding zstd|raw] [--depth-unit M] [--linger]\n"
-    "  --source SPEC   tum:<folder> | synthetic:<corner|room>[?frames=N&...] | kinect2[:serial]\n"
-    "                  | lcmlog:<file>   (default: the config's capture.source)\n"
-    "  --rate          frames per second; 'max' as fast as possible; 'recorded' the pace of the\n"
-    "                  frame timestamps (default for lcmlog). Default: the source's own rate,\n"
-    "                  else the config's capture.rate_hz\n"
-    "  --loop          rewind a finite source at its end\n"
-    "  --lcm URL       LCM URL (default: the config's lcm.url)\n"
-    "  --name NAME     heartbeat name and command target (default: capture)\n"
-    "  --depth-unit M  metres per depth count on the wire (default 0.001; 0.0002 keeps TUM's\n"
-    "                  1/5000 m exactly)\n"
-    "  --linger        keep running (heartbeat state 'finished') when a finite source ends\n";
+    R"(                         [--config FILE] [--name NAME] [--color zstd|raw|jpeg|none]
+                         [--depth-encoding zstd|raw] [--depth-unit M] [--linger]
+  --source SPEC   tum:<folder> | synthetic:<corner|room>[?frames=N&...] | kinect2[:serial]
+                  | lcmlog:<file>   (default: the config's capture.source)
+  --rate          frames per second; 'max' as fast as possible; 'recorded' the pace of the
+                  frame timestamps (default for lcmlog). Default: the source's own rate,
+                  else the config's capture.rate_hz
+  --loop          rewind a finite source at its end
+  --lcm URL       LCM URL (default: the config's lcm.url)
+  --name NAME     heartbeat name and command target (default: capture)
+  --depth-unit M  metres per depth count on the wire (default 0.001; 0.0002 keeps TUM's
+                  1/5000 m exactly)
+  --linger        keep running (heartbeat state 'finished') when a finite source ends
+)";
 
 }  // namespace
 

@@ -1,3 +1,6 @@
+// The fusion daemon (see fusion_daemon.hpp): run() and the LCM handlers are the receive thread;
+// worker_loop() and what it calls (execute, start_scan, stop_scan, fuse) the worker thread. Either
+// publishes the heartbeat: what it reads is atomic or under mutex_.
 #include "fusion_daemon.hpp"
 
 #include <algorithm>

@@ -1,3 +1,6 @@
+// The SQLite checkpoint sink (see sqlite_checkpoint_sink.hpp). Owned by the fusion daemon and
+// called from its worker thread, but for describe() once at start-up; the heartbeat reads a copy
+// of its counters.
 #include "sqlite_checkpoint_sink.hpp"
 
 #include <filesystem>

@@ -1,3 +1,5 @@
+// The command line as every program parses it (see args.hpp). Runs once, on the main thread, at
+// start-up.
 #include "depthfuse/daemon/args.hpp"
 
 #include <algorithm>

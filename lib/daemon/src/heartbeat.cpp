@@ -1,3 +1,5 @@
+// The heartbeat's common fields (see heartbeat.hpp). No state but the daemon's name, host and
+// start time; called from whichever thread publishes a heartbeat.
 #include "depthfuse/daemon/heartbeat.hpp"
 
 #include "depthfuse/base/clock.hpp"

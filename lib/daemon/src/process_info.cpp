@@ -1,3 +1,4 @@
+// Facts about this process (see process_info.hpp), read when asked, from any thread.
 #include "depthfuse/daemon/process_info.hpp"
 
 #include <unistd.h>
