@@ -44,10 +44,14 @@ CaptureDaemon::CaptureDaemon(const AppConfig& config, CaptureOptions options,
 }
 
 CaptureDaemon::~CaptureDaemon() {
-  if (service_.joinable()) service_.join();
+  if (service_.joinable()) {  // run() left by an exception
+    shutdown_->request_stop();
+    service_.join();
+  }
 }
 
 int CaptureDaemon::run(daemon::ShutdownSignal& shutdown) {
+  shutdown_ = &shutdown;
   service_ = std::thread([this, &shutdown] { service_loop(shutdown); });
   int exit_code = 0;
   auto source = open_source(shutdown, &exit_code);

@@ -55,6 +55,7 @@ class CaptureDaemon {
   CaptureOptions options_;
   std::unique_ptr<lcmio::LcmTransport> lcm_;
   daemon::HeartbeatBase hb_base_;
+  daemon::ShutdownSignal* shutdown_ = nullptr;  // run()'s
   std::thread service_;
 
   // Shared.
