@@ -14,14 +14,21 @@
 #endif
 
 namespace depthfuse {
+namespace {
+
+// "kind:argument" → {kind, argument}.
+std::pair<std::string, std::string> split_spec(const std::string& spec) {
+  const auto colon = spec.find(':');
+  return {spec.substr(0, colon), colon == std::string::npos ? std::string() : spec.substr(colon + 1)};
+}
+
+}  // namespace
 
 // Each driver exports open_<driver>_source(argument, config) from its public header; this file
 // only splits the spec and dispatches.
 Result<std::unique_ptr<FrameSource>> open_frame_source(const std::string& spec,
                                                        const AppConfig& config) {
-  const auto colon = spec.find(':');
-  const std::string kind = spec.substr(0, colon);
-  const std::string arg = colon == std::string::npos ? std::string() : spec.substr(colon + 1);
+  const auto [kind, arg] = split_spec(spec);
   (void)config;
   (void)arg;
 
@@ -59,6 +66,20 @@ Result<std::unique_ptr<FrameSource>> open_frame_source(const std::string& spec,
   return invalid_argument("unknown frame source '" + spec +
                           "': expected tum:<folder>, synthetic:<corner|room|rooms>, "
                           "kinect2[:serial] or lcmlog:<file>");
+}
+
+std::optional<DeviceStatus> device_status_before_open(const std::string& spec,
+                                                      const AppConfig& config,
+                                                      const std::string& detail) {
+  const auto [kind, arg] = split_spec(spec);
+#if DEPTHFUSE_HAVE_KINECT2
+  if (kind == "kinect2") return kinect2_status_before_open(arg, config, detail);
+#endif
+  (void)kind;
+  (void)arg;
+  (void)config;
+  (void)detail;
+  return std::nullopt;
 }
 
 }  // namespace depthfuse

@@ -5,8 +5,8 @@
 
 #include <cerrno>
 #include <cstdio>
-#include <cstring>
 
+#include "depthfuse/base/errno_text.hpp"
 #include "depthfuse/color_frame_t.hpp"
 #include "depthfuse/depth_frame_t.hpp"
 #include "depthfuse/lcm/codec.hpp"
@@ -73,10 +73,10 @@ Result<std::unique_ptr<LcmLogSource>> LcmLogSource::open(const std::string& path
                                                         const Options& options) {
   struct stat st {};
   if (::stat(path.c_str(), &st) != 0)
-    return not_found("LCM log '" + path + "': " + std::strerror(errno));
+    return not_found("LCM log '" + path + "': " + errno_text());
   if (!S_ISREG(st.st_mode)) return invalid_argument("LCM log '" + path + "' is not a file");
   lcm_eventlog_t* log = lcm_eventlog_create(path.c_str(), "r");
-  if (!log) return io_error("cannot open LCM log '" + path + "': " + std::strerror(errno));
+  if (!log) return io_error("cannot open LCM log '" + path + "': " + errno_text());
   std::unique_ptr<LcmLogSource> src(new LcmLogSource());
   src->path_ = path;
   src->options_ = options;

@@ -18,9 +18,9 @@
 
 #include "depthfuse/daemon/heartbeat.hpp"
 #include "depthfuse/heartbeat_t.hpp"
+#include "depthfuse/kinect2/kinect2_source.hpp"
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/codec.hpp"
-#include "kinect2_heartbeat.hpp"
 #include "lcm_test_util.hpp"
 
 namespace depthfuse {
@@ -66,7 +66,7 @@ TEST(Kinect2CaptureHeartbeat, DeviceStateSetsTheStateOfAReadingDaemon) {
     for (const int8_t reading : {heartbeat_t::STATE_RUNNING, heartbeat_t::STATE_IDLE}) {
       heartbeat_t hb = heartbeat_in(reading);
       const Kinect2Status status = status_in(c.kinect);
-      capture::annotate_heartbeat(status, &hb);
+      dd::add_device_status(to_device_status(status), &hb);
       EXPECT_EQ(hb.state, c.expected);
       EXPECT_EQ(dd::counter_value(hb, "kinect2_state", -1), static_cast<int>(c.kinect));
       EXPECT_EQ(dd::counter_value(hb, c.key, 0), 1.0);
@@ -93,7 +93,7 @@ TEST(Kinect2CaptureHeartbeat, PausedStoppingAndStuckDaemonsKeepTheirState) {
   for (const int8_t state : {heartbeat_t::STATE_PAUSED, heartbeat_t::STATE_STOPPING,
                              heartbeat_t::STATE_ERROR, heartbeat_t::STATE_STARTING}) {
     heartbeat_t hb = heartbeat_in(state);
-    capture::annotate_heartbeat(status_in(Kinect2State::kWaitingForDevice), &hb);
+    dd::add_device_status(to_device_status(status_in(Kinect2State::kWaitingForDevice)), &hb);
     EXPECT_EQ(hb.state, state);
     EXPECT_EQ(hb.last_error, "earlier error");
     EXPECT_EQ(dd::counter_value(hb, "kinect2_state", -1), 0);  // the device state is still there

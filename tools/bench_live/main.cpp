@@ -27,7 +27,9 @@
 #include <thread>
 #include <vector>
 
-#include "depthfuse/daemon/process_info.hpp"
+#include "depthfuse/base/clock.hpp"
+#include "depthfuse/base/log.hpp"
+#include "depthfuse/daemon/startup.hpp"
 #include "depthfuse/depth_frame_t.hpp"
 #include "depthfuse/heartbeat_t.hpp"
 #include "depthfuse/lcm/channels.hpp"
@@ -36,6 +38,8 @@
 #include "depthfuse/lcm/transport.hpp"
 #include "depthfuse/pose_t.hpp"
 #include "depthfuse/synthetic/synthetic_source.hpp"
+
+DF_LOG_CATEGORY(BenchLive)
 
 namespace {
 
@@ -56,17 +60,15 @@ struct Args {
   double hint_noise_m = 0.0;  // hints perturbed by N(0, this) per axis, as a front end's would be
 };
 
-void usage() {
-  std::printf(
-      "usage: bench_live [--duration S] [--rate HZ] [--scene corner|room] [--frames N] [--queue N]\n"
-      "                  [--config FILE] [--lcm URL] [--fusion PATH] [--no-color]\n"
-      "                  [--no-hint | --hint-noise-m X]\n"
-      "  --frames N   distinct frames rendered up front; the trajectory loops over them (default 300)\n"
-      "  --lcm URL    default: a private loopback port, so a running appliance is not disturbed\n"
-      "  --no-hint    frames without a pose hint, as from a Kinect: the daemon tracks each frame\n"
-      "               from the last refined pose (coarse to fine)\n"
-      "  --hint-noise-m X  hints off the true pose by N(0, X) m per axis (default 0: exact)\n");
-}
+constexpr const char* kUsage =
+    "usage: bench_live [--duration S] [--rate HZ] [--scene corner|room] [--frames N] [--queue N]\n"
+    "                  [--config FILE] [--lcm URL] [--fusion PATH] [--no-color]\n"
+    "                  [--no-hint | --hint-noise-m X]\n"
+    "  --frames N   distinct frames rendered up front; the trajectory loops over them (default 300)\n"
+    "  --lcm URL    default: a private loopback port, so a running appliance is not disturbed\n"
+    "  --no-hint    frames without a pose hint, as from a Kinect: the daemon tracks each frame\n"
+    "               from the last refined pose (coarse to fine)\n"
+    "  --hint-noise-m X  hints off the true pose by N(0, X) m per axis (default 0: exact)\n";
 
 double percentile(std::vector<double> v, double p) {
   if (v.empty()) return std::nan("");
@@ -96,53 +98,46 @@ double cpu_seconds(pid_t pid) {
   return static_cast<double>(utime + stime) / static_cast<double>(::sysconf(_SC_CLK_TCK));
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
+int run(int argc, char** argv) {
+  namespace dd = depthfuse::daemon;
+  dd::Startup startup({"bench_live", kUsage,
+                       {"duration", "rate", "scene", "frames", "queue", "fusion", "hint-noise-m"},
+                       {"no-color", "no-hint"}, {}, 0},
+                      argc, argv);
+  if (auto code = startup.exit_code()) return *code;
+  const dd::Args& args = startup.args();
   Args a;
-  for (int i = 1; i < argc; ++i) {
-    const std::string k = argv[i];
-    auto next = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        usage();
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    if (k == "--duration") a.duration_s = std::atof(next().c_str());
-    else if (k == "--rate") a.rate_hz = std::atof(next().c_str());
-    else if (k == "--scene") a.scene = next();
-    else if (k == "--frames") a.distinct_frames = std::atoi(next().c_str());
-    else if (k == "--queue") a.queue = std::atoi(next().c_str());
-    else if (k == "--config") a.config = next();
-    else if (k == "--lcm") a.lcm_url = next();
-    else if (k == "--fusion") a.fusion = next();
-    else if (k == "--no-color") a.color = false;
-    else if (k == "--no-hint") a.hint = false;
-    else if (k == "--hint-noise-m") a.hint_noise_m = std::atof(next().c_str());
-    else {
-      usage();
-      return k == "--help" || k == "-h" ? 0 : 2;
-    }
-  }
-  if (!(a.duration_s > 0) || !(a.rate_hz > 0) || a.distinct_frames < 2 || a.queue < 1 ||
-      !(a.hint_noise_m >= 0)) {
-    usage();
-    return 2;
-  }
-  if (a.lcm_url.empty()) a.lcm_url = lcmio::loopback_test_url(static_cast<int>(::getpid()));
+  long frames = a.distinct_frames, queue = a.queue;
+  std::string error;
+  if (!args.get_double("duration", &a.duration_s, &error, dd::positive()) ||
+      !args.get_double("rate", &a.rate_hz, &error, dd::positive()) ||
+      !args.get_int("frames", &frames, &error, dd::NumberRange{2}) ||
+      !args.get_int("queue", &queue, &error, dd::NumberRange{1}) ||
+      !args.get_double("hint-noise-m", &a.hint_noise_m, &error, dd::NumberRange{0}))
+    return startup.usage_error(error);
+  a.distinct_frames = static_cast<int>(frames);
+  a.queue = static_cast<int>(queue);
+  a.scene = args.get("scene", a.scene);
+  a.config = args.get("config");
+  a.fusion = args.get("fusion", a.fusion);
+  a.color = !args.has("no-color");
+  a.hint = !args.has("no-hint");
+  // By default a private loopback port, so that a running appliance is not disturbed.
+  if (args.get("lcm").empty())
+    startup.config().lcm.url = lcmio::loopback_test_url(static_cast<int>(::getpid()));
+  a.lcm_url = startup.config().lcm.url;
 
   auto spec = depthfuse::synthetic::parse_synthetic_spec(
       a.scene + "?frames=" + std::to_string(a.distinct_frames) + "&seed=1&rate_hz=" +
       std::to_string(a.rate_hz) + "&pose_noise_m=" + std::to_string(a.hint_noise_m) +
       "&pose_noise_deg=0");
   if (!spec) {
-    std::fprintf(stderr, "bench_live: %s\n", spec.status().to_string().c_str());
+    DF_LOG(BenchLive, Error) << spec.status().to_string();
     return 2;
   }
   auto seq = depthfuse::synthetic::SyntheticSequence::create(*spec);
   if (!seq) {
-    std::fprintf(stderr, "bench_live: %s\n", seq.status().to_string().c_str());
+    DF_LOG(BenchLive, Error) << seq.status().to_string();
     return 2;
   }
 
@@ -216,12 +211,8 @@ int main(int argc, char** argv) {
   std::fflush(stdout);
 
   // ---------------------------------------------------------------- 2. the live daemon
-  auto opened = lcmio::LcmTransport::open(a.lcm_url);
-  if (!opened) {
-    std::fprintf(stderr, "bench_live: %s\n", opened.status().to_string().c_str());
-    return 1;
-  }
-  auto lcm = std::move(opened).value();
+  auto lcm = startup.open_lcm();
+  if (!lcm) return 1;
   const std::string scan_dir =
       (std::filesystem::temp_directory_path() / ("bench_live-" + std::to_string(::getpid()))).string();
 
@@ -254,7 +245,7 @@ int main(int argc, char** argv) {
   bool have_hb = false;
   int64_t poses = 0;
   lcm->subscribe(lcmio::kPoseChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
-    const int64_t now = depthfuse::daemon::wall_utime();
+    const int64_t now = depthfuse::now_utime();
     depthfuse::pose_t p;
     if (lcmio::decode_message(d, n, &p) != lcmio::DecodeResult::kOk) return;
     std::lock_guard<std::mutex> lock(m);
@@ -291,8 +282,7 @@ int main(int argc, char** argv) {
       if (have_hb && last_hb.scan_id == "bench") break;
     }
     if (Clock::now() > wait_until) {
-      std::fprintf(stderr, "bench_live: depthfuse-fusion did not start a scan; its log: %s\n",
-                   fusion_log.c_str());
+      DF_LOG(BenchLive, Error) << "depthfuse-fusion did not start a scan; its log: " << fusion_log;
       ::kill(fusion_pid, SIGKILL);
       stop = true;
       receiver.join();
@@ -317,12 +307,12 @@ int main(int argc, char** argv) {
     const int idx = static_cast<int>(published % a.distinct_frames);
     auto& dm = depth_msgs[idx];
     dm.sequence = published;
-    dm.utime = depthfuse::daemon::wall_utime();
+    dm.utime = depthfuse::now_utime();
     if (a.color && !color_msgs[idx].data.empty()) {
       color_msgs[idx].sequence = published;
       (void)lcm->publish_message(lcmio::kColorChannel, color_msgs[idx]);
     }
-    dm.publish_utime = depthfuse::daemon::wall_utime();
+    dm.publish_utime = depthfuse::now_utime();
     {
       std::lock_guard<std::mutex> lock(m);
       publish_utime_by_seq[published] = dm.publish_utime;
@@ -364,4 +354,10 @@ int main(int argc, char** argv) {
               (cpu1 - cpu0) / elapsed_s, last_hb.rss_bytes / 1048576.0,
               static_cast<long long>(last_hb.point_count));
   return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  return depthfuse::daemon::run_main([&] { return run(argc, argv); });
 }

@@ -45,6 +45,9 @@ class LcmLogSource : public FrameSource {
     next_ = 0;
     return Status::ok();
   }
+  // A log replays at the pace lcm-logger received its frames (last_log_utime()).
+  int64_t recorded_utime(const Frame&) const override { return last_log_utime(); }
+  bool paced_as_recorded() const override { return true; }
 
   const LcmLogStats& stats() const { return stats_; }
   // Frame i without advancing.
