@@ -34,7 +34,7 @@ Result<std::unique_ptr<FrameSource>> open_frame_source(const std::string& spec,
 
   if (kind == "tum") {
 #if DEPTHFUSE_HAVE_REPLAY
-    return open_tum_source(arg, config);
+    return replay::open_tum_source(arg, config);
 #else
     return unsupported("the replay driver is not built in");
 #endif
@@ -48,7 +48,7 @@ Result<std::unique_ptr<FrameSource>> open_frame_source(const std::string& spec,
   }
   if (kind == "kinect2") {
 #if DEPTHFUSE_HAVE_KINECT2
-    return open_kinect2_source(arg, config);
+    return kinect2::open_kinect2_source(arg, config);
 #else
     return unsupported(
         "the kinect2 source is not built in: libfreenect2 was not found when depthfuse was built. "
@@ -58,7 +58,7 @@ Result<std::unique_ptr<FrameSource>> open_frame_source(const std::string& spec,
   }
   if (kind == "lcmlog") {
 #if DEPTHFUSE_HAVE_LCMLOG
-    return open_lcmlog_source(arg, config);
+    return lcmlog::open_lcmlog_source(arg, config);
 #else
     return unsupported("the lcmlog driver is not built in");
 #endif
@@ -73,7 +73,7 @@ std::optional<DeviceStatus> device_status_before_open(const std::string& spec,
                                                       const std::string& detail) {
   const auto [kind, arg] = split_spec(spec);
 #if DEPTHFUSE_HAVE_KINECT2
-  if (kind == "kinect2") return kinect2_status_before_open(arg, config, detail);
+  if (kind == "kinect2") return kinect2::kinect2_status_before_open(arg, config, detail);
 #endif
   (void)kind;
   (void)arg;

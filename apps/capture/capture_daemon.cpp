@@ -31,7 +31,7 @@ constexpr double kOpenRetryS = 2.0;
 }  // namespace
 
 CaptureDaemon::CaptureDaemon(const AppConfig& config, CaptureOptions options,
-                             std::unique_ptr<lcmio::LcmTransport> lcm)
+                             std::unique_ptr<lcm::LcmTransport> lcm)
     : config_(config),
       options_(std::move(options)),
       lcm_(std::move(lcm)),
@@ -39,7 +39,7 @@ CaptureDaemon::CaptureDaemon(const AppConfig& config, CaptureOptions options,
       state_(heartbeat_t::STATE_STARTING),
       last_command_result_(heartbeat_t::COMMAND_RESULT_NONE),
       device_before_open_(device_status_before_open(options_.source_spec, config_, "")) {
-  lcm_->subscribe(lcmio::kCommandChannel, [this](const std::string&, const uint8_t* data,
+  lcm_->subscribe(lcm::kCommandChannel, [this](const std::string&, const uint8_t* data,
                                                  size_t size, int64_t) { on_command(data, size); });
 }
 
@@ -184,18 +184,18 @@ void CaptureDaemon::publish(Frame& frame) {
   int64_t bytes = 0;
   if (options_.send_color && !frame.color.empty()) {
     // Colour first: the fusion daemon pairs it with the depth frame that follows.
-    auto st = lcmio::encode_color_frame(frame, options_.color, &color_msg_);
+    auto st = lcm::encode_color_frame(frame, options_.color, &color_msg_);
     if (st.is_ok()) {
-      st = lcm_->publish_message(lcmio::kColorChannel, color_msg_);
+      st = lcm_->publish_message(lcm::kColorChannel, color_msg_);
       bytes += color_msg_.getEncodedSize();
     }
     if (!st.is_ok()) set_error("colour: " + st.to_string());
   }
-  auto st = lcmio::encode_depth_frame(frame, options_.depth, &depth_msg_);
+  auto st = lcm::encode_depth_frame(frame, options_.depth, &depth_msg_);
   if (st.is_ok()) {
     depth_msg_.publish_utime = now_utime();
     depth_msg_.source = options_.source_spec;
-    st = lcm_->publish_message(lcmio::kDepthChannel, depth_msg_);
+    st = lcm_->publish_message(lcm::kDepthChannel, depth_msg_);
     bytes += depth_msg_.getEncodedSize();
   }
   if (!st.is_ok()) {
@@ -235,9 +235,9 @@ void CaptureDaemon::service_loop(const daemon::ShutdownSignal& shutdown) {
 
 void CaptureDaemon::on_command(const uint8_t* data, size_t size) {
   command_t cmd;
-  const auto r = lcmio::decode_message(data, size, &cmd);
+  const auto r = lcm::decode_message(data, size, &cmd);
   command_counters_.count(r);
-  if (r != lcmio::DecodeResult::kOk) return;
+  if (r != lcm::DecodeResult::kOk) return;
   if (!cmd.target.empty() && cmd.target != options_.name) return;
   std::string message;
   int8_t result = heartbeat_t::COMMAND_RESULT_OK;
@@ -291,7 +291,7 @@ heartbeat_t CaptureDaemon::publish_heartbeat() {
   daemon::add_counter(&hb, "encode_publish_ms_mean", encode_us_.load() * 1e-3 / out);
   if (const FrameSource* source = source_.load()) device = source->device_status();  // not under mutex_
   if (device) daemon::add_device_status(*device, &hb);
-  (void)lcm_->publish_message(lcmio::kHeartbeatChannel, hb);
+  (void)lcm_->publish_message(lcm::kHeartbeatChannel, hb);
   return hb;
 }
 

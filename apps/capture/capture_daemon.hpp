@@ -31,7 +31,7 @@ namespace depthfuse::capture {
 class CaptureDaemon {
  public:
   CaptureDaemon(const AppConfig& config, CaptureOptions options,
-                std::unique_ptr<lcmio::LcmTransport> lcm);
+                std::unique_ptr<lcm::LcmTransport> lcm);
   ~CaptureDaemon();
 
   // Runs until `shutdown` is requested or the source is done; the exit code: 0, or 1 when the
@@ -53,7 +53,7 @@ class CaptureDaemon {
 
   AppConfig config_;
   CaptureOptions options_;
-  std::unique_ptr<lcmio::LcmTransport> lcm_;
+  std::unique_ptr<lcm::LcmTransport> lcm_;
   daemon::HeartbeatBase hb_base_;
   daemon::ShutdownSignal* shutdown_ = nullptr;  // run()'s
   std::thread service_;
@@ -69,7 +69,7 @@ class CaptureDaemon {
   std::atomic<int64_t> in_source_since_ns_{0};
   // The source once open, for its device status; it outlives the service thread.
   std::atomic<const FrameSource*> source_{nullptr};
-  lcmio::ReceiveCounters command_counters_;
+  lcm::ReceiveCounters command_counters_;
   daemon::RateMeter read_rate_, publish_rate_;
   std::mutex mutex_;  // guards the fields below
   std::string last_error_;

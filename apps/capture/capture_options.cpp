@@ -25,8 +25,8 @@ Result<CaptureOptions> capture_options(const daemon::Args& args, const AppConfig
     return invalid_argument(error + " (metres per count)");
 
   const std::string color = args.get("color", "zstd");
-  if (color == "raw") o.color.encoding = lcmio::ColorEncoding::kRaw;
-  else if (color == "jpeg") o.color.encoding = lcmio::ColorEncoding::kJpeg;
+  if (color == "raw") o.color.encoding = lcm::ColorEncoding::kRaw;
+  else if (color == "jpeg") o.color.encoding = lcm::ColorEncoding::kJpeg;
   else if (color == "none") o.send_color = false;
   else if (color != "zstd") return invalid_argument("--color must be zstd, raw, jpeg or none");
 

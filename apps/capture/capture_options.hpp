@@ -19,8 +19,8 @@ struct CaptureOptions {
   bool loop = false;             // rewind a finite source at its end
   bool linger = false;           // keep running (state finished) when a finite source ends
   bool send_color = true;
-  lcmio::ColorEncodeOptions color;
-  lcmio::DepthEncodeOptions depth;
+  lcm::ColorEncodeOptions color;
+  lcm::DepthEncodeOptions depth;
 };
 
 // The options that take a value and the flags capture_options() reads.

@@ -60,9 +60,9 @@ int run(int argc, char** argv) {
 
   auto cloud = read_ply(cloud_path);
   if (!cloud) return cli::fail(cloud.status().message());
-  TumReplayConfig rc;
+  replay::TumReplayConfig rc;
   rc.load_color = false;
-  auto source = TumSource::open(folder, rc);
+  auto source = replay::TumSource::open(folder, rc);
   if (!source) return cli::fail(source.status().message());
 
   // Input measurements, for the reduction ratio.

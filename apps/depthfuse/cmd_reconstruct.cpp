@@ -40,11 +40,11 @@ Result<Input> load_input(const std::string& input, const cli::Args& args, const 
 
   std::unique_ptr<FrameSource> source;
   if (fs::is_directory(input)) {
-    TumReplayConfig rc;
+    replay::TumReplayConfig rc;
     rc.max_frames = static_cast<size_t>(max_frames);
     rc.stride = static_cast<size_t>(stride);
     if (args.has("camera")) {
-      auto cam = read_camera_file(args.get("camera"));
+      auto cam = replay::read_camera_file(args.get("camera"));
       if (!cam) return cam.status();
       rc.intrinsics = cam->intrinsics;
       rc.depth_scale = cam->depth_scale;
@@ -56,7 +56,7 @@ Result<Input> load_input(const std::string& input, const cli::Args& args, const 
       rc.use_groundtruth = true;
       in.pose_origin = input + "/groundtruth.txt";
     }
-    auto s = TumSource::open(input, rc);
+    auto s = replay::TumSource::open(input, rc);
     if (!s) return s.status();
     source = std::move(s.value());
   } else {

@@ -23,7 +23,7 @@ DF_LOG_CATEGORY(Scan)
 namespace {
 
 namespace daemon = depthfuse::daemon;
-namespace lcmio = depthfuse::lcmio;
+namespace lcm = depthfuse::lcm;
 using depthfuse::command_t;
 using depthfuse::heartbeat_t;
 
@@ -65,8 +65,8 @@ int cmd_scan(int argc, char** argv) {
     return startup.usage_error(error);
   const std::string target = args.get("target", "fusion");
   const bool wait = !args.has("no-wait");
-  auto lcm = startup.open_lcm();
-  if (!lcm) return 1;
+  auto bus = startup.open_lcm();
+  if (!bus) return 1;
 
   command_t cmd;
   cmd.protocol_version = command_t::PROTOCOL_VERSION;
@@ -82,10 +82,10 @@ int cmd_scan(int argc, char** argv) {
 
   int result = -1;
   std::string message;
-  lcm->subscribe(lcmio::kHeartbeatChannel, [&](const std::string&, const uint8_t* data, size_t size,
+  bus->subscribe(lcm::kHeartbeatChannel, [&](const std::string&, const uint8_t* data, size_t size,
                                                int64_t) {
     heartbeat_t hb;
-    if (lcmio::decode_message(data, size, &hb) != lcmio::DecodeResult::kOk) return;
+    if (lcm::decode_message(data, size, &hb) != lcm::DecodeResult::kOk) return;
     if (hb.last_command_id != cmd.command_id) return;
     if (!target.empty() && hb.name != target) return;
     result = hb.last_command_result;
@@ -101,7 +101,7 @@ int cmd_scan(int argc, char** argv) {
   while (Clock::now() < deadline && result < 0) {
     // UDP may lose the command: resend (same id, the daemon acknowledges it once) every 500 ms.
     if (Clock::now() >= next_send) {
-      auto st = lcm->publish_message(lcmio::kCommandChannel, cmd);
+      auto st = bus->publish_message(lcm::kCommandChannel, cmd);
       if (!st.is_ok()) {
         DF_LOG(Scan, Error) << st.to_string();
         return 1;
@@ -110,7 +110,7 @@ int cmd_scan(int argc, char** argv) {
       next_send = Clock::now() + std::chrono::milliseconds(500);
       if (!wait) return 0;
     }
-    auto r = lcm->handle(50);
+    auto r = bus->handle(50);
     if (!r) {
       DF_LOG(Scan, Error) << r.status().to_string();
       return 1;
@@ -120,7 +120,7 @@ int cmd_scan(int argc, char** argv) {
     char waited[32];
     std::snprintf(waited, sizeof waited, "%.1f", timeout_s);
     DF_LOG(Scan, Error) << "no acknowledgement from '" << target << "' within " << waited
-                        << " s (sent " << sends << " times on " << lcm->url()
+                        << " s (sent " << sends << " times on " << bus->url()
                         << "): is the daemon running? 'depthfuse status' lists the live ones";
     return 3;
   }

@@ -22,7 +22,7 @@ DF_LOG_CATEGORY(Status)
 namespace {
 
 namespace daemon = depthfuse::daemon;
-namespace lcmio = depthfuse::lcmio;
+namespace lcm = depthfuse::lcm;
 using depthfuse::heartbeat_t;
 
 const char* state_text(int8_t s) {
@@ -154,17 +154,17 @@ int cmd_status(int argc, char** argv) {
   std::string error;
   if (!startup.args().get_double("timeout", &timeout_s, &error, daemon::positive()))
     return startup.usage_error(error);
-  auto lcm = startup.open_lcm();
-  if (!lcm) return 1;
+  auto bus = startup.open_lcm();
+  if (!bus) return 1;
   bool got = false;
-  lcmio::ReceiveCounters counters;
-  lcm->subscribe(lcmio::kStatusChannel, [&](const std::string&, const uint8_t* data, size_t size,
+  lcm::ReceiveCounters counters;
+  bus->subscribe(lcm::kStatusChannel, [&](const std::string&, const uint8_t* data, size_t size,
                                             int64_t) {
     depthfuse::status_t st;
-    const auto r = lcmio::decode_message(data, size, &st);
+    const auto r = lcm::decode_message(data, size, &st);
     counters.count(r);
-    if (r != lcmio::DecodeResult::kOk) {
-      DF_LOG(Status, Warning) << "unreadable status message (" << lcmio::to_string(r) << ")";
+    if (r != lcm::DecodeResult::kOk) {
+      DF_LOG(Status, Warning) << "unreadable status message (" << lcm::to_string(r) << ")";
       return;
     }
     if (got && !watch) return;
@@ -183,12 +183,12 @@ int cmd_status(int argc, char** argv) {
     if (!got && Clock::now() > deadline) {
       char waited[32];
       std::snprintf(waited, sizeof waited, "%.1f", timeout_s);
-      DF_LOG(Status, Error) << "no status on " << lcm->url() << " within " << waited
+      DF_LOG(Status, Error) << "no status on " << bus->url() << " within " << waited
                             << " s: is depthfuse-monitor running on the same LCM URL (and "
                                "multicast reaching this host)?";
       return 1;
     }
-    auto r = lcm->handle(100);
+    auto r = bus->handle(100);
     if (!r) {
       DF_LOG(Status, Error) << r.status().to_string();
       return 1;

@@ -73,7 +73,7 @@ const char* action_name(int8_t a) {
 }  // namespace
 
 FusionDaemon::FusionDaemon(const AppConfig& config, const DaemonOptions& options,
-                           std::unique_ptr<lcmio::LcmTransport> lcm,
+                           std::unique_ptr<lcm::LcmTransport> lcm,
                            std::unique_ptr<CheckpointSink> sink)
     : config_(config),
       options_(options),
@@ -82,11 +82,11 @@ FusionDaemon::FusionDaemon(const AppConfig& config, const DaemonOptions& options
       hb_base_(options.name),
       queue_(static_cast<size_t>(std::max(1, config.fusion.queue_capacity_frames))),
       state_(heartbeat_t::STATE_IDLE) {
-  lcm_->subscribe(lcmio::kDepthChannel, [this](const std::string&, const uint8_t* d, size_t n,
+  lcm_->subscribe(lcm::kDepthChannel, [this](const std::string&, const uint8_t* d, size_t n,
                                                int64_t) { on_depth(d, n); });
-  lcm_->subscribe(lcmio::kColorChannel, [this](const std::string&, const uint8_t* d, size_t n,
+  lcm_->subscribe(lcm::kColorChannel, [this](const std::string&, const uint8_t* d, size_t n,
                                                int64_t) { on_color(d, n); });
-  lcm_->subscribe(lcmio::kCommandChannel, [this](const std::string&, const uint8_t* d, size_t n,
+  lcm_->subscribe(lcm::kCommandChannel, [this](const std::string&, const uint8_t* d, size_t n,
                                                  int64_t) { on_command(d, n); });
 }
 
@@ -105,14 +105,14 @@ void FusionDaemon::set_error(const std::string& e) {
 
 void FusionDaemon::on_color(const uint8_t* data, size_t size) {
   depthfuse::color_frame_t msg;
-  const auto r = lcmio::decode_message(data, size, &msg);
-  if (r != lcmio::DecodeResult::kOk) {
+  const auto r = lcm::decode_message(data, size, &msg);
+  if (r != lcm::DecodeResult::kOk) {
     counters_.count(r);
     return;
   }
   if (state_.load() != heartbeat_t::STATE_RUNNING) return;
   ColorImage color;
-  if (auto st = lcmio::decode_color_frame(msg, &color); !st.is_ok()) {
+  if (auto st = lcm::decode_color_frame(msg, &color); !st.is_ok()) {
     ++counters_.malformed;
     set_error(st.message());
     return;
@@ -123,13 +123,13 @@ void FusionDaemon::on_color(const uint8_t* data, size_t size) {
 
 void FusionDaemon::on_depth(const uint8_t* data, size_t size) {
   depthfuse::depth_frame_t msg;
-  const auto r = lcmio::decode_message(data, size, &msg);
-  if (r != lcmio::DecodeResult::kOk) {
+  const auto r = lcm::decode_message(data, size, &msg);
+  if (r != lcm::DecodeResult::kOk) {
     counters_.count(r);
     return;
   }
   QueuedFrame item;
-  if (auto st = lcmio::decode_depth_frame(msg, &item.frame); !st.is_ok()) {
+  if (auto st = lcm::decode_depth_frame(msg, &item.frame); !st.is_ok()) {
     ++counters_.malformed;
     set_error(st.message());
     return;
@@ -138,7 +138,7 @@ void FusionDaemon::on_depth(const uint8_t* data, size_t size) {
   const std::string publisher = msg.source + "|" + msg.sensor_serial;
   if (sequences_.size() >= kMaxPublishers && !sequences_.count(publisher)) sequences_.clear();
   const auto seen = sequences_[publisher].observe(msg.sequence);
-  if (seen.verdict == lcmio::SequenceTracker::Verdict::kOutOfOrder) {
+  if (seen.verdict == lcm::SequenceTracker::Verdict::kOutOfOrder) {
     // A late frame: its pose would be predicted from a newer one. Counted, not fused.
     ++counters_.out_of_order;
     return;
@@ -164,8 +164,8 @@ void FusionDaemon::on_depth(const uint8_t* data, size_t size) {
 
 void FusionDaemon::on_command(const uint8_t* data, size_t size) {
   depthfuse::command_t cmd;
-  const auto r = lcmio::decode_message(data, size, &cmd);
-  if (r != lcmio::DecodeResult::kOk) {
+  const auto r = lcm::decode_message(data, size, &cmd);
+  if (r != lcm::DecodeResult::kOk) {
     counters_.count(r);
     return;
   }
@@ -391,7 +391,7 @@ void FusionDaemon::fuse(QueuedFrame& item) {
   pose.sequence = item.frame.sequence;
   pose.frame_publish_utime = item.publish_utime;
   pose.scan_id = scan_.scan_id;
-  lcmio::pose_to_arrays(rep.T_world_cam, pose.position_m, pose.orientation_wxyz);
+  lcm::pose_to_arrays(rep.T_world_cam, pose.position_m, pose.orientation_wxyz);
   pose.registered = rep.registered;
   pose.icp_fitness = rep.registration.fitness;
   pose.icp_rmse_m = rep.registration.rmse_m;
@@ -406,7 +406,7 @@ void FusionDaemon::fuse(QueuedFrame& item) {
   pose.registration_ms = static_cast<float>(rep.registration_ms);
   pose.fusion_ms = static_cast<float>(rep.fusion_ms);
   pose.publish_utime = now_utime();
-  if (auto st = lcm_->publish_message(lcmio::kPoseChannel, pose); !st.is_ok()) set_error(st.message());
+  if (auto st = lcm_->publish_message(lcm::kPoseChannel, pose); !st.is_ok()) set_error(st.message());
 
   {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -519,7 +519,7 @@ void FusionDaemon::publish_heartbeat() {
   daemon::add_counter(&hb, "frames_registered", static_cast<double>(registered_.load()));
   daemon::add_counter(&hb, "icp_failures", static_cast<double>(icp_failures_.load()));
   daemon::add_counter(&hb, "process_errors", static_cast<double>(process_errors_.load()));
-  if (auto st = lcm_->publish_message(lcmio::kHeartbeatChannel, hb); !st.is_ok())
+  if (auto st = lcm_->publish_message(lcm::kHeartbeatChannel, hb); !st.is_ok())
     set_error(st.message());
 }
 

@@ -24,17 +24,17 @@ constexpr size_t kMaxDaemons = 64;
 }  // namespace
 
 MonitorDaemon::MonitorDaemon(const MonitorOptions& options,
-                             std::unique_ptr<lcmio::LcmTransport> lcm)
+                             std::unique_ptr<lcm::LcmTransport> lcm)
     : options_(options), lcm_(std::move(lcm)), self_("monitor") {
-  lcm_->subscribe(lcmio::kHeartbeatChannel, [this](const std::string&, const uint8_t* data,
+  lcm_->subscribe(lcm::kHeartbeatChannel, [this](const std::string&, const uint8_t* data,
                                                    size_t size, int64_t) { on_heartbeat(data, size); });
 }
 
 void MonitorDaemon::on_heartbeat(const uint8_t* data, size_t size) {
   heartbeat_t hb;
-  const auto r = lcmio::decode_message(data, size, &hb);
+  const auto r = lcm::decode_message(data, size, &hb);
   counters_.count(r);
-  if (r != lcmio::DecodeResult::kOk) return;
+  if (r != lcm::DecodeResult::kOk) return;
   if (hb.name == self_.name()) return;  // our own, we know it better
   auto it = daemons_.find(hb.name);
   if (it == daemons_.end()) {
@@ -90,8 +90,8 @@ void MonitorDaemon::publish_status(Clock::time_point now) {
   me.last = own_heartbeat();
   st.daemons.push_back(std::move(me));
   st.num_daemons = static_cast<int32_t>(st.daemons.size());
-  (void)lcm_->publish_message(lcmio::kStatusChannel, st);
-  (void)lcm_->publish_message(lcmio::kHeartbeatChannel, own_heartbeat());
+  (void)lcm_->publish_message(lcm::kStatusChannel, st);
+  (void)lcm_->publish_message(lcm::kHeartbeatChannel, own_heartbeat());
   ++statuses_published_;
 }
 

@@ -25,7 +25,7 @@ struct MonitorOptions {
 
 class MonitorDaemon {
  public:
-  MonitorDaemon(const MonitorOptions& options, std::unique_ptr<lcmio::LcmTransport> lcm);
+  MonitorDaemon(const MonitorOptions& options, std::unique_ptr<lcm::LcmTransport> lcm);
 
   // Publishes until `shutdown` is requested; the exit code.
   int run(const daemon::ShutdownSignal& shutdown);
@@ -44,9 +44,9 @@ class MonitorDaemon {
   size_t alive(Clock::time_point now) const;
 
   MonitorOptions options_;
-  std::unique_ptr<lcmio::LcmTransport> lcm_;
+  std::unique_ptr<lcm::LcmTransport> lcm_;
   daemon::HeartbeatBase self_;
-  lcmio::ReceiveCounters counters_;
+  lcm::ReceiveCounters counters_;
   std::map<std::string, Entry> daemons_;
   int64_t statuses_published_ = 0;
 };

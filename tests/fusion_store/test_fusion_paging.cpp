@@ -82,10 +82,10 @@ TEST_F(FusionPaging, TinyBudgetEvictsReloadsAndGivesTheUnboundedCloud) {
   std::mutex mutex;
   Listener listener(url_);
   ASSERT_TRUE(listener.error().empty()) << listener.error();
-  listener.subscribe(lcmio::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n,
+  listener.subscribe(lcm::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n,
                                                    int64_t) {
     depthfuse::heartbeat_t hb;
-    if (lcmio::decode_message(d, n, &hb) != lcmio::DecodeResult::kOk) return;
+    if (lcm::decode_message(d, n, &hb) != lcm::DecodeResult::kOk) return;
     std::lock_guard<std::mutex> lock(mutex);
     for (DaemonRun* run : {&bounded, &unbounded}) {
       if (hb.name != run->name) continue;

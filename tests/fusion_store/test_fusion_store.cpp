@@ -122,9 +122,9 @@ TEST_F(FusionStore, KilledTwentyTimesResumesFromTheLastCheckpoint) {
   std::atomic<int> current_round{-1};
   Listener listener(url_);
   ASSERT_TRUE(listener.error().empty()) << listener.error();
-  listener.subscribe(lcmio::kPoseChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
+  listener.subscribe(lcm::kPoseChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
     depthfuse::pose_t pose;
-    if (lcmio::decode_message(d, n, &pose) != lcmio::DecodeResult::kOk) return;
+    if (lcm::decode_message(d, n, &pose) != lcm::DecodeResult::kOk) return;
     std::lock_guard<std::mutex> lock(mutex);
     first_pose_registered.emplace(current_round.load(), pose.registered != 0);
   });
@@ -199,10 +199,10 @@ TEST_F(FusionStore, FullDiskIsReportedAndTheLastGoodCheckpointKept) {
   std::optional<depthfuse::heartbeat_t> last_hb;
   Listener listener(url_);
   ASSERT_TRUE(listener.error().empty()) << listener.error();
-  listener.subscribe(lcmio::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n,
+  listener.subscribe(lcm::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n,
                                                    int64_t) {
     depthfuse::heartbeat_t hb;
-    if (lcmio::decode_message(d, n, &hb) != lcmio::DecodeResult::kOk || hb.name != "fusion") return;
+    if (lcm::decode_message(d, n, &hb) != lcm::DecodeResult::kOk || hb.name != "fusion") return;
     std::lock_guard<std::mutex> lock(mutex);
     last_hb = hb;
   });

@@ -23,7 +23,7 @@
 #include "depthfuse/lcm/codec.hpp"
 #include "lcm_test_util.hpp"
 
-namespace depthfuse {
+namespace depthfuse::kinect2 {
 namespace {
 
 using depthfuse::testing::Listener;
@@ -127,10 +127,10 @@ TEST(Kinect2Capture, WithNoKinectTheDaemonWaitsAndItsHeartbeatSaysSo) {
   ASSERT_TRUE(listener.error().empty()) << listener.error();
   std::mutex mutex;
   std::vector<heartbeat_t> heard;
-  listener.subscribe(lcmio::kHeartbeatChannel, [&](const std::string&, const uint8_t* data,
+  listener.subscribe(lcm::kHeartbeatChannel, [&](const std::string&, const uint8_t* data,
                                                    size_t size, int64_t) {
     heartbeat_t hb;
-    if (lcmio::decode_message(data, size, &hb) != lcmio::DecodeResult::kOk || hb.name != name)
+    if (lcm::decode_message(data, size, &hb) != lcm::DecodeResult::kOk || hb.name != name)
       return;
     std::lock_guard<std::mutex> lock(mutex);
     heard.push_back(hb);
@@ -185,4 +185,4 @@ TEST(Kinect2Capture, WithNoKinectTheDaemonWaitsAndItsHeartbeatSaysSo) {
 }
 
 }  // namespace
-}  // namespace depthfuse
+}  // namespace depthfuse::kinect2

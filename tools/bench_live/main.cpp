@@ -44,7 +44,7 @@ DF_LOG_CATEGORY(BenchLive)
 namespace {
 
 using Clock = std::chrono::steady_clock;
-namespace lcmio = depthfuse::lcmio;
+namespace lcm = depthfuse::lcm;
 
 struct Args {
   double duration_s = 60.0;
@@ -124,7 +124,7 @@ int run(int argc, char** argv) {
   a.hint = !args.has("no-hint");
   // By default a private loopback port, so that a running appliance is not disturbed.
   if (args.get("lcm").empty())
-    startup.config().lcm.url = lcmio::loopback_test_url(static_cast<int>(::getpid()));
+    startup.config().lcm.url = lcm::loopback_test_url(static_cast<int>(::getpid()));
   a.lcm_url = startup.config().lcm.url;
 
   auto spec = depthfuse::synthetic::parse_synthetic_spec(
@@ -154,41 +154,41 @@ int run(int argc, char** argv) {
     depthfuse::Frame f = seq->render(static_cast<size_t>(i));
     if (!a.hint) f.T_world_cam_hint.reset();  // as from a Kinect: the daemon tracks
     raw_depth_bytes = f.depth.depth_m.size() * 2;
-    lcmio::CodecTiming t;
-    if (!lcmio::encode_depth_frame(f, {}, &depth_msgs[i], &t).is_ok()) return 1;
+    lcm::CodecTiming t;
+    if (!lcm::encode_depth_frame(f, {}, &depth_msgs[i], &t).is_ok()) return 1;
     convert_ms.push_back(t.convert_ms);
     {
-      lcmio::DepthEncodeOptions plain;
+      lcm::DepthEncodeOptions plain;
       plain.predict_rows = false;
       depthfuse::depth_frame_t pm;
-      lcmio::CodecTiming pt;
-      if (!lcmio::encode_depth_frame(f, plain, &pm, &pt).is_ok()) return 1;
+      lcm::CodecTiming pt;
+      if (!lcm::encode_depth_frame(f, plain, &pm, &pt).is_ok()) return 1;
       plain_bytes.push_back(static_cast<double>(pm.data.size()));
       plain_ms.push_back(pt.compress_ms);
     }
     compress_ms.push_back(t.compress_ms);
     auto t0 = Clock::now();
-    const auto bytes = lcmio::encode_message(depth_msgs[i]);
+    const auto bytes = lcm::encode_message(depth_msgs[i]);
     serialize_ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
     depth_bytes.push_back(static_cast<double>(bytes.size()));
     t0 = Clock::now();
     depthfuse::depth_frame_t back;
     depthfuse::Frame out;
-    if (lcmio::decode_message(bytes.data(), bytes.size(), &back) != lcmio::DecodeResult::kOk ||
-        !lcmio::decode_depth_frame(back, &out).is_ok())
+    if (lcm::decode_message(bytes.data(), bytes.size(), &back) != lcm::DecodeResult::kOk ||
+        !lcm::decode_depth_frame(back, &out).is_ok())
       return 1;
     decode_ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
     if (!f.color.empty()) {
-      lcmio::CodecTiming ct;
-      if (!lcmio::encode_color_frame(f, {}, &color_msgs[i], &ct).is_ok()) return 1;
+      lcm::CodecTiming ct;
+      if (!lcm::encode_color_frame(f, {}, &color_msgs[i], &ct).is_ok()) return 1;
       color_ms.push_back(ct.compress_ms);
       color_bytes.push_back(static_cast<double>(color_msgs[i].getEncodedSize()));
       if (i % 10 == 0) {
-        lcmio::ColorEncodeOptions jo;
-        jo.encoding = lcmio::ColorEncoding::kJpeg;
+        lcm::ColorEncodeOptions jo;
+        jo.encoding = lcm::ColorEncoding::kJpeg;
         depthfuse::color_frame_t jm;
-        lcmio::CodecTiming jt;
-        if (!lcmio::encode_color_frame(f, jo, &jm, &jt).is_ok()) return 1;
+        lcm::CodecTiming jt;
+        if (!lcm::encode_color_frame(f, jo, &jm, &jt).is_ok()) return 1;
         jpeg_ms.push_back(jt.compress_ms);
         jpeg_bytes.push_back(static_cast<double>(jm.getEncodedSize()));
       }
@@ -244,10 +244,10 @@ int run(int argc, char** argv) {
   depthfuse::heartbeat_t last_hb{};
   bool have_hb = false;
   int64_t poses = 0;
-  lcm->subscribe(lcmio::kPoseChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
+  lcm->subscribe(lcm::kPoseChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
     const int64_t now = depthfuse::now_utime();
     depthfuse::pose_t p;
-    if (lcmio::decode_message(d, n, &p) != lcmio::DecodeResult::kOk) return;
+    if (lcm::decode_message(d, n, &p) != lcm::DecodeResult::kOk) return;
     std::lock_guard<std::mutex> lock(m);
     ++poses;
     auto it = publish_utime_by_seq.find(p.sequence);
@@ -262,9 +262,9 @@ int run(int argc, char** argv) {
     registration_ms.push_back(p.registration_ms);
     fusion_ms.push_back(p.fusion_ms);
   });
-  lcm->subscribe(lcmio::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
+  lcm->subscribe(lcm::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
     depthfuse::heartbeat_t hb;
-    if (lcmio::decode_message(d, n, &hb) != lcmio::DecodeResult::kOk || hb.name != "fusion") return;
+    if (lcm::decode_message(d, n, &hb) != lcm::DecodeResult::kOk || hb.name != "fusion") return;
     std::lock_guard<std::mutex> lock(m);
     last_hb = hb;
     have_hb = true;
@@ -310,14 +310,14 @@ int run(int argc, char** argv) {
     dm.utime = depthfuse::now_utime();
     if (a.color && !color_msgs[idx].data.empty()) {
       color_msgs[idx].sequence = published;
-      (void)lcm->publish_message(lcmio::kColorChannel, color_msgs[idx]);
+      (void)lcm->publish_message(lcm::kColorChannel, color_msgs[idx]);
     }
     dm.publish_utime = depthfuse::now_utime();
     {
       std::lock_guard<std::mutex> lock(m);
       publish_utime_by_seq[published] = dm.publish_utime;
     }
-    (void)lcm->publish_message(lcmio::kDepthChannel, dm);
+    (void)lcm->publish_message(lcm::kDepthChannel, dm);
     ++published;
   }
   const double elapsed_s = std::chrono::duration<double>(Clock::now() - start).count();

@@ -4,7 +4,7 @@
 
 #include "depthfuse/kinect2/kinect2_source.hpp"
 
-namespace depthfuse {
+namespace depthfuse::kinect2 {
 namespace {
 
 DeviceStatus::Reading reading(Kinect2State state) {
@@ -58,4 +58,4 @@ DeviceStatus kinect2_status_before_open(const std::string& serial_or_empty, cons
   return to_device_status(status);
 }
 
-}  // namespace depthfuse
+}  // namespace depthfuse::kinect2

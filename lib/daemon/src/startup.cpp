@@ -75,9 +75,9 @@ int Startup::usage_error(const std::string& problem) const {
   return 2;
 }
 
-std::unique_ptr<lcmio::LcmTransport> Startup::open_lcm() const {
+std::unique_ptr<lcm::LcmTransport> Startup::open_lcm() const {
   std::vector<std::string> warnings;
-  auto opened = lcmio::LcmTransport::open(config_.lcm.url, &warnings);
+  auto opened = lcm::LcmTransport::open(config_.lcm.url, &warnings);
   for (const auto& w : warnings) DF_LOG(Startup, Warning) << w;
   if (!opened) {
     DF_LOG(Startup, Error) << opened.status().to_string();

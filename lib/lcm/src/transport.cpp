@@ -13,7 +13,7 @@
 #include <fstream>
 #include <lcm/lcm.h>
 
-namespace depthfuse::lcmio {
+namespace depthfuse::lcm {
 
 namespace {
 
@@ -225,4 +225,4 @@ Status LcmTransport::handle_for(int budget_ms) {
 
 int LcmTransport::fileno() const { return lcm_get_fileno(lcm_); }
 
-}  // namespace depthfuse::lcmio
+}  // namespace depthfuse::lcm

@@ -16,7 +16,7 @@
 #include "depthfuse/kinect2/device_link.hpp"
 #include "depthfuse/status.hpp"
 
-namespace depthfuse {
+namespace depthfuse::kinect2 {
 
 struct Kinect2Options {
   std::string serial;                  // empty = the first Kinect V2 found
@@ -86,4 +86,4 @@ DeviceStatus kinect2_status_before_open(const std::string& serial_or_empty, cons
 // The status of `source` when it is a Kinect V2 source, for daemons that hold a FrameSource.
 const Kinect2Source* as_kinect2_source(const FrameSource& source);
 
-}  // namespace depthfuse
+}  // namespace depthfuse::kinect2

@@ -15,7 +15,7 @@
 #include "depthfuse/app_config.hpp"
 #include "depthfuse/frame_source.hpp"
 
-namespace depthfuse {
+namespace depthfuse::lcmlog {
 
 struct LcmLogStats {
   size_t events = 0;             // complete events in the log
@@ -79,4 +79,4 @@ class LcmLogSource : public FrameSource {
 Result<std::unique_ptr<FrameSource>> open_lcmlog_source(const std::string& arg,
                                                         const AppConfig& config);
 
-}  // namespace depthfuse
+}  // namespace depthfuse::lcmlog

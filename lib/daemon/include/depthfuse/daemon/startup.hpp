@@ -58,7 +58,7 @@ class Startup {
 
   // Opens LCM at config().lcm.url, logging the transport's warnings. Null, after logging why
   // (route, URL syntax, ...), when it cannot.
-  std::unique_ptr<lcmio::LcmTransport> open_lcm() const;
+  std::unique_ptr<lcm::LcmTransport> open_lcm() const;
 
  private:
   Program program_;

@@ -15,7 +15,7 @@
 
 typedef struct _lcm_t lcm_t;
 
-namespace depthfuse::lcmio {
+namespace depthfuse::lcm {
 
 // The parts of an LCM URL that matter for the diagnosis. Only udpm is inspected; other providers
 // (memq, file, tcpq) are passed to LCM unchanged.
@@ -104,4 +104,4 @@ class LcmTransport {
   std::vector<std::unique_ptr<Handler>> handlers_;
 };
 
-}  // namespace depthfuse::lcmio
+}  // namespace depthfuse::lcm
