@@ -14,20 +14,27 @@
 #endif
 
 namespace depthfuse {
+namespace {
+
+// "kind:argument" → {kind, argument}.
+std::pair<std::string, std::string> split_spec(const std::string& spec) {
+  const auto colon = spec.find(':');
+  return {spec.substr(0, colon), colon == std::string::npos ? std::string() : spec.substr(colon + 1)};
+}
+
+}  // namespace
 
 // Each driver exports open_<driver>_source(argument, config) from its public header; this file
 // only splits the spec and dispatches.
 Result<std::unique_ptr<FrameSource>> open_frame_source(const std::string& spec,
                                                        const AppConfig& config) {
-  const auto colon = spec.find(':');
-  const std::string kind = spec.substr(0, colon);
-  const std::string arg = colon == std::string::npos ? std::string() : spec.substr(colon + 1);
+  const auto [kind, arg] = split_spec(spec);
   (void)config;
   (void)arg;
 
   if (kind == "tum") {
 #if DEPTHFUSE_HAVE_REPLAY
-    return open_tum_source(arg, config);
+    return replay::open_tum_source(arg, config);
 #else
     return unsupported("the replay driver is not built in");
 #endif
@@ -41,7 +48,7 @@ Result<std::unique_ptr<FrameSource>> open_frame_source(const std::string& spec,
   }
   if (kind == "kinect2") {
 #if DEPTHFUSE_HAVE_KINECT2
-    return open_kinect2_source(arg, config);
+    return kinect2::open_kinect2_source(arg, config);
 #else
     return unsupported(
         "the kinect2 source is not built in: libfreenect2 was not found when depthfuse was built. "
@@ -51,7 +58,7 @@ Result<std::unique_ptr<FrameSource>> open_frame_source(const std::string& spec,
   }
   if (kind == "lcmlog") {
 #if DEPTHFUSE_HAVE_LCMLOG
-    return open_lcmlog_source(arg, config);
+    return lcmlog::open_lcmlog_source(arg, config);
 #else
     return unsupported("the lcmlog driver is not built in");
 #endif
@@ -59,6 +66,20 @@ Result<std::unique_ptr<FrameSource>> open_frame_source(const std::string& spec,
   return invalid_argument("unknown frame source '" + spec +
                           "': expected tum:<folder>, synthetic:<corner|room|rooms>, "
                           "kinect2[:serial] or lcmlog:<file>");
+}
+
+std::optional<DeviceStatus> device_status_before_open(const std::string& spec,
+                                                      const AppConfig& config,
+                                                      const std::string& detail) {
+  const auto [kind, arg] = split_spec(spec);
+#if DEPTHFUSE_HAVE_KINECT2
+  if (kind == "kinect2") return kinect2::kinect2_status_before_open(arg, config, detail);
+#endif
+  (void)kind;
+  (void)arg;
+  (void)config;
+  (void)detail;
+  return std::nullopt;
 }
 
 }  // namespace depthfuse

@@ -2,85 +2,17 @@
 
 #include <unistd.h>
 
-#include <algorithm>
-#include <cmath>
-#include <cstdlib>
+#include "depthfuse/base/log.hpp"
+#include "depthfuse/daemon/startup.hpp"
+
+DF_LOG_CATEGORY(Cli)
 
 namespace depthfuse::cli {
 
-Args::Args(int argc, char** argv, const std::vector<std::string>& flags) {
-  for (int i = 1; i < argc; ++i) {
-    std::string a = argv[i];
-    if (a.size() > 2 && a.rfind("--", 0) == 0) {
-      std::string name = a.substr(2), value;
-      const size_t eq = name.find('=');
-      if (eq != std::string::npos) {
-        value = name.substr(eq + 1);
-        name = name.substr(0, eq);
-      } else if (std::find(flags.begin(), flags.end(), name) != flags.end()) {
-        value = "1";
-      } else if (i + 1 < argc) {
-        value = argv[++i];
-      } else {
-        error_ = "option --" + name + " needs a value";
-        return;
-      }
-      values_[name] = value;
-    } else if (a == "-o") {
-      if (i + 1 >= argc) {
-        error_ = "option -o needs a value";
-        return;
-      }
-      values_["output"] = argv[++i];
-    } else {
-      positional_.push_back(a);
-    }
-  }
-}
-
-std::string Args::get(const std::string& name, const std::string& fallback) const {
-  auto it = values_.find(name);
-  return it == values_.end() ? fallback : it->second;
-}
-
-bool Args::get_int(const std::string& name, long* out, std::string* error) const {
-  if (!has(name)) return true;
-  const std::string v = get(name);
-  char* end = nullptr;
-  const long x = std::strtol(v.c_str(), &end, 10);
-  if (v.empty() || *end) {
-    *error = "--" + name + " expects an integer, got '" + v + "'";
-    return false;
-  }
-  *out = x;
-  return true;
-}
-
-bool Args::get_double(const std::string& name, double* out, std::string* error) const {
-  if (!has(name)) return true;
-  const std::string v = get(name);
-  char* end = nullptr;
-  const double x = std::strtod(v.c_str(), &end);
-  if (v.empty() || *end || !std::isfinite(x)) {
-    *error = "--" + name + " expects a number, got '" + v + "'";
-    return false;
-  }
-  *out = x;
-  return true;
-}
-
-std::string Args::unknown(const std::vector<std::string>& known) const {
-  for (const auto& kv : values_)
-    if (std::find(known.begin(), known.end(), kv.first) == known.end())
-      return kv.first == "output" ? "-o" : "--" + kv.first;
-  return "";
-}
-
-std::optional<AppConfig> load_config_or_report(const Args& args, const char* command) {
-  if (!args.has("config")) return AppConfig{};
-  auto c = load_app_config(args.get("config"));
+std::optional<AppConfig> load_config_or_report(const Args& args) {
+  auto c = daemon::load_config(args);
   if (!c) {
-    std::fprintf(stderr, "depthfuse %s: %s\n", command, c.status().message().c_str());
+    fail(c.status().message());
     return std::nullopt;
   }
   return *c;
@@ -125,8 +57,8 @@ std::string describe_iteration(const BatchIterationReport& it, size_t frames) {
   return line;
 }
 
-int fail(const char* command, const std::string& message) {
-  std::fprintf(stderr, "depthfuse %s: %s\n", command, message.c_str());
+int fail(const std::string& message) {
+  DF_LOG(Cli, Error) << message;
   return 1;
 }
 

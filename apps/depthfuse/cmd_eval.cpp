@@ -50,26 +50,26 @@ PointArrays synthetic_truth_cloud(const synthetic::SyntheticSequence& seq) {
 int run(int argc, char** argv) {
   cli::Args args(argc, argv, {"help", "no-align"});
   if (args.has("help")) return std::printf("usage: %s\n", kUsage), 0;
-  if (!args.ok()) return cli::fail(kCmd, args.error());
+  if (!args.ok()) return cli::fail(args.error());
   const std::string bad = args.unknown({"trajectory", "reference", "out", "label", "no-align"});
-  if (!bad.empty()) return cli::fail(kCmd, "unknown option " + bad + "\nusage: " + kUsage);
-  if (args.positional().size() != 2) return cli::fail(kCmd, std::string("usage: ") + kUsage);
+  if (!bad.empty()) return cli::fail("unknown option " + bad + "\nusage: " + kUsage);
+  if (args.positional().size() != 2) return cli::fail(std::string("usage: ") + kUsage);
   const std::string folder = args.positional()[0], cloud_path = args.positional()[1];
   const std::string label = args.get("label", fs::path(cloud_path).stem().string());
   std::string prefix = args.get("out", (fs::path(cloud_path).parent_path() / fs::path(cloud_path).stem()).string() + ".eval");
 
   auto cloud = read_ply(cloud_path);
-  if (!cloud) return cli::fail(kCmd, cloud.status().message());
-  TumReplayConfig rc;
+  if (!cloud) return cli::fail(cloud.status().message());
+  replay::TumReplayConfig rc;
   rc.load_color = false;
-  auto source = TumSource::open(folder, rc);
-  if (!source) return cli::fail(kCmd, source.status().message());
+  auto source = replay::TumSource::open(folder, rc);
+  if (!source) return cli::fail(source.status().message());
 
   // Input measurements, for the reduction ratio.
   size_t measurements = 0;
   for (size_t i = 0; i < *(*source)->frame_count(); ++i) {
     auto f = (*source)->load(i);
-    if (!f) return cli::fail(kCmd, f.status().message());
+    if (!f) return cli::fail(f.status().message());
     for (float d : f->depth.depth_m) measurements += d > 0;
   }
 
@@ -85,11 +85,11 @@ int run(int argc, char** argv) {
   std::optional<Pose> alignment;
   if (args.has("trajectory")) {
     auto est = read_tum_trajectory(args.get("trajectory"));
-    if (!est) return cli::fail(kCmd, est.status().message());
+    if (!est) return cli::fail(est.status().message());
     if (!fs::exists(folder + "/groundtruth.txt"))
-      return cli::fail(kCmd, "--trajectory needs " + folder + "/groundtruth.txt for the ATE");
+      return cli::fail("--trajectory needs " + folder + "/groundtruth.txt for the ATE");
     auto gt = read_tum_trajectory(folder + "/groundtruth.txt");
-    if (!gt) return cli::fail(kCmd, gt.status().message());
+    if (!gt) return cli::fail(gt.status().message());
     std::vector<Pose> a, b;
     for (const auto& p : *est) {
       const long j = nearest_pose(*gt, p.timestamp_s, 0.02);
@@ -98,13 +98,13 @@ int run(int argc, char** argv) {
       b.push_back((*gt)[j].T_world_cam);
     }
     auto ate = absolute_trajectory_error(a, b);
-    if (!ate) return cli::fail(kCmd, ate.status().message());
+    if (!ate) return cli::fail(ate.status().message());
     char line[200];
     std::snprintf(line, sizeof line, "  ATE RMSE:          %.2f mm aligned (%.2f mm unaligned, max %.2f mm, %zu poses)\n",
                   ate->rmse_m * 1e3, ate->unaligned_rmse_m * 1e3, ate->max_m * 1e3, ate->pairs);
     r << line;
     auto cameras = align_cameras(a, b);
-    if (!cameras) return cli::fail(kCmd, cameras.status().message());
+    if (!cameras) return cli::fail(cameras.status().message());
     alignment = *cameras;
   }
   if (alignment && !args.has("no-align")) {
@@ -124,19 +124,19 @@ int run(int argc, char** argv) {
     std::stringstream text;
     text << in.rdbuf();
     auto scene = synthetic::Scene::parse_toml(text.str(), folder + "/scene.toml");
-    if (!scene) return cli::fail(kCmd, scene.status().message());
+    if (!scene) return cli::fail(scene.status().message());
     auto gen = synthetic::parse_synthetic_config_toml(text.str(), folder + "/scene.toml");
-    if (!gen) return cli::fail(kCmd, gen.status().message());
+    if (!gen) return cli::fail(gen.status().message());
     std::vector<double> d(cloud->size());
     for (size_t i = 0; i < cloud->size(); ++i) d[i] = scene->distance_m(cloud->position(i).cast<double>());
     dist = summarize_distances(std::move(d));
     auto seq = synthetic::SyntheticSequence::create(*gen);
-    if (!seq) return cli::fail(kCmd, seq.status().message());
+    if (!seq) return cli::fail(seq.status().message());
     truth = synthetic_truth_cloud(*seq);
     truth_name = "analytic scene (" + folder + "/scene.toml)";
   } else if (args.has("reference")) {
     auto ref = read_ply(args.get("reference"));
-    if (!ref) return cli::fail(kCmd, ref.status().message());
+    if (!ref) return cli::fail(ref.status().message());
     dist = summarize_distances(distances_to_cloud(*cloud, *ref, 0.1));
     truth = std::move(*ref);
     truth_name = "reference cloud " + args.get("reference");
@@ -159,9 +159,9 @@ int run(int argc, char** argv) {
     }
     r << "\n";
     const Status c = cli::write_cumulative_csv(prefix + ".errors.csv", *dist);
-    if (!c) return cli::fail(kCmd, c.message());
+    if (!c) return cli::fail(c.message());
     const Status p = cli::write_cumulative_png(prefix + ".errors.png", {{label, &*dist}});
-    if (!p) return cli::fail(kCmd, p.message());
+    if (!p) return cli::fail(p.message());
     r << "  cumulative curve:  " << prefix << ".errors.csv, " << prefix << ".errors.png\n";
   }
 

@@ -6,10 +6,13 @@
 
 #include "cli_util.hpp"
 #include "command.hpp"
+#include "depthfuse/base/log.hpp"
 #include "depthfuse/store/export.hpp"
 #include "depthfuse/store/scan_store.hpp"
 
 using namespace depthfuse;
+
+DF_LOG_CATEGORY(Export)
 
 namespace {
 
@@ -50,46 +53,46 @@ bool parse_bbox(const std::string& text, Eigen::AlignedBox3f* out, std::string* 
 int run(int argc, char** argv) {
   cli::Args args(argc, argv, {"no-color", "no-stats", "skip-damaged", "help"});
   if (args.has("help")) return std::printf("usage: %s\n", kUsage), 0;
-  if (!args.ok()) return cli::fail(kCmd, args.error());
+  if (!args.ok()) return cli::fail(args.error());
   const std::string bad = args.unknown(
       {"output", "min-merges", "bbox", "no-color", "no-stats", "trajectory", "skip-damaged"});
-  if (!bad.empty()) return cli::fail(kCmd, "unknown option " + bad + "\nusage: " + kUsage);
+  if (!bad.empty()) return cli::fail("unknown option " + bad + "\nusage: " + kUsage);
   if (args.positional().size() != 1 || !args.has("output"))
-    return cli::fail(kCmd, std::string("expected one scan file and -o out.ply|out.pcd\nusage: ") + kUsage);
+    return cli::fail(std::string("expected one scan file and -o out.ply|out.pcd\nusage: ") + kUsage);
 
   store::ExportOptions options;
   long min_merges = 0;
   std::string err;
-  if (!args.get_int("min-merges", &min_merges, &err)) return cli::fail(kCmd, err);
-  if (min_merges < 0 || min_merges > 65535) return cli::fail(kCmd, "--min-merges must be 0..65535");
+  if (!args.get_int("min-merges", &min_merges, &err)) return cli::fail(err);
+  if (min_merges < 0 || min_merges > 65535) return cli::fail("--min-merges must be 0..65535");
   options.min_merges = static_cast<uint32_t>(min_merges);
   if (args.has("bbox")) {
     Eigen::AlignedBox3f box;
-    if (!parse_bbox(args.get("bbox"), &box, &err)) return cli::fail(kCmd, err);
+    if (!parse_bbox(args.get("bbox"), &box, &err)) return cli::fail(err);
     options.bbox_m = box;
   }
   options.with_color = !args.has("no-color");
   options.with_fusion_stats = !args.has("no-stats");
   options.skip_damaged = args.has("skip-damaged");
   const std::string out = args.get("output");
-  if (auto format = store::cloud_format_for(out); !format) return cli::fail(kCmd, format.status().message());
+  if (auto format = store::cloud_format_for(out); !format) return cli::fail(format.status().message());
 
   auto opened = store::ScanStore::open(args.positional()[0], store::OpenMode::kReadOnly);
-  if (!opened) return cli::fail(kCmd, opened.status().message());
+  if (!opened) return cli::fail(opened.status().message());
   store::ScanStore& scan = **opened;
   auto report = store::export_cloud(scan, out, options);
-  if (!report) return cli::fail(kCmd, report.status().message());
-  for (const std::string& d : report->damaged) std::fprintf(stderr, "depthfuse export: skipped: %s\n", d.c_str());
+  if (!report) return cli::fail(report.status().message());
+  for (const std::string& d : report->damaged) DF_LOG(Export, Warning) << "skipped: " << d;
   if (args.has("trajectory")) {
     const Status st = store::export_trajectory(scan, args.get("trajectory"));
-    if (!st) return cli::fail(kCmd, st.message());
+    if (!st) return cli::fail(st.message());
   }
   std::printf("wrote %llu points from %zu chunks to %s", static_cast<unsigned long long>(report->points_written),
               report->chunks_read, out.c_str());
   if (report->points_filtered) std::printf(" (%llu filtered out)", static_cast<unsigned long long>(report->points_filtered));
   std::printf("\n");
   if (!report->damaged.empty()) {
-    std::fprintf(stderr, "depthfuse export: %zu damaged chunks were left out\n", report->damaged.size());
+    DF_LOG(Export, Error) << report->damaged.size() << " damaged chunks were left out";
     return 1;
   }
   return 0;

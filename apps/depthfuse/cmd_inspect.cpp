@@ -5,9 +5,12 @@
 
 #include "cli_util.hpp"
 #include "command.hpp"
+#include "depthfuse/base/log.hpp"
 #include "depthfuse/store/scan_store.hpp"
 
 using namespace depthfuse;
+
+DF_LOG_CATEGORY(Inspect)
 
 namespace {
 
@@ -38,31 +41,32 @@ std::string mib(uint64_t bytes) {
 int run(int argc, char** argv) {
   cli::Args args(argc, argv, {"quick", "checkpoints", "chunks", "upgrade", "help"});
   if (args.has("help")) return std::printf("usage: %s\n", kUsage), 0;
-  if (!args.ok()) return cli::fail(kCmd, args.error());
+  if (!args.ok()) return cli::fail(args.error());
   const std::string bad = args.unknown({"quick", "checkpoints", "chunks", "upgrade"});
-  if (!bad.empty()) return cli::fail(kCmd, "unknown option " + bad + "\nusage: " + kUsage);
-  if (args.positional().size() != 1) return cli::fail(kCmd, std::string("expected one scan file\nusage: ") + kUsage);
+  if (!bad.empty()) return cli::fail("unknown option " + bad + "\nusage: " + kUsage);
+  if (args.positional().size() != 1) return cli::fail(std::string("expected one scan file\nusage: ") + kUsage);
   const std::string path = args.positional()[0];
 
   if (args.has("upgrade")) {
     auto rw = store::ScanStore::open(path, store::OpenMode::kReadWrite);
-    if (!rw) return cli::fail(kCmd, rw.status().message());
+    if (!rw) return cli::fail(rw.status().message());
     const auto& rep = (*rw)->open_report();
     std::printf("%s: schema %d%s\n", path.c_str(), rep.found_schema_version,
                 rep.migrated ? (" migrated to " + std::to_string(store::kSchemaVersion)).c_str()
                              : " is current");
   }
   auto opened = store::ScanStore::open(path, store::OpenMode::kReadOnly);
-  if (!opened) return cli::fail(kCmd, opened.status().message());
+  if (!opened) return cli::fail(opened.status().message());
   store::ScanStore& scan = **opened;
 
   auto sum = scan.summary();
   if (!sum) {
     // Damaged beyond a summary: still say what the integrity check finds.
-    std::fprintf(stderr, "depthfuse inspect: %s\n", sum.status().message().c_str());
+    DF_LOG(Inspect, Error) << sum.status().message();
     auto integrity = scan.integrity_check(!args.has("quick"));
-    if (integrity)
-      for (const auto& p : integrity->problems) std::fprintf(stderr, "depthfuse inspect: %s\n", p.c_str());
+    if (integrity) {
+      for (const auto& p : integrity->problems) DF_LOG(Inspect, Error) << p;
+    }
     std::printf("integrity      DAMAGED\n");
     return 1;
   }
@@ -101,21 +105,21 @@ int run(int argc, char** argv) {
 
   if (args.has("checkpoints")) {
     auto cps = scan.checkpoints();
-    if (!cps) return cli::fail(kCmd, cps.status().message());
+    if (!cps) return cli::fail(cps.status().message());
     for (const auto& c : *cps)
       std::printf("  checkpoint #%" PRId64 "  %s  %-8s frame %u  %" PRIu64 " points  %" PRIu64 " chunks\n", c.id,
                   format_time(c.utime).c_str(), c.reason.c_str(), c.last_frame_id, c.point_count, c.chunk_count);
   }
   if (args.has("chunks")) {
     auto chunks = scan.list_chunks(true);
-    if (!chunks) return cli::fail(kCmd, chunks.status().message());
+    if (!chunks) return cli::fail(chunks.status().message());
     for (const auto& c : *chunks)
       std::printf("  chunk %-16s %7u points  %8zu bytes  %s\n", store::to_string(c.key).c_str(), c.point_count,
                   c.blob_bytes, c.checkpoint_id ? ("checkpoint " + std::to_string(c.checkpoint_id)).c_str() : "staged");
   }
 
   auto integrity = scan.integrity_check(!args.has("quick"));
-  if (!integrity) return cli::fail(kCmd, integrity.status().message());
+  if (!integrity) return cli::fail(integrity.status().message());
   if (integrity->ok()) {
     std::printf("integrity      ok (sqlite integrity_check%s)\n",
                 args.has("quick") ? "; blobs not checked (--quick)"
@@ -126,7 +130,7 @@ int run(int argc, char** argv) {
     return 0;
   }
   std::printf("integrity      DAMAGED: %zu problems\n", integrity->problems.size());
-  for (const auto& p : integrity->problems) std::fprintf(stderr, "depthfuse inspect: %s\n", p.c_str());
+  for (const auto& p : integrity->problems) DF_LOG(Inspect, Error) << p;
   return 1;
 }
 

@@ -40,11 +40,11 @@ Result<Input> load_input(const std::string& input, const cli::Args& args, const 
 
   std::unique_ptr<FrameSource> source;
   if (fs::is_directory(input)) {
-    TumReplayConfig rc;
+    replay::TumReplayConfig rc;
     rc.max_frames = static_cast<size_t>(max_frames);
     rc.stride = static_cast<size_t>(stride);
     if (args.has("camera")) {
-      auto cam = read_camera_file(args.get("camera"));
+      auto cam = replay::read_camera_file(args.get("camera"));
       if (!cam) return cam.status();
       rc.intrinsics = cam->intrinsics;
       rc.depth_scale = cam->depth_scale;
@@ -56,7 +56,7 @@ Result<Input> load_input(const std::string& input, const cli::Args& args, const 
       rc.use_groundtruth = true;
       in.pose_origin = input + "/groundtruth.txt";
     }
-    auto s = TumSource::open(input, rc);
+    auto s = replay::TumSource::open(input, rc);
     if (!s) return s.status();
     source = std::move(s.value());
   } else {
@@ -100,28 +100,28 @@ Result<Input> load_input(const std::string& input, const cli::Args& args, const 
 int run(int argc, char** argv) {
   cli::Args args(argc, argv, {"track", "help"});
   if (args.has("help")) return std::printf("usage: %s\n", kUsage), 0;
-  if (!args.ok()) return cli::fail(kCmd, args.error());
+  if (!args.ok()) return cli::fail(args.error());
   const std::string bad = args.unknown({"poses", "track", "method", "iterations", "config", "camera",
                                         "trajectory-out", "report", "max-frames", "stride", "output"});
-  if (!bad.empty()) return cli::fail(kCmd, "unknown option " + bad + "\nusage: " + kUsage);
+  if (!bad.empty()) return cli::fail("unknown option " + bad + "\nusage: " + kUsage);
   if (args.positional().size() != 1 || !args.has("output"))
-    return cli::fail(kCmd, std::string("expected one input and -o cloud.ply\nusage: ") + kUsage);
+    return cli::fail(std::string("expected one input and -o cloud.ply\nusage: ") + kUsage);
 
-  auto config = cli::load_config_or_report(args, kCmd);
+  auto config = cli::load_config_or_report(args);
   if (!config) return 1;
   ReconstructionConfig rc = config->reconstruction;
   if (args.has("method") && !parse_method(args.get("method"), &rc.pipeline.method))
-    return cli::fail(kCmd, "--method must be full, ylimaki17 or kyostila13, got '" + args.get("method") + "'");
+    return cli::fail("--method must be full, ylimaki17 or kyostila13, got '" + args.get("method") + "'");
   long iterations = rc.pipeline.outer_iterations;
   std::string err;
-  if (!args.get_int("iterations", &iterations, &err)) return cli::fail(kCmd, err);
-  if (iterations < 0) return cli::fail(kCmd, "--iterations must be >= 0");
+  if (!args.get_int("iterations", &iterations, &err)) return cli::fail(err);
+  if (iterations < 0) return cli::fail("--iterations must be >= 0");
   rc.pipeline.outer_iterations = static_cast<int>(iterations);
 
   cli::Progress progress;
   const auto t0 = std::chrono::steady_clock::now();
   auto input = load_input(args.positional()[0], args, *config, progress);
-  if (!input) return cli::fail(kCmd, input.status().message());
+  if (!input) return cli::fail(input.status().message());
   std::vector<Frame>& frames = input->frames;
 
   std::vector<Pose> initial;
@@ -129,14 +129,14 @@ int run(int argc, char** argv) {
   if (pose_note.empty()) {
     pose_note = "tracked from the first frame";
     auto tracked = track_sequence(frames, rc, progress.fn());
-    if (!tracked) return cli::fail(kCmd, tracked.status().message());
+    if (!tracked) return cli::fail(tracked.status().message());
     initial = std::move(*tracked);
   } else {
     for (const Frame& f : frames) initial.push_back(*f.T_world_cam_hint);
   }
 
   auto result = reconstruct_batch(frames, initial, rc, progress.fn());
-  if (!result) return cli::fail(kCmd, result.status().message());
+  if (!result) return cli::fail(result.status().message());
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 
   const bool has_color = std::any_of(frames.begin(), frames.end(), [](const Frame& f) { return !f.color.empty(); });
@@ -144,12 +144,12 @@ int run(int argc, char** argv) {
   po.with_color = has_color;
   const PointArrays cloud = result->map->gather();
   const Status w = write_ply(args.get("output"), cloud, po);
-  if (!w) return cli::fail(kCmd, w.message());
+  if (!w) return cli::fail(w.message());
   if (args.has("trajectory-out")) {
     std::vector<StampedPose> traj(frames.size());
     for (size_t i = 0; i < frames.size(); ++i) traj[i] = {frames[i].utime / 1e6, result->T_world_cam[i]};
     const Status s = write_tum_trajectory(args.get("trajectory-out"), traj);
-    if (!s) return cli::fail(kCmd, s.message());
+    if (!s) return cli::fail(s.message());
   }
 
   std::ostringstream r;
@@ -173,7 +173,7 @@ int run(int argc, char** argv) {
   std::fputs(r.str().c_str(), stdout);
   if (args.has("report")) {
     FILE* f = std::fopen(args.get("report").c_str(), "w");
-    if (!f) return cli::fail(kCmd, "cannot write report " + args.get("report"));
+    if (!f) return cli::fail("cannot write report " + args.get("report"));
     std::fputs(r.str().c_str(), f);
     std::fclose(f);
   }

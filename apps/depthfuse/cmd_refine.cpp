@@ -5,11 +5,14 @@
 
 #include "cli_util.hpp"
 #include "command.hpp"
+#include "depthfuse/base/log.hpp"
 #include "depthfuse/app_config.hpp"
 #include "depthfuse/pipeline.hpp"
 #include "depthfuse/store/scan_store.hpp"
 
 using namespace depthfuse;
+
+DF_LOG_CATEGORY(Refine)
 
 namespace {
 
@@ -31,7 +34,7 @@ Result<ReconstructionConfig> scan_config(store::ScanStore& scan, const cli::Args
   auto text = scan.config_toml();
   if (!text) return text.status();
   if (!*text) {
-    std::fprintf(stderr, "depthfuse refine: the scan stores no configuration; using the defaults\n");
+    DF_LOG(Refine, Info) << "the scan stores no configuration; using the defaults";
     return ReconstructionConfig{};
   }
   auto c = parse_app_config(**text, scan.path() + " (stored configuration)");
@@ -42,43 +45,43 @@ Result<ReconstructionConfig> scan_config(store::ScanStore& scan, const cli::Args
 int run(int argc, char** argv) {
   cli::Args args(argc, argv, {"help"});
   if (args.has("help")) return std::printf("usage: %s\n", kUsage), 0;
-  if (!args.ok()) return cli::fail(kCmd, args.error());
+  if (!args.ok()) return cli::fail(args.error());
   const std::string bad = args.unknown({"iterations", "out", "config", "keyframe-stride", "max-keyframes"});
-  if (!bad.empty()) return cli::fail(kCmd, "unknown option " + bad + "\nusage: " + kUsage);
-  if (args.positional().size() != 1) return cli::fail(kCmd, std::string("expected one scan file\nusage: ") + kUsage);
+  if (!bad.empty()) return cli::fail("unknown option " + bad + "\nusage: " + kUsage);
+  if (args.positional().size() != 1) return cli::fail(std::string("expected one scan file\nusage: ") + kUsage);
   long iterations = -1, stride = 1, max_keyframes = 0;
   std::string err;
   if (!args.get_int("iterations", &iterations, &err) || !args.get_int("keyframe-stride", &stride, &err) ||
       !args.get_int("max-keyframes", &max_keyframes, &err))
-    return cli::fail(kCmd, err);
-  if (args.has("iterations") && iterations < 0) return cli::fail(kCmd, "--iterations must be >= 0");
-  if (stride < 1 || max_keyframes < 0) return cli::fail(kCmd, "--keyframe-stride must be >= 1, --max-keyframes >= 0");
+    return cli::fail(err);
+  if (args.has("iterations") && iterations < 0) return cli::fail("--iterations must be >= 0");
+  if (stride < 1 || max_keyframes < 0) return cli::fail("--keyframe-stride must be >= 1, --max-keyframes >= 0");
 
   std::string path = args.positional()[0];
   if (args.has("out")) {
     // A consistent copy of the last checkpoint (works while a writer is active), refined there.
     auto src = store::ScanStore::open(path, store::OpenMode::kReadOnly);
-    if (!src) return cli::fail(kCmd, src.status().message());
-    if (auto st = (*src)->copy_to(args.get("out")); !st) return cli::fail(kCmd, st.message());
+    if (!src) return cli::fail(src.status().message());
+    if (auto st = (*src)->copy_to(args.get("out")); !st) return cli::fail(st.message());
     path = args.get("out");
   }
   auto opened = store::ScanStore::open(path, store::OpenMode::kReadWrite);
-  if (!opened) return cli::fail(kCmd, opened.status().message());
+  if (!opened) return cli::fail(opened.status().message());
   store::ScanStore& scan = **opened;
 
   auto rc = scan_config(scan, args);
-  if (!rc) return cli::fail(kCmd, rc.status().message());
+  if (!rc) return cli::fail(rc.status().message());
   ReconstructionConfig config = rc->with_method(Method::kFull);
   if (iterations >= 0) config.pipeline.outer_iterations = static_cast<int>(iterations);
 
   auto last = scan.last_checkpoint();
-  if (!last) return cli::fail(kCmd, last.status().message());
-  if (!*last) return cli::fail(kCmd, path + ": no checkpoint to refine");
+  if (!last) return cli::fail(last.status().message());
+  if (!*last) return cli::fail(path + ": no checkpoint to refine");
   auto meta = scan.metadata();
-  if (!meta) return cli::fail(kCmd, meta.status().message());
+  if (!meta) return cli::fail(meta.status().message());
   auto infos = scan.list_keyframes();
-  if (!infos) return cli::fail(kCmd, infos.status().message());
-  if (infos->empty()) return cli::fail(kCmd, path + ": the scan has no keyframes to refine");
+  if (!infos) return cli::fail(infos.status().message());
+  if (infos->empty()) return cli::fail(path + ": the scan has no keyframes to refine");
 
   const auto t0 = std::chrono::steady_clock::now();
   cli::Progress progress;
@@ -88,7 +91,7 @@ int run(int argc, char** argv) {
   for (size_t i = 0; i < infos->size(); i += static_cast<size_t>(stride)) {
     if (max_keyframes && frames.size() >= static_cast<size_t>(max_keyframes)) break;
     auto k = scan.read_keyframe((*infos)[i].frame_id);
-    if (!k) return cli::fail(kCmd, k.status().message());
+    if (!k) return cli::fail(k.status().message());
     frames.push_back(k->to_frame());
     poses.push_back(k->T_world_cam);
     ids.push_back(k->frame_id);
@@ -96,7 +99,7 @@ int run(int argc, char** argv) {
   }
 
   auto result = reconstruct_batch(frames, poses, config, progress.fn());
-  if (!result) return cli::fail(kCmd, result.status().message());
+  if (!result) return cli::fail(result.status().message());
 
   // One transaction: the refined cloud replaces the old one, keyframe poses are updated.
   Status st = scan.begin_checkpoint();
@@ -126,7 +129,7 @@ int run(int argc, char** argv) {
   }
   if (!st) {
     scan.rollback_checkpoint();
-    return cli::fail(kCmd, st.message() + " (the scan is unchanged)");
+    return cli::fail(st.message() + " (the scan is unchanged)");
   }
   store::CheckpointInfo info;
   info.reason = "refine";
@@ -136,9 +139,10 @@ int run(int argc, char** argv) {
   info.frames_fused = meta->frames_fused;
   info.frames_dropped = meta->frames_dropped;
   auto rec = scan.commit_checkpoint(info);
-  if (!rec) return cli::fail(kCmd, rec.status().message() + " (the scan is unchanged)");
-  if (auto st = scan.compact(); !st)  // the old cloud's pages; failing here loses nothing
-    std::fprintf(stderr, "depthfuse refine: warning: %s\n", st.message().c_str());
+  if (!rec) return cli::fail(rec.status().message() + " (the scan is unchanged)");
+  if (auto st = scan.compact(); !st) {  // the old cloud's pages; failing here loses nothing
+    DF_LOG(Refine, Warning) << st.message();
+  }
 
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   std::printf("depthfuse refine\n  scan:        %s\n  keyframes:   %zu\n  iterations:\n", path.c_str(), frames.size());

@@ -10,15 +10,19 @@
 #include <string>
 
 #include "command.hpp"
-#include "depthfuse/app_config.hpp"
+#include "depthfuse/base/log.hpp"
+#include "depthfuse/daemon/startup.hpp"
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/lcm/transport.hpp"
 #include "depthfuse/status_t.hpp"
 
+DF_LOG_CATEGORY(Status)
+
 namespace {
 
-namespace lcmio = depthfuse::lcmio;
+namespace daemon = depthfuse::daemon;
+namespace lcm = depthfuse::lcm;
 using depthfuse::heartbeat_t;
 
 const char* state_text(int8_t s) {
@@ -136,52 +140,31 @@ void print_table(const depthfuse::status_t& st) {
   std::fflush(stdout);
 }
 
+constexpr const char* kUsage =
+    "usage: depthfuse status [--watch] [--json] [--lcm URL] [--config FILE] [--timeout S]\n"
+    "Prints the appliance status published by depthfuse-monitor. --watch keeps\n"
+    "printing each update; --json prints one JSON object per status.\n";
+
 int cmd_status(int argc, char** argv) {
-  bool watch = false, json = false;
-  std::string url, config_path;
+  daemon::Startup startup({"depthfuse status", kUsage, {"timeout"}, {"watch", "json"}, {}, 0},
+                          argc, argv);
+  if (auto code = startup.exit_code()) return *code;
+  const bool watch = startup.args().has("watch"), json = startup.args().has("json");
   double timeout_s = 3.0;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    if (a == "--watch") watch = true;
-    else if (a == "--json") json = true;
-    else if (a == "--lcm" && i + 1 < argc) url = argv[++i];
-    else if (a == "--config" && i + 1 < argc) config_path = argv[++i];
-    else if (a == "--timeout" && i + 1 < argc) timeout_s = std::atof(argv[++i]);
-    else if (a == "--help" || a == "-h") {
-      std::printf("usage: depthfuse status [--watch] [--json] [--lcm URL] [--config FILE] [--timeout S]\n"
-                  "Prints the appliance status published by depthfuse-monitor. --watch keeps\n"
-                  "printing each update; --json prints one JSON object per status.\n");
-      return 0;
-    } else {
-      std::fprintf(stderr, "depthfuse status: bad option '%s'\n", a.c_str());
-      return 2;
-    }
-  }
-  depthfuse::AppConfig config;
-  if (!config_path.empty()) {
-    auto loaded = depthfuse::load_app_config(config_path);
-    if (!loaded) {
-      std::fprintf(stderr, "depthfuse status: %s\n", loaded.status().to_string().c_str());
-      return 2;
-    }
-    config = std::move(loaded).value();
-  }
-  if (url.empty()) url = config.lcm.url;
-  auto opened = lcmio::LcmTransport::open(url);
-  if (!opened) {
-    std::fprintf(stderr, "depthfuse status: %s\n", opened.status().to_string().c_str());
-    return 1;
-  }
-  auto lcm = std::move(opened).value();
+  std::string error;
+  if (!startup.args().get_double("timeout", &timeout_s, &error, daemon::positive()))
+    return startup.usage_error(error);
+  auto bus = startup.open_lcm();
+  if (!bus) return 1;
   bool got = false;
-  lcmio::ReceiveCounters counters;
-  lcm->subscribe(lcmio::kStatusChannel, [&](const std::string&, const uint8_t* data, size_t size,
+  lcm::ReceiveCounters counters;
+  bus->subscribe(lcm::kStatusChannel, [&](const std::string&, const uint8_t* data, size_t size,
                                             int64_t) {
     depthfuse::status_t st;
-    const auto r = lcmio::decode_message(data, size, &st);
+    const auto r = lcm::decode_message(data, size, &st);
     counters.count(r);
-    if (r != lcmio::DecodeResult::kOk) {
-      std::fprintf(stderr, "depthfuse status: unreadable status message (%s)\n", lcmio::to_string(r));
+    if (r != lcm::DecodeResult::kOk) {
+      DF_LOG(Status, Warning) << "unreadable status message (" << lcm::to_string(r) << ")";
       return;
     }
     if (got && !watch) return;
@@ -198,15 +181,16 @@ int cmd_status(int argc, char** argv) {
                                      std::chrono::duration<double>(timeout_s));
   while (watch || !got) {
     if (!got && Clock::now() > deadline) {
-      std::fprintf(stderr,
-                   "depthfuse status: no status on %s within %.1f s: is depthfuse-monitor running "
-                   "on the same LCM URL (and multicast reaching this host)?\n",
-                   url.c_str(), timeout_s);
+      char waited[32];
+      std::snprintf(waited, sizeof waited, "%.1f", timeout_s);
+      DF_LOG(Status, Error) << "no status on " << bus->url() << " within " << waited
+                            << " s: is depthfuse-monitor running on the same LCM URL (and "
+                               "multicast reaching this host)?";
       return 1;
     }
-    auto r = lcm->handle(100);
+    auto r = bus->handle(100);
     if (!r) {
-      std::fprintf(stderr, "depthfuse status: %s\n", r.status().to_string().c_str());
+      DF_LOG(Status, Error) << r.status().to_string();
       return 1;
     }
   }

@@ -16,28 +16,28 @@ constexpr const char* kUsage =
 int run(int argc, char** argv) {
   cli::Args args(argc, argv, {"no-noise", "no-color", "help"});
   if (args.has("help")) return std::printf("usage: %s\n", kUsage), 0;
-  if (!args.ok()) return cli::fail(kCmd, args.error());
+  if (!args.ok()) return cli::fail(args.error());
   const std::string bad = args.unknown({"frames", "seed", "pose-noise-m", "pose-noise-deg", "no-noise", "no-color"});
-  if (!bad.empty()) return cli::fail(kCmd, "unknown option " + bad + "\nusage: " + kUsage);
-  if (args.positional().size() != 2) return cli::fail(kCmd, std::string("usage: ") + kUsage);
+  if (!bad.empty()) return cli::fail("unknown option " + bad + "\nusage: " + kUsage);
+  if (args.positional().size() != 2) return cli::fail(std::string("usage: ") + kUsage);
 
   synthetic::SyntheticConfig c;
   auto kind = synthetic::parse_scene_kind(args.positional()[0]);
-  if (!kind) return cli::fail(kCmd, kind.status().message());
+  if (!kind) return cli::fail(kind.status().message());
   c.scene = *kind;
   long frames = c.frames, seed = static_cast<long>(c.seed);
   std::string err;
   if (!args.get_int("frames", &frames, &err) || !args.get_int("seed", &seed, &err) ||
       !args.get_double("pose-noise-m", &c.pose_noise_m, &err) ||
       !args.get_double("pose-noise-deg", &c.pose_noise_deg, &err))
-    return cli::fail(kCmd, err);
+    return cli::fail(err);
   c.frames = static_cast<int>(frames);
   c.seed = static_cast<uint64_t>(seed);
   if (args.has("no-noise")) c.noise.enabled = false;
   auto seq = synthetic::SyntheticSequence::create(c);
-  if (!seq) return cli::fail(kCmd, seq.status().message());
+  if (!seq) return cli::fail(seq.status().message());
   const Status s = synthetic::write_tum_folder(*seq, args.positional()[1], !args.has("no-color"));
-  if (!s) return cli::fail(kCmd, s.message());
+  if (!s) return cli::fail(s.message());
   std::printf("wrote %d frames of '%s' to %s (pose noise %.3f m, %.2f deg; sensor noise %s)\n", c.frames,
               args.positional()[0].c_str(), args.positional()[1].c_str(), c.pose_noise_m, c.pose_noise_deg,
               c.noise.enabled ? "on" : "off");

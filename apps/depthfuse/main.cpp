@@ -2,8 +2,13 @@
 #include <algorithm>
 #include <cstdio>
 #include <cstring>
+#include <string>
 
 #include "command.hpp"
+#include "depthfuse/base/log.hpp"
+#include "depthfuse/daemon/startup.hpp"
+
+DF_LOG_CATEGORY(Cli)
 
 namespace depthfuse::cli {
 std::vector<Command>& registry() {
@@ -22,15 +27,19 @@ static void print_usage(FILE* out) {
 }
 
 int main(int argc, char** argv) {
+  depthfuse::log::set_program_name("depthfuse");
   if (argc < 2 || !std::strcmp(argv[1], "--help") || !std::strcmp(argv[1], "-h") ||
       !std::strcmp(argv[1], "help")) {
     print_usage(argc < 2 ? stderr : stdout);
     return argc < 2 ? 2 : 0;
   }
   for (const auto& c : depthfuse::cli::registry()) {
-    if (!std::strcmp(c.name, argv[1])) return c.fn(argc - 1, argv + 1);
+    if (std::strcmp(c.name, argv[1])) continue;
+    // The command's messages read "depthfuse <command>: ...".
+    depthfuse::log::set_program_name(std::string("depthfuse ") + c.name);
+    return depthfuse::daemon::run_main([&] { return c.fn(argc - 1, argv + 1); });
   }
-  std::fprintf(stderr, "depthfuse: unknown command '%s'\n\n", argv[1]);
+  DF_LOG(Cli, Error) << "unknown command '" << argv[1] << "'";
   print_usage(stderr);
   return 2;
 }

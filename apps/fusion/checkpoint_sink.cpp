@@ -1,3 +1,5 @@
+// Which CheckpointSink the fusion daemon gets: the SQLite scan store where it is built, else the
+// sink that keeps nothing. Called once, by main(), before the daemon starts its threads.
 #include "checkpoint_sink.hpp"
 
 #if DEPTHFUSE_FUSION_HAS_STORE

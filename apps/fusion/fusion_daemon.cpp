@@ -1,11 +1,15 @@
+// The fusion daemon (see fusion_daemon.hpp): run() and the LCM handlers are the receive thread;
+// worker_loop() and what it calls (execute, start_scan, stop_scan, fuse) the worker thread. Either
+// publishes the heartbeat: what it reads is atomic or under mutex_.
 #include "fusion_daemon.hpp"
 
 #include <algorithm>
 #include <cctype>
-#include <cstdio>
 #include <ctime>
 #include <filesystem>
 
+#include "depthfuse/base/clock.hpp"
+#include "depthfuse/base/log.hpp"
 #include "depthfuse/color_frame_t.hpp"
 #include "depthfuse/daemon/process_info.hpp"
 #include "depthfuse/daemon/systemd_notify.hpp"
@@ -15,6 +19,8 @@
 #include "depthfuse/ply.hpp"
 #include "depthfuse/pose_t.hpp"
 #include "depthfuse/trajectory.hpp"
+
+DF_LOG_CATEGORY(Fusion)
 
 namespace depthfuse::fusiond {
 
@@ -33,10 +39,6 @@ void ewma(double* mean, double value) { *mean += kMeanWeight * (value - *mean); 
 
 // Saving a very large scan may take a while; a frame takes well under a second.
 constexpr double kStuckWorkerS = 60.0;
-
-int64_t steady_ns() {
-  return std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now().time_since_epoch()).count();
-}
 
 std::string generated_scan_name() {
   const std::time_t t = std::time(nullptr);
@@ -71,7 +73,7 @@ const char* action_name(int8_t a) {
 }  // namespace
 
 FusionDaemon::FusionDaemon(const AppConfig& config, const DaemonOptions& options,
-                           std::unique_ptr<lcmio::LcmTransport> lcm,
+                           std::unique_ptr<lcm::LcmTransport> lcm,
                            std::unique_ptr<CheckpointSink> sink)
     : config_(config),
       options_(options),
@@ -80,11 +82,11 @@ FusionDaemon::FusionDaemon(const AppConfig& config, const DaemonOptions& options
       hb_base_(options.name),
       queue_(static_cast<size_t>(std::max(1, config.fusion.queue_capacity_frames))),
       state_(heartbeat_t::STATE_IDLE) {
-  lcm_->subscribe(lcmio::kDepthChannel, [this](const std::string&, const uint8_t* d, size_t n,
+  lcm_->subscribe(lcm::kDepthChannel, [this](const std::string&, const uint8_t* d, size_t n,
                                                int64_t) { on_depth(d, n); });
-  lcm_->subscribe(lcmio::kColorChannel, [this](const std::string&, const uint8_t* d, size_t n,
+  lcm_->subscribe(lcm::kColorChannel, [this](const std::string&, const uint8_t* d, size_t n,
                                                int64_t) { on_color(d, n); });
-  lcm_->subscribe(lcmio::kCommandChannel, [this](const std::string&, const uint8_t* d, size_t n,
+  lcm_->subscribe(lcm::kCommandChannel, [this](const std::string&, const uint8_t* d, size_t n,
                                                  int64_t) { on_command(d, n); });
 }
 
@@ -103,14 +105,14 @@ void FusionDaemon::set_error(const std::string& e) {
 
 void FusionDaemon::on_color(const uint8_t* data, size_t size) {
   depthfuse::color_frame_t msg;
-  const auto r = lcmio::decode_message(data, size, &msg);
-  if (r != lcmio::DecodeResult::kOk) {
+  const auto r = lcm::decode_message(data, size, &msg);
+  if (r != lcm::DecodeResult::kOk) {
     counters_.count(r);
     return;
   }
   if (state_.load() != heartbeat_t::STATE_RUNNING) return;
   ColorImage color;
-  if (auto st = lcmio::decode_color_frame(msg, &color); !st.is_ok()) {
+  if (auto st = lcm::decode_color_frame(msg, &color); !st.is_ok()) {
     ++counters_.malformed;
     set_error(st.message());
     return;
@@ -121,13 +123,13 @@ void FusionDaemon::on_color(const uint8_t* data, size_t size) {
 
 void FusionDaemon::on_depth(const uint8_t* data, size_t size) {
   depthfuse::depth_frame_t msg;
-  const auto r = lcmio::decode_message(data, size, &msg);
-  if (r != lcmio::DecodeResult::kOk) {
+  const auto r = lcm::decode_message(data, size, &msg);
+  if (r != lcm::DecodeResult::kOk) {
     counters_.count(r);
     return;
   }
   QueuedFrame item;
-  if (auto st = lcmio::decode_depth_frame(msg, &item.frame); !st.is_ok()) {
+  if (auto st = lcm::decode_depth_frame(msg, &item.frame); !st.is_ok()) {
     ++counters_.malformed;
     set_error(st.message());
     return;
@@ -136,7 +138,7 @@ void FusionDaemon::on_depth(const uint8_t* data, size_t size) {
   const std::string publisher = msg.source + "|" + msg.sensor_serial;
   if (sequences_.size() >= kMaxPublishers && !sequences_.count(publisher)) sequences_.clear();
   const auto seen = sequences_[publisher].observe(msg.sequence);
-  if (seen.verdict == lcmio::SequenceTracker::Verdict::kOutOfOrder) {
+  if (seen.verdict == lcm::SequenceTracker::Verdict::kOutOfOrder) {
     // A late frame: its pose would be predicted from a newer one. Counted, not fused.
     ++counters_.out_of_order;
     return;
@@ -162,8 +164,8 @@ void FusionDaemon::on_depth(const uint8_t* data, size_t size) {
 
 void FusionDaemon::on_command(const uint8_t* data, size_t size) {
   depthfuse::command_t cmd;
-  const auto r = lcmio::decode_message(data, size, &cmd);
-  if (r != lcmio::DecodeResult::kOk) {
+  const auto r = lcm::decode_message(data, size, &cmd);
+  if (r != lcm::DecodeResult::kOk) {
     counters_.count(r);
     return;
   }
@@ -199,7 +201,7 @@ Status FusionDaemon::start_scan(const std::string& requested_name, std::string* 
   if (ec)
     return io_error("cannot create the scan directory '" + config_.fusion.scan_dir + "': " +
                     ec.message() + " (set fusion_daemon.scan_dir in the config)");
-  scan_ = ScanContext{name, config_.fusion.scan_dir, daemon::wall_utime(), &config_};
+  scan_ = ScanContext{name, config_.fusion.scan_dir, now_utime(), &config_};
   DF_RETURN_IF_ERROR(sink_->begin_scan(scan_).with_context("checkpoint store"));
   reconstructor_ = std::make_unique<IncrementalReconstructor>(config_.reconstruction);
   trajectory_.clear();
@@ -221,7 +223,7 @@ Status FusionDaemon::start_scan(const std::string& requested_name, std::string* 
   *message = "scan " + name + (reconstructor_->next_frame_id() > 1
                                    ? " resumed at frame " + std::to_string(reconstructor_->next_frame_id())
                                    : std::string(" started"));
-  std::fprintf(stderr, "depthfuse-fusion: %s\n", message->c_str());
+  DF_LOG(Fusion, Info) << *message;
   return Status::ok();
 }
 
@@ -290,7 +292,7 @@ Status FusionDaemon::stop_scan(const std::string& reason, std::string* message) 
     *message += "; checkpoint store: " + sink_status.to_string();
     set_error(sink_status.to_string());
   }
-  std::fprintf(stderr, "depthfuse-fusion: %s\n", message->c_str());
+  DF_LOG(Fusion, Info) << *message;
   return Status::ok();
 }
 
@@ -353,8 +355,8 @@ void FusionDaemon::execute(const command_t& cmd) {
     default:
       st = invalid_argument("unknown action " + std::to_string(cmd.action));
   }
-  std::fprintf(stderr, "depthfuse-fusion: command %s from %s: %s\n", action_name(cmd.action),
-               cmd.sender.c_str(), st.is_ok() ? message.c_str() : st.to_string().c_str());
+  DF_LOG(Fusion, Info) << "command " << action_name(cmd.action) << " from " << cmd.sender << ": "
+                       << (st.is_ok() ? message : st.to_string());
   {
     std::lock_guard<std::mutex> lock(mutex_);
     ack_.id = cmd.command_id;
@@ -389,7 +391,7 @@ void FusionDaemon::fuse(QueuedFrame& item) {
   pose.sequence = item.frame.sequence;
   pose.frame_publish_utime = item.publish_utime;
   pose.scan_id = scan_.scan_id;
-  lcmio::pose_to_arrays(rep.T_world_cam, pose.position_m, pose.orientation_wxyz);
+  lcm::pose_to_arrays(rep.T_world_cam, pose.position_m, pose.orientation_wxyz);
   pose.registered = rep.registered;
   pose.icp_fitness = rep.registration.fitness;
   pose.icp_rmse_m = rep.registration.rmse_m;
@@ -403,8 +405,8 @@ void FusionDaemon::fuse(QueuedFrame& item) {
   pose.prefilter_ms = static_cast<float>(rep.prefilter_ms);
   pose.registration_ms = static_cast<float>(rep.registration_ms);
   pose.fusion_ms = static_cast<float>(rep.fusion_ms);
-  pose.publish_utime = daemon::wall_utime();
-  if (auto st = lcm_->publish_message(lcmio::kPoseChannel, pose); !st.is_ok()) set_error(st.message());
+  pose.publish_utime = now_utime();
+  if (auto st = lcm_->publish_message(lcm::kPoseChannel, pose); !st.is_ok()) set_error(st.message());
 
   {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -461,12 +463,12 @@ void FusionDaemon::worker_loop() {
   if (reconstructor_) {
     std::string message;
     if (auto st = stop_scan("sigterm", &message); !st.is_ok()) {
-      std::fprintf(stderr, "depthfuse-fusion: %s\n", st.to_string().c_str());
+      DF_LOG(Fusion, Error) << st.to_string();
       scan_.scan_dir = (std::filesystem::temp_directory_path() / "depthfuse-rescue").string();
-      std::fprintf(stderr, "depthfuse-fusion: saving scan %s to %s instead\n", scan_.scan_id.c_str(),
-                   scan_.scan_dir.c_str());
+      DF_LOG(Fusion, Info) << "saving scan " << scan_.scan_id << " to " << scan_.scan_dir
+                           << " instead";
       if (auto again = stop_scan("sigterm", &message); !again.is_ok()) {
-        std::fprintf(stderr, "depthfuse-fusion: %s\n", again.to_string().c_str());
+        DF_LOG(Fusion, Error) << again.to_string();
         set_error(again.to_string());
       }
     }
@@ -517,7 +519,7 @@ void FusionDaemon::publish_heartbeat() {
   daemon::add_counter(&hb, "frames_registered", static_cast<double>(registered_.load()));
   daemon::add_counter(&hb, "icp_failures", static_cast<double>(icp_failures_.load()));
   daemon::add_counter(&hb, "process_errors", static_cast<double>(process_errors_.load()));
-  if (auto st = lcm_->publish_message(lcmio::kHeartbeatChannel, hb); !st.is_ok())
+  if (auto st = lcm_->publish_message(lcm::kHeartbeatChannel, hb); !st.is_ok())
     set_error(st.message());
 }
 
@@ -544,7 +546,7 @@ int FusionDaemon::run(const std::function<bool()>& stop_requested) {
     auto r = lcm_->handle(20);
     if (!r && !stop_requested()) {
       set_error(r.status().to_string());
-      std::fprintf(stderr, "depthfuse-fusion: %s\n", r.status().to_string().c_str());
+      DF_LOG(Fusion, Error) << r.status().to_string();
       exit_code = 1;
       break;
     }

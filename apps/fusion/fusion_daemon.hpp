@@ -38,7 +38,7 @@ struct DaemonOptions {
 class FusionDaemon {
  public:
   FusionDaemon(const AppConfig& config, const DaemonOptions& options,
-               std::unique_ptr<lcmio::LcmTransport> lcm, std::unique_ptr<CheckpointSink> sink);
+               std::unique_ptr<lcm::LcmTransport> lcm, std::unique_ptr<CheckpointSink> sink);
   ~FusionDaemon();
 
   // Receives until stop_requested() turns true; then ends the worker (saving an open scan).
@@ -69,19 +69,19 @@ class FusionDaemon {
 
   AppConfig config_;
   DaemonOptions options_;
-  std::unique_ptr<lcmio::LcmTransport> lcm_;
+  std::unique_ptr<lcm::LcmTransport> lcm_;
   std::unique_ptr<CheckpointSink> sink_;
   daemon::HeartbeatBase hb_base_;
   daemon::BoundedQueue<QueuedFrame> queue_;
 
   // Receive thread only.
-  std::map<std::string, lcmio::SequenceTracker> sequences_;  // per publisher (source|serial)
+  std::map<std::string, lcm::SequenceTracker> sequences_;  // per publisher (source|serial)
   std::map<int64_t, ColorImage> pending_color_;  // by sequence, the last few
 
   // Shared.
   std::atomic<int8_t> state_;
   std::atomic<bool> stopping_{false};
-  lcmio::ReceiveCounters counters_;             // all our channels together
+  lcm::ReceiveCounters counters_;             // all our channels together
   std::atomic<int64_t> frames_in_{0}, frames_fused_{0}, frames_ignored_{0};
   std::atomic<int64_t> process_errors_{0}, icp_failures_{0}, registered_{0};
   std::atomic<int64_t> point_count_{0};

@@ -1,11 +1,16 @@
+// The SQLite checkpoint sink (see sqlite_checkpoint_sink.hpp). Owned by the fusion daemon and
+// called from its worker thread, but for describe() once at start-up; the heartbeat reads a copy
+// of its counters.
 #include "sqlite_checkpoint_sink.hpp"
 
-#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
 
+#include "depthfuse/base/log.hpp"
 #include "depthfuse/store/export.hpp"
+
+DF_LOG_CATEGORY(Fusion)
 
 namespace depthfuse::fusiond {
 
@@ -100,14 +105,12 @@ Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, Sc
     for (const auto& p : *poses) trajectory->push_back({p.utime * 1e-6, p.T_world_cam});
   }
   const auto& r = at->open_report;
-  std::fprintf(stderr,
-               "depthfuse-fusion: resumed scan %s from %s at checkpoint %lld: next frame %u, %zu "
-               "resident points; discarded after the checkpoint: %zu poses, %zu keyframes, %zu "
-               "staged chunks\n",
-               scan->scan_id.c_str(), path_.c_str(),
-               static_cast<long long>(at->checkpoint ? at->checkpoint->id : 0), at->next_frame_id,
-               reconstructor.map().point_count(), r.discarded_poses, r.discarded_keyframes,
-               r.discarded_staged_chunks);
+  DF_LOG(Fusion, Info) << "resumed scan " << scan->scan_id << " from " << path_ << " at checkpoint "
+                       << (at->checkpoint ? at->checkpoint->id : 0) << ": next frame "
+                       << at->next_frame_id << ", " << reconstructor.map().point_count()
+                       << " resident points; discarded after the checkpoint: " << r.discarded_poses
+                       << " poses, " << r.discarded_keyframes << " keyframes, "
+                       << r.discarded_staged_chunks << " staged chunks";
   return Status::ok();
 }
 

@@ -5,14 +5,14 @@
 
 #include <cerrno>
 #include <cstdio>
-#include <cstring>
 
+#include "depthfuse/base/errno_text.hpp"
 #include "depthfuse/color_frame_t.hpp"
 #include "depthfuse/depth_frame_t.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/lcm/frame_codec.hpp"
 
-namespace depthfuse {
+namespace depthfuse::lcmlog {
 
 namespace {
 
@@ -73,10 +73,10 @@ Result<std::unique_ptr<LcmLogSource>> LcmLogSource::open(const std::string& path
                                                         const Options& options) {
   struct stat st {};
   if (::stat(path.c_str(), &st) != 0)
-    return not_found("LCM log '" + path + "': " + std::strerror(errno));
+    return not_found("LCM log '" + path + "': " + errno_text());
   if (!S_ISREG(st.st_mode)) return invalid_argument("LCM log '" + path + "' is not a file");
   lcm_eventlog_t* log = lcm_eventlog_create(path.c_str(), "r");
-  if (!log) return io_error("cannot open LCM log '" + path + "': " + std::strerror(errno));
+  if (!log) return io_error("cannot open LCM log '" + path + "': " + errno_text());
   std::unique_ptr<LcmLogSource> src(new LcmLogSource());
   src->path_ = path;
   src->options_ = options;
@@ -128,26 +128,26 @@ Status LcmLogSource::index() {
     ++stats_.events;
     const std::string channel(ev->channel, static_cast<size_t>(ev->channellen));
     if (channel == options_.depth_channel) {
-      const auto r = lcmio::decode_message(ev->data, static_cast<size_t>(ev->datalen), &depth_msg);
+      const auto r = lcm::decode_message(ev->data, static_cast<size_t>(ev->datalen), &depth_msg);
       Frame probe;
-      if (r == lcmio::DecodeResult::kOk && lcmio::decode_depth_frame(depth_msg, &probe).is_ok()) {
+      if (r == lcm::DecodeResult::kOk && lcm::decode_depth_frame(depth_msg, &probe).is_ok()) {
         depth_.push_back({event_offset, ev->timestamp});
         ++stats_.depth_frames;
-      } else if (r == lcmio::DecodeResult::kForeign) {
+      } else if (r == lcm::DecodeResult::kForeign) {
         ++stats_.foreign;
-      } else if (r == lcmio::DecodeResult::kBadVersion) {
+      } else if (r == lcm::DecodeResult::kBadVersion) {
         ++stats_.bad_version;
       } else {
         ++stats_.malformed;
       }
     } else if (channel == options_.color_channel) {
-      const auto r = lcmio::decode_message(ev->data, static_cast<size_t>(ev->datalen), &color_msg);
-      if (r == lcmio::DecodeResult::kOk) {
+      const auto r = lcm::decode_message(ev->data, static_cast<size_t>(ev->datalen), &color_msg);
+      if (r == lcm::DecodeResult::kOk) {
         color_by_sequence_[color_msg.sequence] = {event_offset, ev->timestamp};
         ++stats_.color_frames;
-      } else if (r == lcmio::DecodeResult::kForeign) {
+      } else if (r == lcm::DecodeResult::kForeign) {
         ++stats_.foreign;
-      } else if (r == lcmio::DecodeResult::kBadVersion) {
+      } else if (r == lcm::DecodeResult::kBadVersion) {
         ++stats_.bad_version;
       } else {
         ++stats_.malformed;
@@ -175,19 +175,19 @@ Result<Frame> LcmLogSource::load(size_t i) {
   auto payload = read_payload(depth_[i].offset);
   if (!payload) return payload.status();
   depthfuse::depth_frame_t msg;
-  if (lcmio::decode_message(payload->data(), payload->size(), &msg) != lcmio::DecodeResult::kOk)
+  if (lcm::decode_message(payload->data(), payload->size(), &msg) != lcm::DecodeResult::kOk)
     return corrupt("LCM log '" + path_ + "': depth frame " + std::to_string(i) +
                    " no longer decodes");
   Frame frame;
-  DF_RETURN_IF_ERROR(lcmio::decode_depth_frame(msg, &frame).with_context("LCM log '" + path_ + "'"));
+  DF_RETURN_IF_ERROR(lcm::decode_depth_frame(msg, &frame).with_context("LCM log '" + path_ + "'"));
   auto it = color_by_sequence_.find(msg.sequence);
   if (it != color_by_sequence_.end()) {
     auto cp = read_payload(it->second.offset);
     depthfuse::color_frame_t cmsg;
     ColorImage color;
     // A colour image that does not fit is dropped; the depth frame is still good.
-    if (cp && lcmio::decode_message(cp->data(), cp->size(), &cmsg) == lcmio::DecodeResult::kOk &&
-        lcmio::decode_color_frame(cmsg, &color).is_ok() && color.width == frame.depth.width &&
+    if (cp && lcm::decode_message(cp->data(), cp->size(), &cmsg) == lcm::DecodeResult::kOk &&
+        lcm::decode_color_frame(cmsg, &color).is_ok() && color.width == frame.depth.width &&
         color.height == frame.depth.height)
       frame.color = std::move(color);
   }
@@ -247,4 +247,4 @@ Result<std::unique_ptr<FrameSource>> open_lcmlog_source(const std::string& arg,
   return std::unique_ptr<FrameSource>(std::move(src).value());
 }
 
-}  // namespace depthfuse
+}  // namespace depthfuse::lcmlog

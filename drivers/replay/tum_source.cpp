@@ -12,7 +12,7 @@
 
 namespace fs = std::filesystem;
 
-namespace depthfuse {
+namespace depthfuse::replay {
 
 namespace {
 
@@ -255,4 +255,4 @@ Result<std::unique_ptr<FrameSource>> open_tum_source(const std::string& arg, con
   return std::unique_ptr<FrameSource>(std::move(s.value()));
 }
 
-}  // namespace depthfuse
+}  // namespace depthfuse::replay

@@ -4,6 +4,8 @@
 #include <cmath>
 #include <limits>
 
+#include "fusion_columns.hpp"
+#include "fusion_kernels.hpp"
 #include "geometry.hpp"
 #include "model_projection.hpp"
 #include "parallel.hpp"
@@ -20,41 +22,6 @@ bool merge_measurement(const Eigen::Vector3f& p_e, const Eigen::Matrix3f& L_e,
   *L_fused = L.matrix();
   return true;
 }
-
-namespace {
-
-// One image row's measurements, worked out for the whole row at once (a loop without branches that
-// the compiler vectorises): world position and normal, range, information, and the merge with the
-// candidate rendered at the measurement's own pixel.
-struct RowScratch {
-  std::vector<float> p_x, p_y, p_z, n_x, n_y, n_z, range;
-  std::vector<float> l_xx, l_xy, l_xz, l_yy, l_yz, l_zz;  // the measurement's information
-  std::vector<float> f_x, f_y, f_z;                       // the point merged with the candidate
-  std::vector<float> fn_x, fn_y, fn_z;                    // ... and its normal
-  std::vector<uint8_t> merges;                            // ... if the merge rule accepts it
-  // With the usual 3x3 window: the candidate in the pixel's window, its own excluded, nearest in
-  // the measurement's metric, as the candidates stood before the row was fused
-  // (FrameFusion::select_window()): its pixel, -1 if none.
-  std::vector<int32_t> window_px;
-
-  // Measurement u of the row: world position, normal and information.
-  Eigen::Vector3f position(int u) const { return {p_x[u], p_y[u], p_z[u]}; }
-  Eigen::Vector3f normal(int u) const { return {n_x[u], n_y[u], n_z[u]}; }
-  Sym3f information(int u) const {
-    return {l_xx[u], l_xy[u], l_xz[u], l_yy[u], l_yz[u], l_zz[u]};
-  }
-
-  void resize(int width) {
-    const size_t n = static_cast<size_t>(std::max(0, width));
-    for (auto* v : {&p_x, &p_y, &p_z, &n_x, &n_y, &n_z, &range, &l_xx, &l_xy, &l_xz, &l_yy, &l_yz,
-                    &l_zz, &f_x, &f_y, &f_z, &fn_x, &fn_y, &fn_z})
-      v->resize(n);
-    merges.resize(n);
-    window_px.resize(n);
-  }
-};
-
-}  // namespace
 
 struct Fuser::Scratch {
   PointArrays added[3];  // new points of the bands: top, bottom, and the seam between them
@@ -91,62 +58,6 @@ void add_stats(const FusionStats& s, FusionStats* total) {
   total->redundant += s.redundant;
 }
 
-inline uint16_t saturating_increment(uint16_t v) {
-  return v == std::numeric_limits<uint16_t>::max() ? v : static_cast<uint16_t>(v + 1);
-}
-
-inline void set_information(PointState* s, const Sym3f& L) {
-  s->info_xx = L.xx; s->info_xy = L.xy; s->info_xz = L.xz;
-  s->info_yy = L.yy; s->info_yz = L.yz; s->info_zz = L.zz;
-}
-
-// Refines existing point i of `a` with a measurement: the merge rule's position p and information
-// L, and n, the running mean of the normals (running_mean_normal()).
-inline void refine_point(PointArrays& a, size_t i, const Eigen::Vector3f& p, const Sym3f& L,
-                         const Eigen::Vector3f& n, const uint8_t* rgb, uint32_t frame_id) {
-  a.position_m[i] = p;
-  PointState& s = a.state[i];
-  set_information(&s, L);
-  // Colour: the running mean over all measurements of the point, like the normal.
-  const float w = static_cast<float>(s.merges) + 1.0f;
-  s.nx = n.x();
-  s.ny = n.y();
-  s.nz = n.z();
-  if (rgb) {
-    const float inv = 1.0f / (w + 1.0f);
-    s.r = static_cast<uint8_t>((w * s.r + rgb[0]) * inv + 0.5f);
-    s.g = static_cast<uint8_t>((w * s.g + rgb[1]) * inv + 0.5f);
-    s.b = static_cast<uint8_t>((w * s.b + rgb[2]) * inv + 0.5f);
-  }
-  s.merges = saturating_increment(s.merges);
-  s.last_frame = frame_id;
-}
-
-// Merges the candidate rendered at `px` into (p_f, L_f), the merge rule's result, with normal n_f;
-// `row` is the image row being fused.
-inline void merge_into_candidate(ModelProjection& proj, size_t px, const Eigen::Vector3f& p_f,
-                                 const Sym3f& L_f, const Eigen::Vector3f& n_f, const uint8_t* rgb,
-                                 uint32_t frame_id, int row) {
-  PointArrays& a = proj.candidate_points(px);
-  const size_t j = proj.candidate_index(px);
-  refine_point(a, j, p_f, L_f, n_f, rgb, frame_id);
-  proj.record_merge(px, p_f, L_f, n_f, a.state[j].merges, row);
-}
-
-// Merges the measurement into the candidate rendered at `px` if the merge rule allows it.
-inline bool try_merge(ModelProjection& proj, size_t px, const Eigen::Vector3f& p_w, const Sym3f& L_n,
-                      const Eigen::Vector3f& n_w, const uint8_t* rgb, uint32_t frame_id, int row) {
-  Eigen::Vector3f p_f;
-  Sym3f L_f;
-  if (!merge_rule(proj.candidate_position(px), proj.candidate_information(px), p_w, L_n, &p_f,
-                  &L_f))
-    return false;
-  const Eigen::Vector3f n_f = running_mean_normal(static_cast<float>(proj.candidate_merges(px)),
-                                                  proj.candidate_normal(px), n_w);
-  merge_into_candidate(proj, px, p_f, L_f, n_f, rgb, frame_id, row);
-  return true;
-}
-
 // One frame's fusion over a band of image rows. Bands that are two rows apart touch disjoint
 // pixels and points (a point is rendered at exactly one pixel, and the candidate window reaches
 // one row), so two of them can run at once; points a band adds go to its own list and reach the
@@ -163,9 +74,8 @@ class FrameFusion {
         frame_id_(frame_id),
         model_(model),
         proj_(*proj),
-        R_(T_world_cam.linear().cast<float>()),
-        t_(T_world_cam.translation().cast<float>()),
-        up_w_(R_.col(1)),
+        camera_{T_world_cam.linear().cast<float>(), T_world_cam.translation().cast<float>(),
+                T_world_cam.linear().cast<float>().col(1)},
         cr_(std::max(0, config.candidate_radius_px)),
         range_fraction_(static_cast<float>(config.visibility_range_fraction)),
         redundancy_gate2_(static_cast<float>(config.redundancy_gate * config.redundancy_gate)),
@@ -174,306 +84,209 @@ class FrameFusion {
   // Fuses rows [v0, v1); new points are appended to *added. Gathers the candidates of rows
   // [g0, g1) (see ModelProjection::gather_candidates()), each before the first row whose candidate
   // window reaches it: the rows a band gathers are the rows it alone touches.
-  void rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArrays* added,
+  void rows(int v0, int v1, int g0, int g1, RowScratch* scratch, PointArrays* added,
             FusionStats* total) const;
 
  private:
-  // The first pass over row v: RowScratch for every pixel, valid or not.
-  DF_VECTOR_CLONES void prepare_row(int v, RowScratch* row) const;
-  // The second with a 3x3 window, after prepare_row(): RowScratch::window_px for every pixel of
-  // row v. (With other windows the row loop searches where it needs to.)
-  void select_window(int v, RowScratch* row) const;
-  DF_VECTOR_CLONES void select_window_3x3(int v, RowScratch* row) const;  // 3x3, inner pixels
-  // The candidate in the window around pixel (u, v), its own excluded, nearest to the measurement
-  // (p_w, L_n) in the measurement's metric, as the candidates stand now: its pixel, -1 if none.
-  int32_t nearest_in_window(int u, int v, const Eigen::Vector3f& p_w, const Sym3f& L_n) const;
+  // A valid measurement at pixel (u, v), as prepare_row() worked it out.
+  struct Measurement {
+    int u, v;
+    size_t pixel;
+    Eigen::Vector3f p_w, n_w;  // world frame
+    Sym3f L;                   // information, 1/m^2
+    float z_m, range_m;        // depth, and distance from the camera
+    const uint8_t* rgb;        // null without colour
+  };
+  DF_INLINE Measurement measurement(const RowColumns& row, int u, int v) const;
+
+  // The row's passes before the loop over its pixels (fusion_kernels.hpp): prepare_row(), and
+  // with the usual 3x3 window the window's candidates (select_window()).
+  void prepare(int v, const RowColumns& row) const;
+  void select_window(int v, const RowColumns& row) const;
+
+  // Finds the measurement's candidate and merges the measurement into it if the merge rule
+  // allows. Returns whether it did.
+  DF_INLINE bool merge(const Measurement& me, const RowColumns& row) const;
+  // Merges the measurement into the candidate rendered at `px` if the merge rule allows it.
+  inline bool try_merge(size_t px, const Measurement& me) const;
+  // Merges into the candidate rendered at `px`: (p_f, L_f), the merge rule's result, with normal
+  // n_f.
+  inline void merge_into_candidate(size_t px, const Eigen::Vector3f& p_f, const Sym3f& L_f,
+                                   const Eigen::Vector3f& n_f, const Measurement& me) const;
+  // The candidate in the window around the measurement's pixel, its own excluded, nearest to it
+  // in its metric, as the candidates stand now: its pixel, -1 if none.
+  int32_t nearest_in_window(const Measurement& me) const;
+
+  // Counts a visibility violation on the front-most point at the measurement's pixel if the
+  // camera saw through it (sees_through()). Returns whether it did.
+  DF_INLINE bool count_violation(const Measurement& me) const;
+  // Whether an existing point in the (2 cr + 1)^2 window around the measurement's pixel lies
+  // within the redundancy gate of the measurement.
+  bool explained(const Measurement& me) const;
+
   const MeasurementImage& m_;
   const ColorImage* color_;
   uint32_t frame_id_;
   const SensorModel& model_;
   ModelProjection& proj_;
-  Eigen::Matrix3f R_;
-  Eigen::Vector3f t_, up_w_;
-  // Whether an existing point in the (2 cr + 1)^2 window around pixel (u, v) lies within the
-  // redundancy gate of the measurement (p_w, L_n).
-  bool explained(int u, int v, const Eigen::Vector3f& p_w, const Sym3f& L_n) const;
-
+  CameraInWorld camera_;
   int cr_;
   float range_fraction_;
   float redundancy_gate2_;  // squared Mahalanobis distance; 0: off
   int redundancy_min_merges_;
 };
 
-bool FrameFusion::explained(int u, int v, const Eigen::Vector3f& p_w, const Sym3f& L_n) const {
-  // The merge count as it is now: a merge earlier in this frame counts.
-  const ModelProjection& proj = proj_;
-  return any_in_window(u, v, cr_, m_.width, m_.height, [&](size_t px) {
-    return proj.has_candidate(px) && proj.candidate_merges(px) >= redundancy_min_merges_ &&
-           mahalanobis2(Eigen::Vector3f(proj.candidate_position(px) - p_w), L_n) <=
-               redundancy_gate2_;
-  });
-}
-
-void FrameFusion::prepare_row(int v, RowScratch* row) const {
-  // Plain pointers for the loop; `ivdep` tells the compiler what it cannot prove (GCC ignores
-  // restrict on locals): no store here reaches another iteration's inputs, so it may vectorise.
-  const int W = m_.width;
-  const size_t i0 = static_cast<size_t>(v) * W;
-  const float* X = m_.x.data() + i0;
-  const float* Y = m_.y.data() + i0;
-  const float* Z = m_.z.data() + i0;
-  const float* NX = m_.nx.data() + i0;
-  const float* NY = m_.ny.data() + i0;
-  const float* NZ = m_.nz.data() + i0;
-  const ModelProjection::CandidateColumns c = proj_.candidate_columns(i0);
-  const float* CX = c.x;
-  const float* CY = c.y;
-  const float* CZ = c.z;
-  const float* CXX = c.xx;
-  const float* CXY = c.xy;
-  const float* CXZ = c.xz;
-  const float* CYY = c.yy;
-  const float* CYZ = c.yz;
-  const float* CZZ = c.zz;
-  const float* CNX = c.nx;
-  const float* CNY = c.ny;
-  const float* CNZ = c.nz;
-  const uint16_t* CM = c.merges;
-  float* p_x = row->p_x.data();
-  float* p_y = row->p_y.data();
-  float* p_z = row->p_z.data();
-  float* n_x = row->n_x.data();
-  float* n_y = row->n_y.data();
-  float* n_z = row->n_z.data();
-  float* range_m = row->range.data();
-  float* l_xx = row->l_xx.data();
-  float* l_xy = row->l_xy.data();
-  float* l_xz = row->l_xz.data();
-  float* l_yy = row->l_yy.data();
-  float* l_yz = row->l_yz.data();
-  float* l_zz = row->l_zz.data();
-  float* f_x = row->f_x.data();
-  float* f_y = row->f_y.data();
-  float* f_z = row->f_z.data();
-  float* fn_x = row->fn_x.data();
-  float* fn_y = row->fn_y.data();
-  float* fn_z = row->fn_z.data();
-  uint8_t* merges = row->merges.data();
-  const Eigen::Matrix3f R = R_;
-  const Eigen::Vector3f t = t_, up = up_w_;
-  const SensorModel& model = model_;
-  DF_IVDEP
-  for (int u = 0; u < W; ++u) {
-    const Eigen::Vector3f p_c(X[u], Y[u], Z[u]);
-    const Eigen::Vector3f ray_w = rotate(R, p_c);
-    const Eigen::Vector3f p_w = ray_w + t;
-    const Eigen::Vector3f n_w = rotate(R, Eigen::Vector3f(NX[u], NY[u], NZ[u]));
-    const float range = std::sqrt(p_c.squaredNorm());  // norm() would not vectorise
-    float w_x, w_y, w_z;
-    model.information_weights(Z[u], &w_x, &w_y, &w_z);
-    const Sym3f L_n = ray_information(ray_w * (1.0f / range), up, w_x, w_y, w_z);
-    Eigen::Vector3f p_f;
-    Sym3f L_f;
-    const Sym3f L_e{CXX[u], CXY[u], CXZ[u], CYY[u], CYZ[u], CZZ[u]};
-    merges[u] = merge_rule(Eigen::Vector3f(CX[u], CY[u], CZ[u]), L_e, p_w, L_n, &p_f, &L_f);
-    p_x[u] = p_w.x(); p_y[u] = p_w.y(); p_z[u] = p_w.z();
-    n_x[u] = n_w.x(); n_y[u] = n_w.y(); n_z[u] = n_w.z();
-    range_m[u] = range;
-    l_xx[u] = L_n.xx; l_xy[u] = L_n.xy; l_xz[u] = L_n.xz;
-    l_yy[u] = L_n.yy; l_yz[u] = L_n.yz; l_zz[u] = L_n.zz;
-    f_x[u] = p_f.x(); f_y[u] = p_f.y(); f_z[u] = p_f.z();
-    const Eigen::Vector3f n_f =
-        running_mean_normal(static_cast<float>(CM[u]), Eigen::Vector3f(CNX[u], CNY[u], CNZ[u]), n_w);
-    fn_x[u] = n_f.x(); fn_y[u] = n_f.y(); fn_z[u] = n_f.z();
-  }
-}
-
-// A candidate in the window, at pixel `px` with world position c, against the best so far for the
-// measurement at p_w with information L_n: keeps the nearer in the measurement's metric, the first
-// on ties. Without branches.
-DF_INLINE void consider_candidate(bool has, int32_t px, const Eigen::Vector3f& c,
-                                  const Eigen::Vector3f& p_w, const Sym3f& L_n, float* best_d2,
-                                  int32_t* best_px) {
-  const float d2 = mahalanobis2(Eigen::Vector3f(c - p_w), L_n);
-  const bool better = has & (d2 < *best_d2);
-  *best_d2 = better ? d2 : *best_d2;
-  *best_px = better ? px : *best_px;
-}
-
-int32_t FrameFusion::nearest_in_window(int u, int v, const Eigen::Vector3f& p_w,
-                                       const Sym3f& L_n) const {
+FrameFusion::Measurement FrameFusion::measurement(const RowColumns& row, int u, int v) const {
   const size_t i = static_cast<size_t>(v) * m_.width + u;
+  return {u,
+          v,
+          i,
+          row.measurement.position[u],
+          row.measurement.normal[u],
+          row.measurement.information[u],
+          m_.z[i],
+          row.range_m[u],
+          color_ ? &color_->rgb[3 * i] : nullptr};
+}
+
+void FrameFusion::prepare(int v, const RowColumns& row) const {
+  const size_t i0 = static_cast<size_t>(v) * m_.width;
+  prepare_row({m_.x.data() + i0, m_.y.data() + i0, m_.z.data() + i0},
+              {m_.nx.data() + i0, m_.ny.data() + i0, m_.nz.data() + i0}, camera_, model_,
+              proj_.candidate_columns(i0), m_.width, row);
+}
+
+void FrameFusion::select_window(int v, const RowColumns& row) const {
+  const int W = m_.width;
+  auto at = [&](int u) { row.window_px[u] = nearest_in_window(measurement(row, u, v)); };
+  if (v == 0 || v == m_.height - 1 || W < 3) {
+    for (int u = 0; u < W; ++u) at(u);
+    return;
+  }
+  select_window_3x3(proj_.candidate_columns(0), static_cast<size_t>(v) * W, W, row);
+  at(0);
+  at(W - 1);
+}
+
+bool FrameFusion::merge(const Measurement& me, const RowColumns& row) const {
+  // The candidate at this very pixel (ModelProjection::render()) first; only if it is missing or
+  // does not merge, the other candidate in the window nearest in the measurement's own metric (its
+  // information L, which weighs depth less than the lateral offset: by plain distance the
+  // neighbour whose error matches the measurement's noise would win). Searching the window first
+  // would merge the measurement with its neighbour's point and leave its own pixel's point
+  // unrefined. The merge with the pixel's own candidate as its columns stood before this row was
+  // fused was worked out in prepare_row(); if a measurement of this row has refined that candidate
+  // since, the merge is worked out again. A 3x3 window's candidate was chosen on the candidates as
+  // they stood before this row too (select_window()); if it does not merge, the one nearest as
+  // they stand now gets a try, for this row's merges may have moved it. (Without that second try
+  // a sparse cloud seen from nearer grows layers:
+  // Fuser.NearViewsRefineASparseCloudWithoutSpreadingIt.) Other windows are searched as they
+  // stand now.
+  const ModelProjection& proj = proj_;
+  const size_t i = me.pixel;
+  if (proj.has_candidate(i) && proj.merged_in_row(i) == me.v) {
+    if (try_merge(i, me)) return true;
+  } else if (proj.has_candidate(i) && row.merges[me.u]) {
+    merge_into_candidate(i, row.merged_position[me.u], proj.candidate_information(i) + me.L,
+                         row.merged_normal[me.u], me);
+    return true;
+  }
+  if (cr_ == 0) return false;
+  const int32_t chosen = cr_ == 1 ? row.window_px[me.u] : nearest_in_window(me);
+  if (chosen >= 0 && try_merge(chosen, me)) return true;
+  if (chosen < 0 || cr_ != 1) return false;
+  const int32_t now = nearest_in_window(me);
+  return now >= 0 && now != chosen && try_merge(now, me);
+}
+
+bool FrameFusion::try_merge(size_t px, const Measurement& me) const {
+  Eigen::Vector3f p_f;
+  Sym3f L_f;
+  if (!merge_rule(proj_.candidate_position(px), proj_.candidate_information(px), me.p_w, me.L,
+                  &p_f, &L_f))
+    return false;
+  const Eigen::Vector3f n_f = running_mean_normal(static_cast<float>(proj_.candidate_merges(px)),
+                                                  proj_.candidate_normal(px), me.n_w);
+  merge_into_candidate(px, p_f, L_f, n_f, me);
+  return true;
+}
+
+void FrameFusion::merge_into_candidate(size_t px, const Eigen::Vector3f& p_f, const Sym3f& L_f,
+                                       const Eigen::Vector3f& n_f, const Measurement& me) const {
+  PointArrays& a = proj_.candidate_points(px);
+  const size_t j = proj_.candidate_index(px);
+  refine_point(a, j, p_f, L_f, n_f, me.rgb, frame_id_);
+  proj_.record_merge(px, p_f, L_f, n_f, a.state[j].merges, me.v);
+}
+
+int32_t FrameFusion::nearest_in_window(const Measurement& me) const {
   float best_d2 = std::numeric_limits<float>::infinity();
   int32_t best_px = -1;
-  any_in_window(u, v, cr_, m_.width, m_.height, [&](size_t px) {
-    consider_candidate(px != i && proj_.has_candidate(px), static_cast<int32_t>(px),
-                       proj_.candidate_position(px), p_w, L_n, &best_d2, &best_px);
+  any_in_window(me.u, me.v, cr_, m_.width, m_.height, [&](size_t px) {
+    consider_candidate(px != me.pixel && proj_.has_candidate(px), static_cast<int32_t>(px),
+                       proj_.candidate_position(px), me.p_w, me.L, &best_d2, &best_px);
     return false;
   });
   return best_px;
 }
 
-void FrameFusion::select_window(int v, RowScratch* row) const {
-  const int W = m_.width;
-  auto at = [&](int u) {
-    row->window_px[u] = nearest_in_window(u, v, row->position(u), row->information(u));
-  };
-  if (v == 0 || v == m_.height - 1 || W < 3) {
-    for (int u = 0; u < W; ++u) at(u);
-    return;
-  }
-  select_window_3x3(v, row);
-  at(0);
-  at(W - 1);
+bool FrameFusion::count_violation(const Measurement& me) const {
+  // Only the front-most point, and only if it lies in front of the measurement.
+  if (proj_.empty_at(me.pixel) || !(proj_.depth_at(me.pixel) < me.z_m)) return false;
+  uint32_t j;
+  PointArrays& a = proj_.front_points(me.pixel, &j);
+  if (!sees_through(camera_.t, a.position(j), a.normal(j), me.p_w, me.n_w, me.range_m,
+                    range_fraction_))
+    return false;
+  a.state[j].violations = saturating_increment(a.state[j].violations);
+  return true;
 }
 
-void FrameFusion::select_window_3x3(int v, RowScratch* row) const {
-  // The usual window, away from the image's border: one vectorised pass, the eight neighbours
-  // written out in the window's row-major order, like nearest_in_window(). (It calls nothing: with
-  // a call out of its AVX2 clone GCC left out the vzeroupper, and the scalar code after it ran
-  // 15 % slower.)
-  const int W = m_.width;
-  const float* p_x = row->p_x.data();
-  const float* p_y = row->p_y.data();
-  const float* p_z = row->p_z.data();
-  const float* l_xx = row->l_xx.data();
-  const float* l_xy = row->l_xy.data();
-  const float* l_xz = row->l_xz.data();
-  const float* l_yy = row->l_yy.data();
-  const float* l_yz = row->l_yz.data();
-  const float* l_zz = row->l_zz.data();
-  int32_t* window_px = row->window_px.data();
-  const size_t i0 = static_cast<size_t>(v) * W;
-  const ModelProjection::CandidateColumns above = proj_.candidate_columns(i0 - W);
-  const ModelProjection::CandidateColumns same = proj_.candidate_columns(i0);
-  const ModelProjection::CandidateColumns below = proj_.candidate_columns(i0 + W);
-  const float *ax = above.x, *ay = above.y, *az = above.z;
-  const float *sx = same.x, *sy = same.y, *sz = same.z;
-  const float *bx = below.x, *by = below.y, *bz = below.z;
-  const int32_t *as = above.slot, *ss = same.slot, *bs = below.slot;
-  const int32_t pa = static_cast<int32_t>(i0 - W), ps = static_cast<int32_t>(i0),
-                pb = static_cast<int32_t>(i0 + W);
-  DF_IVDEP
-  for (int u = 1; u < W - 1; ++u) {
-    const Eigen::Vector3f p_w(p_x[u], p_y[u], p_z[u]);
-    const Sym3f L_n{l_xx[u], l_xy[u], l_xz[u], l_yy[u], l_yz[u], l_zz[u]};
-    float d2 = std::numeric_limits<float>::infinity();
-    int32_t px = -1;
-    auto at = [&](const float* x, const float* y, const float* z, int n) {
-      return Eigen::Vector3f(x[n], y[n], z[n]);
-    };
-    consider_candidate(as[u - 1] >= 0, pa + u - 1, at(ax, ay, az, u - 1), p_w, L_n, &d2, &px);
-    consider_candidate(as[u] >= 0, pa + u, at(ax, ay, az, u), p_w, L_n, &d2, &px);
-    consider_candidate(as[u + 1] >= 0, pa + u + 1, at(ax, ay, az, u + 1), p_w, L_n, &d2, &px);
-    consider_candidate(ss[u - 1] >= 0, ps + u - 1, at(sx, sy, sz, u - 1), p_w, L_n, &d2, &px);
-    consider_candidate(ss[u + 1] >= 0, ps + u + 1, at(sx, sy, sz, u + 1), p_w, L_n, &d2, &px);
-    consider_candidate(bs[u - 1] >= 0, pb + u - 1, at(bx, by, bz, u - 1), p_w, L_n, &d2, &px);
-    consider_candidate(bs[u] >= 0, pb + u, at(bx, by, bz, u), p_w, L_n, &d2, &px);
-    consider_candidate(bs[u + 1] >= 0, pb + u + 1, at(bx, by, bz, u + 1), p_w, L_n, &d2, &px);
-    window_px[u] = px;
-  }
+bool FrameFusion::explained(const Measurement& me) const {
+  // The merge count as it is now: a merge earlier in this frame counts.
+  const ModelProjection& proj = proj_;
+  return any_in_window(me.u, me.v, cr_, m_.width, m_.height, [&](size_t px) {
+    return proj.has_candidate(px) && proj.candidate_merges(px) >= redundancy_min_merges_ &&
+           mahalanobis2(Eigen::Vector3f(proj.candidate_position(px) - me.p_w), me.L) <=
+               redundancy_gate2_;
+  });
 }
 
-void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* row, PointArrays* added,
+void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* scratch, PointArrays* added,
                        FusionStats* total) const {
-  // Counted here, added to *total at the end: the loop's byte stores (flags, colours) may alias
-  // *total, which would cost a load and a store per count.
+  // The paper's loop over the pixels: each measurement merges into its candidate, or else counts
+  // a visibility violation on the point it saw through and, unless the map already explains it
+  // (the redundancy gate), becomes a new point. Counted here, added to *total at the end: the
+  // loop's byte stores (flags, colours) may alias *total, which would cost a load and a store per
+  // count.
   FusionStats counts;
-  const MeasurementImage& m = m_;
-  ModelProjection& proj = proj_;
-  const Eigen::Vector3f& t = t_;
-  const int cr = cr_;
-  const size_t W = static_cast<size_t>(m.width);
-  const RowScratch& r = *row;
+  const RowColumns row = scratch->columns();
+  const size_t W = static_cast<size_t>(m_.width);
   int gathered = g0;  // rows [g0, gathered) are gathered
   for (int v = v0; v < v1; ++v) {
-    const int g = std::min(g1, v + cr + 1);
+    const int g = std::min(g1, v + cr_ + 1);
     if (gathered < g) {
-      proj.gather_candidates(gathered * W, g * W);
+      proj_.gather_candidates(gathered * W, g * W);
       gathered = g;
     }
-    prepare_row(v, row);
-    if (cr == 1) select_window(v, row);
-    for (int u = 0; u < m.width; ++u) {
-      const size_t i = static_cast<size_t>(v) * m.width + u;
-      if (!m.valid[i]) continue;
+    prepare(v, row);
+    if (cr_ == 1) select_window(v, row);
+    for (int u = 0; u < m_.width; ++u) {
+      if (!m_.valid[static_cast<size_t>(v) * W + u]) continue;
       ++counts.measurements;
-      const Eigen::Vector3f p_w = r.position(u);
-      const Eigen::Vector3f n_w = r.normal(u);
-      const Sym3f L_n = r.information(u);
-      const float z = m.z[i];
-      const float range = r.range[u];
-      const uint8_t* rgb = color_ ? &color_->rgb[3 * i] : nullptr;
-
-      // The candidate at this very pixel (ModelProjection::render()) first; only if it is missing
-      // or does not merge, the other candidate in the window nearest in the measurement's own
-      // metric (its information L_n, which weighs depth less than the lateral offset: by plain
-      // distance the neighbour whose error matches the measurement's noise would win).
-      // Searching the window first would merge the measurement with its neighbour's point and
-      // leave its own pixel's point unrefined. The merge with the pixel's own candidate as its
-      // columns stood before this row was fused was worked out in prepare_row(); if a measurement
-      // of this row has refined that candidate since, the merge is worked out again. A 3x3
-      // window's candidate was chosen on the candidates as they stood before this row too
-      // (select_window()); if it does not merge, the one nearest as they stand now gets a try,
-      // for this row's merges may have moved it. (Without that second try a sparse cloud seen
-      // from nearer grows layers: Fuser.NearViewsRefineASparseCloudWithoutSpreadingIt, 14 k
-      // points instead of 9 k.) Other windows are searched as they stand now.
-      bool merged = false;
-      if (proj.has_candidate(i) && proj.merged_in_row(i) == v) {
-        merged = try_merge(proj, i, p_w, L_n, n_w, rgb, frame_id_, v);
-      } else if (proj.has_candidate(i) && r.merges[u]) {
-        merge_into_candidate(proj, i, Eigen::Vector3f(r.f_x[u], r.f_y[u], r.f_z[u]),
-                             proj.candidate_information(i) + L_n,
-                             Eigen::Vector3f(r.fn_x[u], r.fn_y[u], r.fn_z[u]), rgb, frame_id_, v);
-        merged = true;
-      }
-      if (!merged && cr > 0) {
-        const int32_t chosen = cr == 1 ? r.window_px[u] : nearest_in_window(u, v, p_w, L_n);
-        if (chosen >= 0) merged = try_merge(proj, chosen, p_w, L_n, n_w, rgb, frame_id_, v);
-        if (!merged && chosen >= 0 && cr == 1) {
-          const int32_t now = nearest_in_window(u, v, p_w, L_n);
-          if (now >= 0 && now != chosen)
-            merged = try_merge(proj, now, p_w, L_n, n_w, rgb, frame_id_, v);
-        }
-      }
-      if (merged) {
+      const Measurement me = measurement(row, u, v);
+      if (merge(me, row)) {
         ++counts.merged;
         continue;
       }
-
-      // Not merged. The front-most point at this pixel in front of the measurement, both facing
-      // the camera, and within a tenth of the range: the camera saw through it (paper eq. 2-3).
-      if (!proj.empty_at(i)) {
-        const float z_e = proj.depth_at(i);
-        if (z_e < z) {
-          uint32_t j;
-          PointArrays& a = proj.front_points(i, &j);
-          const Eigen::Vector3f& p_e = a.position(j);
-          const float s_e = (p_e - t).norm();
-          const bool facing_e = a.normal(j).dot(t - p_e) > 0.0f;
-          const bool facing_n = n_w.dot(t - p_w) > 0.0f;
-          if (facing_e && facing_n && std::abs(s_e - range) < range_fraction_ * range) {
-            a.state[j].violations = saturating_increment(a.state[j].violations);
-            ++counts.violations;
-          }
-        }
-      }
-
+      if (count_violation(me)) ++counts.violations;
       // Not merged, but an existing point is within the measurement's own (scaled) ellipsoid: the
       // surface there is already in the map, and a new point would only add a layer.
-      if (redundancy_gate2_ > 0.0f && explained(u, v, p_w, L_n)) {
+      if (redundancy_gate2_ > 0.0f && explained(me)) {
         ++counts.redundant;
         continue;
       }
-
-      PointState st{};
-      set_information(&st, L_n);
-      st.nx = n_w.x();
-      st.ny = n_w.y();
-      st.nz = n_w.z();
-      if (rgb) { st.r = rgb[0]; st.g = rgb[1]; st.b = rgb[2]; }
-      st.last_frame = frame_id_;
-      added->push_back(p_w, st);
+      added->push_back(me.p_w, new_point_state(me.L, me.n_w, me.rgb, frame_id_));
       ++counts.added;
     }
   }

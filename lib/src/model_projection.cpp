@@ -246,11 +246,7 @@ void ModelProjection::render(const Pose& T_world_cam, const MeasurementImage& me
   }
   cand_slot_.resize(n);
   cand_index_.resize(n);
-  cand_x_.resize(n);
-  cand_y_.resize(n);
-  cand_z_.resize(n);
-  for (std::vector<float>& column : cand_info_) column.resize(n);
-  for (std::vector<float>& column : cand_n_) column.resize(n);
+  for (std::vector<float>& column : cand_point_) column.resize(n);
   cand_merges_.resize(n);
   merged_row_.resize(n);
 }

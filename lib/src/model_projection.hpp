@@ -11,6 +11,7 @@
 #include "depthfuse/point_map.hpp"
 #include "depthfuse/registration.hpp"
 #include "depthfuse/sensor_model.hpp"
+#include "fusion_columns.hpp"
 #include "geometry.hpp"
 
 #include <cmath>
@@ -73,8 +74,8 @@ class ModelProjection {
   // to this consensus surface: the nearest point alone is biased towards the camera wherever the
   // cloud still has several layers (poorly registered frames), and ICP would pull every camera
   // towards itself. Two passes: the front depth, then the sums. (A single pass whose band follows
-  // the front as points stream in leaks farther layers into the mean: pose RMSE 3.0 mm against
-  // 2.0 mm on 30 s of the synthetic rooms walk.) The result goes to *view.
+  // the front as points stream in leaks farther layers into the mean, and the poses come out worse:
+  // docs/results.md.) The result goes to *view.
   void render_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m,
                       SurfaceView* view);
 
@@ -91,41 +92,22 @@ class ModelProjection {
 
   // The merge candidate at a pixel (render() with measurements only). gather_candidates() finds it
   // for a range of pixels, and must have run on a pixel before these are read there. Its world
-  // position, information, normal and merge count are copied pixel-ordered, so that neighbourhood
-  // searches and vectorised loops read contiguous memory. Fusion gathers a row just before it works
-  // on it: the points it then refines are still in the cache.
+  // position, information, normal and merge count are copied pixel-ordered (CandidateColumns), so
+  // that neighbourhood searches and vectorised loops read contiguous memory. Fusion gathers a row
+  // just before it works on it: the points it then refines are still in the cache.
   void gather_candidates(size_t begin, size_t end);
   bool has_candidate(size_t pixel) const { return cand_slot_[pixel] >= 0; }
-  Eigen::Vector3f candidate_position(size_t pixel) const {
-    return {cand_x_[pixel], cand_y_[pixel], cand_z_[pixel]};
-  }
+  Eigen::Vector3f candidate_position(size_t pixel) const { return cand_point().position[pixel]; }
   PointArrays& candidate_points(size_t pixel) const { return chunks_[cand_slot_[pixel]]->points; }
   uint32_t candidate_index(size_t pixel) const { return cand_index_[pixel]; }
   // The candidate's information matrix, pixel-ordered like its position (see record_merge()).
-  Sym3f candidate_information(size_t pixel) const {
-    return {cand_info_[0][pixel], cand_info_[1][pixel], cand_info_[2][pixel],
-            cand_info_[3][pixel], cand_info_[4][pixel], cand_info_[5][pixel]};
-  }
+  Sym3f candidate_information(size_t pixel) const { return cand_point().information[pixel]; }
   // The candidate's merge count now, this frame's merges included.
   uint16_t candidate_merges(size_t pixel) const { return cand_merges_[pixel]; }
-  Eigen::Vector3f candidate_normal(size_t pixel) const {
-    return {cand_n_[0][pixel], cand_n_[1][pixel], cand_n_[2][pixel]};
-  }
-  // The same columns as arrays from `pixel` on, for loops over a row. Where a pixel has no
-  // candidate they hold stale but finite values.
-  struct CandidateColumns {
-    const float *x, *y, *z;                     // world position, m
-    const float *xx, *xy, *xz, *yy, *yz, *zz;   // information, 1/m^2
-    const float *nx, *ny, *nz;                  // unit normal
-    const uint16_t* merges;
-    const int32_t* slot;                        // >= 0 where the pixel has a candidate
-  };
+  Eigen::Vector3f candidate_normal(size_t pixel) const { return cand_point().normal[pixel]; }
+  // The same columns from `pixel` on, for loops over a row.
   CandidateColumns candidate_columns(size_t pixel) const {
-    auto at = [pixel](const std::vector<float>& column) { return column.data() + pixel; };
-    return {at(cand_x_),       at(cand_y_),       at(cand_z_),       at(cand_info_[0]),
-            at(cand_info_[1]), at(cand_info_[2]), at(cand_info_[3]), at(cand_info_[4]),
-            at(cand_info_[5]), at(cand_n_[0]),    at(cand_n_[1]),    at(cand_n_[2]),
-            cand_merges_.data() + pixel, cand_slot_.data() + pixel};
+    return {cand_point().from(pixel), cand_merges_.data() + pixel, cand_slot_.data() + pixel};
   }
   // Starts loading the candidate's position and state at a pixel into the cache (a hint, no effect
   // on results). Loops over pixels call it a few pixels ahead.
@@ -183,21 +165,14 @@ class ModelProjection {
                             size_t chunk_end, float* front) const;
   void sum_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m,
                    size_t chunk_begin, size_t chunk_end, SurfaceSum* sum) const;
+  // The candidates' points (CandidateColumns::point), from pixel 0.
+  PointColumns<const float> cand_point() const {
+    return PointColumns<const float>::over(cand_point_, 0);
+  }
   // The candidate columns at a pixel: world position, information, normal, merge count.
   void set_candidate_columns(size_t pixel, const Eigen::Vector3f& p_w, const Sym3f& L,
                              const Eigen::Vector3f& n, uint16_t merges) {
-    cand_x_[pixel] = p_w.x();
-    cand_y_[pixel] = p_w.y();
-    cand_z_[pixel] = p_w.z();
-    cand_info_[0][pixel] = L.xx;
-    cand_info_[1][pixel] = L.xy;
-    cand_info_[2][pixel] = L.xz;
-    cand_info_[3][pixel] = L.yy;
-    cand_info_[4][pixel] = L.yz;
-    cand_info_[5][pixel] = L.zz;
-    cand_n_[0][pixel] = n.x();
-    cand_n_[1][pixel] = n.y();
-    cand_n_[2][pixel] = n.z();
+    PointColumns<float>::over(cand_point_, 0).set(pixel, p_w, L, n);
     cand_merges_[pixel] = merges;
   }
   // gather_candidates()' first pass: cand_slot_ and cand_index_ from the keys, merged_row_
@@ -225,10 +200,9 @@ class ModelProjection {
   std::vector<uint32_t> cand_index_;    // per pixel, once gathered: point index within the chunk
   std::vector<float> front_depth_;      // render_surface(), per pixel: z of the front-most point
   std::vector<float> front_depth_2_;    // render_surface(): the second half's
-  std::vector<float> cand_x_, cand_y_, cand_z_;  // per pixel: the candidate's world position
-  std::vector<float> cand_info_[6];     // per pixel: its information, xx xy xz yy yz zz
-  std::vector<float> cand_n_[3];        // per pixel: its normal
-  std::vector<uint16_t> cand_merges_;   // per pixel: its merge count
+  // Per pixel: the candidate's point (CandidateColumns::point) and merge count.
+  std::vector<float> cand_point_[PointColumns<float>::kColumns];
+  std::vector<uint16_t> cand_merges_;
   std::vector<int32_t> merged_row_;     // per pixel: see merged_in_row()
   size_t rendered_ = 0;
   std::vector<SurfaceSum> surface_2_;   // render_surface(): the second thread's sums

@@ -13,7 +13,9 @@ inline double ms_since(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
-// Back-projection, normals and (if the method has it) the pre-filter. Returns removed count.
+// The per-frame path before registration and fusion, the same for a live frame and for every pass
+// of the batch loop: back-projection, normals and (if the method has it) the pre-filter. Returns
+// how many measurements the pre-filter removed.
 Result<size_t> measure(const Frame& frame, const ReconstructionConfig& c, MeasurementImage* m) {
   DF_RETURN_IF_ERROR(backproject(frame, c.sensor, c.fusion, m));
   return prefilter(c.prefilter, m, c.fusion.threads);
@@ -126,10 +128,11 @@ Result<std::unique_ptr<PointMap>> fuse_all(const std::vector<Frame>& frames,
   *prefiltered = 0;
   *measurements = 0;
   for (size_t i = 0; i < frames.size(); ++i) {
-    DF_RETURN_IF_ERROR(backproject(frames[i], c.sensor, c.fusion, m)
-                           .with_context("frame " + std::to_string(i)));
-    *measurements += m->valid_count();
-    *prefiltered += prefilter(c.prefilter, m);
+    const Result<size_t> removed = measure(frames[i], c, m);
+    if (!removed) return removed.status().with_context("frame " + std::to_string(i));
+    // The pre-filter only marks measurements invalid: those it removed were valid before.
+    *measurements += m->valid_count() + *removed;
+    *prefiltered += *removed;
     fuser.fuse(*m, &frames[i].color, poses[i], static_cast<uint32_t>(i + 1), map.get());
     if (progress) progress(stage, i + 1, frames.size());
   }

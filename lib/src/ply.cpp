@@ -1,98 +1,14 @@
 #include "depthfuse/ply.hpp"
 
-#include <cerrno>
 #include <cstring>
 #include <fstream>
 #include <sstream>
 
 namespace depthfuse {
 
-namespace {
-
-std::string errno_text() { return std::strerror(errno); }
-
-template <typename T>
-inline void put(char*& p, T v) {
-  std::memcpy(p, &v, sizeof(T));
-  p += sizeof(T);
-}
-
-}  // namespace
-
-PlyWriter::~PlyWriter() {
-  if (file_) std::fclose(file_);
-}
-
-Status PlyWriter::open(const std::string& path, const PlyOptions& options, size_t vertex_count) {
-  if (file_) return internal_error("PlyWriter already open");
-  file_ = std::fopen(path.c_str(), "wb");
-  if (!file_) return io_error("cannot create " + path + ": " + errno_text());
-  path_ = path;
-  options_ = options;
-  announced_ = vertex_count;
-  written_ = 0;
-  std::ostringstream h;
-  h << "ply\nformat binary_little_endian 1.0\ncomment written by depthfuse\n"
-    << "element vertex " << vertex_count << "\n"
-    << "property float x\nproperty float y\nproperty float z\n"
-    << "property float nx\nproperty float ny\nproperty float nz\n";
-  if (options.with_color) h << "property uchar red\nproperty uchar green\nproperty uchar blue\n";
-  if (options.with_fusion_stats)
-    h << "property ushort merges\nproperty ushort violations\nproperty float uncertainty_m\n";
-  h << "end_header\n";
-  const std::string header = h.str();
-  if (std::fwrite(header.data(), 1, header.size(), file_) != header.size())
-    return io_error("cannot write " + path + ": " + errno_text());
-  return Status::ok();
-}
-
-Status PlyWriter::write(const PointArrays& a, const std::vector<uint8_t>* keep) {
-  if (!file_) return internal_error("PlyWriter not open");
-  const size_t stride = 24 + (options_.with_color ? 3 : 0) + (options_.with_fusion_stats ? 8 : 0);
-  constexpr size_t kBatch = 4096;
-  char buf[kBatch * 48];
-  size_t i = 0;
-  while (i < a.size()) {
-    char* p = buf;
-    size_t in_batch = 0;
-    for (; i < a.size() && in_batch < kBatch; ++i) {
-      if (keep && !(*keep)[i]) continue;
-      put(p, a.position_m[i].x()); put(p, a.position_m[i].y()); put(p, a.position_m[i].z());
-      put(p, a.state[i].nx); put(p, a.state[i].ny); put(p, a.state[i].nz);
-      if (options_.with_color) { put(p, a.state[i].r); put(p, a.state[i].g); put(p, a.state[i].b); }
-      if (options_.with_fusion_stats) {
-        put(p, a.state[i].merges); put(p, a.state[i].violations); put(p, uncertainty_m(a, i));
-      }
-      ++in_batch;
-    }
-    const size_t bytes = in_batch * stride;
-    if (std::fwrite(buf, 1, bytes, file_) != bytes)
-      return io_error("cannot write " + path_ + ": " + errno_text());
-    written_ += in_batch;
-  }
-  return Status::ok();
-}
-
-Status PlyWriter::close() {
-  if (!file_) return internal_error("PlyWriter not open");
-  const bool flushed = std::fflush(file_) == 0;
-  const bool closed = std::fclose(file_) == 0;
-  file_ = nullptr;
-  if (!flushed || !closed) return io_error("cannot finish " + path_ + ": " + errno_text());
-  if (written_ != announced_)
-    return internal_error(path_ + ": announced " + std::to_string(announced_) +
-                          " vertices but wrote " + std::to_string(written_));
-  return Status::ok();
-}
-
 Status write_ply(const std::string& path, const PointArrays& points, const PlyOptions& options) {
-  PlyWriter w;
-  DF_RETURN_IF_ERROR(w.open(path, options, points.size()));
-  DF_RETURN_IF_ERROR(w.write(points));
-  return w.close();
+  return write_point_cloud(path, CloudFormat::kPly, points, options);
 }
-
-// ---- reading --------------------------------------------------------------------------------
 
 namespace {
 

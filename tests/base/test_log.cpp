@@ -45,6 +45,17 @@ TEST_F(LogTest, HidesWhatIsBelowTheThresholdWithoutBuildingIt) {
   EXPECT_EQ(built, 0);
 }
 
+TEST_F(LogTest, IsOneStatementInsideAnUnbracedIfElse) {
+  ::testing::internal::CaptureStderr();
+  for (bool first : {true, false}) {
+    if (first)
+      DF_LOG(Alpha, Info) << "then";
+    else
+      DF_LOG(Alpha, Info) << "else";
+  }
+  EXPECT_EQ(::testing::internal::GetCapturedStderr(), "test-log: then\ntest-log: else\n");
+}
+
 TEST_F(LogTest, PerCategoryThresholdsOverrideTheDefault) {
   std::string error;
   ASSERT_TRUE(configure("warning,Beta=debug", &error)) << error;

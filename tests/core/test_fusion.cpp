@@ -4,7 +4,7 @@
 #include <algorithm>
 #include <random>
 
-#include "analytic.hpp"
+#include "core_test_util.hpp"
 #include "depthfuse/fusion.hpp"
 
 using namespace depthfuse;

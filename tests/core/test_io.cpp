@@ -114,7 +114,7 @@ TEST(Trajectory, BadInputNamesFileAndLine) {
 TEST(TumFolder, ReadsDepthWithCameraFile) {
   TempDir d;
   make_folder(d);
-  auto src = TumSource::open(d.path.string(), TumReplayConfig{});
+  auto src = replay::TumSource::open(d.path.string(), replay::TumReplayConfig{});
   ASSERT_TRUE(src.is_ok()) << src.status().to_string();
   EXPECT_EQ((*src)->intrinsics().width, 64);
   auto f = (*src)->next();
@@ -129,7 +129,7 @@ TEST(TumFolder, BadInputGetsClearErrors) {
     TempDir d;
     make_folder(d);
     fs::remove(d / "depth/1.033333.png");
-    auto src = TumSource::open(d.path.string(), TumReplayConfig{});
+    auto src = replay::TumSource::open(d.path.string(), replay::TumReplayConfig{});
     ASSERT_TRUE(src.is_ok());
     ASSERT_TRUE((*src)->next().is_ok());
     auto f = (*src)->next();
@@ -140,7 +140,7 @@ TEST(TumFolder, BadInputGetsClearErrors) {
     TempDir d;
     make_folder(d);
     write_text(d / "depth/1.000000.png", "\x89PNG\r\n\x1a\n garbage that is not a png");
-    auto src = TumSource::open(d.path.string(), TumReplayConfig{});
+    auto src = replay::TumSource::open(d.path.string(), replay::TumReplayConfig{});
     ASSERT_TRUE(src.is_ok());
     auto f = (*src)->next();
     EXPECT_EQ(f.status().code(), StatusCode::kCorrupt) << f.status().to_string();
@@ -149,7 +149,7 @@ TEST(TumFolder, BadInputGetsClearErrors) {
     TempDir d;
     make_folder(d);
     cv::imwrite(d / "depth/1.000000.png", cv::Mat(40, 30, CV_16UC1, cv::Scalar(1)));
-    auto src = TumSource::open(d.path.string(), TumReplayConfig{});
+    auto src = replay::TumSource::open(d.path.string(), replay::TumReplayConfig{});
     ASSERT_TRUE(src.is_ok());
     auto f = (*src)->next();
     EXPECT_EQ(f.status().code(), StatusCode::kInvalidArgument);
@@ -159,7 +159,7 @@ TEST(TumFolder, BadInputGetsClearErrors) {
     TempDir d;
     make_folder(d);
     write_text(d / "depth.txt", "# no frames\n");
-    auto src = TumSource::open(d.path.string(), TumReplayConfig{});
+    auto src = replay::TumSource::open(d.path.string(), replay::TumReplayConfig{});
     ASSERT_FALSE(src.is_ok());
     EXPECT_NE(src.status().message().find("empty sequence"), std::string::npos);
   }
@@ -167,7 +167,7 @@ TEST(TumFolder, BadInputGetsClearErrors) {
     TempDir d;
     make_folder(d);
     write_text(d / "camera.toml", "[camera]\nwidth = 64\nfx = -3\n");
-    auto src = TumSource::open(d.path.string(), TumReplayConfig{});
+    auto src = replay::TumSource::open(d.path.string(), replay::TumReplayConfig{});
     ASSERT_FALSE(src.is_ok());
     EXPECT_NE(src.status().message().find("camera.toml:3: camera.fx"), std::string::npos)
         << src.status().message();
@@ -178,9 +178,9 @@ TEST(TumFolder, AssociatesPosesByNearestTimestamp) {
   TempDir d;
   make_folder(d);
   write_text(d / "groundtruth.txt", "0.990 1 2 3 0 0 0 1\n1.040 4 5 6 0 0 0 1\n");
-  TumReplayConfig c;
+  replay::TumReplayConfig c;
   c.use_groundtruth = true;
-  auto src = TumSource::open(d.path.string(), c);
+  auto src = replay::TumSource::open(d.path.string(), c);
   ASSERT_TRUE(src.is_ok());
   auto f0 = (*src)->next();
   auto f1 = (*src)->next();

@@ -2,7 +2,7 @@
 // in tests/pipeline.)
 #include <gtest/gtest.h>
 
-#include "analytic.hpp"
+#include "core_test_util.hpp"
 #include "depthfuse/pipeline.hpp"
 
 using namespace depthfuse;

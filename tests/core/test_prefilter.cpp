@@ -1,7 +1,7 @@
 // The pre-filter against analytic expectations: d_r(z) on a plane, a flying pixel, planes kept.
 #include <gtest/gtest.h>
 
-#include "analytic.hpp"
+#include "core_test_util.hpp"
 #include "depthfuse/measurement.hpp"
 
 using namespace depthfuse;

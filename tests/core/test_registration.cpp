@@ -3,7 +3,7 @@
 
 #include <cstring>
 
-#include "analytic.hpp"
+#include "core_test_util.hpp"
 #include "depthfuse/fusion.hpp"
 #include "depthfuse/registration.hpp"
 

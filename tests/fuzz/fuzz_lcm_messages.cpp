@@ -16,7 +16,7 @@ namespace {
 
 template <typename Msg>
 bool decode(const uint8_t* data, size_t size, Msg* msg) {
-  return depthfuse::lcmio::decode_message(data, size, msg) == depthfuse::lcmio::DecodeResult::kOk;
+  return depthfuse::lcm::decode_message(data, size, msg) == depthfuse::lcm::DecodeResult::kOk;
 }
 
 }  // namespace
@@ -26,15 +26,15 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   depth_frame_t depth;
   if (decode(data, size, &depth)) {
     Frame frame;
-    (void)lcmio::decode_depth_frame(depth, &frame);
+    (void)lcm::decode_depth_frame(depth, &frame);
   }
   color_frame_t color;
   if (decode(data, size, &color)) {
     ColorImage image;
-    (void)lcmio::decode_color_frame(color, &image);
+    (void)lcm::decode_color_frame(color, &image);
   }
   pose_t pose;
-  if (decode(data, size, &pose)) (void)lcmio::pose_from_arrays(pose.position_m, pose.orientation_wxyz);
+  if (decode(data, size, &pose)) (void)lcm::pose_from_arrays(pose.position_m, pose.orientation_wxyz);
   command_t command;
   (void)decode(data, size, &command);
   heartbeat_t heartbeat;

@@ -8,7 +8,7 @@
 #include "depthfuse/lcm/udpm.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
-  namespace udpm = depthfuse::lcmio::udpm;
+  namespace udpm = depthfuse::lcm::udpm;
   udpm::Limits limits;
   limits.max_message_bytes = 1 << 20;
   limits.max_reassembly_bytes = 2 << 20;

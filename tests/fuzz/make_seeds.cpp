@@ -38,7 +38,7 @@ void framed(Bytes* out, const Bytes& datagram, uint8_t sender) {
 
 // `payload` on `channel` as liblcm sends it, cut into fragments of at most `room` bytes.
 Bytes as_datagrams(const std::string& channel, const Bytes& payload, size_t room, uint8_t sender) {
-  namespace udpm = depthfuse::lcmio::udpm;
+  namespace udpm = depthfuse::lcm::udpm;
   Bytes out;
   if (channel.size() + 1 + payload.size() + udpm::kShortHeaderBytes <= room) {
     Bytes d;
@@ -97,33 +97,33 @@ int main(int argc, char** argv) {
   std::vector<std::pair<std::string, Bytes>> messages;
   for (bool compress : {false, true}) {
     depth_frame_t depth;
-    lcmio::DepthEncodeOptions options;
+    lcm::DepthEncodeOptions options;
     options.compress = compress;
-    if (!lcmio::encode_depth_frame(frame, options, &depth).is_ok()) return 1;
-    messages.emplace_back(compress ? "depth_zstd" : "depth_raw", lcmio::encode_message(depth));
+    if (!lcm::encode_depth_frame(frame, options, &depth).is_ok()) return 1;
+    messages.emplace_back(compress ? "depth_zstd" : "depth_raw", lcm::encode_message(depth));
   }
-  for (auto encoding : {lcmio::ColorEncoding::kRaw, lcmio::ColorEncoding::kZstd, lcmio::ColorEncoding::kJpeg}) {
+  for (auto encoding : {lcm::ColorEncoding::kRaw, lcm::ColorEncoding::kZstd, lcm::ColorEncoding::kJpeg}) {
     color_frame_t color;
-    lcmio::ColorEncodeOptions options;
+    lcm::ColorEncodeOptions options;
     options.encoding = encoding;
-    if (!lcmio::encode_color_frame(frame, options, &color).is_ok()) return 1;
-    messages.emplace_back("color_" + std::to_string(static_cast<int>(encoding)), lcmio::encode_message(color));
+    if (!lcm::encode_color_frame(frame, options, &color).is_ok()) return 1;
+    messages.emplace_back("color_" + std::to_string(static_cast<int>(encoding)), lcm::encode_message(color));
   }
   pose_t pose{};
   pose.protocol_version = pose_t::PROTOCOL_VERSION;
   pose.orientation_wxyz[0] = 1;
-  messages.emplace_back("pose", lcmio::encode_message(pose));
+  messages.emplace_back("pose", lcm::encode_message(pose));
   command_t command{};
   command.protocol_version = command_t::PROTOCOL_VERSION;
   command.action = command_t::ACTION_START;
   command.target = "fusion";
   command.argument = "scan";
   command.sender = "fuzz@seed";
-  messages.emplace_back("command", lcmio::encode_message(command));
+  messages.emplace_back("command", lcm::encode_message(command));
   heartbeat_t heartbeat{};
   heartbeat.protocol_version = heartbeat_t::PROTOCOL_VERSION;
   heartbeat.name = "fusion";
-  messages.emplace_back("heartbeat", lcmio::encode_message(heartbeat));
+  messages.emplace_back("heartbeat", lcm::encode_message(heartbeat));
 
   for (const auto& [name, bytes] : messages) {
     write(root / "fuzz_lcm_messages", name, bytes);

@@ -18,12 +18,12 @@
 
 #include "depthfuse/daemon/heartbeat.hpp"
 #include "depthfuse/heartbeat_t.hpp"
+#include "depthfuse/kinect2/kinect2_source.hpp"
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/codec.hpp"
-#include "kinect2_heartbeat.hpp"
-#include "test_support.hpp"
+#include "lcm_test_util.hpp"
 
-namespace depthfuse {
+namespace depthfuse::kinect2 {
 namespace {
 
 using depthfuse::testing::Listener;
@@ -66,7 +66,7 @@ TEST(Kinect2CaptureHeartbeat, DeviceStateSetsTheStateOfAReadingDaemon) {
     for (const int8_t reading : {heartbeat_t::STATE_RUNNING, heartbeat_t::STATE_IDLE}) {
       heartbeat_t hb = heartbeat_in(reading);
       const Kinect2Status status = status_in(c.kinect);
-      capture::annotate_heartbeat(status, &hb);
+      dd::add_device_status(to_device_status(status), &hb);
       EXPECT_EQ(hb.state, c.expected);
       EXPECT_EQ(dd::counter_value(hb, "kinect2_state", -1), static_cast<int>(c.kinect));
       EXPECT_EQ(dd::counter_value(hb, c.key, 0), 1.0);
@@ -93,7 +93,7 @@ TEST(Kinect2CaptureHeartbeat, PausedStoppingAndStuckDaemonsKeepTheirState) {
   for (const int8_t state : {heartbeat_t::STATE_PAUSED, heartbeat_t::STATE_STOPPING,
                              heartbeat_t::STATE_ERROR, heartbeat_t::STATE_STARTING}) {
     heartbeat_t hb = heartbeat_in(state);
-    capture::annotate_heartbeat(status_in(Kinect2State::kWaitingForDevice), &hb);
+    dd::add_device_status(to_device_status(status_in(Kinect2State::kWaitingForDevice)), &hb);
     EXPECT_EQ(hb.state, state);
     EXPECT_EQ(hb.last_error, "earlier error");
     EXPECT_EQ(dd::counter_value(hb, "kinect2_state", -1), 0);  // the device state is still there
@@ -127,10 +127,10 @@ TEST(Kinect2Capture, WithNoKinectTheDaemonWaitsAndItsHeartbeatSaysSo) {
   ASSERT_TRUE(listener.error().empty()) << listener.error();
   std::mutex mutex;
   std::vector<heartbeat_t> heard;
-  listener.subscribe(lcmio::kHeartbeatChannel, [&](const std::string&, const uint8_t* data,
+  listener.subscribe(lcm::kHeartbeatChannel, [&](const std::string&, const uint8_t* data,
                                                    size_t size, int64_t) {
     heartbeat_t hb;
-    if (lcmio::decode_message(data, size, &hb) != lcmio::DecodeResult::kOk || hb.name != name)
+    if (lcm::decode_message(data, size, &hb) != lcm::DecodeResult::kOk || hb.name != name)
       return;
     std::lock_guard<std::mutex> lock(mutex);
     heard.push_back(hb);
@@ -185,4 +185,4 @@ TEST(Kinect2Capture, WithNoKinectTheDaemonWaitsAndItsHeartbeatSaysSo) {
 }
 
 }  // namespace
-}  // namespace depthfuse
+}  // namespace depthfuse::kinect2

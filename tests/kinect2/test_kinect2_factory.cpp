@@ -5,7 +5,7 @@
 #include "depthfuse/kinect2/kinect2_source.hpp"
 #include "depthfuse/source_factory.hpp"
 
-namespace depthfuse {
+namespace depthfuse::kinect2 {
 namespace {
 
 TEST(Kinect2Factory, KinectSpecsOpenThisDriver) {
@@ -33,4 +33,4 @@ TEST(Kinect2Factory, ConfigErrorsComeThrough) {
 }
 
 }  // namespace
-}  // namespace depthfuse
+}  // namespace depthfuse::kinect2

@@ -11,7 +11,7 @@
 #include "depthfuse/kinect2/kinect2_source.hpp"
 #include "depthfuse/kinect2/packet_pipeline.hpp"
 
-namespace depthfuse {
+namespace depthfuse::kinect2 {
 namespace {
 
 using Clock = std::chrono::steady_clock;
@@ -213,4 +213,4 @@ TEST(Kinect2Options, APipelineNotInLibfreenect2IsUnsupported) {
 }
 
 }  // namespace
-}  // namespace depthfuse
+}  // namespace depthfuse::kinect2

@@ -13,13 +13,13 @@
 #include <vector>
 
 #include "depthfuse/lcm/udpm.hpp"
-#include "test_support.hpp"
+#include "lcm_test_util.hpp"
 
 namespace depthfuse {
 namespace {
 
 using namespace depthfuse::testing;
-namespace udpm = lcmio::udpm;
+namespace udpm = lcm::udpm;
 
 void put32(std::vector<uint8_t>* out, uint32_t v) {
   for (int shift = 24; shift >= 0; shift -= 8) out->push_back(static_cast<uint8_t>(v >> shift));
@@ -218,7 +218,7 @@ TEST(UdpmReassembler, AFragmentThatDisagreesWithItsMessageIsDropped) {
 TEST(UdpmTransport, HostileDatagramsAreDroppedAndTheBusGoesOn) {
   const std::string url = test_url();
   require_multicast_route(url);
-  auto parsed = lcmio::parse_lcm_url(url);
+  auto parsed = lcm::parse_lcm_url(url);
   ASSERT_TRUE(parsed.is_ok());
   Listener listener(url);
   ASSERT_TRUE(listener.error().empty()) << listener.error();
@@ -245,7 +245,7 @@ TEST(UdpmTransport, HostileDatagramsAreDroppedAndTheBusGoesOn) {
   }
   ::close(fd);
 
-  auto pub = lcmio::LcmTransport::open(url);
+  auto pub = lcm::LcmTransport::open(url);
   ASSERT_TRUE(pub.is_ok()) << pub.status().to_string();
   const auto payload = pattern(300'000);  // fragmented by liblcm
   EXPECT_TRUE(eventually([&] {

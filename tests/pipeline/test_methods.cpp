@@ -8,7 +8,7 @@
 #include "depthfuse/pipeline.hpp"
 #include "depthfuse/synthetic/synthetic_sequence.hpp"
 #include "depthfuse/trajectory.hpp"
-#include "rendered_scan.hpp"
+#include "pipeline_test_util.hpp"
 
 using namespace depthfuse;
 

@@ -7,6 +7,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -21,21 +22,27 @@
 
 namespace depthfuse::store::test {
 
+// A fresh directory for one test's files, removed at the end unless the test failed (what it left
+// is then worth looking at) or DEPTHFUSE_KEEP_TEST_FILES is set. The one temporary directory of the
+// store and fusion_store tests.
 class TempDir {
  public:
-  TempDir() {
-    std::string tmpl = (std::filesystem::temp_directory_path() / "depthfuse-store-XXXXXX").string();
+  explicit TempDir(const std::string& tag = "store") {
+    std::string tmpl =
+        (std::filesystem::temp_directory_path() / ("depthfuse-" + tag + "-XXXXXX")).string();
     if (!mkdtemp(tmpl.data())) std::abort();
     path_ = tmpl;
   }
   ~TempDir() {
-    if (std::getenv("DEPTHFUSE_KEEP_TEST_FILES")) {  // for looking at the files afterwards
+    if (std::getenv("DEPTHFUSE_KEEP_TEST_FILES") || ::testing::Test::HasFailure()) {
       std::fprintf(stderr, "kept %s\n", path_.c_str());
       return;
     }
     std::error_code ec;
     std::filesystem::remove_all(path_, ec);
   }
+  TempDir(const TempDir&) = delete;
+  TempDir& operator=(const TempDir&) = delete;
   std::string file(const std::string& name) const { return path_ + "/" + name; }
   const std::string& path() const { return path_; }
 

@@ -11,7 +11,7 @@
 #include "depthfuse/synthetic/renderer.hpp"
 #include "depthfuse/synthetic/synthetic_sequence.hpp"
 #include "depthfuse/synthetic/trajectory.hpp"
-#include "test_util.hpp"
+#include "synthetic_test_util.hpp"
 
 namespace depthfuse::synthetic {
 namespace {

@@ -7,7 +7,7 @@
 
 #include "depthfuse/replay/tum_source.hpp"
 #include "depthfuse/synthetic/tum_writer.hpp"
-#include "test_util.hpp"
+#include "synthetic_test_util.hpp"
 
 namespace depthfuse::synthetic {
 namespace {
@@ -24,9 +24,9 @@ TEST(TumReplay, WrittenFolderReplaysAsRecordedData) {
   const std::string folder = (dir.path() / "corner").string();
   ASSERT_TRUE(write_tum_folder(*seq, folder).is_ok());
 
-  TumReplayConfig rc;
+  replay::TumReplayConfig rc;
   rc.poses_path = folder + "/poses_perturbed.txt";
-  auto src = TumSource::open(folder, rc);
+  auto src = replay::TumSource::open(folder, rc);
   ASSERT_TRUE(src.is_ok()) << src.status().to_string();
   EXPECT_EQ((*src)->intrinsics_origin(), "camera.toml");
   EXPECT_EQ((*src)->intrinsics().fx, 365.0);

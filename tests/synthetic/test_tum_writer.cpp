@@ -12,7 +12,7 @@
 #include <vector>
 
 #include "depthfuse/synthetic/tum_writer.hpp"
-#include "test_util.hpp"
+#include "synthetic_test_util.hpp"
 
 namespace depthfuse::synthetic {
 namespace {

@@ -27,7 +27,9 @@
 #include <thread>
 #include <vector>
 
-#include "depthfuse/daemon/process_info.hpp"
+#include "depthfuse/base/clock.hpp"
+#include "depthfuse/base/log.hpp"
+#include "depthfuse/daemon/startup.hpp"
 #include "depthfuse/depth_frame_t.hpp"
 #include "depthfuse/heartbeat_t.hpp"
 #include "depthfuse/lcm/channels.hpp"
@@ -37,10 +39,12 @@
 #include "depthfuse/pose_t.hpp"
 #include "depthfuse/synthetic/synthetic_source.hpp"
 
+DF_LOG_CATEGORY(BenchLive)
+
 namespace {
 
 using Clock = std::chrono::steady_clock;
-namespace lcmio = depthfuse::lcmio;
+namespace lcm = depthfuse::lcm;
 
 struct Args {
   double duration_s = 60.0;
@@ -56,17 +60,15 @@ struct Args {
   double hint_noise_m = 0.0;  // hints perturbed by N(0, this) per axis, as a front end's would be
 };
 
-void usage() {
-  std::printf(
-      "usage: bench_live [--duration S] [--rate HZ] [--scene corner|room] [--frames N] [--queue N]\n"
-      "                  [--config FILE] [--lcm URL] [--fusion PATH] [--no-color]\n"
-      "                  [--no-hint | --hint-noise-m X]\n"
-      "  --frames N   distinct frames rendered up front; the trajectory loops over them (default 300)\n"
-      "  --lcm URL    default: a private loopback port, so a running appliance is not disturbed\n"
-      "  --no-hint    frames without a pose hint, as from a Kinect: the daemon tracks each frame\n"
-      "               from the last refined pose (coarse to fine)\n"
-      "  --hint-noise-m X  hints off the true pose by N(0, X) m per axis (default 0: exact)\n");
-}
+constexpr const char* kUsage =
+    "usage: bench_live [--duration S] [--rate HZ] [--scene corner|room] [--frames N] [--queue N]\n"
+    "                  [--config FILE] [--lcm URL] [--fusion PATH] [--no-color]\n"
+    "                  [--no-hint | --hint-noise-m X]\n"
+    "  --frames N   distinct frames rendered up front; the trajectory loops over them (default 300)\n"
+    "  --lcm URL    default: a private loopback port, so a running appliance is not disturbed\n"
+    "  --no-hint    frames without a pose hint, as from a Kinect: the daemon tracks each frame\n"
+    "               from the last refined pose (coarse to fine)\n"
+    "  --hint-noise-m X  hints off the true pose by N(0, X) m per axis (default 0: exact)\n";
 
 double percentile(std::vector<double> v, double p) {
   if (v.empty()) return std::nan("");
@@ -96,53 +98,46 @@ double cpu_seconds(pid_t pid) {
   return static_cast<double>(utime + stime) / static_cast<double>(::sysconf(_SC_CLK_TCK));
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
+int run(int argc, char** argv) {
+  namespace dd = depthfuse::daemon;
+  dd::Startup startup({"bench_live", kUsage,
+                       {"duration", "rate", "scene", "frames", "queue", "fusion", "hint-noise-m"},
+                       {"no-color", "no-hint"}, {}, 0},
+                      argc, argv);
+  if (auto code = startup.exit_code()) return *code;
+  const dd::Args& args = startup.args();
   Args a;
-  for (int i = 1; i < argc; ++i) {
-    const std::string k = argv[i];
-    auto next = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        usage();
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    if (k == "--duration") a.duration_s = std::atof(next().c_str());
-    else if (k == "--rate") a.rate_hz = std::atof(next().c_str());
-    else if (k == "--scene") a.scene = next();
-    else if (k == "--frames") a.distinct_frames = std::atoi(next().c_str());
-    else if (k == "--queue") a.queue = std::atoi(next().c_str());
-    else if (k == "--config") a.config = next();
-    else if (k == "--lcm") a.lcm_url = next();
-    else if (k == "--fusion") a.fusion = next();
-    else if (k == "--no-color") a.color = false;
-    else if (k == "--no-hint") a.hint = false;
-    else if (k == "--hint-noise-m") a.hint_noise_m = std::atof(next().c_str());
-    else {
-      usage();
-      return k == "--help" || k == "-h" ? 0 : 2;
-    }
-  }
-  if (!(a.duration_s > 0) || !(a.rate_hz > 0) || a.distinct_frames < 2 || a.queue < 1 ||
-      !(a.hint_noise_m >= 0)) {
-    usage();
-    return 2;
-  }
-  if (a.lcm_url.empty()) a.lcm_url = lcmio::loopback_test_url(static_cast<int>(::getpid()));
+  long frames = a.distinct_frames, queue = a.queue;
+  std::string error;
+  if (!args.get_double("duration", &a.duration_s, &error, dd::positive()) ||
+      !args.get_double("rate", &a.rate_hz, &error, dd::positive()) ||
+      !args.get_int("frames", &frames, &error, dd::NumberRange{2}) ||
+      !args.get_int("queue", &queue, &error, dd::NumberRange{1}) ||
+      !args.get_double("hint-noise-m", &a.hint_noise_m, &error, dd::NumberRange{0}))
+    return startup.usage_error(error);
+  a.distinct_frames = static_cast<int>(frames);
+  a.queue = static_cast<int>(queue);
+  a.scene = args.get("scene", a.scene);
+  a.config = args.get("config");
+  a.fusion = args.get("fusion", a.fusion);
+  a.color = !args.has("no-color");
+  a.hint = !args.has("no-hint");
+  // By default a private loopback port, so that a running appliance is not disturbed.
+  if (args.get("lcm").empty())
+    startup.config().lcm.url = lcm::loopback_test_url(static_cast<int>(::getpid()));
+  a.lcm_url = startup.config().lcm.url;
 
   auto spec = depthfuse::synthetic::parse_synthetic_spec(
       a.scene + "?frames=" + std::to_string(a.distinct_frames) + "&seed=1&rate_hz=" +
       std::to_string(a.rate_hz) + "&pose_noise_m=" + std::to_string(a.hint_noise_m) +
       "&pose_noise_deg=0");
   if (!spec) {
-    std::fprintf(stderr, "bench_live: %s\n", spec.status().to_string().c_str());
+    DF_LOG(BenchLive, Error) << spec.status().to_string();
     return 2;
   }
   auto seq = depthfuse::synthetic::SyntheticSequence::create(*spec);
   if (!seq) {
-    std::fprintf(stderr, "bench_live: %s\n", seq.status().to_string().c_str());
+    DF_LOG(BenchLive, Error) << seq.status().to_string();
     return 2;
   }
 
@@ -159,41 +154,41 @@ int main(int argc, char** argv) {
     depthfuse::Frame f = seq->render(static_cast<size_t>(i));
     if (!a.hint) f.T_world_cam_hint.reset();  // as from a Kinect: the daemon tracks
     raw_depth_bytes = f.depth.depth_m.size() * 2;
-    lcmio::CodecTiming t;
-    if (!lcmio::encode_depth_frame(f, {}, &depth_msgs[i], &t).is_ok()) return 1;
+    lcm::CodecTiming t;
+    if (!lcm::encode_depth_frame(f, {}, &depth_msgs[i], &t).is_ok()) return 1;
     convert_ms.push_back(t.convert_ms);
     {
-      lcmio::DepthEncodeOptions plain;
+      lcm::DepthEncodeOptions plain;
       plain.predict_rows = false;
       depthfuse::depth_frame_t pm;
-      lcmio::CodecTiming pt;
-      if (!lcmio::encode_depth_frame(f, plain, &pm, &pt).is_ok()) return 1;
+      lcm::CodecTiming pt;
+      if (!lcm::encode_depth_frame(f, plain, &pm, &pt).is_ok()) return 1;
       plain_bytes.push_back(static_cast<double>(pm.data.size()));
       plain_ms.push_back(pt.compress_ms);
     }
     compress_ms.push_back(t.compress_ms);
     auto t0 = Clock::now();
-    const auto bytes = lcmio::encode_message(depth_msgs[i]);
+    const auto bytes = lcm::encode_message(depth_msgs[i]);
     serialize_ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
     depth_bytes.push_back(static_cast<double>(bytes.size()));
     t0 = Clock::now();
     depthfuse::depth_frame_t back;
     depthfuse::Frame out;
-    if (lcmio::decode_message(bytes.data(), bytes.size(), &back) != lcmio::DecodeResult::kOk ||
-        !lcmio::decode_depth_frame(back, &out).is_ok())
+    if (lcm::decode_message(bytes.data(), bytes.size(), &back) != lcm::DecodeResult::kOk ||
+        !lcm::decode_depth_frame(back, &out).is_ok())
       return 1;
     decode_ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
     if (!f.color.empty()) {
-      lcmio::CodecTiming ct;
-      if (!lcmio::encode_color_frame(f, {}, &color_msgs[i], &ct).is_ok()) return 1;
+      lcm::CodecTiming ct;
+      if (!lcm::encode_color_frame(f, {}, &color_msgs[i], &ct).is_ok()) return 1;
       color_ms.push_back(ct.compress_ms);
       color_bytes.push_back(static_cast<double>(color_msgs[i].getEncodedSize()));
       if (i % 10 == 0) {
-        lcmio::ColorEncodeOptions jo;
-        jo.encoding = lcmio::ColorEncoding::kJpeg;
+        lcm::ColorEncodeOptions jo;
+        jo.encoding = lcm::ColorEncoding::kJpeg;
         depthfuse::color_frame_t jm;
-        lcmio::CodecTiming jt;
-        if (!lcmio::encode_color_frame(f, jo, &jm, &jt).is_ok()) return 1;
+        lcm::CodecTiming jt;
+        if (!lcm::encode_color_frame(f, jo, &jm, &jt).is_ok()) return 1;
         jpeg_ms.push_back(jt.compress_ms);
         jpeg_bytes.push_back(static_cast<double>(jm.getEncodedSize()));
       }
@@ -216,12 +211,8 @@ int main(int argc, char** argv) {
   std::fflush(stdout);
 
   // ---------------------------------------------------------------- 2. the live daemon
-  auto opened = lcmio::LcmTransport::open(a.lcm_url);
-  if (!opened) {
-    std::fprintf(stderr, "bench_live: %s\n", opened.status().to_string().c_str());
-    return 1;
-  }
-  auto lcm = std::move(opened).value();
+  auto lcm = startup.open_lcm();
+  if (!lcm) return 1;
   const std::string scan_dir =
       (std::filesystem::temp_directory_path() / ("bench_live-" + std::to_string(::getpid()))).string();
 
@@ -253,10 +244,10 @@ int main(int argc, char** argv) {
   depthfuse::heartbeat_t last_hb{};
   bool have_hb = false;
   int64_t poses = 0;
-  lcm->subscribe(lcmio::kPoseChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
-    const int64_t now = depthfuse::daemon::wall_utime();
+  lcm->subscribe(lcm::kPoseChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
+    const int64_t now = depthfuse::now_utime();
     depthfuse::pose_t p;
-    if (lcmio::decode_message(d, n, &p) != lcmio::DecodeResult::kOk) return;
+    if (lcm::decode_message(d, n, &p) != lcm::DecodeResult::kOk) return;
     std::lock_guard<std::mutex> lock(m);
     ++poses;
     auto it = publish_utime_by_seq.find(p.sequence);
@@ -271,9 +262,9 @@ int main(int argc, char** argv) {
     registration_ms.push_back(p.registration_ms);
     fusion_ms.push_back(p.fusion_ms);
   });
-  lcm->subscribe(lcmio::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
+  lcm->subscribe(lcm::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
     depthfuse::heartbeat_t hb;
-    if (lcmio::decode_message(d, n, &hb) != lcmio::DecodeResult::kOk || hb.name != "fusion") return;
+    if (lcm::decode_message(d, n, &hb) != lcm::DecodeResult::kOk || hb.name != "fusion") return;
     std::lock_guard<std::mutex> lock(m);
     last_hb = hb;
     have_hb = true;
@@ -291,8 +282,7 @@ int main(int argc, char** argv) {
       if (have_hb && last_hb.scan_id == "bench") break;
     }
     if (Clock::now() > wait_until) {
-      std::fprintf(stderr, "bench_live: depthfuse-fusion did not start a scan; its log: %s\n",
-                   fusion_log.c_str());
+      DF_LOG(BenchLive, Error) << "depthfuse-fusion did not start a scan; its log: " << fusion_log;
       ::kill(fusion_pid, SIGKILL);
       stop = true;
       receiver.join();
@@ -317,17 +307,17 @@ int main(int argc, char** argv) {
     const int idx = static_cast<int>(published % a.distinct_frames);
     auto& dm = depth_msgs[idx];
     dm.sequence = published;
-    dm.utime = depthfuse::daemon::wall_utime();
+    dm.utime = depthfuse::now_utime();
     if (a.color && !color_msgs[idx].data.empty()) {
       color_msgs[idx].sequence = published;
-      (void)lcm->publish_message(lcmio::kColorChannel, color_msgs[idx]);
+      (void)lcm->publish_message(lcm::kColorChannel, color_msgs[idx]);
     }
-    dm.publish_utime = depthfuse::daemon::wall_utime();
+    dm.publish_utime = depthfuse::now_utime();
     {
       std::lock_guard<std::mutex> lock(m);
       publish_utime_by_seq[published] = dm.publish_utime;
     }
-    (void)lcm->publish_message(lcmio::kDepthChannel, dm);
+    (void)lcm->publish_message(lcm::kDepthChannel, dm);
     ++published;
   }
   const double elapsed_s = std::chrono::duration<double>(Clock::now() - start).count();
@@ -364,4 +354,10 @@ int main(int argc, char** argv) {
               (cpu1 - cpu0) / elapsed_s, last_hb.rss_bytes / 1048576.0,
               static_cast<long long>(last_hb.point_count));
   return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  return depthfuse::daemon::run_main([&] { return run(argc, argv); });
 }

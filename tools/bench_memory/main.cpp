@@ -26,6 +26,7 @@
 #include <string>
 #include <vector>
 
+#include "depthfuse/base/log.hpp"
 #include "depthfuse/pipeline.hpp"
 #include "depthfuse/store/map_pager.hpp"
 #include "depthfuse/store/scan_recorder.hpp"
@@ -34,6 +35,8 @@
 
 using namespace depthfuse;
 using Clock = std::chrono::steady_clock;
+
+DF_LOG_CATEGORY(BenchMemory)
 
 namespace {
 
@@ -127,7 +130,7 @@ int run(const Options& o, bool bounded) {
   const char* name = bounded ? "bounded" : "unbounded";
   auto seq = synthetic::SyntheticSequence::create(scan_config(o));
   if (!seq) {
-    std::fprintf(stderr, "bench_memory: %s\n", seq.status().to_string().c_str());
+    DF_LOG(BenchMemory, Error) << seq.status().to_string();
     return 1;
   }
   ReconstructionConfig config;
@@ -147,7 +150,7 @@ int run(const Options& o, bool bounded) {
   auto made = store::ScanRecorder::create(path, meta, synthetic::synthetic_config_to_toml(seq->config()),
                                           "bench_memory", rc);
   if (!made) {
-    std::fprintf(stderr, "bench_memory: %s\n", made.status().to_string().c_str());
+    DF_LOG(BenchMemory, Error) << made.status().to_string();
     return 1;
   }
   store::ScanRecorder& recorder = **made;
@@ -172,24 +175,29 @@ int run(const Options& o, bool bounded) {
     seq->render_into(i, o.noise, &frame);
     if (auto st = recorder.prepare_frame(frame, rec); !st) {
       ++errors;
-      if (errors < 5) std::fprintf(stderr, "[%s] %s\n", name, st.to_string().c_str());
+      if (errors < 5) {
+        DF_LOG(BenchMemory, Error) << "[" << name << "] " << st.to_string();
+      }
     }
     auto report = rec.process(frame);
     if (!report) {
-      std::fprintf(stderr, "[%s] frame %zu: %s\n", name, i, report.status().to_string().c_str());
+      DF_LOG(BenchMemory, Error) << "[" << name << "] frame " << i << ": " << report.status().to_string();
       return 1;
     }
     const double e = (report->T_world_cam.translation() - seq->T_world_cam_true(i).translation()).norm();
     sq_error += e * e;
     if (auto st = recorder.record_frame(frame, *report, &rec.map()); !st) {
       ++errors;
-      if (errors < 5) std::fprintf(stderr, "[%s] %s\n", name, st.to_string().c_str());
+      if (errors < 5) {
+        DF_LOG(BenchMemory, Error) << "[" << name << "] " << st.to_string();
+      }
     }
     const double scan_s = static_cast<double>(i + 1) / o.rate_hz;
     if (scan_s >= next_checkpoint_s) {
       next_checkpoint_s += o.checkpoint_interval_s;
-      if (auto ck = recorder.checkpoint(&rec.map(), "periodic"); !ck)
-        std::fprintf(stderr, "[%s] checkpoint: %s\n", name, ck.status().to_string().c_str());
+      if (auto ck = recorder.checkpoint(&rec.map(), "periodic"); !ck) {
+        DF_LOG(BenchMemory, Error) << "[" << name << "] checkpoint: " << ck.status().to_string();
+      }
     }
     const double rss = proc_status_mib("VmRSS");
     max_rss = std::max(max_rss, rss);
@@ -218,7 +226,7 @@ int run(const Options& o, bool bounded) {
   rec.finish();
   auto fin = recorder.finish(&rec.map());
   if (!fin) {
-    std::fprintf(stderr, "[%s] final checkpoint: %s\n", name, fin.status().to_string().c_str());
+    DF_LOG(BenchMemory, Error) << "[" << name << "] final checkpoint: " << fin.status().to_string();
     return 1;
   }
   const double seconds = std::chrono::duration<double>(Clock::now() - t0).count();
@@ -240,7 +248,7 @@ int compare(const Options& o) {
   auto a = store::ScanStore::open(o.dir + "/unbounded.db", store::OpenMode::kReadOnly);
   auto b = store::ScanStore::open(o.dir + "/bounded.db", store::OpenMode::kReadOnly);
   if (!a || !b) {
-    std::fprintf(stderr, "bench_memory: %s\n", (!a ? a.status() : b.status()).to_string().c_str());
+    DF_LOG(BenchMemory, Error) << (!a ? a.status() : b.status()).to_string();
     return 1;
   }
   auto la = (*a)->list_chunks(), lb = (*b)->list_chunks();
@@ -281,6 +289,7 @@ int compare(const Options& o) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  log::set_program_name("bench_memory");
   Options o;
   if (argc > 1 && (!std::strcmp(argv[1], "--help") || !std::strcmp(argv[1], "-h"))) {
     usage();
@@ -310,7 +319,7 @@ int main(int argc, char** argv) {
     int status = 0;
     waitpid(child, &status, 0);
     if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) {
-      std::fprintf(stderr, "bench_memory: the %s run failed\n", bounded ? "bounded" : "unbounded");
+      DF_LOG(BenchMemory, Error) << "the " << (bounded ? "bounded" : "unbounded") << " run failed";
       return 1;
     }
   }

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <string>
 
 #include "depthfuse/app_config.hpp"
@@ -15,5 +16,13 @@ namespace depthfuse {
 
 Result<std::unique_ptr<FrameSource>> open_frame_source(const std::string& spec,
                                                        const AppConfig& config);
+
+// For a live device source that open_frame_source has not opened yet, the device status to report
+// meanwhile, `detail` saying why ("" while opening it; else why it could not, kUnavailable: its bus
+// is not accessible for now, which is worth waiting for). nullopt when `spec` names no device
+// source that is built in.
+std::optional<DeviceStatus> device_status_before_open(const std::string& spec,
+                                                      const AppConfig& config,
+                                                      const std::string& detail);
 
 }  // namespace depthfuse

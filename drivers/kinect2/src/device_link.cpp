@@ -2,7 +2,7 @@
 
 #include <cstdio>
 
-namespace depthfuse {
+namespace depthfuse::kinect2 {
 
 const char* to_string(Kinect2State state) {
   switch (state) {
@@ -15,7 +15,6 @@ const char* to_string(Kinect2State state) {
   return "unknown";
 }
 
-namespace kinect2 {
 
 const char* to_string(LinkAction action) {
   switch (action) {
@@ -176,5 +175,4 @@ DeviceLink::TimePoint DeviceLink::next_deadline() const {
   return TimePoint::max();
 }
 
-}  // namespace kinect2
-}  // namespace depthfuse
+}  // namespace depthfuse::kinect2

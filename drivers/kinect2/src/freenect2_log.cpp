@@ -1,10 +1,13 @@
 #include "freenect2_log.hpp"
 
-#include <cstdio>
 #include <cstdlib>
 #include <mutex>
 
 #include <libfreenect2/logger.h>
+
+#include "depthfuse/base/log.hpp"
+
+DF_LOG_CATEGORY(Kinect2)
 
 namespace depthfuse::kinect2 {
 
@@ -23,8 +26,13 @@ class Freenect2Log final : public libfreenect2::Logger {
       g_last_error = message;
     }
     if (level > level_) return;
-    std::fprintf(stderr, "kinect2: libfreenect2 %s: %s\n", level2str(level).c_str(),
-                 message.c_str());
+    // What is shown is chosen above (LIBFREENECT2_LOGGER_LEVEL), so Info and Debug are logged as
+    // Info: --log-level need not repeat the choice.
+    switch (level) {
+      case Error: DF_LOG(Kinect2, Error) << "libfreenect2: " << message; break;
+      case Warning: DF_LOG(Kinect2, Warning) << "libfreenect2: " << message; break;
+      default: DF_LOG(Kinect2, Info) << "libfreenect2 " << level2str(level) << ": " << message;
+    }
   }
 };
 

@@ -16,7 +16,7 @@
 #include "depthfuse/kinect2/usb_reset.hpp"
 #include "freenect2_log.hpp"
 
-namespace depthfuse {
+namespace depthfuse::kinect2 {
 
 namespace {
 
@@ -435,4 +435,4 @@ const Kinect2Source* as_kinect2_source(const FrameSource& source) {
   return dynamic_cast<const Kinect2Source*>(&source);
 }
 
-}  // namespace depthfuse
+}  // namespace depthfuse::kinect2

@@ -12,10 +12,13 @@
 #include <limits>
 #include <string>
 
+#include "depthfuse/base/log.hpp"
 #include "depthfuse/synthetic/synthetic_sequence.hpp"
 
 using depthfuse::Frame;
 using namespace depthfuse::synthetic;
+
+DF_LOG_CATEGORY(Bench)
 
 namespace {
 
@@ -29,6 +32,7 @@ double now_ms() {
 }  // namespace
 
 int main(int argc, char** argv) {
+  depthfuse::log::set_program_name("depthfuse_synthetic_bench");
   const int frames = argc > 1 ? std::max(1, std::atoi(argv[1])) : 60;
   std::printf("%-6s %8s %10s %10s %9s %9s %9s\n", "scene", "frames", "exact_ms", "noisy_ms",
               "valid_%", "near_%", "far_%");
@@ -41,7 +45,7 @@ int main(int argc, char** argv) {
     config.frames = frames * step;
     auto seq = SyntheticSequence::create(config);
     if (!seq.is_ok()) {
-      std::fprintf(stderr, "%s\n", seq.status().to_string().c_str());
+      DF_LOG(Bench, Error) << seq.status().to_string();
       return 1;
     }
     // Depth statistics over unlimited rays: how much of the view is nearer/farther than the range.

@@ -1,11 +1,15 @@
+// The heartbeat's common fields (see heartbeat.hpp). No state but the daemon's name, host and
+// start time; called from whichever thread publishes a heartbeat.
 #include "depthfuse/daemon/heartbeat.hpp"
+
+#include "depthfuse/base/clock.hpp"
 
 namespace depthfuse::daemon {
 
 depthfuse::heartbeat_t HeartbeatBase::make(int8_t state) const {
   depthfuse::heartbeat_t hb{};
   hb.protocol_version = depthfuse::heartbeat_t::PROTOCOL_VERSION;
-  hb.utime = wall_utime();
+  hb.utime = now_utime();
   hb.name = name_;
   hb.host = host_;
   hb.pid = process_id();
@@ -29,6 +33,19 @@ double counter_value(const depthfuse::heartbeat_t& hb, const std::string& key, d
   for (const auto& kv : hb.counters)
     if (kv.key == key) return kv.value;
   return fallback;
+}
+
+void add_device_status(const DeviceStatus& device, depthfuse::heartbeat_t* hb) {
+  using depthfuse::heartbeat_t;
+  if (hb->state == heartbeat_t::STATE_RUNNING || hb->state == heartbeat_t::STATE_IDLE) {
+    switch (device.reading) {
+      case DeviceStatus::Reading::kStreaming: hb->state = heartbeat_t::STATE_RUNNING; break;
+      case DeviceStatus::Reading::kWaiting: hb->state = heartbeat_t::STATE_IDLE; break;
+      case DeviceStatus::Reading::kFailing: hb->state = heartbeat_t::STATE_ERROR; break;
+    }
+    if (device.reading != DeviceStatus::Reading::kStreaming) hb->last_error = device.summary;
+  }
+  for (const auto& [key, value] : device.counters) add_counter(hb, key, value);
 }
 
 const char* state_name(int8_t state) {

@@ -1,8 +1,8 @@
+// Facts about this process (see process_info.hpp), read when asked, from any thread.
 #include "depthfuse/daemon/process_info.hpp"
 
 #include <unistd.h>
 
-#include <chrono>
 #include <fstream>
 
 namespace depthfuse::daemon {
@@ -20,12 +20,6 @@ int64_t resident_memory_bytes() {
   int64_t size_pages = 0, resident_pages = 0;
   if (!(in >> size_pages >> resident_pages)) return -1;
   return resident_pages * static_cast<int64_t>(::sysconf(_SC_PAGESIZE));
-}
-
-int64_t wall_utime() {
-  return std::chrono::duration_cast<std::chrono::microseconds>(
-             std::chrono::system_clock::now().time_since_epoch())
-      .count();
 }
 
 }  // namespace depthfuse::daemon

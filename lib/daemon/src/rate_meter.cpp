@@ -1,3 +1,5 @@
+// A sliding-window rate (see rate_meter.hpp): its events are under its own mutex, so add() and
+// rate_hz() may come from different threads.
 #include "depthfuse/daemon/rate_meter.hpp"
 
 namespace depthfuse::daemon {

@@ -1,3 +1,5 @@
+// The process-wide stop flag and eventfd (see signals.hpp). on_signal() runs in the signal handler,
+// on whichever thread the kernel picks; everything else may be called from any thread.
 #include "depthfuse/daemon/signals.hpp"
 
 #include <poll.h>

@@ -1,3 +1,5 @@
+// sd_notify calls (see systemd_notify.hpp). Stateless, any thread; a WatchdogPetter belongs to the
+// one loop that pets it.
 #include "depthfuse/daemon/systemd_notify.hpp"
 
 #include <systemd/sd-daemon.h>

@@ -1,41 +1,17 @@
-// Binary little-endian PLY for fused clouds: positions, normals, colour (optional), and the
-// per-point merge count and uncertainty as extra properties. Streaming, so exports stay bounded.
+// PLY files of fused clouds: writing through the one point-cloud writer (point_cloud_writer.hpp),
+// and a reader for depthfuse's own files and other binary/ASCII PLYs.
 #pragma once
 
-#include <cstdio>
-#include <memory>
 #include <string>
 
 #include "depthfuse/point_arrays.hpp"
+#include "depthfuse/point_cloud_writer.hpp"
 #include "depthfuse/status.hpp"
 
 namespace depthfuse {
 
-struct PlyOptions {
-  bool with_color = true;
-  bool with_fusion_stats = true;  // merges (uchar saturating... uint16), violations, uncertainty_m
-};
-
-class PlyWriter {
- public:
-  PlyWriter() = default;
-  ~PlyWriter();
-  PlyWriter(const PlyWriter&) = delete;
-  PlyWriter& operator=(const PlyWriter&) = delete;
-
-  // The vertex count goes in the header, so it must be known up front (export counts first).
-  Status open(const std::string& path, const PlyOptions& options, size_t vertex_count);
-  // Appends the points of `points` whose keep[i] is non-zero (keep may be null for all).
-  Status write(const PointArrays& points, const std::vector<uint8_t>* keep = nullptr);
-  // Fails if fewer or more points were written than announced.
-  Status close();
-
- private:
-  std::FILE* file_ = nullptr;
-  std::string path_;
-  PlyOptions options_;
-  size_t announced_ = 0, written_ = 0;
-};
+// The optional fields of a PLY: colour, and the merge count, violations and uncertainty.
+using PlyOptions = CloudFields;
 
 Status write_ply(const std::string& path, const PointArrays& points, const PlyOptions& options = {});
 

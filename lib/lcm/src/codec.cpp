@@ -1,6 +1,6 @@
 #include "depthfuse/lcm/codec.hpp"
 
-namespace depthfuse::lcmio {
+namespace depthfuse::lcm {
 
 const char* to_string(DecodeResult r) {
   switch (r) {
@@ -45,4 +45,4 @@ SequenceTracker::Observation SequenceTracker::observe(int64_t sequence) {
   return o;
 }
 
-}  // namespace depthfuse::lcmio
+}  // namespace depthfuse::lcm

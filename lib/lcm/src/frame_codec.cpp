@@ -10,7 +10,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-namespace depthfuse::lcmio {
+namespace depthfuse::lcm {
 
 namespace {
 
@@ -347,4 +347,4 @@ Status decode_color_frame(const depthfuse::color_frame_t& msg, ColorImage* out,
   return Status::ok();
 }
 
-}  // namespace depthfuse::lcmio
+}  // namespace depthfuse::lcm

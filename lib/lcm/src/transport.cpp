@@ -20,7 +20,7 @@
 
 DF_LOG_CATEGORY(Lcm)
 
-namespace depthfuse::lcmio {
+namespace depthfuse::lcm {
 
 // A channel expression, anchored at both ends as in liblcm, and its handler.
 struct LcmTransport::Subscription {
@@ -299,4 +299,4 @@ Status LcmTransport::handle_for(int budget_ms) {
 }
 
 
-}  // namespace depthfuse::lcmio
+}  // namespace depthfuse::lcm

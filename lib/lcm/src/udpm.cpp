@@ -6,7 +6,7 @@
 #include <cstring>
 #include <utility>
 
-namespace depthfuse::lcmio::udpm {
+namespace depthfuse::lcm::udpm {
 namespace {
 
 uint32_t be32(const uint8_t* p) {
@@ -169,4 +169,4 @@ void Reassembler::erase_partial(size_t index, bool evicted) {
   partials_.erase(partials_.begin() + static_cast<std::ptrdiff_t>(index));
 }
 
-}  // namespace depthfuse::lcmio::udpm
+}  // namespace depthfuse::lcm::udpm

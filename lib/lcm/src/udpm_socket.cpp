@@ -11,7 +11,7 @@
 
 #include "depthfuse/base/errno_text.hpp"
 
-namespace depthfuse::lcmio {
+namespace depthfuse::lcm {
 
 Result<std::unique_ptr<UdpmSocket>> UdpmSocket::open(const LcmUrl& url) {
   const int fd = ::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
@@ -66,4 +66,4 @@ Result<std::optional<UdpmSocket::Datagram>> UdpmSocket::receive(int timeout_ms) 
   return std::optional<Datagram>(Datagram{buffer_.data(), static_cast<size_t>(n), sender});
 }
 
-}  // namespace depthfuse::lcmio
+}  // namespace depthfuse::lcm

@@ -12,7 +12,7 @@
 #include "depthfuse/lcm/transport.hpp"
 #include "depthfuse/status.hpp"
 
-namespace depthfuse::lcmio {
+namespace depthfuse::lcm {
 
 class UdpmSocket {
  public:
@@ -40,4 +40,4 @@ class UdpmSocket {
   std::vector<uint8_t> buffer_;
 };
 
-}  // namespace depthfuse::lcmio
+}  // namespace depthfuse::lcm

@@ -1,3 +1,6 @@
+// The blob encodings of the scan file (chunk points, keyframe depth and colour, poses): checked,
+// compressed, lossless. A codec owns its zstd contexts and scratch buffers and runs on the thread
+// that owns its ScanStore (the fusion daemon's worker thread, or a CLI reader).
 #include "depthfuse/store/blob_codec.hpp"
 
 #include <zstd.h>

@@ -1,3 +1,5 @@
+// CRC-32 for the blob checks. Pure functions; the tables are built once, on first use, by any
+// thread.
 #include "depthfuse/store/checksum.hpp"
 
 #include <array>

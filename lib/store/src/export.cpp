@@ -1,3 +1,6 @@
+// Exporting a scan file's cloud (PLY or PCD, through the core's PointCloudWriter) and trajectory.
+// Runs in the CLI (depthfuse export) and on the fusion daemon's worker thread (the scan's cloud at
+// its end), each on its own read snapshot.
 #include "depthfuse/store/export.hpp"
 
 #include <unistd.h>
@@ -5,8 +8,6 @@
 #include <algorithm>
 #include <cctype>
 
-#include "depthfuse/ply.hpp"
-#include "depthfuse/store/pcd_writer.hpp"
 #include "depthfuse/trajectory.hpp"
 
 namespace depthfuse::store {
@@ -36,21 +37,6 @@ size_t select_points(const PointArrays& a, const ExportOptions& o, std::vector<u
   }
   return n;
 }
-
-// Either writer behind one interface.
-struct CloudWriter {
-  CloudFormat format;
-  PlyWriter ply;
-  PcdWriter pcd;
-  Status open(const std::string& path, const ExportOptions& o, size_t n) {
-    if (format == CloudFormat::kPly) return ply.open(path, PlyOptions{o.with_color, o.with_fusion_stats}, n);
-    return pcd.open(path, PcdOptions{o.with_color, o.with_fusion_stats}, n);
-  }
-  Status write(const PointArrays& a, const std::vector<uint8_t>* keep) {
-    return format == CloudFormat::kPly ? ply.write(a, keep) : pcd.write(a, keep);
-  }
-  Status close() { return format == CloudFormat::kPly ? ply.close() : pcd.close(); }
-};
 
 }  // namespace
 
@@ -85,8 +71,9 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
     report.damaged.clear();  // pass 2 reports them again
   }
 
-  CloudWriter writer{*format, {}, {}};
-  Status st = writer.open(path, options, count);
+  PointCloudWriter writer;
+  Status st = writer.open(path, *format, CloudFields{options.with_color, options.with_fusion_stats},
+                          count);
   if (st) {
     st = store.for_each_chunk(
         [&](const ChunkInfo&, PointArrays& a) {
@@ -100,7 +87,7 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
         },
         filter);
   }
-  Status closed = writer.close();
+  Status closed = writer.finish();
   if (st) st = closed;
   if (!st) {
     ::unlink(path.c_str());

@@ -1,3 +1,5 @@
+// The memory pager: owns the index of evicted chunks and moves chunks between the map and the scan
+// file's staging table. Runs on the fusion daemon's worker thread, between frames (ScanRecorder).
 #include "depthfuse/store/map_pager.hpp"
 
 #include <malloc.h>

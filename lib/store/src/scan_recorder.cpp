@@ -1,9 +1,10 @@
+// The fusion daemon's use of the store: owns the scan file's writer, the pager and the poses since
+// the last checkpoint. Runs on the fusion daemon's worker thread (SqliteCheckpointSink).
 #include "depthfuse/store/scan_recorder.hpp"
 
 #include <malloc.h>
 
-#include <chrono>
-
+#include "depthfuse/base/clock.hpp"
 #include "depthfuse/fusion.hpp"
 
 namespace depthfuse::store {
@@ -34,9 +35,7 @@ Result<std::unique_ptr<ScanRecorder>> ScanRecorder::create(const std::string& pa
   if (!store) return store.status();
   ScanMetadata meta = metadata;
   if (meta.created_utime == 0) {
-    meta.created_utime = std::chrono::duration_cast<std::chrono::microseconds>(
-                             std::chrono::system_clock::now().time_since_epoch())
-                             .count();
+    meta.created_utime = now_utime();
   }
   DF_RETURN_IF_ERROR((*store)->set_metadata(meta));
   DF_RETURN_IF_ERROR((*store)->set_config(config_toml, config_source));
@@ -165,7 +164,7 @@ Result<CheckpointRecord> ScanRecorder::finish(PointMap* map, const FrameCounters
 Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std::string& reason,
                                                         const FrameCounters& counters,
                                                         bool postfilter_evicted) {
-  const auto t0 = std::chrono::steady_clock::now();
+  const int64_t t0_ns = steady_ns();
   ScanStore& store = *store_;
   Status st = store.begin_checkpoint();
   if (!st) {
@@ -239,8 +238,7 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
   // Encoding and writing the chunks freed heap memory that glibc would keep until the pager's next
   // eviction: give it back now, so that resident memory follows the budget through checkpoints too.
   if (pager_ && config_.pager.release_memory_to_os) malloc_trim(0);
-  status_.last_checkpoint_seconds =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  status_.last_checkpoint_seconds = static_cast<double>(steady_ns() - t0_ns) * 1e-9;
   status_.last_error_code = StatusCode::kOk;
   status_.last_error.clear();
   status_.checkpoint_error.clear();

@@ -1,3 +1,5 @@
+// The scan file's schema and its migrations. Runs inside ScanStore's open, on the thread that opens
+// the store.
 #include "schema.hpp"
 
 #include <string>
@@ -13,8 +15,11 @@ namespace {
 
 // Schema 2 (current). Blob columns come last in each row: SQLite stores a row's columns in order
 // and a big blob spills into overflow pages, so the small columns stay cheap to read.
-constexpr const char* kChunksV2 = R"sql(
-CREATE TABLE chunks (
+//
+// The committed chunks and the staged ones share a layout; only the column before the blob
+// differs: the checkpoint that wrote a committed chunk, the time a staged one was evicted.
+std::string chunk_table(const char* name, const char* owner_column) {
+  return std::string("\nCREATE TABLE ") + name + R"sql( (
   x INTEGER NOT NULL,
   y INTEGER NOT NULL,
   z INTEGER NOT NULL,
@@ -22,13 +27,18 @@ CREATE TABLE chunks (
   min_x REAL, min_y REAL, min_z REAL,
   max_x REAL, max_y REAL, max_z REAL,
   last_touched_frame INTEGER NOT NULL,
-  checkpoint_id INTEGER NOT NULL,
+  )sql" + owner_column + R"sql( INTEGER NOT NULL,
   data BLOB NOT NULL,
   PRIMARY KEY (x, y, z)
 );
 )sql";
+}
 
-constexpr const char* kRestV2 = R"sql(
+std::string chunks_v2() { return chunk_table("chunks", "checkpoint_id"); }
+
+// The tables schema 2 added to schema 1.
+std::string added_in_v2() {
+  return R"sql(
 CREATE TABLE checkpoints (
   id INTEGER PRIMARY KEY,
   utime INTEGER NOT NULL,
@@ -38,20 +48,8 @@ CREATE TABLE checkpoints (
   point_count INTEGER NOT NULL,
   chunk_count INTEGER NOT NULL,
   T_world_cam BLOB
-);
-CREATE TABLE chunk_staging (
-  x INTEGER NOT NULL,
-  y INTEGER NOT NULL,
-  z INTEGER NOT NULL,
-  point_count INTEGER NOT NULL,
-  min_x REAL, min_y REAL, min_z REAL,
-  max_x REAL, max_y REAL, max_z REAL,
-  last_touched_frame INTEGER NOT NULL,
-  staged_utime INTEGER NOT NULL,
-  data BLOB NOT NULL,
-  PRIMARY KEY (x, y, z)
-);
-)sql";
+);)sql" + chunk_table("chunk_staging", "staged_utime");
+}
 
 constexpr const char* kCreateV2 = R"sql(
 CREATE TABLE meta (
@@ -92,7 +90,7 @@ CREATE TABLE keyframes (
 //  - poses carry the ICP result, keyframes an optional colour image.
 Status migrate_1_to_2(sql::Database& db) {
   const std::string ctx = "migrating schema 1 to 2";
-  DF_RETURN_IF_ERROR(db.exec(kRestV2, ctx));
+  DF_RETURN_IF_ERROR(db.exec(added_in_v2(), ctx));
   DF_RETURN_IF_ERROR(db.exec(R"sql(
 INSERT INTO checkpoints (id, utime, reason, last_frame_id, frames_fused, point_count, chunk_count,
                          T_world_cam)
@@ -107,7 +105,7 @@ SELECT CAST(c.value AS INTEGER),
 FROM meta AS c WHERE c.key = 'checkpoint_count' AND CAST(c.value AS INTEGER) > 0;
 )sql", ctx));
   DF_RETURN_IF_ERROR(db.exec("ALTER TABLE chunks RENAME TO chunks_v1;", ctx));
-  DF_RETURN_IF_ERROR(db.exec(kChunksV2, ctx));
+  DF_RETURN_IF_ERROR(db.exec(chunks_v2(), ctx));
   DF_RETURN_IF_ERROR(db.exec(R"sql(
 INSERT INTO chunks (x, y, z, point_count, min_x, min_y, min_z, max_x, max_y, max_z,
                     last_touched_frame, checkpoint_id, data)
@@ -131,8 +129,8 @@ PRAGMA user_version = 2;
 Status create_current(sql::Database& db) {
   const std::string ctx = "creating the scan schema";
   DF_RETURN_IF_ERROR(db.exec(kCreateV2, ctx));
-  DF_RETURN_IF_ERROR(db.exec(kChunksV2, ctx));
-  DF_RETURN_IF_ERROR(db.exec(kRestV2, ctx));
+  DF_RETURN_IF_ERROR(db.exec(chunks_v2(), ctx));
+  DF_RETURN_IF_ERROR(db.exec(added_in_v2(), ctx));
   DF_RETURN_IF_ERROR(db.exec("PRAGMA application_id = " + std::to_string(kApplicationId) + ";", ctx));
   DF_RETURN_IF_ERROR(db.exec("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";", ctx));
   return Status::ok();

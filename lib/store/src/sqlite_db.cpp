@@ -1,6 +1,8 @@
+// The SQLite layer's error mapping and stepping. A Database and its statements belong to the one
+// thread that uses the ScanStore (connections are opened with SQLITE_OPEN_NOMUTEX).
 #include "sqlite_db.hpp"
 
-#include <cstring>
+#include "depthfuse/base/errno_text.hpp"
 
 namespace depthfuse::store::sql {
 
@@ -43,24 +45,32 @@ Status make_status(sqlite3* db, int rc, const std::string& path, const std::stri
   // The operating system's reason for an I/O error ("File too large", "No space left on device").
   if (db && (primary == SQLITE_IOERR || primary == SQLITE_FULL || primary == SQLITE_CANTOPEN)) {
     const int err = sqlite3_system_errno(db);
-    if (err != 0) msg += std::string(" (") + std::strerror(err) + ")";
+    if (err != 0) msg += " (" + errno_text(err) + ")";
   }
   msg += " [sqlite " + std::to_string(rc) + ": " + sqlite3_errstr(rc) + "]";
   return Status(status_code_for(rc), msg);
 }
 
-Result<bool> Statement::step(const std::string& context) {
+Result<bool> Statement::step() {
   const int rc = sqlite3_step(stmt_);
   if (rc == SQLITE_ROW) return true;
   if (rc == SQLITE_DONE) return false;
-  return make_status(db_, rc, path_, context);
+  return make_status(db_, rc, path_, context_);
+}
+
+bool Statement::next() {
+  auto r = step();
+  if (!r) status_ = r.status();
+  return r.is_ok() && *r;
 }
 
 Status Statement::run(const std::string& context) {
-  auto r = step(context);
+  const int rc = sqlite3_step(stmt_);
+  // The message first: resetting the statement may change what SQLite reports.
+  Status st = rc == SQLITE_ROW || rc == SQLITE_DONE ? Status::ok()
+                                                    : make_status(db_, rc, path_, context);
   sqlite3_reset(stmt_);
-  if (!r) return r.status();
-  return Status::ok();
+  return st;
 }
 
 Status Database::open(const std::string& path, int flags) {
@@ -96,16 +106,16 @@ Result<Statement> Database::prepare(const std::string& sql, const std::string& c
     sqlite3_finalize(stmt);
     return make_status(db_, rc, path_, context);
   }
-  return Statement(db_, stmt, path_, sql);
+  return Statement(db_, stmt, path_, context);
 }
 
 Result<int64_t> Database::query_int(const std::string& sql, const std::string& context) {
   auto st = prepare(sql, context);
   if (!st) return st.status();
-  auto row = st->step(context);
+  auto row = st->step();
   if (!row) return row.status();
   if (!*row) return internal_error(path_ + ": " + context + ": no result");
-  return st->int64(0);
+  return st->row().int64(0);
 }
 
 }  // namespace depthfuse::store::sql

@@ -15,7 +15,7 @@
 #include <cstdint>
 #include <string>
 
-namespace depthfuse {
+namespace depthfuse::kinect2 {
 
 // What the capture daemon reports in its heartbeat.
 enum class Kinect2State {
@@ -29,7 +29,6 @@ enum class Kinect2State {
 // "waiting for device", "opening", "connected", "stalled", "recovering"
 const char* to_string(Kinect2State state);
 
-namespace kinect2 {
 
 enum class LinkAction {
   kNone,
@@ -103,5 +102,4 @@ class DeviceLink {
   uint32_t open_failures_ = 0;
 };
 
-}  // namespace kinect2
-}  // namespace depthfuse
+}  // namespace depthfuse::kinect2

@@ -16,7 +16,7 @@
 #include "depthfuse/kinect2/device_link.hpp"
 #include "depthfuse/status.hpp"
 
-namespace depthfuse {
+namespace depthfuse::kinect2 {
 
 struct Kinect2Options {
   std::string serial;                  // empty = the first Kinect V2 found
@@ -54,10 +54,19 @@ struct Kinect2Status {
   std::string summary() const;
 };
 
+// The status as every device source gives it (FrameSource::device_status): streaming when
+// connected, waiting while there is no device to read (none attached, opening it), failing while a
+// stalled device is reset; the summary line; and the counters kinect2_state (the position of the
+// state in Kinect2State), kinect2_state_<name> (1, the one key that names the state),
+// kinect2_frames, kinect2_stalls, kinect2_usb_resets, kinect2_reconnects and kinect2_usb_hotplug.
+DeviceStatus to_device_status(const Kinect2Status& status);
+
 class Kinect2Source : public FrameSource {
  public:
   // Thread-safe: a heartbeat thread may call it while another thread is inside next().
   virtual Kinect2Status status() const = 0;
+  // to_device_status(status()).
+  std::optional<DeviceStatus> device_status() const final;
 };
 
 // kUnsupported / kInvalidArgument for a bad configuration, kUnavailable when USB cannot be
@@ -68,7 +77,13 @@ Result<std::unique_ptr<Kinect2Source>> open_kinect2(const Kinect2Options& option
 Result<std::unique_ptr<FrameSource>> open_kinect2_source(const std::string& serial_or_empty,
                                                          const AppConfig& config);
 
+// The device status of "kinect2[:serial]" before the source could be opened: waiting for the
+// device, `detail` saying why ("" while it is being opened). The factory's
+// device_status_before_open.
+DeviceStatus kinect2_status_before_open(const std::string& serial_or_empty, const AppConfig& config,
+                                        const std::string& detail);
+
 // The status of `source` when it is a Kinect V2 source, for daemons that hold a FrameSource.
 const Kinect2Source* as_kinect2_source(const FrameSource& source);
 
-}  // namespace depthfuse
+}  // namespace depthfuse::kinect2

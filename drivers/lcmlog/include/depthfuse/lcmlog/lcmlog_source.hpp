@@ -15,7 +15,7 @@
 #include "depthfuse/app_config.hpp"
 #include "depthfuse/frame_source.hpp"
 
-namespace depthfuse {
+namespace depthfuse::lcmlog {
 
 struct LcmLogStats {
   size_t events = 0;             // complete events in the log
@@ -45,6 +45,9 @@ class LcmLogSource : public FrameSource {
     next_ = 0;
     return Status::ok();
   }
+  // A log replays at the pace lcm-logger received its frames (last_log_utime()).
+  int64_t recorded_utime(const Frame&) const override { return last_log_utime(); }
+  bool paced_as_recorded() const override { return true; }
 
   const LcmLogStats& stats() const { return stats_; }
   // Frame i without advancing.
@@ -76,4 +79,4 @@ class LcmLogSource : public FrameSource {
 Result<std::unique_ptr<FrameSource>> open_lcmlog_source(const std::string& arg,
                                                         const AppConfig& config);
 
-}  // namespace depthfuse
+}  // namespace depthfuse::lcmlog

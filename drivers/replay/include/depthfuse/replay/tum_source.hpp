@@ -10,7 +10,7 @@
 #include "depthfuse/app_config.hpp"
 #include "depthfuse/frame_source.hpp"
 
-namespace depthfuse {
+namespace depthfuse::replay {
 
 struct CameraFile {
   CameraIntrinsics intrinsics;
@@ -73,4 +73,4 @@ class TumSource : public FrameSource {
 // For the source factory: arg is the folder.
 Result<std::unique_ptr<FrameSource>> open_tum_source(const std::string& arg, const AppConfig& config);
 
-}  // namespace depthfuse
+}  // namespace depthfuse::replay

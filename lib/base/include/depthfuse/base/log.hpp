@@ -55,6 +55,11 @@ class Message {
   std::ostringstream out_;
 };
 
+// Turns the stream expression into void, the type of the other branch of DF_LOG's conditional.
+struct Voidify {
+  void operator&(std::ostream&) {}
+};
+
 }  // namespace depthfuse::log
 
 // Defines the category `name` for this translation unit.
@@ -64,7 +69,9 @@ class Message {
     return category;                                                       \
   }
 
-#define DF_LOG(category, level)                                                  \
-  if (!df_log_##category().enabled(::depthfuse::log::Level::level)) {           \
-  } else                                                                         \
-    ::depthfuse::log::Message(df_log_##category(), ::depthfuse::log::Level::level).stream()
+// One expression, so that it is safe as the body of an unbraced if/else.
+#define DF_LOG(category, level)                                                    \
+  !df_log_##category().enabled(::depthfuse::log::Level::level)                     \
+      ? (void)0                                                                    \
+      : ::depthfuse::log::Voidify() &                                              \
+            ::depthfuse::log::Message(df_log_##category(), ::depthfuse::log::Level::level).stream()

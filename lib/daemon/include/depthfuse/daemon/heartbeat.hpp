@@ -4,8 +4,9 @@
 
 #include <string>
 
-#include "depthfuse/heartbeat_t.hpp"
 #include "depthfuse/daemon/process_info.hpp"
+#include "depthfuse/frame_source.hpp"
+#include "depthfuse/heartbeat_t.hpp"
 
 namespace depthfuse::daemon {
 
@@ -27,6 +28,12 @@ class HeartbeatBase {
 void add_counter(depthfuse::heartbeat_t* hb, const std::string& key, double value);
 // The value of a custom counter, or `fallback` when the heartbeat does not carry it.
 double counter_value(const depthfuse::heartbeat_t& hb, const std::string& key, double fallback = 0);
+
+// Puts the state of the device a daemon reads into its heartbeat: the device's counters, and when
+// the daemon is reading (state running or idle) the state from the device (running while it
+// streams, idle while waiting for it, error while it fails) with, unless it streams, its summary
+// as hb->last_error. Paused, stopping, finished and error (a stuck driver) are left as they are.
+void add_device_status(const DeviceStatus& device, depthfuse::heartbeat_t* hb);
 
 const char* state_name(int8_t state);
 

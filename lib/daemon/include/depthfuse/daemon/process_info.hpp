@@ -11,8 +11,6 @@ std::string host_name();
 int process_id();
 // Resident set size in bytes from /proc/self/statm, -1 when it cannot be read.
 int64_t resident_memory_bytes();
-// Microseconds since the Unix epoch (the clock of utime fields).
-int64_t wall_utime();
 
 class Uptime {
  public:

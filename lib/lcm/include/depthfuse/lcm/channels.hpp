@@ -1,7 +1,7 @@
 // The LCM channels of the appliance. docs/protocol.md lists them with their types.
 #pragma once
 
-namespace depthfuse::lcmio {
+namespace depthfuse::lcm {
 
 inline constexpr const char* kDepthChannel = "DEPTHFUSE_DEPTH";          // depth_frame_t
 inline constexpr const char* kColorChannel = "DEPTHFUSE_COLOR";          // color_frame_t
@@ -14,4 +14,4 @@ inline constexpr const char* kCommandChannel = "DEPTHFUSE_COMMAND";      // comm
 // message types agree with it; a test checks that).
 inline constexpr int kProtocolVersion = 1;
 
-}  // namespace depthfuse::lcmio
+}  // namespace depthfuse::lcm

@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-namespace depthfuse::lcmio {
+namespace depthfuse::lcm {
 
 enum class DecodeResult {
   kOk,
@@ -90,4 +90,4 @@ class SequenceTracker {
   int64_t last_ = 0;
 };
 
-}  // namespace depthfuse::lcmio
+}  // namespace depthfuse::lcm

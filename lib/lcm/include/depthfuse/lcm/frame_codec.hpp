@@ -11,7 +11,7 @@
 #include "depthfuse/status.hpp"
 #include "depthfuse/types.hpp"
 
-namespace depthfuse::lcmio {
+namespace depthfuse::lcm {
 
 struct DepthEncodeOptions {
   bool compress = true;         // zstd (ENCODING_ZSTD_DELTA_UINT16 with predict_rows)
@@ -54,4 +54,4 @@ void pose_to_arrays(const Pose& T, double position_m[3], double orientation_wxyz
 // Normalises the quaternion; fails when it is not finite or has (near) zero norm.
 Result<Pose> pose_from_arrays(const double position_m[3], const double orientation_wxyz[4]);
 
-}  // namespace depthfuse::lcmio
+}  // namespace depthfuse::lcm

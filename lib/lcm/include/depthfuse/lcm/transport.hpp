@@ -16,7 +16,7 @@
 
 typedef struct _lcm_t lcm_t;
 
-namespace depthfuse::lcmio {
+namespace depthfuse::lcm {
 
 class UdpmSocket;
 
@@ -122,4 +122,4 @@ class LcmTransport {
   udpm::Counters counters_;
 };
 
-}  // namespace depthfuse::lcmio
+}  // namespace depthfuse::lcm

@@ -23,7 +23,7 @@
 #include <string_view>
 #include <vector>
 
-namespace depthfuse::lcmio::udpm {
+namespace depthfuse::lcm::udpm {
 
 constexpr uint32_t kShortMagic = 0x4c433032;     // "LC02"
 constexpr uint32_t kFragmentMagic = 0x4c433033;  // "LC03"
@@ -112,4 +112,4 @@ class Reassembler {
   std::string complete_channel_;
 };
 
-}  // namespace depthfuse::lcmio::udpm
+}  // namespace depthfuse::lcm::udpm

@@ -10,12 +10,12 @@
 
 #include <Eigen/Geometry>
 
+#include "depthfuse/point_cloud_writer.hpp"
 #include "depthfuse/status.hpp"
 #include "depthfuse/store/scan_store.hpp"
 
 namespace depthfuse::store {
 
-enum class CloudFormat { kPly, kPcd };
 // From the file name: .ply or .pcd (case-insensitive).
 Result<CloudFormat> cloud_format_for(const std::string& path);
 

@@ -31,7 +31,7 @@
 #include "depthfuse/status_t.hpp"
 #include "depthfuse/synthetic/synthetic_source.hpp"
 #include "depthfuse/trajectory.hpp"
-#include "test_support.hpp"
+#include "lcm_test_util.hpp"
 
 namespace depthfuse {
 namespace {
@@ -45,33 +45,33 @@ class Observer {
  public:
   explicit Observer(const std::string& url) : listener_(url) {
     if (!listener_.error().empty()) return;
-    listener_.subscribe(lcmio::kHeartbeatChannel, [this](const std::string&, const uint8_t* d,
+    listener_.subscribe(lcm::kHeartbeatChannel, [this](const std::string&, const uint8_t* d,
                                                          size_t n, int64_t) {
       depthfuse::heartbeat_t hb;
-      if (lcmio::decode_message(d, n, &hb) != lcmio::DecodeResult::kOk) return;
+      if (lcm::decode_message(d, n, &hb) != lcm::DecodeResult::kOk) return;
       std::lock_guard<std::mutex> lock(mutex_);
       heartbeats_[hb.name] = hb;
       ++heartbeat_count_[hb.name];
     });
-    listener_.subscribe(lcmio::kStatusChannel, [this](const std::string&, const uint8_t* d,
+    listener_.subscribe(lcm::kStatusChannel, [this](const std::string&, const uint8_t* d,
                                                       size_t n, int64_t) {
       depthfuse::status_t st;
-      if (lcmio::decode_message(d, n, &st) != lcmio::DecodeResult::kOk) return;
+      if (lcm::decode_message(d, n, &st) != lcm::DecodeResult::kOk) return;
       std::lock_guard<std::mutex> lock(mutex_);
       status_ = st;
       ++status_count_;
     });
-    listener_.subscribe(lcmio::kPoseChannel, [this](const std::string&, const uint8_t* d, size_t n,
+    listener_.subscribe(lcm::kPoseChannel, [this](const std::string&, const uint8_t* d, size_t n,
                                                     int64_t) {
       depthfuse::pose_t p;
-      if (lcmio::decode_message(d, n, &p) != lcmio::DecodeResult::kOk) return;
+      if (lcm::decode_message(d, n, &p) != lcm::DecodeResult::kOk) return;
       std::lock_guard<std::mutex> lock(mutex_);
       poses_.push_back(p);
     });
     listener_.start();
   }
   const std::string& error() const { return listener_.error(); }
-  lcmio::LcmTransport* lcm() { return listener_.lcm(); }
+  lcm::LcmTransport* lcm() { return listener_.lcm(); }
 
   std::optional<depthfuse::heartbeat_t> heartbeat(const std::string& name) {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -289,12 +289,12 @@ TEST_F(LiveAppliance, CaptureFusionMonitorEndToEnd) {
     IncrementalReconstructor local(ReconstructionConfig{});
     for (int i = 0; i < kFrames; ++i) {
       depthfuse::depth_frame_t msg;
-      ASSERT_TRUE(lcmio::encode_depth_frame(seq->render(i), {}, &msg).is_ok());
+      ASSERT_TRUE(lcm::encode_depth_frame(seq->render(i), {}, &msg).is_ok());
       Frame wire;
-      ASSERT_TRUE(lcmio::decode_depth_frame(msg, &wire).is_ok());
+      ASSERT_TRUE(lcm::decode_depth_frame(msg, &wire).is_ok());
       depthfuse::color_frame_t cmsg;
-      ASSERT_TRUE(lcmio::encode_color_frame(seq->render(i), {}, &cmsg).is_ok());
-      ASSERT_TRUE(lcmio::decode_color_frame(cmsg, &wire.color).is_ok());
+      ASSERT_TRUE(lcm::encode_color_frame(seq->render(i), {}, &cmsg).is_ok());
+      ASSERT_TRUE(lcm::decode_color_frame(cmsg, &wire.color).is_ok());
       auto rep = local.process(wire);
       ASSERT_TRUE(rep.is_ok()) << rep.status().to_string();
       EXPECT_TRUE(rep->T_world_cam.isApprox((*traj)[i].T_world_cam, 1e-5))
@@ -426,7 +426,7 @@ TEST_F(LiveAppliance, CommandsTakeEffect) {
   again.action = depthfuse::command_t::ACTION_NEW_SCAN;
   again.argument = "twice";
   for (int i = 0; i < 3; ++i) {
-    ASSERT_TRUE(observer_->lcm()->publish_message(lcmio::kCommandChannel, again).is_ok());
+    ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kCommandChannel, again).is_ok());
     std::this_thread::sleep_for(milliseconds(100));
   }
   ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) {
@@ -460,7 +460,7 @@ depthfuse::depth_frame_t small_frame(int64_t sequence) {
   for (auto& d : f.depth.depth_m) d = 1.5f;
   f.T_world_cam_hint = Pose::Identity();
   depthfuse::depth_frame_t msg;
-  EXPECT_TRUE(lcmio::encode_depth_frame(f, {}, &msg).is_ok());
+  EXPECT_TRUE(lcm::encode_depth_frame(f, {}, &msg).is_ok());
   msg.sequence = sequence;
   return msg;
 }
@@ -470,46 +470,46 @@ TEST_F(LiveAppliance, HostileInputIsCountedAndSurvived) {
   auto fusion = start_fusion({"--autostart", "robust", "--queue", "64"});
   ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.scan_id == "robust"; },
                                         seconds(10)));
-  lcmio::LcmTransport* lcm = observer_->lcm();
+  lcm::LcmTransport* lcm = observer_->lcm();
   auto send = [&](const char* channel, const std::vector<uint8_t>& bytes) {
     ASSERT_TRUE(lcm->publish(channel, bytes.data(), bytes.size()).is_ok());
     std::this_thread::sleep_for(milliseconds(10));
   };
   // In order: 10, 11, then 9 (late), 12, 14 (13 lost).
-  send(lcmio::kDepthChannel, lcmio::encode_message(small_frame(10)));
-  send(lcmio::kDepthChannel, lcmio::encode_message(small_frame(11)));
-  send(lcmio::kDepthChannel, lcmio::encode_message(small_frame(9)));
-  send(lcmio::kDepthChannel, lcmio::encode_message(small_frame(12)));
-  send(lcmio::kDepthChannel, lcmio::encode_message(small_frame(14)));
+  send(lcm::kDepthChannel, lcm::encode_message(small_frame(10)));
+  send(lcm::kDepthChannel, lcm::encode_message(small_frame(11)));
+  send(lcm::kDepthChannel, lcm::encode_message(small_frame(9)));
+  send(lcm::kDepthChannel, lcm::encode_message(small_frame(12)));
+  send(lcm::kDepthChannel, lcm::encode_message(small_frame(14)));
   // Malformed: truncated payloads (3), a frame whose contents fail the checks (2).
-  const auto good = lcmio::encode_message(small_frame(15));
+  const auto good = lcm::encode_message(small_frame(15));
   for (size_t cut : {good.size() / 2, size_t(9), good.size() - 1})
-    send(lcmio::kDepthChannel, std::vector<uint8_t>(good.begin(), good.begin() + cut));
+    send(lcm::kDepthChannel, std::vector<uint8_t>(good.begin(), good.begin() + cut));
   auto broken = small_frame(16);
   broken.intrinsics.width = -4;
-  send(lcmio::kDepthChannel, lcmio::encode_message(broken));
+  send(lcm::kDepthChannel, lcm::encode_message(broken));
   broken = small_frame(17);
   broken.data.assign(broken.data.size(), 0x42);
-  send(lcmio::kDepthChannel, lcmio::encode_message(broken));
+  send(lcm::kDepthChannel, lcm::encode_message(broken));
   // Unknown protocol version (4).
   for (int i = 0; i < 4; ++i) {
     auto v = small_frame(20 + i);
     v.protocol_version = 2;
-    send(lcmio::kDepthChannel, lcmio::encode_message(v));
+    send(lcm::kDepthChannel, lcm::encode_message(v));
   }
   // Foreign types on our channels (5): a heartbeat on the depth channel, poses on commands.
   depthfuse::heartbeat_t stray{};
   stray.protocol_version = 1;
   stray.name = "stray";
-  for (int i = 0; i < 3; ++i) send(lcmio::kDepthChannel, lcmio::encode_message(stray));
+  for (int i = 0; i < 3; ++i) send(lcm::kDepthChannel, lcm::encode_message(stray));
   depthfuse::pose_t pose{};
   pose.protocol_version = 1;
-  for (int i = 0; i < 2; ++i) send(lcmio::kCommandChannel, lcmio::encode_message(pose));
+  for (int i = 0; i < 2; ++i) send(lcm::kCommandChannel, lcm::encode_message(pose));
   // Garbage on the heartbeat channel: the monitor counts it (2 malformed, 1 foreign).
-  send(lcmio::kHeartbeatChannel, {1, 2, 3});
-  const auto stray_bytes = lcmio::encode_message(stray);
-  send(lcmio::kHeartbeatChannel, std::vector<uint8_t>(stray_bytes.begin(), stray_bytes.end() - 3));
-  send(lcmio::kHeartbeatChannel, good);
+  send(lcm::kHeartbeatChannel, {1, 2, 3});
+  const auto stray_bytes = lcm::encode_message(stray);
+  send(lcm::kHeartbeatChannel, std::vector<uint8_t>(stray_bytes.begin(), stray_bytes.end() - 3));
+  send(lcm::kHeartbeatChannel, good);
 
   ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) {
     return hb.messages_malformed >= 5 && hb.messages_bad_version >= 4 && hb.messages_foreign >= 5;
@@ -552,7 +552,7 @@ TEST_F(LiveAppliance, RecordedSessionReplaysAtItsPace) {
   // The recording holds the frames losslessly (depth to the millimetre, colour exactly).
   auto seq = synthetic::SyntheticSequence::create(*synthetic::parse_synthetic_spec(spec));
   ASSERT_TRUE(seq.is_ok());
-  auto src = LcmLogSource::open(log_path, {});
+  auto src = lcmlog::LcmLogSource::open(log_path, {});
   ASSERT_TRUE(src.is_ok()) << src.status().to_string() << "\n" << logger->log();
   ASSERT_EQ((*src)->frame_count().value_or(0), 10u);
   for (size_t i = 0; i < 10; ++i) {

@@ -8,7 +8,7 @@
 #include "depthfuse/command_t.hpp"
 #include "depthfuse/heartbeat_t.hpp"
 #include "depthfuse/lcm/codec.hpp"
-#include "test_support.hpp"
+#include "lcm_test_util.hpp"
 
 namespace depthfuse {
 namespace {
@@ -32,7 +32,7 @@ TEST(Bindings, PythonEncodesWhatCppDecodes) {
 
   const auto hb_bytes = from_hex(hb_hex);
   depthfuse::heartbeat_t hb;
-  ASSERT_EQ(lcmio::decode_message(hb_bytes.data(), hb_bytes.size(), &hb), lcmio::DecodeResult::kOk);
+  ASSERT_EQ(lcm::decode_message(hb_bytes.data(), hb_bytes.size(), &hb), lcm::DecodeResult::kOk);
   EXPECT_EQ(hb.name, "python");
   EXPECT_EQ(hb.host, "remote");
   EXPECT_EQ(hb.pid, 4242);
@@ -45,7 +45,7 @@ TEST(Bindings, PythonEncodesWhatCppDecodes) {
 
   const auto cmd_bytes = from_hex(cmd_hex);
   depthfuse::command_t cmd;
-  ASSERT_EQ(lcmio::decode_message(cmd_bytes.data(), cmd_bytes.size(), &cmd), lcmio::DecodeResult::kOk);
+  ASSERT_EQ(lcm::decode_message(cmd_bytes.data(), cmd_bytes.size(), &cmd), lcm::DecodeResult::kOk);
   EXPECT_EQ(cmd.command_id, 77);
   EXPECT_EQ(cmd.action, int8_t{depthfuse::command_t::ACTION_STOP});
   EXPECT_EQ(cmd.target, "fusion");

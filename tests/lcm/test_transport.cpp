@@ -8,7 +8,7 @@
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/lcm/frame_codec.hpp"
-#include "test_support.hpp"
+#include "lcm_test_util.hpp"
 
 namespace depthfuse {
 namespace {
@@ -16,73 +16,73 @@ namespace {
 using namespace depthfuse::testing;
 
 TEST(LcmUrl, ParsesUdpm) {
-  auto u = lcmio::parse_lcm_url("udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304");
+  auto u = lcm::parse_lcm_url("udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304");
   ASSERT_TRUE(u.is_ok()) << u.status().to_string();
   EXPECT_EQ(u->provider, "udpm");
   EXPECT_EQ(u->multicast_group, "239.255.76.67");
   EXPECT_EQ(u->port, 7667);
   EXPECT_EQ(u->ttl, 0);
   EXPECT_EQ(u->recv_buf_size, 4194304);
-  auto d = lcmio::parse_lcm_url("udpm://");
+  auto d = lcm::parse_lcm_url("udpm://");
   ASSERT_TRUE(d.is_ok());
   EXPECT_EQ(d->multicast_group, "239.255.76.67");
   EXPECT_EQ(d->recv_buf_size, -1);
-  EXPECT_TRUE(lcmio::parse_lcm_url("memq://").is_ok());
+  EXPECT_TRUE(lcm::parse_lcm_url("memq://").is_ok());
 }
 
 TEST(LcmUrl, RejectsBadUrlsWithReasons) {
   for (const char* bad : {"239.255.76.67:7667", "udpm://239.255.76.67:99999", "udpm://10.0.0.1:7667",
                           "udpm://nonsense:7667", "udpm://239.255.76.67:7667?ttl=x",
                           "udpm://239.255.76.67:7667?recv_buf_size=-3"}) {
-    auto u = lcmio::parse_lcm_url(bad);
+    auto u = lcm::parse_lcm_url(bad);
     EXPECT_FALSE(u.is_ok()) << bad;
     EXPECT_EQ(u.status().code(), StatusCode::kInvalidArgument) << bad;
     EXPECT_NE(u.status().message().find(bad), std::string::npos) << u.status().message();
   }
-  auto t = lcmio::LcmTransport::open("udpm://10.1.2.3:7667");
+  auto t = lcm::LcmTransport::open("udpm://10.1.2.3:7667");
   ASSERT_FALSE(t.is_ok());
   EXPECT_NE(t.status().message().find("not a multicast address"), std::string::npos);
 }
 
 TEST(LcmDiagnosis, WarnsAboutTheReceiveBuffer) {
-  const int64_t rmem_max = lcmio::read_rmem_max();
+  const int64_t rmem_max = lcm::read_rmem_max();
   ASSERT_GT(rmem_max, 0) << "/proc/sys/net/core/rmem_max is not readable";
-  auto none = lcmio::parse_lcm_url("udpm://239.255.76.67:7667?ttl=0");
+  auto none = lcm::parse_lcm_url("udpm://239.255.76.67:7667?ttl=0");
   ASSERT_TRUE(none.is_ok());
-  auto d = lcmio::diagnose_lcm_url(*none);
+  auto d = lcm::diagnose_lcm_url(*none);
   ASSERT_EQ(d.warnings.size(), 1u);
   EXPECT_NE(d.warnings[0].find("recv_buf_size=4194304"), std::string::npos) << d.warnings[0];
 
-  auto big = lcmio::parse_lcm_url("udpm://239.255.76.67:7667?ttl=0&recv_buf_size=" +
+  auto big = lcm::parse_lcm_url("udpm://239.255.76.67:7667?ttl=0&recv_buf_size=" +
                                   std::to_string(rmem_max * 2));
   ASSERT_TRUE(big.is_ok());
-  d = lcmio::diagnose_lcm_url(*big);
+  d = lcm::diagnose_lcm_url(*big);
   ASSERT_EQ(d.warnings.size(), 1u);
   EXPECT_NE(d.warnings[0].find("net.core.rmem_max"), std::string::npos) << d.warnings[0];
   EXPECT_NE(d.warnings[0].find("sysctl"), std::string::npos) << d.warnings[0];
 
-  auto fits = lcmio::parse_lcm_url("udpm://239.255.76.67:7667?ttl=0&recv_buf_size=" +
+  auto fits = lcm::parse_lcm_url("udpm://239.255.76.67:7667?ttl=0&recv_buf_size=" +
                                    std::to_string(rmem_max));
   ASSERT_TRUE(fits.is_ok());
-  EXPECT_TRUE(lcmio::diagnose_lcm_url(*fits).warnings.empty());
+  EXPECT_TRUE(lcm::diagnose_lcm_url(*fits).warnings.empty());
 }
 
 TEST(LcmTransport, FullSizeDepthFrameCrossesLoopback) {
   const std::string url = test_url();
   require_multicast_route(url);
-  auto pub = lcmio::LcmTransport::open(url);
+  auto pub = lcm::LcmTransport::open(url);
   ASSERT_TRUE(pub.is_ok()) << pub.status().to_string();
   Listener listener(url);
   ASSERT_TRUE(listener.error().empty()) << listener.error();
   std::mutex m;
   std::vector<int64_t> sequences;
   size_t bad = 0;
-  listener.subscribe(lcmio::kDepthChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
+  listener.subscribe(lcm::kDepthChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
     depthfuse::depth_frame_t msg;
     Frame f;
     std::lock_guard<std::mutex> lock(m);
-    if (lcmio::decode_message(d, n, &msg) != lcmio::DecodeResult::kOk ||
-        !lcmio::decode_depth_frame(msg, &f).is_ok() || f.depth.width != 512) {
+    if (lcm::decode_message(d, n, &msg) != lcm::DecodeResult::kOk ||
+        !lcm::decode_depth_frame(msg, &f).is_ok() || f.depth.width != 512) {
       ++bad;
       return;
     }
@@ -94,14 +94,14 @@ TEST(LcmTransport, FullSizeDepthFrameCrossesLoopback) {
   f.intrinsics = CameraIntrinsics::kinect_v2();
   f.depth = DepthImage(512, 424);
   for (size_t i = 0; i < f.depth.depth_m.size(); ++i) f.depth.depth_m[i] = 0.5f + (i % 4000) * 0.001f;
-  lcmio::DepthEncodeOptions raw;
+  lcm::DepthEncodeOptions raw;
   raw.compress = false;  // 434 kB: the worst case for UDP fragments
   constexpr int kFrames = 10;
   for (int i = 0; i < kFrames; ++i) {
     f.sequence = static_cast<uint32_t>(i);
     depthfuse::depth_frame_t msg;
-    ASSERT_TRUE(lcmio::encode_depth_frame(f, raw, &msg).is_ok());
-    ASSERT_TRUE((*pub)->publish_message(lcmio::kDepthChannel, msg).is_ok());
+    ASSERT_TRUE(lcm::encode_depth_frame(f, raw, &msg).is_ok());
+    ASSERT_TRUE((*pub)->publish_message(lcm::kDepthChannel, msg).is_ok());
     std::this_thread::sleep_for(std::chrono::milliseconds(30));
   }
   EXPECT_TRUE(eventually([&] {

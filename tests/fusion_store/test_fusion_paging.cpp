@@ -11,7 +11,8 @@
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/store/scan_store.hpp"
-#include "test_support.hpp"
+#include "store_test_util.hpp"
+#include "lcm_test_util.hpp"
 
 namespace depthfuse::testing {
 namespace {
@@ -37,14 +38,10 @@ class FusionPaging : public ::testing::Test {
   void SetUp() override {
     url_ = test_url();
     require_multicast_route(url_);
-    dir_ = temp_dir("fusion-paging");
-  }
-  void TearDown() override {
-    if (!HasFailure()) std::filesystem::remove_all(dir_);
   }
   void configure(DaemonRun* run, const std::string& name, double budget_mib) {
     run->name = name;
-    run->dir = dir_ + "/" + name;
+    run->dir = dir_.file(name);
     std::filesystem::create_directories(run->dir);
     run->config = run->dir + "/depthfuse.toml";
     run->db = run->dir + "/scan.db";
@@ -62,7 +59,8 @@ class FusionPaging : public ::testing::Test {
                                  std::to_string(kFrames + 50), "--autostart", "paging"},
         run->dir + "/fusion.log");
   }
-  std::string url_, dir_;
+  std::string url_;
+  store::test::TempDir dir_{"fusion-paging"};
 };
 
 std::string read_bytes(const std::string& path) {
@@ -84,10 +82,10 @@ TEST_F(FusionPaging, TinyBudgetEvictsReloadsAndGivesTheUnboundedCloud) {
   std::mutex mutex;
   Listener listener(url_);
   ASSERT_TRUE(listener.error().empty()) << listener.error();
-  listener.subscribe(lcmio::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n,
+  listener.subscribe(lcm::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n,
                                                    int64_t) {
     depthfuse::heartbeat_t hb;
-    if (lcmio::decode_message(d, n, &hb) != lcmio::DecodeResult::kOk) return;
+    if (lcm::decode_message(d, n, &hb) != lcm::DecodeResult::kOk) return;
     std::lock_guard<std::mutex> lock(mutex);
     for (DaemonRun* run : {&bounded, &unbounded}) {
       if (hb.name != run->name) continue;
@@ -112,7 +110,7 @@ TEST_F(FusionPaging, TinyBudgetEvictsReloadsAndGivesTheUnboundedCloud) {
       << bounded.process->log() << unbounded.process->log();
   Process capture({bin("depthfuse-capture"), "--source", kSource, "--lcm", url_, "--color", "none",
                    "--rate", "6"},
-                  dir_ + "/capture.log");
+                  dir_.file("capture.log"));
   ASSERT_TRUE(capture.wait(seconds(120))) << capture.log();
   ASSERT_EQ(capture.exit_code(), 0) << capture.log();
   // Both daemons work through their queues.

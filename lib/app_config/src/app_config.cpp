@@ -7,13 +7,13 @@
 
 #include <cerrno>
 #include <cmath>
-#include <cstring>
 #include <exception>
 #include <fstream>
 #include <sstream>
 
 #include "app_config_reader.hpp"
 #include "app_config_trace.hpp"
+#include "depthfuse/base/errno_text.hpp"
 
 namespace depthfuse {
 namespace {
@@ -359,7 +359,7 @@ Result<AppConfig> load_app_config(const std::string& path) {
   struct stat st {};
   if (::stat(path.c_str(), &st) != 0) {
     const int err = errno;
-    const std::string why = std::strerror(err);
+    const std::string why = errno_text(err);
     if (err == ENOENT) return not_found("cannot read config " + path + ": " + why);
     return io_error("cannot read config " + path + ": " + why);
   }
@@ -369,7 +369,7 @@ Result<AppConfig> load_app_config(const std::string& path) {
                             " bytes; a config file is at most " + std::to_string(kMaxConfigBytes));
   }
   std::ifstream in(path, std::ios::binary);
-  if (!in) return io_error("cannot open config " + path + ": " + std::strerror(errno));
+  if (!in) return io_error("cannot open config " + path + ": " + errno_text());
   std::ostringstream text;
   text << in.rdbuf();
   if (in.bad()) return io_error("reading config " + path + " failed");

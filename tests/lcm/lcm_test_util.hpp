@@ -28,13 +28,13 @@ namespace depthfuse::testing {
 inline std::string bin(const std::string& name) { return std::string(DEPTHFUSE_BIN_DIR) + "/" + name; }
 
 // Each test process gets its own udpm port, so tests running side by side do not hear each other.
-inline std::string test_url() { return lcmio::loopback_test_url(static_cast<int>(::getpid())); }
+inline std::string test_url() { return lcm::loopback_test_url(static_cast<int>(::getpid())); }
 
 // Fails the test with the route diagnosis when multicast cannot work on this host.
 inline void require_multicast_route(const std::string& url) {
-  auto parsed = lcmio::parse_lcm_url(url);
+  auto parsed = lcm::parse_lcm_url(url);
   ASSERT_TRUE(parsed.is_ok()) << parsed.status().to_string();
-  const auto d = lcmio::diagnose_lcm_url(*parsed);
+  const auto d = lcm::diagnose_lcm_url(*parsed);
   ASSERT_TRUE(d.route.is_ok())
       << "these tests need LCM multicast on loopback: " << d.route.message()
       << " (tools/setup.sh and tools/lcm/route add the route)";
@@ -153,7 +153,7 @@ inline bool eventually(const std::function<bool()>& pred, std::chrono::milliseco
 class Listener {
  public:
   explicit Listener(const std::string& url) {
-    auto opened = lcmio::LcmTransport::open(url);
+    auto opened = lcm::LcmTransport::open(url);
     if (!opened) {
       error_ = opened.status().to_string();
       return;
@@ -162,8 +162,8 @@ class Listener {
   }
   ~Listener() { stop(); }
   const std::string& error() const { return error_; }
-  lcmio::LcmTransport* lcm() { return lcm_.get(); }
-  void subscribe(const std::string& channel, lcmio::LcmTransport::Handler h) {
+  lcm::LcmTransport* lcm() { return lcm_.get(); }
+  void subscribe(const std::string& channel, lcm::LcmTransport::Handler h) {
     lcm_->subscribe(channel, std::move(h));
   }
   void start() {
@@ -177,7 +177,7 @@ class Listener {
   }
 
  private:
-  std::unique_ptr<lcmio::LcmTransport> lcm_;
+  std::unique_ptr<lcm::LcmTransport> lcm_;
   std::string error_;
   std::atomic<bool> stop_{false};
   std::thread thread_;

@@ -11,7 +11,8 @@
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/pose_t.hpp"
 #include "depthfuse/store/scan_store.hpp"
-#include "test_support.hpp"
+#include "store_test_util.hpp"
+#include "lcm_test_util.hpp"
 
 namespace depthfuse::testing {
 namespace {
@@ -24,30 +25,26 @@ class FusionStore : public ::testing::Test {
   void SetUp() override {
     url_ = test_url();
     require_multicast_route(url_);
-    dir_ = temp_dir("fusion-store");
-    config_ = dir_ + "/depthfuse.toml";
+    config_ = dir_.file("depthfuse.toml");
     std::ofstream(config_) << "[fusion_daemon]\ncheckpoint_interval_s = 0.5\n"
-                              "keyframe_every_n_frames = 5\nscan_dir = \"" << dir_ << "/scans\"\n";
-    db_ = dir_ + "/scan.db";
-  }
-  void TearDown() override {
-    if (!HasFailure()) std::filesystem::remove_all(dir_);
+                              "keyframe_every_n_frames = 5\nscan_dir = \"" << dir_.file("scans") << "\"\n";
+    db_ = dir_.file("scan.db");
   }
   std::unique_ptr<Process> start_fusion(const std::string& log, std::vector<std::string> prefix = {}) {
     std::vector<std::string> argv = {bin("depthfuse-fusion"), "--config", config_, "--lcm", url_,
                                      "--scan-db", db_, "--autostart", "kill-test"};
     argv.insert(argv.begin(), prefix.begin(), prefix.end());
-    return std::make_unique<Process>(argv, dir_ + "/" + log);
+    return std::make_unique<Process>(argv, dir_.file(log));
   }
   std::unique_ptr<Process> start_capture(const std::string& spec, std::vector<std::string> extra) {
     std::vector<std::string> argv = {bin("depthfuse-capture"), "--source", "synthetic:" + spec,
                                      "--lcm", url_, "--color", "none"};
     argv.insert(argv.end(), extra.begin(), extra.end());
-    return std::make_unique<Process>(argv, dir_ + "/capture.log");
+    return std::make_unique<Process>(argv, dir_.file("capture.log"));
   }
   int cli(std::vector<std::string> args, std::string* out) {
     args.insert(args.begin(), bin("depthfuse"));
-    return run_command(args, dir_ + "/cli-" + std::to_string(cli_calls_++) + ".log", out);
+    return run_command(args, dir_.file("cli-" + std::to_string(cli_calls_++) + ".log"), out);
   }
   // The last checkpoint's frame id (0 before the first), after an integrity check of the file.
   uint32_t checked_last_frame(const std::string& when) {
@@ -68,7 +65,9 @@ class FusionStore : public ::testing::Test {
     return last.is_ok() && *last ? (*last)->last_frame_id : 0;
   }
 
-  std::string url_, dir_, config_, db_;
+  std::string url_;
+  store::test::TempDir dir_{"fusion-store"};
+  std::string config_, db_;
   int cli_calls_ = 0;
 };
 
@@ -105,11 +104,11 @@ TEST_F(FusionStore, RecordedScanInspectsAndExports) {
   EXPECT_GE(summary->pose_count, 3u) << fusion->log();
   EXPECT_GT(summary->point_count, 10000u);
 
-  const std::string ply = dir_ + "/x.ply";
+  const std::string ply = dir_.file("x.ply");
   ASSERT_EQ(cli({"export", db_, "-o", ply}, &out), 0) << out;
   EXPECT_EQ(ply_vertex_count(ply), static_cast<int64_t>(summary->point_count));
   // The daemon's own PLY on stop is the same cloud, streamed from the file.
-  EXPECT_EQ(ply_vertex_count(dir_ + "/scans/kill-test.ply"), static_cast<int64_t>(summary->point_count))
+  EXPECT_EQ(ply_vertex_count(dir_.file("scans/kill-test.ply")), static_cast<int64_t>(summary->point_count))
       << fusion->log();
 }
 
@@ -123,9 +122,9 @@ TEST_F(FusionStore, KilledTwentyTimesResumesFromTheLastCheckpoint) {
   std::atomic<int> current_round{-1};
   Listener listener(url_);
   ASSERT_TRUE(listener.error().empty()) << listener.error();
-  listener.subscribe(lcmio::kPoseChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
+  listener.subscribe(lcm::kPoseChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
     depthfuse::pose_t pose;
-    if (lcmio::decode_message(d, n, &pose) != lcmio::DecodeResult::kOk) return;
+    if (lcm::decode_message(d, n, &pose) != lcm::DecodeResult::kOk) return;
     std::lock_guard<std::mutex> lock(mutex);
     first_pose_registered.emplace(current_round.load(), pose.registered != 0);
   });
@@ -190,7 +189,7 @@ TEST_F(FusionStore, KilledTwentyTimesResumesFromTheLastCheckpoint) {
   std::string out;
   ASSERT_EQ(cli({"inspect", db_}, &out), 0) << out;
   EXPECT_NE(out.find("integrity      ok"), std::string::npos) << out;
-  const std::string ply = dir_ + "/after-kills.ply";
+  const std::string ply = dir_.file("after-kills.ply");
   ASSERT_EQ(cli({"export", db_, "-o", ply}, &out), 0) << out;
   EXPECT_GT(ply_vertex_count(ply), 10000);
 }
@@ -200,10 +199,10 @@ TEST_F(FusionStore, FullDiskIsReportedAndTheLastGoodCheckpointKept) {
   std::optional<depthfuse::heartbeat_t> last_hb;
   Listener listener(url_);
   ASSERT_TRUE(listener.error().empty()) << listener.error();
-  listener.subscribe(lcmio::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n,
+  listener.subscribe(lcm::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n,
                                                    int64_t) {
     depthfuse::heartbeat_t hb;
-    if (lcmio::decode_message(d, n, &hb) != lcmio::DecodeResult::kOk || hb.name != "fusion") return;
+    if (lcm::decode_message(d, n, &hb) != lcm::DecodeResult::kOk || hb.name != "fusion") return;
     std::lock_guard<std::mutex> lock(mutex);
     last_hb = hb;
   });

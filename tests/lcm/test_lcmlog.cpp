@@ -15,7 +15,7 @@
 #include "depthfuse/lcm/frame_codec.hpp"
 #include "depthfuse/lcmlog/lcmlog_source.hpp"
 #include "depthfuse/source_factory.hpp"
-#include "test_support.hpp"
+#include "lcm_test_util.hpp"
 
 namespace depthfuse {
 namespace {
@@ -54,11 +54,11 @@ class LogWriter {
   }
   void write_frame(const Frame& f) {
     depthfuse::color_frame_t c;
-    ASSERT_TRUE(lcmio::encode_color_frame(f, {}, &c).is_ok());
-    write(lcmio::kColorChannel, lcmio::encode_message(c), f.utime);
+    ASSERT_TRUE(lcm::encode_color_frame(f, {}, &c).is_ok());
+    write(lcm::kColorChannel, lcm::encode_message(c), f.utime);
     depthfuse::depth_frame_t d;
-    ASSERT_TRUE(lcmio::encode_depth_frame(f, {}, &d).is_ok());
-    write(lcmio::kDepthChannel, lcmio::encode_message(d), f.utime + 100);
+    ASSERT_TRUE(lcm::encode_depth_frame(f, {}, &d).is_ok());
+    write(lcm::kDepthChannel, lcm::encode_message(d), f.utime + 100);
   }
 
  private:
@@ -75,17 +75,17 @@ std::string write_mixed_log(const std::string& dir) {
     if (i == 1) {
       depthfuse::heartbeat_t hb{};
       hb.protocol_version = 1;
-      w.write(lcmio::kDepthChannel, lcmio::encode_message(hb), 5);  // foreign type
-      w.write(lcmio::kHeartbeatChannel, lcmio::encode_message(hb), 6);  // not a frame channel: ignored
+      w.write(lcm::kDepthChannel, lcm::encode_message(hb), 5);  // foreign type
+      w.write(lcm::kHeartbeatChannel, lcm::encode_message(hb), 6);  // not a frame channel: ignored
     }
     if (i == 2) {
       depthfuse::depth_frame_t d;
-      EXPECT_TRUE(lcmio::encode_depth_frame(test_frame(99), {}, &d).is_ok());
+      EXPECT_TRUE(lcm::encode_depth_frame(test_frame(99), {}, &d).is_ok());
       d.protocol_version = 7;
-      w.write(lcmio::kDepthChannel, lcmio::encode_message(d), 7);  // unknown version
-      auto bytes = lcmio::encode_message(d);
+      w.write(lcm::kDepthChannel, lcm::encode_message(d), 7);  // unknown version
+      auto bytes = lcm::encode_message(d);
       bytes.resize(bytes.size() / 2);
-      w.write(lcmio::kDepthChannel, bytes, 8);  // truncated message
+      w.write(lcm::kDepthChannel, bytes, 8);  // truncated message
     }
   }
   return path;
@@ -94,7 +94,7 @@ std::string write_mixed_log(const std::string& dir) {
 TEST(LcmLogSource, ReadsFramesAndCountsUnusableEvents) {
   const std::string dir = testing::temp_dir("lcmlog");
   const std::string path = write_mixed_log(dir);
-  auto src = LcmLogSource::open(path, {});
+  auto src = lcmlog::LcmLogSource::open(path, {});
   ASSERT_TRUE(src.is_ok()) << src.status().to_string();
   const auto& s = (*src)->stats();
   EXPECT_EQ(s.depth_frames, 5u);
@@ -145,7 +145,7 @@ TEST(LcmLogSource, TruncatedLogEndsAtTheLastCompleteEvent) {
     std::filesystem::copy_file(path, cut, std::filesystem::copy_options::overwrite_existing);
     const auto size = full * k / 41;
     std::filesystem::resize_file(cut, size);
-    auto src = LcmLogSource::open(cut, {});
+    auto src = lcmlog::LcmLogSource::open(cut, {});
     if (!src.is_ok()) {
       EXPECT_EQ(src.status().code(), StatusCode::kCorrupt) << src.status().to_string();
       continue;
@@ -174,7 +174,7 @@ TEST(LcmLogSource, SkipsDamagedBytesToTheNextEvent) {
     out.write(reinterpret_cast<const char*>(bogus), sizeof(bogus));
     out << bytes;
   }
-  auto src = LcmLogSource::open(damaged, {});
+  auto src = lcmlog::LcmLogSource::open(damaged, {});
   ASSERT_TRUE(src.is_ok()) << src.status().to_string();
   EXPECT_GE((*src)->stats().corrupt_regions, 1u);
   EXPECT_GE((*src)->frame_count().value_or(0), 3u);
@@ -195,11 +195,11 @@ TEST(LcmLogSource, NotALogIsAClearError) {
     std::ofstream out(path, std::ios::binary);
     for (int i = 0; i < 10000; ++i) out.put(static_cast<char>(i * 37));
   }
-  auto src = LcmLogSource::open(path, {});
+  auto src = lcmlog::LcmLogSource::open(path, {});
   ASSERT_FALSE(src.is_ok());
   EXPECT_NE(src.status().message().find("no usable depth frames"), std::string::npos)
       << src.status().to_string();
-  auto missing = LcmLogSource::open(dir + "/missing.lcmlog", {});
+  auto missing = lcmlog::LcmLogSource::open(dir + "/missing.lcmlog", {});
   EXPECT_EQ(missing.status().code(), StatusCode::kNotFound);
 }
 

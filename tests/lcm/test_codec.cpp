@@ -20,7 +20,7 @@
 namespace depthfuse {
 namespace {
 
-using lcmio::DecodeResult;
+using lcm::DecodeResult;
 
 // Depth quantised to whole millimetres the way a Kinect V2 delivers it, with holes, plus colour.
 Frame make_frame(int w, int h, uint32_t seed, bool with_color = true) {
@@ -59,18 +59,18 @@ TEST(DepthFrameCodec, RoundTripIsLosslessRawAndZstd) {
   const Frame f = make_frame(512, 424, 7);
   for (const int mode : {0, 1, 2}) {
     const bool compress = mode > 0;
-    lcmio::DepthEncodeOptions opt;
+    lcm::DepthEncodeOptions opt;
     opt.compress = compress;
     opt.predict_rows = mode == 2;
     depthfuse::depth_frame_t msg;
-    ASSERT_TRUE(lcmio::encode_depth_frame(f, opt, &msg).is_ok());
-    EXPECT_EQ(msg.protocol_version, lcmio::kProtocolVersion);
+    ASSERT_TRUE(lcm::encode_depth_frame(f, opt, &msg).is_ok());
+    EXPECT_EQ(msg.protocol_version, lcm::kProtocolVersion);
     // Through the wire format, not just the struct.
-    const auto bytes = lcmio::encode_message(msg);
+    const auto bytes = lcm::encode_message(msg);
     depthfuse::depth_frame_t back_msg;
-    ASSERT_EQ(lcmio::decode_message(bytes.data(), bytes.size(), &back_msg), DecodeResult::kOk);
+    ASSERT_EQ(lcm::decode_message(bytes.data(), bytes.size(), &back_msg), DecodeResult::kOk);
     Frame back;
-    ASSERT_TRUE(lcmio::decode_depth_frame(back_msg, &back).is_ok());
+    ASSERT_TRUE(lcm::decode_depth_frame(back_msg, &back).is_ok());
     EXPECT_EQ(back.utime, f.utime);
     EXPECT_EQ(back.sequence, f.sequence);
     EXPECT_EQ(back.sensor_serial, f.sensor_serial);
@@ -88,7 +88,7 @@ TEST(DepthFrameCodec, RoundTripIsLosslessRawAndZstd) {
     EXPECT_TRUE(back.T_world_cam_hint->isApprox(*f.T_world_cam_hint, 1e-12));
     // Encoding the decoded frame again gives the same bytes: nothing drifts on re-publishing.
     depthfuse::depth_frame_t again;
-    ASSERT_TRUE(lcmio::encode_depth_frame(back, opt, &again).is_ok());
+    ASSERT_TRUE(lcm::encode_depth_frame(back, opt, &again).is_ok());
     EXPECT_EQ(again.data, msg.data);
     if (compress) {
       EXPECT_LT(msg.data.size(), 512u * 424u * 2u);
@@ -102,9 +102,9 @@ TEST(DepthFrameCodec, RowPredictorHandlesExtremesAndSmoothDepthShrinks) {
   const float extremes[] = {0.0f, 65.535f, 0.001f, 65.534f, 0.0f, 32.768f, 32.767f, 0.0f};
   for (size_t i = 0; i < f.depth.depth_m.size(); ++i) f.depth.depth_m[i] = extremes[i % 8];
   depthfuse::depth_frame_t msg;
-  ASSERT_TRUE(lcmio::encode_depth_frame(f, {}, &msg).is_ok());
+  ASSERT_TRUE(lcm::encode_depth_frame(f, {}, &msg).is_ok());
   Frame back;
-  ASSERT_TRUE(lcmio::decode_depth_frame(msg, &back).is_ok());
+  ASSERT_TRUE(lcm::decode_depth_frame(msg, &back).is_ok());
   for (size_t i = 0; i < f.depth.depth_m.size(); ++i)
     EXPECT_NEAR(back.depth.depth_m[i], f.depth.depth_m[i], 1e-6) << i;
   // A slanted wall with millimetre noise: the predictor beats plain zstd.
@@ -115,13 +115,13 @@ TEST(DepthFrameCodec, RowPredictorHandlesExtremesAndSmoothDepthShrinks) {
     for (int u = 0; u < 512; ++u)
       wall.depth.at(u, v) = static_cast<float>(std::lround(1500 + 2.0 * u + v + noise(rng)) * 0.001);
   depthfuse::depth_frame_t plain, predicted;
-  lcmio::DepthEncodeOptions no_pred;
+  lcm::DepthEncodeOptions no_pred;
   no_pred.predict_rows = false;
-  ASSERT_TRUE(lcmio::encode_depth_frame(wall, no_pred, &plain).is_ok());
-  ASSERT_TRUE(lcmio::encode_depth_frame(wall, {}, &predicted).is_ok());
+  ASSERT_TRUE(lcm::encode_depth_frame(wall, no_pred, &plain).is_ok());
+  ASSERT_TRUE(lcm::encode_depth_frame(wall, {}, &predicted).is_ok());
   EXPECT_LT(predicted.data.size(), plain.data.size() * 3 / 4)
       << predicted.data.size() << " vs " << plain.data.size();
-  ASSERT_TRUE(lcmio::decode_depth_frame(predicted, &back).is_ok());
+  ASSERT_TRUE(lcm::decode_depth_frame(predicted, &back).is_ok());
   EXPECT_EQ(back.depth.depth_m, wall.depth.depth_m);
 }
 
@@ -134,9 +134,9 @@ TEST(DepthFrameCodec, ContinuousDepthIsQuantisedToHalfAUnit) {
   f.depth.depth_m[1] = std::nanf("");              // invalid -> 0
   f.depth.depth_m[2] = 70.0f;                      // beyond 65535 mm -> 0
   depthfuse::depth_frame_t msg;
-  ASSERT_TRUE(lcmio::encode_depth_frame(f, {}, &msg).is_ok());
+  ASSERT_TRUE(lcm::encode_depth_frame(f, {}, &msg).is_ok());
   Frame back;
-  ASSERT_TRUE(lcmio::decode_depth_frame(msg, &back).is_ok());
+  ASSERT_TRUE(lcm::decode_depth_frame(msg, &back).is_ok());
   EXPECT_EQ(back.depth.depth_m[0], 0.0f);
   EXPECT_EQ(back.depth.depth_m[1], 0.0f);
   EXPECT_EQ(back.depth.depth_m[2], 0.0f);
@@ -149,22 +149,22 @@ TEST(DepthFrameCodec, FinerUnitKeepsTumPrecision) {
   Frame f = make_frame(32, 24, 9, false);
   for (size_t i = 0; i < f.depth.depth_m.size(); ++i)
     f.depth.depth_m[i] = static_cast<float>((2500 + 3 * i) * 0.0002);
-  lcmio::DepthEncodeOptions opt;
+  lcm::DepthEncodeOptions opt;
   opt.depth_unit_m = 0.0002;
   depthfuse::depth_frame_t msg;
-  ASSERT_TRUE(lcmio::encode_depth_frame(f, opt, &msg).is_ok());
+  ASSERT_TRUE(lcm::encode_depth_frame(f, opt, &msg).is_ok());
   Frame back;
-  ASSERT_TRUE(lcmio::decode_depth_frame(msg, &back).is_ok());
+  ASSERT_TRUE(lcm::decode_depth_frame(msg, &back).is_ok());
   EXPECT_EQ(back.depth.depth_m, f.depth.depth_m);
 }
 
 TEST(DepthFrameCodec, RejectsInconsistentMessages) {
   const Frame f = make_frame(64, 48, 1, false);
   depthfuse::depth_frame_t good;
-  ASSERT_TRUE(lcmio::encode_depth_frame(f, {}, &good).is_ok());
+  ASSERT_TRUE(lcm::encode_depth_frame(f, {}, &good).is_ok());
   Frame out;
   auto expect_corrupt = [&](depthfuse::depth_frame_t m, const char* what) {
-    const Status st = lcmio::decode_depth_frame(m, &out);
+    const Status st = lcm::decode_depth_frame(m, &out);
     EXPECT_EQ(st.code(), StatusCode::kCorrupt) << what << ": " << st.to_string();
   };
   auto m = good;
@@ -203,20 +203,20 @@ TEST(DepthFrameCodec, RejectsInconsistentMessages) {
 
 TEST(ColorFrameCodec, RawAndZstdAreExactJpegIsClose) {
   const Frame f = make_frame(64, 48, 2);
-  for (auto enc : {lcmio::ColorEncoding::kRaw, lcmio::ColorEncoding::kZstd, lcmio::ColorEncoding::kJpeg}) {
-    lcmio::ColorEncodeOptions opt;
+  for (auto enc : {lcm::ColorEncoding::kRaw, lcm::ColorEncoding::kZstd, lcm::ColorEncoding::kJpeg}) {
+    lcm::ColorEncodeOptions opt;
     opt.encoding = enc;
     depthfuse::color_frame_t msg;
-    ASSERT_TRUE(lcmio::encode_color_frame(f, opt, &msg).is_ok());
-    const auto bytes = lcmio::encode_message(msg);
+    ASSERT_TRUE(lcm::encode_color_frame(f, opt, &msg).is_ok());
+    const auto bytes = lcm::encode_message(msg);
     depthfuse::color_frame_t back_msg;
-    ASSERT_EQ(lcmio::decode_message(bytes.data(), bytes.size(), &back_msg), DecodeResult::kOk);
+    ASSERT_EQ(lcm::decode_message(bytes.data(), bytes.size(), &back_msg), DecodeResult::kOk);
     ColorImage back;
-    ASSERT_TRUE(lcmio::decode_color_frame(back_msg, &back).is_ok());
+    ASSERT_TRUE(lcm::decode_color_frame(back_msg, &back).is_ok());
     ASSERT_EQ(back.width, 64);
     ASSERT_EQ(back.height, 48);
     ASSERT_EQ(back.rgb.size(), f.color.rgb.size());
-    if (enc != lcmio::ColorEncoding::kJpeg) {
+    if (enc != lcm::ColorEncoding::kJpeg) {
       EXPECT_EQ(back.rgb, f.color.rgb);
     }
   }
@@ -225,36 +225,36 @@ TEST(ColorFrameCodec, RawAndZstdAreExactJpegIsClose) {
   for (int v = 0; v < 48; ++v)
     for (int u = 0; u < 64; ++u)
       for (int c = 0; c < 3; ++c) smooth.color.rgb[(v * 64 + u) * 3 + c] = static_cast<uint8_t>(u * 2 + v + c * 40);
-  lcmio::ColorEncodeOptions opt;
-  opt.encoding = lcmio::ColorEncoding::kJpeg;
+  lcm::ColorEncodeOptions opt;
+  opt.encoding = lcm::ColorEncoding::kJpeg;
   opt.jpeg_quality = 95;
   depthfuse::color_frame_t msg;
-  ASSERT_TRUE(lcmio::encode_color_frame(smooth, opt, &msg).is_ok());
+  ASSERT_TRUE(lcm::encode_color_frame(smooth, opt, &msg).is_ok());
   ColorImage back;
-  ASSERT_TRUE(lcmio::decode_color_frame(msg, &back).is_ok());
+  ASSERT_TRUE(lcm::decode_color_frame(msg, &back).is_ok());
   double err = 0;
   for (size_t i = 0; i < back.rgb.size(); ++i) err += std::abs(int(back.rgb[i]) - int(smooth.color.rgb[i]));
   EXPECT_LT(err / back.rgb.size(), 4.0);
   // Garbage JPEG is an error, not a crash.
   msg.data.assign(100, 0xff);
   msg.data_size = 100;
-  EXPECT_EQ(lcmio::decode_color_frame(msg, &back).code(), StatusCode::kCorrupt);
+  EXPECT_EQ(lcm::decode_color_frame(msg, &back).code(), StatusCode::kCorrupt);
 }
 
 TEST(MessageDecoding, EveryTruncationIsMalformed) {
   const Frame f = make_frame(40, 30, 4);
   depthfuse::depth_frame_t msg;
-  ASSERT_TRUE(lcmio::encode_depth_frame(f, {}, &msg).is_ok());
-  const auto bytes = lcmio::encode_message(msg);
+  ASSERT_TRUE(lcm::encode_depth_frame(f, {}, &msg).is_ok());
+  const auto bytes = lcm::encode_message(msg);
   for (size_t n = 0; n < bytes.size(); ++n) {
     depthfuse::depth_frame_t out;
-    ASSERT_EQ(lcmio::decode_message(bytes.data(), n, &out), DecodeResult::kMalformed) << n;
+    ASSERT_EQ(lcm::decode_message(bytes.data(), n, &out), DecodeResult::kMalformed) << n;
   }
   // Trailing bytes: two payloads glued together, or garbage after one.
   auto longer = bytes;
   longer.push_back(0);
   depthfuse::depth_frame_t out;
-  EXPECT_EQ(lcmio::decode_message(longer.data(), longer.size(), &out), DecodeResult::kMalformed);
+  EXPECT_EQ(lcm::decode_message(longer.data(), longer.size(), &out), DecodeResult::kMalformed);
 }
 
 TEST(MessageDecoding, RandomCorruptionNeverCrashes) {
@@ -266,7 +266,7 @@ TEST(MessageDecoding, RandomCorruptionNeverCrashes) {
   hb.counters.resize(3);
   hb.num_counters = 3;
   for (auto& kv : hb.counters) kv.key = "k";
-  const auto bytes = lcmio::encode_message(hb);
+  const auto bytes = lcm::encode_message(hb);
   std::mt19937 rng(11);
   int ok = 0, malformed = 0, other = 0;
   for (int trial = 0; trial < 20000; ++trial) {
@@ -274,7 +274,7 @@ TEST(MessageDecoding, RandomCorruptionNeverCrashes) {
     const int flips = 1 + static_cast<int>(rng() % 4);
     for (int k = 0; k < flips; ++k) b[8 + rng() % (b.size() - 8)] = static_cast<uint8_t>(rng());
     depthfuse::heartbeat_t out;
-    const auto r = lcmio::decode_message(b.data(), b.size(), &out);
+    const auto r = lcm::decode_message(b.data(), b.size(), &out);
     if (r == DecodeResult::kOk) ++ok;
     else if (r == DecodeResult::kMalformed) ++malformed;
     else ++other;
@@ -287,8 +287,8 @@ TEST(MessageDecoding, HugeArrayLengthIsRejectedWithoutAllocating) {
   // data_size is the int32 right before the payload bytes: claim 2^31-1 bytes in a tiny message.
   Frame f = make_frame(8, 8, 1, false);
   depthfuse::depth_frame_t msg;
-  ASSERT_TRUE(lcmio::encode_depth_frame(f, {}, &msg).is_ok());
-  auto bytes = lcmio::encode_message(msg);
+  ASSERT_TRUE(lcm::encode_depth_frame(f, {}, &msg).is_ok());
+  auto bytes = lcm::encode_message(msg);
   const size_t data_pos = bytes.size() - (1 + 8 * 3 + 8 * 4) - msg.data.size() - 4;
   for (int32_t claim : {INT32_MAX, -1, INT32_MIN, 1 << 30}) {
     auto b = bytes;
@@ -296,7 +296,7 @@ TEST(MessageDecoding, HugeArrayLengthIsRejectedWithoutAllocating) {
     const int64_t rss_before = daemon::resident_memory_bytes();
     const auto t0 = std::chrono::steady_clock::now();
     depthfuse::depth_frame_t out;
-    EXPECT_EQ(lcmio::decode_message(b.data(), b.size(), &out), DecodeResult::kMalformed) << claim;
+    EXPECT_EQ(lcm::decode_message(b.data(), b.size(), &out), DecodeResult::kMalformed) << claim;
     const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     // Not a timing requirement: zeroing a 2 GiB vector would take ~1 s and show in the RSS.
     EXPECT_LT(daemon::resident_memory_bytes() - rss_before, 64 << 20) << claim;
@@ -306,33 +306,33 @@ TEST(MessageDecoding, HugeArrayLengthIsRejectedWithoutAllocating) {
   depthfuse::command_t cmd{};
   cmd.protocol_version = 1;
   cmd.target = "fusion";
-  auto cb = lcmio::encode_message(cmd);
+  auto cb = lcm::encode_message(cmd);
   const size_t target_len_pos = 8 + 2 + 8 + 8;
   for (int32_t claim : {0, -5}) {
     auto b = cb;
     for (int k = 0; k < 4; ++k) b[target_len_pos + k] = static_cast<uint8_t>(uint32_t(claim) >> (24 - 8 * k));
     depthfuse::command_t out;
-    EXPECT_EQ(lcmio::decode_message(b.data(), b.size(), &out), DecodeResult::kMalformed) << claim;
+    EXPECT_EQ(lcm::decode_message(b.data(), b.size(), &out), DecodeResult::kMalformed) << claim;
   }
 }
 
 TEST(MessageDecoding, ForeignTypeAndWrongVersionAreToldApart) {
   depthfuse::heartbeat_t hb{};
   hb.protocol_version = depthfuse::heartbeat_t::PROTOCOL_VERSION;
-  const auto hb_bytes = lcmio::encode_message(hb);
+  const auto hb_bytes = lcm::encode_message(hb);
   depthfuse::depth_frame_t depth;
-  EXPECT_EQ(lcmio::decode_message(hb_bytes.data(), hb_bytes.size(), &depth), DecodeResult::kForeign);
+  EXPECT_EQ(lcm::decode_message(hb_bytes.data(), hb_bytes.size(), &depth), DecodeResult::kForeign);
 
   hb.protocol_version = 2;
-  const auto v2 = lcmio::encode_message(hb);
+  const auto v2 = lcm::encode_message(hb);
   depthfuse::heartbeat_t out;
-  EXPECT_EQ(lcmio::decode_message(v2.data(), v2.size(), &out), DecodeResult::kBadVersion);
+  EXPECT_EQ(lcm::decode_message(v2.data(), v2.size(), &out), DecodeResult::kBadVersion);
 
-  EXPECT_EQ(lcmio::decode_message(nullptr, 0, &out), DecodeResult::kMalformed);
+  EXPECT_EQ(lcm::decode_message(nullptr, 0, &out), DecodeResult::kMalformed);
   const uint8_t few[3] = {1, 2, 3};
-  EXPECT_EQ(lcmio::decode_message(few, sizeof(few), &out), DecodeResult::kMalformed);
+  EXPECT_EQ(lcm::decode_message(few, sizeof(few), &out), DecodeResult::kMalformed);
 
-  lcmio::ReceiveCounters c;
+  lcm::ReceiveCounters c;
   c.count(DecodeResult::kOk);
   c.count(DecodeResult::kForeign);
   c.count(DecodeResult::kBadVersion);
@@ -345,17 +345,17 @@ TEST(MessageDecoding, ForeignTypeAndWrongVersionAreToldApart) {
 }
 
 TEST(MessageDecoding, EveryTypeCarriesTheProtocolVersion) {
-  EXPECT_EQ(depthfuse::depth_frame_t::PROTOCOL_VERSION, lcmio::kProtocolVersion);
-  EXPECT_EQ(depthfuse::color_frame_t::PROTOCOL_VERSION, lcmio::kProtocolVersion);
-  EXPECT_EQ(depthfuse::pose_t::PROTOCOL_VERSION, lcmio::kProtocolVersion);
-  EXPECT_EQ(depthfuse::heartbeat_t::PROTOCOL_VERSION, lcmio::kProtocolVersion);
-  EXPECT_EQ(depthfuse::status_t::PROTOCOL_VERSION, lcmio::kProtocolVersion);
-  EXPECT_EQ(depthfuse::command_t::PROTOCOL_VERSION, lcmio::kProtocolVersion);
+  EXPECT_EQ(depthfuse::depth_frame_t::PROTOCOL_VERSION, lcm::kProtocolVersion);
+  EXPECT_EQ(depthfuse::color_frame_t::PROTOCOL_VERSION, lcm::kProtocolVersion);
+  EXPECT_EQ(depthfuse::pose_t::PROTOCOL_VERSION, lcm::kProtocolVersion);
+  EXPECT_EQ(depthfuse::heartbeat_t::PROTOCOL_VERSION, lcm::kProtocolVersion);
+  EXPECT_EQ(depthfuse::status_t::PROTOCOL_VERSION, lcm::kProtocolVersion);
+  EXPECT_EQ(depthfuse::command_t::PROTOCOL_VERSION, lcm::kProtocolVersion);
 }
 
 TEST(SequenceTracker, CountsGapsOutOfOrderAndRestarts) {
-  lcmio::SequenceTracker t(100);
-  using V = lcmio::SequenceTracker::Verdict;
+  lcm::SequenceTracker t(100);
+  using V = lcm::SequenceTracker::Verdict;
   EXPECT_EQ(t.observe(10).verdict, V::kFirst);
   EXPECT_EQ(t.observe(11).verdict, V::kInOrder);
   auto gap = t.observe(15);
@@ -375,12 +375,12 @@ TEST(PoseArrays, RoundTripAndRejectGarbage) {
   T.linear() = Eigen::AngleAxisd(2.5, Eigen::Vector3d(0.2, -1, 0.4).normalized()).toRotationMatrix();
   T.translation() = Eigen::Vector3d(-3, 2, 0.5);
   double p[3], q[4];
-  lcmio::pose_to_arrays(T, p, q);
-  auto back = lcmio::pose_from_arrays(p, q);
+  lcm::pose_to_arrays(T, p, q);
+  auto back = lcm::pose_from_arrays(p, q);
   ASSERT_TRUE(back.is_ok());
   EXPECT_TRUE(back->isApprox(T, 1e-12));
   q[0] = std::nan("");
-  EXPECT_FALSE(lcmio::pose_from_arrays(p, q).is_ok());
+  EXPECT_FALSE(lcm::pose_from_arrays(p, q).is_ok());
 }
 
 }  // namespace

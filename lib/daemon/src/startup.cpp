@@ -1,0 +1,100 @@
+// The start-up of every program (see startup.hpp). Runs once, on the main thread, before the
+// program starts any thread of its own.
+#include "depthfuse/daemon/startup.hpp"
+
+#include <cstdio>
+#include <exception>
+
+#include "depthfuse/base/log.hpp"
+
+DF_LOG_CATEGORY(Startup)
+
+namespace depthfuse::daemon {
+namespace {
+
+const char* const kCommonOptions[] = {"config", "lcm", "log-level"};
+
+constexpr const char* kCommonUsage =
+    "  --log-level SPEC  which messages to show: debug, info, warning or error, also per part\n"
+    "                    (\"warning,Capture=debug\"); default info, or $DEPTHFUSE_LOG\n";
+
+}  // namespace
+
+Result<AppConfig> load_config(const Args& args) {
+  if (!args.has("config")) return AppConfig{};
+  return load_app_config(args.get("config"));
+}
+
+Startup::Startup(Program program, int argc, char** argv)
+    : program_(std::move(program)),
+      args_(argc, argv, program_.flags, program_.optional_values) {
+  log::set_program_name(program_.name);
+  if (args_.has("help")) {
+    std::fputs(program_.usage.c_str(), stdout);
+    std::fputs(kCommonUsage, stdout);
+    exit_code_ = 0;
+    return;
+  }
+  if (!args_.ok()) {
+    exit_code_ = usage_error(args_.error());
+    return;
+  }
+  std::vector<std::string> known = program_.options;
+  known.insert(known.end(), program_.flags.begin(), program_.flags.end());
+  known.insert(known.end(), program_.optional_values.begin(), program_.optional_values.end());
+  known.insert(known.end(), std::begin(kCommonOptions), std::end(kCommonOptions));
+  if (const std::string bad = args_.unknown(known); !bad.empty()) {
+    exit_code_ = usage_error("unknown option " + bad);
+    return;
+  }
+  if (args_.positional().size() > program_.max_positional) {
+    exit_code_ = usage_error("unexpected argument '" + args_.positional()[program_.max_positional] + "'");
+    return;
+  }
+  if (args_.has("log-level")) {
+    std::string error;
+    if (!log::configure(args_.get("log-level"), &error)) {
+      exit_code_ = usage_error("--log-level: " + error);
+      return;
+    }
+  }
+  auto loaded = load_config(args_);
+  if (!loaded) {
+    DF_LOG(Startup, Error) << loaded.status().to_string();
+    exit_code_ = 2;
+    return;
+  }
+  config_ = std::move(loaded).value();
+  if (!args_.get("lcm").empty()) config_.lcm.url = args_.get("lcm");
+}
+
+int Startup::usage_error(const std::string& problem) const {
+  DF_LOG(Startup, Error) << problem;
+  std::fputs(program_.usage.c_str(), stderr);
+  std::fputs(kCommonUsage, stderr);
+  return 2;
+}
+
+std::unique_ptr<lcm::LcmTransport> Startup::open_lcm() const {
+  std::vector<std::string> warnings;
+  auto opened = lcm::LcmTransport::open(config_.lcm.url, &warnings);
+  for (const auto& w : warnings) DF_LOG(Startup, Warning) << w;
+  if (!opened) {
+    DF_LOG(Startup, Error) << opened.status().to_string();
+    return nullptr;
+  }
+  return std::move(opened).value();
+}
+
+int run_main(const std::function<int()>& body) {
+  try {
+    return body();
+  } catch (const std::exception& e) {
+    DF_LOG(Startup, Error) << "unexpected error: " << e.what();
+  } catch (...) {
+    DF_LOG(Startup, Error) << "unexpected error (not a std::exception)";
+  }
+  return 1;
+}
+
+}  // namespace depthfuse::daemon

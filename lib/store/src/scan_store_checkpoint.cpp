@@ -1,0 +1,228 @@
+// Writing a scan file: checkpoints (begin, write chunks and poses, commit with a full sync or roll
+// back whole), keyframes, the metadata and configuration, the pager's staged chunks, and returning
+// freed pages. Runs on the fusion daemon's worker thread (through ScanRecorder and MapPager), or on
+// the CLI's main thread for `depthfuse refine` and `inspect --upgrade`.
+#include <cstdio>
+
+#include "depthfuse/base/clock.hpp"
+#include "scan_store_internal.hpp"
+
+namespace depthfuse::store {
+
+namespace {
+
+std::string format_double(double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), "%.17g", v);
+  return buf;
+}
+
+}  // namespace
+
+Status ScanStore::set_metadata(const ScanMetadata& m) {
+  DF_RETURN_IF_ERROR(impl_->require_writable("set_metadata"));
+  const std::vector<std::pair<std::string, std::string>> kv = {
+      {"scan_id", m.scan_id},
+      {"created_utime", std::to_string(m.created_utime)},
+      {"sensor_serial", m.sensor_serial},
+      {"method", m.method},
+      {"chunk_size_m", format_double(m.chunk_size_m)},
+      {"software_version", m.software_version},
+      {"frames_received", std::to_string(m.frames_received)},
+      {"frames_fused", std::to_string(m.frames_fused)},
+      {"frames_dropped", std::to_string(m.frames_dropped)},
+  };
+  return impl_->in_transaction("writing metadata", [&] { return impl_->set_meta(kv); });
+}
+
+Status ScanStore::set_config(const std::string& toml_text, const std::string& source_path) {
+  DF_RETURN_IF_ERROR(impl_->require_writable("set_config"));
+  return impl_->in_transaction("writing the configuration", [&] {
+    return impl_->set_meta({{"config_toml", toml_text}, {"config_source", source_path}});
+  });
+}
+
+Status ScanStore::begin_checkpoint() {
+  Impl& s = *impl_;
+  DF_RETURN_IF_ERROR(s.require_writable("begin_checkpoint"));
+  if (s.in_checkpoint) return invalid_argument(s.path + ": a checkpoint is already open");
+  if (s.read_depth > 0) return invalid_argument(s.path + ": a read snapshot is open");
+  // FULL: the commit record is fsynced before COMMIT returns, so a checkpoint that was reported
+  // written survives a power cut.
+  DF_RETURN_IF_ERROR(s.set_synchronous("FULL"));
+  DF_RETURN_IF_ERROR(s.db.exec("BEGIN IMMEDIATE;", "beginning a checkpoint"));
+  auto id = s.db.query_int("SELECT COALESCE(MAX(id), 0) + 1 FROM checkpoints;",
+                           "numbering the checkpoint");
+  if (!id) {
+    s.db.rollback("rolling back");
+    return id.status();
+  }
+  s.checkpoint_id = *id;
+  s.in_checkpoint = true;
+  return Status::ok();
+}
+
+bool ScanStore::in_checkpoint() const { return impl_->in_checkpoint; }
+
+void ScanStore::rollback_checkpoint() {
+  Impl& s = *impl_;
+  if (!s.in_checkpoint) return;
+  s.in_checkpoint = false;
+  s.db.rollback("rolling back");
+  (void)s.set_synchronous("NORMAL");
+}
+
+Status ScanStore::write_chunk(const ChunkKey& key, const Chunk& chunk) {
+  Impl& s = *impl_;
+  if (!s.in_checkpoint) return invalid_argument(s.path + ": write_chunk outside a checkpoint");
+  DF_RETURN_IF_ERROR(s.delete_chunk_row(/*staged=*/true, key));
+  if (chunk.points.empty()) return s.delete_chunk_row(/*staged=*/false, key);
+  return s.write_chunk_row(/*staged=*/false, key, chunk, s.checkpoint_id);
+}
+
+Status ScanStore::delete_chunk(const ChunkKey& key) {
+  Impl& s = *impl_;
+  if (!s.in_checkpoint) return invalid_argument(s.path + ": delete_chunk outside a checkpoint");
+  DF_RETURN_IF_ERROR(s.delete_chunk_row(/*staged=*/true, key));
+  return s.delete_chunk_row(/*staged=*/false, key);
+}
+
+Status ScanStore::delete_all_chunks() {
+  Impl& s = *impl_;
+  if (!s.in_checkpoint) return invalid_argument(s.path + ": delete_all_chunks outside a checkpoint");
+  DF_RETURN_IF_ERROR(s.db.exec("DELETE FROM chunk_staging;", "deleting chunks"));
+  return s.db.exec("DELETE FROM chunks;", "deleting chunks");
+}
+
+Status ScanStore::write_pose(const PoseRecord& p) {
+  DF_RETURN_IF_ERROR(impl_->require_writable("write_pose"));
+  return impl_->in_transaction("writing poses", [&]() -> Status {
+    auto st = impl_->db.prepare(
+        "INSERT OR REPLACE INTO poses (frame_id, utime, T_world_cam, registered, fitness, rmse_m, "
+        "correspondences) VALUES (?, ?, ?, ?, ?, ?, ?);",
+        "writing the pose of frame " + std::to_string(p.frame_id));
+    if (!st) return st.status();
+    const std::vector<uint8_t> pose = encode_pose(p.T_world_cam);
+    st->bind(1, p.frame_id).bind(2, p.utime).bind_blob(3, pose).bind(4, p.registered ? 1 : 0);
+    st->bind(5, p.fitness).bind(6, p.rmse_m).bind(7, p.correspondences);
+    return st->run();
+  });
+}
+
+Status ScanStore::update_keyframe_pose(uint32_t frame_id, const Pose& T_world_cam) {
+  DF_RETURN_IF_ERROR(impl_->require_writable("update_keyframe_pose"));
+  return impl_->in_transaction("updating a keyframe pose", [&]() -> Status {
+    auto st = impl_->db.prepare("UPDATE keyframes SET T_world_cam = ? WHERE frame_id = ?;",
+                                "updating the pose of keyframe " + std::to_string(frame_id));
+    if (!st) return st.status();
+    const std::vector<uint8_t> pose = encode_pose(T_world_cam);
+    st->bind_blob(1, pose).bind(2, frame_id);
+    DF_RETURN_IF_ERROR(st->run());
+    if (impl_->db.changes() != 1)
+      return not_found(impl_->path + ": no keyframe " + std::to_string(frame_id));
+    return Status::ok();
+  });
+}
+
+Status ScanStore::write_keyframe(const Keyframe& k) {
+  DF_RETURN_IF_ERROR(impl_->require_writable("write_keyframe"));
+  const std::string ctx = "writing keyframe " + std::to_string(k.frame_id);
+  if (!k.intrinsics.valid() || k.depth.width != k.intrinsics.width ||
+      k.depth.height != k.intrinsics.height)
+    return invalid_argument(impl_->path + ": " + ctx + ": depth size does not match its intrinsics");
+  std::vector<uint8_t> depth, color;
+  DF_RETURN_IF_ERROR(impl_->codec.encode_depth(k.depth, &depth).with_context(ctx));
+  if (!k.color.empty()) DF_RETURN_IF_ERROR(impl_->codec.encode_color(k.color, &color).with_context(ctx));
+  const std::vector<uint8_t> pose = encode_pose(k.T_world_cam);
+  return impl_->in_transaction(ctx, [&]() -> Status {
+    auto st = impl_->db.prepare(
+        "INSERT OR REPLACE INTO keyframes (frame_id, utime, sensor_serial, width, height, fx, fy, "
+        "cx, cy, T_world_cam, depth, color) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?);",
+        ctx);
+    if (!st) return st.status();
+    st->bind(1, k.frame_id).bind(2, k.utime).bind(3, k.sensor_serial);
+    st->bind(4, k.intrinsics.width).bind(5, k.intrinsics.height);
+    st->bind(6, k.intrinsics.fx).bind(7, k.intrinsics.fy);
+    st->bind(8, k.intrinsics.cx).bind(9, k.intrinsics.cy);
+    st->bind_blob(10, pose).bind_blob(11, depth);
+    if (color.empty()) st->bind_null(12); else st->bind_blob(12, color);
+    return st->run();
+  });
+}
+
+Result<CheckpointRecord> ScanStore::commit_checkpoint(const CheckpointInfo& info) {
+  Impl& s = *impl_;
+  if (!s.in_checkpoint) return invalid_argument(s.path + ": commit_checkpoint without a checkpoint");
+  const std::string ctx = "committing checkpoint " + std::to_string(s.checkpoint_id);
+  CheckpointRecord rec;
+  rec.id = s.checkpoint_id;
+  rec.utime = now_utime();
+  rec.reason = info.reason;
+  rec.last_frame_id = info.last_frame_id;
+  rec.frames_fused = info.frames_fused;
+  rec.T_world_cam = info.T_world_cam;
+  auto body = [&]() -> Status {
+    // Staged chunks (evicted since the last checkpoint) become part of this one; staged empty
+    // chunks are deletions.
+    DF_RETURN_IF_ERROR(s.db.exec(
+        "DELETE FROM chunks WHERE EXISTS (SELECT 1 FROM chunk_staging AS s WHERE s.x = chunks.x "
+        "AND s.y = chunks.y AND s.z = chunks.z AND s.point_count = 0);",
+        ctx));
+    DF_RETURN_IF_ERROR(s.db.exec(
+        std::string("INSERT OR REPLACE INTO chunks (") + kChunkColumns +
+            ", checkpoint_id, data) SELECT " + kChunkColumns + ", " +
+            std::to_string(s.checkpoint_id) + ", data FROM chunk_staging WHERE point_count > 0;",
+        ctx));
+    DF_RETURN_IF_ERROR(s.db.exec("DELETE FROM chunk_staging;", ctx));
+    auto counts = s.db.prepare("SELECT COUNT(*), COALESCE(SUM(point_count), 0) FROM chunks;", ctx);
+    if (!counts) return counts.status();
+    auto row = counts->step();
+    if (!row) return row.status();
+    rec.chunk_count = static_cast<uint64_t>(counts->row().int64(0));
+    rec.point_count = static_cast<uint64_t>(counts->row().int64(1));
+    auto ins = s.db.prepare(std::string("INSERT INTO checkpoints (") + kCheckpointColumns +
+                                ") VALUES (?, ?, ?, ?, ?, ?, ?, ?);",
+                            ctx);
+    if (!ins) return ins.status();
+    std::vector<uint8_t> pose;
+    if (info.T_world_cam) pose = encode_pose(*info.T_world_cam);
+    ins->bind(1, rec.id).bind(2, rec.utime).bind(3, rec.reason).bind(4, rec.last_frame_id);
+    ins->bind(5, static_cast<int64_t>(rec.frames_fused)).bind(6, static_cast<int64_t>(rec.point_count));
+    ins->bind(7, static_cast<int64_t>(rec.chunk_count));
+    if (pose.empty()) ins->bind_null(8); else ins->bind_blob(8, pose);
+    DF_RETURN_IF_ERROR(ins->run());
+    DF_RETURN_IF_ERROR(s.set_meta({{"frames_received", std::to_string(info.frames_received)},
+                                   {"frames_fused", std::to_string(info.frames_fused)},
+                                   {"frames_dropped", std::to_string(info.frames_dropped)}}));
+    return s.db.exec("COMMIT;", ctx);
+  };
+  Status st = body();
+  s.in_checkpoint = false;
+  if (!st) s.db.rollback("rolling back");
+  (void)s.set_synchronous("NORMAL");
+  if (!st) return st;
+  return rec;
+}
+
+Status ScanStore::stage_chunks(const std::vector<std::pair<ChunkKey, const Chunk*>>& chunks) {
+  Impl& s = *impl_;
+  DF_RETURN_IF_ERROR(s.require_writable("stage_chunks"));
+  if (s.in_checkpoint)
+    return invalid_argument(s.path + ": cannot stage chunks while a checkpoint is open");
+  if (chunks.empty()) return Status::ok();
+  const int64_t t = now_utime();
+  return s.in_transaction("staging evicted chunks", [&]() -> Status {
+    for (const auto& [key, chunk] : chunks)
+      DF_RETURN_IF_ERROR(s.write_chunk_row(/*staged=*/true, key, *chunk, t));
+    return Status::ok();
+  });
+}
+
+Status ScanStore::compact() {
+  Impl& s = *impl_;
+  DF_RETURN_IF_ERROR(s.require_writable("compact"));
+  if (s.in_checkpoint) return invalid_argument(s.path + ": compact inside a checkpoint");
+  return s.db.exec("PRAGMA incremental_vacuum;", "returning free pages");
+}
+
+}  // namespace depthfuse::store

@@ -1,0 +1,106 @@
+// Internal: what the units of ScanStore share. The object behind a ScanStore (its connection,
+// writer lock, codec and transaction state), the rows of the chunk and checkpoint tables, and the
+// SQL that says which frames the last checkpoint holds.
+//
+// ScanStore's work is split by job, each unit on this one Impl:
+//   scan_store.cpp             the Impl's shared pieces: transactions, meta rows, chunk rows
+//   scan_store_open.cpp        opening: the writer lock, creating, migrating, recovering
+//   scan_store_checkpoint.cpp  writing: checkpoints, chunks, poses, keyframes, staging
+//   scan_store_read.cpp        reading: snapshots, chunks, poses, keyframes, checkpoints, summary
+//   scan_store_integrity.cpp   checking every table and blob
+// A ScanStore is used from one thread: the fusion daemon's worker thread owns the writer (through
+// ScanRecorder); readers are other processes (depthfuse export and inspect), each with its own
+// connection.
+#pragma once
+
+#include <sys/stat.h>
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "depthfuse/store/blob_codec.hpp"
+#include "depthfuse/store/scan_store.hpp"
+#include "sqlite_db.hpp"
+
+namespace depthfuse::store {
+
+// The columns of a chunk row up to the one that differs between the tables (chunks:
+// checkpoint_id; chunk_staging: staged_utime).
+inline constexpr const char* kChunkColumns =
+    "x, y, z, point_count, min_x, min_y, min_z, max_x, max_y, max_z, last_touched_frame";
+inline constexpr const char* kCheckpointColumns =
+    "id, utime, reason, last_frame_id, frames_fused, point_count, chunk_count, T_world_cam";
+
+// The frames the last checkpoint holds, as an SQL condition on a `frame_id` column: every frame up
+// to its last_frame_id (none before the first checkpoint). Readers show only these poses and
+// keyframes; a writer reopening the file deletes the others.
+inline const std::string kCommittedFrames =
+    "frame_id <= COALESCE((SELECT last_frame_id FROM checkpoints ORDER BY id DESC LIMIT 1), 0)";
+
+// "SELECT <chunk columns>, <checkpoint id>, <last> FROM <table>": the committed chunks, or the
+// staged ones (checkpoint id 0). `last` is the blob or an expression on it, e.g. length(data).
+std::string select_chunks(bool staged, const char* last);
+
+// A chunk row's fields read with select_chunks(), except blob_bytes.
+ChunkInfo chunk_info_of(const sql::Row& row);
+
+Eigen::AlignedBox3f bounds_of(const PointArrays& a);
+
+inline bool file_exists(const std::string& path) {
+  struct stat st {};
+  return ::stat(path.c_str(), &st) == 0;
+}
+
+struct ScanStore::Impl {
+  std::string path;
+  OpenMode mode = OpenMode::kReadOnly;
+  StoreOptions options;
+  sql::Database db;
+  int lock_fd = -1;                // the writer lock (flock), -1 when read-only
+  int schema_version = 0;
+  OpenReport report;
+  BlobCodec codec;
+  bool in_checkpoint = false;
+  int64_t checkpoint_id = 0;       // of the open checkpoint
+  int read_depth = 0;              // nested begin_read calls
+  std::vector<uint8_t> blob;       // scratch for encoding chunks
+
+  explicit Impl(int level) : codec(level) {}
+  ~Impl();
+
+  bool writable() const { return mode != OpenMode::kReadOnly; }
+  Status require_writable(const char* what) const {
+    if (!writable()) return invalid_argument(path + ": " + what + ": the scan is open read-only");
+    return Status::ok();
+  }
+
+  // Runs fn inside the open checkpoint, or else in a transaction of its own.
+  template <typename Fn>
+  Status in_transaction(const std::string& ctx, Fn&& fn) {
+    if (in_checkpoint) return fn();
+    return db.transaction(ctx, std::forward<Fn>(fn));
+  }
+  // FULL while a checkpoint (or a migration or recovery) commits: its commit record is fsynced
+  // before COMMIT returns. NORMAL otherwise.
+  Status set_synchronous(const char* level);
+
+  // scan_store.cpp
+  Status set_meta(const std::vector<std::pair<std::string, std::string>>& kv);
+  Result<std::optional<std::string>> get_meta(const std::string& key);
+  Status write_chunk_row(bool staged, const ChunkKey& key, const Chunk& chunk, int64_t last_column);
+  Status delete_chunk_row(bool staged, const ChunkKey& key);
+  // Reads a row of select_chunks(staged, "data") and decodes its blob into `out`.
+  Status decode_chunk_row(const sql::Row& row, bool staged, StoredChunk* out);
+  Result<CheckpointRecord> checkpoint_of(const sql::Row& row);
+
+  // scan_store_open.cpp
+  Status open_existing();
+  Status create_new();
+  Status lock_for_writing();
+  Status recover();
+};
+
+}  // namespace depthfuse::store
