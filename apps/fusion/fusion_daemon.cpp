@@ -82,6 +82,8 @@ FusionDaemon::FusionDaemon(const AppConfig& config, const DaemonOptions& options
       hb_base_(options.name),
       queue_(static_cast<size_t>(std::max(1, config.fusion.queue_capacity_frames))),
       state_(heartbeat_t::STATE_IDLE) {
+  frame_limits_.max_width = config.fusion.max_frame_width;
+  frame_limits_.max_height = config.fusion.max_frame_height;
   lcm_->subscribe(lcm::kDepthChannel, [this](const std::string&, const uint8_t* d, size_t n,
                                                int64_t) { on_depth(d, n); });
   lcm_->subscribe(lcm::kColorChannel, [this](const std::string&, const uint8_t* d, size_t n,
@@ -112,7 +114,7 @@ void FusionDaemon::on_color(const uint8_t* data, size_t size) {
   }
   if (state_.load() != heartbeat_t::STATE_RUNNING) return;
   ColorImage color;
-  if (auto st = lcm::decode_color_frame(msg, &color); !st.is_ok()) {
+  if (auto st = lcm::decode_color_frame(msg, &color, frame_limits_); !st.is_ok()) {
     ++counters_.malformed;
     set_error(st.message());
     return;
@@ -129,7 +131,7 @@ void FusionDaemon::on_depth(const uint8_t* data, size_t size) {
     return;
   }
   QueuedFrame item;
-  if (auto st = lcm::decode_depth_frame(msg, &item.frame); !st.is_ok()) {
+  if (auto st = lcm::decode_depth_frame(msg, &item.frame, frame_limits_); !st.is_ok()) {
     ++counters_.malformed;
     set_error(st.message());
     return;

@@ -25,6 +25,7 @@
 #include "depthfuse/daemon/heartbeat.hpp"
 #include "depthfuse/daemon/rate_meter.hpp"
 #include "depthfuse/lcm/codec.hpp"
+#include "depthfuse/lcm/frame_codec.hpp"
 #include "depthfuse/lcm/transport.hpp"
 #include "depthfuse/pipeline.hpp"
 
@@ -68,6 +69,7 @@ class FusionDaemon {
   void set_error(const std::string& e);
 
   AppConfig config_;
+  lcm::FrameLimits frame_limits_;  // what on_depth and on_color take from the bus
   DaemonOptions options_;
   std::unique_ptr<lcm::LcmTransport> lcm_;
   std::unique_ptr<CheckpointSink> sink_;

@@ -158,6 +158,57 @@ TEST(DepthFrameCodec, FinerUnitKeepsTumPrecision) {
   EXPECT_EQ(back.depth.depth_m, f.depth.depth_m);
 }
 
+// A frame beyond what the receiver takes is refused on its header, before any decompression: a
+// few bytes that claim a huge image, intrinsics no camera has, or a pose hint far off.
+TEST(DepthFrameCodec, RefusesFramesBeyondTheLimitsBeforeDecoding) {
+  depthfuse::depth_frame_t vga;
+  ASSERT_TRUE(lcm::encode_depth_frame(make_frame(640, 480, 3, false), {}, &vga).is_ok());
+  Frame out;
+  ASSERT_TRUE(lcm::decode_depth_frame(vga, &out).is_ok()) << "640x480 is within the defaults";
+  lcm::FrameLimits kinect_v2;
+  kinect_v2.max_width = 512;
+  kinect_v2.max_height = 424;
+  Status st = lcm::decode_depth_frame(vga, &out, kinect_v2);
+  EXPECT_EQ(st.code(), StatusCode::kCorrupt);
+  EXPECT_NE(st.message().find("640x480 is larger than the sensors"), std::string::npos) << st.message();
+
+  const Frame small = make_frame(64, 48, 4, false);
+  depthfuse::depth_frame_t good;
+  ASSERT_TRUE(lcm::encode_depth_frame(small, {}, &good).is_ok());
+  auto expect_refused = [&](depthfuse::depth_frame_t m, const std::string& names) {
+    const Status refused = lcm::decode_depth_frame(m, &out);
+    EXPECT_EQ(refused.code(), StatusCode::kCorrupt) << names;
+    EXPECT_NE(refused.message().find(names), std::string::npos) << refused.message();
+  };
+  auto m = good;
+  m.intrinsics.width = m.intrinsics.height = 4096;  // the data would inflate to 32 MiB
+  expect_refused(m, "4096x4096 is larger");
+  m = good;
+  m.intrinsics.fx = 1e-30;
+  expect_refused(m, "focal lengths");
+  m = good;
+  m.intrinsics.fy = 1e30;
+  expect_refused(m, "focal lengths");
+  m = good;
+  m.intrinsics.cx = -5;
+  expect_refused(m, "principal point");
+  m = good;
+  m.depth_unit_m = 1e-300;
+  expect_refused(m, "depth_unit_m");
+  m = good;
+  m.has_pose_hint = true;
+  m.hint_position_m[0] = 1e30;
+  expect_refused(m, "pose hint");
+
+  depthfuse::color_frame_t color;
+  color.width = color.height = 30000;  // a 30000x30000 JPEG would decode into 2.7 GB
+  color.encoding = depthfuse::color_frame_t::ENCODING_JPEG;
+  ColorImage image;
+  st = lcm::decode_color_frame(color, &image);
+  EXPECT_EQ(st.code(), StatusCode::kCorrupt);
+  EXPECT_NE(st.message().find("30000x30000 is larger"), std::string::npos) << st.message();
+}
+
 TEST(DepthFrameCodec, RejectsInconsistentMessages) {
   const Frame f = make_frame(64, 48, 1, false);
   depthfuse::depth_frame_t good;

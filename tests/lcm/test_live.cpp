@@ -481,7 +481,7 @@ TEST_F(LiveAppliance, HostileInputIsCountedAndSurvived) {
   send(lcm::kDepthChannel, lcm::encode_message(small_frame(9)));
   send(lcm::kDepthChannel, lcm::encode_message(small_frame(12)));
   send(lcm::kDepthChannel, lcm::encode_message(small_frame(14)));
-  // Malformed: truncated payloads (3), a frame whose contents fail the checks (2).
+  // Malformed: truncated payloads (3), frames whose contents fail the checks (2).
   const auto good = lcm::encode_message(small_frame(15));
   for (size_t cut : {good.size() / 2, size_t(9), good.size() - 1})
     send(lcm::kDepthChannel, std::vector<uint8_t>(good.begin(), good.begin() + cut));
@@ -490,6 +490,22 @@ TEST_F(LiveAppliance, HostileInputIsCountedAndSurvived) {
   send(lcm::kDepthChannel, lcm::encode_message(broken));
   broken = small_frame(17);
   broken.data.assign(broken.data.size(), 0x42);
+  send(lcm::kDepthChannel, lcm::encode_message(broken));
+  // Beyond the limits (2), refused before decoding: 3 KB of zstd that would inflate to a
+  // 4096x4096 image (the daemon's RSS once went from 1.2 to 4.4 GiB on it), and a focal length no
+  // camera has.
+  Frame huge;
+  huge.intrinsics = CameraIntrinsics::kinect_v2();
+  huge.intrinsics.width = huge.intrinsics.height = 4096;
+  huge.depth = DepthImage(4096, 4096);
+  std::fill(huge.depth.depth_m.begin(), huge.depth.depth_m.end(), 1.0f);
+  depthfuse::depth_frame_t bomb;
+  ASSERT_TRUE(lcm::encode_depth_frame(huge, {}, &bomb).is_ok());
+  bomb.sequence = 18;
+  ASSERT_LT(lcm::encode_message(bomb).size(), 64u * 1024);
+  send(lcm::kDepthChannel, lcm::encode_message(bomb));
+  broken = small_frame(19);
+  broken.intrinsics.fx = 1e-30;
   send(lcm::kDepthChannel, lcm::encode_message(broken));
   // Unknown protocol version (4).
   for (int i = 0; i < 4; ++i) {
@@ -512,13 +528,13 @@ TEST_F(LiveAppliance, HostileInputIsCountedAndSurvived) {
   send(lcm::kHeartbeatChannel, good);
 
   ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) {
-    return hb.messages_malformed >= 5 && hb.messages_bad_version >= 4 && hb.messages_foreign >= 5;
+    return hb.messages_malformed >= 7 && hb.messages_bad_version >= 4 && hb.messages_foreign >= 5;
   }, seconds(10))) << fusion->log();
   // Another heartbeat later: counters are final and the daemon is alive and well.
   const int64_t beats = observer_->heartbeat_count("fusion");
   ASSERT_TRUE(eventually([&] { return observer_->heartbeat_count("fusion") >= beats + 2; }, seconds(10)));
   const auto hb = *observer_->heartbeat("fusion");
-  EXPECT_EQ(hb.messages_malformed, 5);
+  EXPECT_EQ(hb.messages_malformed, 7);
   EXPECT_EQ(hb.messages_bad_version, 4);
   EXPECT_EQ(hb.messages_foreign, 5);
   EXPECT_EQ(hb.frames_out_of_order, 1);

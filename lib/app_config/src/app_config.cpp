@@ -197,6 +197,8 @@ void read_fusion_daemon(TableReader& r, FusionDaemonConfig* f) {
   r.read("checkpoint_interval_s", &f->checkpoint_interval_s, positive());
   r.read("keyframe_every_n_frames", &f->keyframe_every_n_frames, at_least(1));
   r.read("heartbeat_rate_hz", &f->heartbeat_rate_hz, positive());
+  r.read("max_frame_width", &f->max_frame_width, at_least(1));
+  r.read("max_frame_height", &f->max_frame_height, at_least(1));
   r.reject_unknown();
 }
 

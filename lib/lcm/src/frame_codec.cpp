@@ -19,7 +19,6 @@ double ms_since(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
-constexpr int kMaxImageSide = 8192;
 
 inline uint16_t depth_to_count(float depth_m, double inv_unit) {
   if (!(depth_m > 0.0f)) return 0;  // also NaN
@@ -190,21 +189,57 @@ Status encode_depth_frame(const Frame& frame, const DepthEncodeOptions& options,
   return Status::ok();
 }
 
-Status decode_depth_frame(const depthfuse::depth_frame_t& msg, Frame* out, CodecTiming* timing) {
+namespace {
+
+// Refuses an image larger than the receiver's sensors, or not an image at all.
+Status check_image_size(int width, int height, const FrameLimits& limits, const std::string& what) {
+  if (width <= 0 || height <= 0)
+    return corrupt(what + ": image size " + std::to_string(width) + "x" + std::to_string(height) +
+                   " is not positive");
+  if (width > limits.max_width || height > limits.max_height)
+    return corrupt(what + ": image size " + std::to_string(width) + "x" + std::to_string(height) +
+                   " is larger than the sensors this receiver is configured for (" +
+                   std::to_string(limits.max_width) + "x" + std::to_string(limits.max_height) + ")");
+  return Status::ok();
+}
+
+Status check_depth_header(const depthfuse::depth_frame_t& msg, const FrameLimits& limits,
+                          const std::string& what) {
   const auto& in = msg.intrinsics;
-  const std::string what = "depth frame " + std::to_string(msg.sequence);
-  if (in.width <= 0 || in.height <= 0 || in.width > kMaxImageSide || in.height > kMaxImageSide)
-    return corrupt(what + ": image size " + std::to_string(in.width) + "x" +
-                   std::to_string(in.height) + " is out of range");
+  DF_RETURN_IF_ERROR(check_image_size(in.width, in.height, limits, what));
   const double k[4] = {in.fx, in.fy, in.cx, in.cy};
-  if (!finite_all(k, 4) || !(in.fx > 0) || !(in.fy > 0))
-    return corrupt(what + ": intrinsics are not valid (fx, fy must be positive)");
-  if (!(msg.depth_unit_m > 0.0) || !std::isfinite(msg.depth_unit_m))
-    return corrupt(what + ": depth_unit_m is not positive");
+  const double min_f = limits.min_focal_widths * in.width, max_f = limits.max_focal_widths * in.width;
+  if (!finite_all(k, 4) || !(in.fx >= min_f && in.fx <= max_f) || !(in.fy >= min_f && in.fy <= max_f))
+    return corrupt(what + ": focal lengths fx " + std::to_string(in.fx) + ", fy " +
+                   std::to_string(in.fy) + " px are not those of a camera " +
+                   std::to_string(in.width) + " px wide (" + std::to_string(min_f) + " to " +
+                   std::to_string(max_f) + ")");
+  if (!(in.cx >= 0 && in.cx <= in.width && in.cy >= 0 && in.cy <= in.height))
+    return corrupt(what + ": principal point (" + std::to_string(in.cx) + ", " +
+                   std::to_string(in.cy) + ") is outside the image");
+  if (!(msg.depth_unit_m >= limits.min_depth_unit_m && msg.depth_unit_m <= limits.max_depth_unit_m))
+    return corrupt(what + ": depth_unit_m " + std::to_string(msg.depth_unit_m) +
+                   " is out of range");
   if (msg.sequence < 0 || msg.sequence > std::numeric_limits<uint32_t>::max())
     return corrupt(what + ": sequence number out of range");
   if (static_cast<size_t>(msg.data_size) != msg.data.size())
     return corrupt(what + ": data_size disagrees with the data");
+  if (msg.has_pose_hint) {
+    const double* t = msg.hint_position_m;
+    if (!finite_all(t, 3) || std::sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]) > limits.max_pose_hint_m)
+      return corrupt(what + ": pose hint is more than " + std::to_string(limits.max_pose_hint_m) +
+                     " m from the origin");
+  }
+  return Status::ok();
+}
+
+}  // namespace
+
+Status decode_depth_frame(const depthfuse::depth_frame_t& msg, Frame* out,
+                          const FrameLimits& limits, CodecTiming* timing) {
+  const auto& in = msg.intrinsics;
+  const std::string what = "depth frame " + std::to_string(msg.sequence);
+  DF_RETURN_IF_ERROR(check_depth_header(msg, limits, what));
 
   const size_t n = static_cast<size_t>(in.width) * in.height;
   const uint8_t* bytes = nullptr;
@@ -307,10 +342,9 @@ Status encode_color_frame(const Frame& frame, const ColorEncodeOptions& options,
 }
 
 Status decode_color_frame(const depthfuse::color_frame_t& msg, ColorImage* out,
-                          CodecTiming* timing) {
+                          const FrameLimits& limits, CodecTiming* timing) {
   const std::string what = "colour frame " + std::to_string(msg.sequence);
-  if (msg.width <= 0 || msg.height <= 0 || msg.width > kMaxImageSide || msg.height > kMaxImageSide)
-    return corrupt(what + ": image size out of range");
+  DF_RETURN_IF_ERROR(check_image_size(msg.width, msg.height, limits, what));
   if (static_cast<size_t>(msg.data_size) != msg.data.size())
     return corrupt(what + ": data_size disagrees with the data");
   const size_t bytes = static_cast<size_t>(msg.width) * msg.height * 3;

@@ -40,6 +40,9 @@ struct FusionDaemonConfig {
   double checkpoint_interval_s = 30.0;
   int keyframe_every_n_frames = 10;         // depth kept for offline refinement
   double heartbeat_rate_hz = 1.0;
+  // The largest depth image the daemon takes, px: frames beyond it are refused before decoding.
+  int max_frame_width = 640;
+  int max_frame_height = 480;
 };
 
 struct MonitorConfig {

@@ -34,21 +34,38 @@ struct CodecTiming {
   double serialize_ms = 0; // filled by callers that encode the LCM message themselves
 };
 
+// What a receiver accepts of a frame. Checked on the message's header before anything is
+// decompressed or allocated, so that a few bytes claiming a huge image cost nothing: the image no
+// larger than the sensors the receiver was configured for, intrinsics of a real camera, a pose hint
+// within the scanned site. A frame outside them is refused with a message naming the field.
+struct FrameLimits {
+  int max_width = 640;    // px; Kinect V2 depth is 512 x 424, TUM's Kinect v1 640 x 480
+  int max_height = 480;
+  // Focal lengths, in image widths (fx / width, fy / width): a field of view between about 0.6 and
+  // 160 degrees. The principal point lies inside the image.
+  double min_focal_widths = 0.1;
+  double max_focal_widths = 100.0;
+  double max_pose_hint_m = 1000.0;        // distance of a pose hint from the world origin
+  double min_depth_unit_m = 1e-6;         // one count of depth: 1 um ... 1 m
+  double max_depth_unit_m = 1.0;
+};
+
 // Depth in metres -> counts: round(d / unit); depth <= 0, NaN or beyond 65535 counts becomes 0.
 // `publish_utime` is stamped by the caller just before publishing.
 Status encode_depth_frame(const Frame& frame, const DepthEncodeOptions& options,
                           depthfuse::depth_frame_t* out, CodecTiming* timing = nullptr);
 
-// Checks the message (sizes, intrinsics, encoding, decompressed length) and fills the frame's
-// utime, sequence, serial, intrinsics, depth and pose hint. Colour is left untouched.
+// Checks the message against `limits` first, then its encoding and decompressed length, and fills
+// the frame's utime, sequence, serial, intrinsics, depth and pose hint. Colour is left untouched.
 Status decode_depth_frame(const depthfuse::depth_frame_t& msg, Frame* out,
-                          CodecTiming* timing = nullptr);
+                          const FrameLimits& limits = {}, CodecTiming* timing = nullptr);
 
 // Fails on a frame without colour or whose colour size differs from its depth size.
 Status encode_color_frame(const Frame& frame, const ColorEncodeOptions& options,
                           depthfuse::color_frame_t* out, CodecTiming* timing = nullptr);
+// Colour is registered to depth pixel for pixel: its size is held to the same limits.
 Status decode_color_frame(const depthfuse::color_frame_t& msg, ColorImage* out,
-                          CodecTiming* timing = nullptr);
+                          const FrameLimits& limits = {}, CodecTiming* timing = nullptr);
 
 void pose_to_arrays(const Pose& T, double position_m[3], double orientation_wxyz[4]);
 // Normalises the quaternion; fails when it is not finite or has (near) zero norm.
