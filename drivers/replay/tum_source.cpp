@@ -1,6 +1,7 @@
 #include "depthfuse/replay/tum_source.hpp"
 
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -15,6 +16,10 @@ namespace fs = std::filesystem;
 namespace depthfuse::replay {
 
 namespace {
+
+// The largest depth PNG a folder without camera.toml may hold, px a side: its first image sets the
+// size, and a file claiming more is refused before it is decoded.
+constexpr int kMaxUncalibratedSide = 4096;
 
 struct ListEntry {
   double t = 0;
@@ -64,8 +69,33 @@ long nearest(const std::vector<ListEntry>& v, double t, double max_dt) {
   return best;
 }
 
-Result<cv::Mat> read_png(const std::string& path, int flags) {
-  if (!fs::exists(path)) return not_found("missing image " + path);
+// A PNG's width and height, from its IHDR chunk (the first after the signature), without decoding.
+Result<std::pair<int, int>> png_size(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return not_found("missing image " + path);
+  unsigned char h[24];
+  static const unsigned char kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+  if (!in.read(reinterpret_cast<char*>(h), sizeof h) || std::memcmp(h, kSignature, 8) != 0 ||
+      std::memcmp(h + 12, "IHDR", 4) != 0)
+    return corrupt(path + " is not a PNG");
+  auto be32 = [](const unsigned char* p) {
+    return (uint32_t{p[0]} << 24) | (uint32_t{p[1]} << 16) | (uint32_t{p[2]} << 8) | p[3];
+  };
+  const uint32_t w = be32(h + 16), ht = be32(h + 20);
+  if (w == 0 || ht == 0 || w > INT32_MAX || ht > INT32_MAX)
+    return corrupt(path + ": PNG size " + std::to_string(w) + "x" + std::to_string(ht) + " is invalid");
+  return std::make_pair(static_cast<int>(w), static_cast<int>(ht));
+}
+
+// Decodes a PNG no larger than max_width x max_height: the size its header declares is checked
+// first, so that a small file claiming a huge image is refused before OpenCV allocates for it.
+Result<cv::Mat> read_png(const std::string& path, int flags, int max_width, int max_height) {
+  auto size = png_size(path);
+  if (!size) return size.status();
+  if (size->first > max_width || size->second > max_height)
+    return corrupt(path + " declares " + std::to_string(size->first) + "x" +
+                   std::to_string(size->second) + " pixels, more than the " +
+                   std::to_string(max_width) + "x" + std::to_string(max_height) + " expected");
   cv::Mat img;
   try {
     img = cv::imread(path, flags);
@@ -167,7 +197,8 @@ Result<std::unique_ptr<TumSource>> TumSource::open(const std::string& folder,
     src->intrinsics_ = cam->intrinsics;
     src->intrinsics_origin_ = "camera.toml";
   } else {
-    auto first = read_png(src->entries_.front().depth_path, cv::IMREAD_UNCHANGED);
+    auto first = read_png(src->entries_.front().depth_path, cv::IMREAD_UNCHANGED,
+                          kMaxUncalibratedSide, kMaxUncalibratedSide);
     if (!first) return first.status();
     const int w = first->cols, h = first->rows;
     if (w == 640 && h == 480) {
@@ -188,7 +219,7 @@ Result<std::unique_ptr<TumSource>> TumSource::open(const std::string& folder,
 Result<Frame> TumSource::load(size_t i) const {
   if (i >= entries_.size()) return end_of_stream();
   const Entry& e = entries_[i];
-  auto img = read_png(e.depth_path, cv::IMREAD_UNCHANGED);
+  auto img = read_png(e.depth_path, cv::IMREAD_UNCHANGED, intrinsics_.width, intrinsics_.height);
   if (!img) return img.status();
   if (img->type() != CV_16UC1)
     return corrupt(e.depth_path + ": depth must be a 16-bit single-channel PNG");
@@ -209,9 +240,13 @@ Result<Frame> TumSource::load(size_t i) const {
     for (int u = 0; u < img->cols; ++u) f.depth.at(u, v) = row[u] * inv_scale;
   }
   if (!e.rgb_path.empty()) {
-    auto rgb = read_png(e.rgb_path, cv::IMREAD_COLOR);
-    if (!rgb) return rgb.status();
-    if (rgb->cols == img->cols && rgb->rows == img->rows) {
+    // Colour is used only where it is registered to depth pixel for pixel (the same size); other
+    // colour images are not decoded.
+    auto rgb_size = png_size(e.rgb_path);
+    if (!rgb_size) return rgb_size.status();
+    if (*rgb_size == std::make_pair(img->cols, img->rows)) {
+      auto rgb = read_png(e.rgb_path, cv::IMREAD_COLOR, img->cols, img->rows);
+      if (!rgb) return rgb.status();
       f.color.width = rgb->cols;
       f.color.height = rgb->rows;
       f.color.rgb.resize(static_cast<size_t>(rgb->cols) * rgb->rows * 3);

@@ -1,5 +1,8 @@
 #include "depthfuse/ply.hpp"
 
+#include <algorithm>
+#include <cerrno>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <sstream>
@@ -59,7 +62,15 @@ Result<PointArrays> read_ply(const std::string& path) {
       ls >> name;
       in_vertex = name == "vertex";
       if (in_vertex) {
-        if (!(ls >> count)) return corrupt(path + ": bad vertex count");
+        // Digits only: an istream reads "-1" into a size_t as 2^64 - 1.
+        std::string digits;
+        ls >> digits;
+        char* end = nullptr;
+        errno = 0;
+        const unsigned long long n = std::strtoull(digits.c_str(), &end, 10);
+        if (digits.empty() || digits[0] < '0' || digits[0] > '9' || *end || errno == ERANGE)
+          return corrupt(path + ": bad vertex count '" + digits + "'");
+        count = static_cast<size_t>(n);
         seen_vertex = true;
       } else if (!seen_vertex) {
         return unsupported(path + ": elements before 'vertex' are not supported");
@@ -90,11 +101,24 @@ Result<PointArrays> read_ply(const std::string& path) {
   const int ir = find("red"), ig = find("green"), ib = find("blue");
   const int im = find("merges"), iv = find("violations");
 
+  size_t stride = 0;
+  for (const auto& p : props) stride += p.size;
+  // The declared count against what the file holds, before anything is allocated for it: a binary
+  // vertex takes `stride` bytes, an ASCII one at least a digit and a separator per property.
+  const std::streamoff header_end = in.tellg();
+  in.seekg(0, std::ios::end);
+  const auto body = static_cast<size_t>(std::max<std::streamoff>(0, in.tellg() - header_end));
+  in.seekg(header_end);
+  const size_t min_vertex_bytes = format == "ascii" ? 2 * props.size() : stride;
+  if (count > body / min_vertex_bytes)
+    return corrupt(path + ": truncated: the header declares " + std::to_string(count) +
+                   " vertices, the file holds " +
+                   std::to_string(body) + " bytes after it (room for at most " +
+                   std::to_string(body / min_vertex_bytes) + ")");
+
   PointArrays a;
   a.reserve(count);
   std::vector<double> vals(props.size());
-  size_t stride = 0;
-  for (const auto& p : props) stride += p.size;
   std::vector<char> row(stride);
   for (size_t n = 0; n < count; ++n) {
     if (format == "ascii") {

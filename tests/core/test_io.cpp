@@ -77,6 +77,28 @@ TEST(Ply, TruncatedFileIsReported) {
   EXPECT_NE(b.status().message().find("truncated"), std::string::npos);
 }
 
+// A header's vertex count is checked against the file before anything is allocated for it.
+TEST(Ply, ImpossibleVertexCountIsReportedBeforeAllocating) {
+  TempDir d;
+  const std::string header =
+      "ply\nformat binary_little_endian 1.0\nelement vertex COUNT\nproperty float x\n"
+      "property float y\nproperty float z\nend_header\n";
+  for (const std::string count : {"4000000000", "-1", "18446744073709551616", "12abc"}) {
+    std::string text = header;
+    text.replace(text.find("COUNT"), 5, count);
+    write_text(d / "c.ply", text + std::string(12 * 3, '\0'));
+    auto b = read_ply(d / "c.ply");
+    ASSERT_FALSE(b.is_ok()) << count;
+    EXPECT_EQ(b.status().code(), StatusCode::kCorrupt) << count << ": " << b.status().to_string();
+  }
+  std::string three = header;
+  three.replace(three.find("COUNT"), 5, "3");
+  write_text(d / "c.ply", three + std::string(12 * 3, '\0'));
+  auto b = read_ply(d / "c.ply");
+  ASSERT_TRUE(b.is_ok()) << b.status().to_string();
+  EXPECT_EQ(b->size(), 3u);
+}
+
 TEST(Trajectory, RoundTripAndNearest) {
   TempDir d;
   std::vector<StampedPose> poses(3);
@@ -171,6 +193,25 @@ TEST(TumFolder, BadInputGetsClearErrors) {
     ASSERT_FALSE(src.is_ok());
     EXPECT_NE(src.status().message().find("camera.toml:3: camera.fx"), std::string::npos)
         << src.status().message();
+  }
+}
+
+// A small PNG that declares a huge image is refused on its header, before OpenCV allocates for it:
+// against camera.toml's size, and in a folder without one against a sane bound.
+TEST(TumFolder, PngDeclaringAHugeImageIsRefusedBeforeDecoding) {
+  std::string bomb = std::string("\x89PNG\r\n\x1a\n", 8) + std::string("\0\0\0\x0dIHDR", 8);
+  for (int shift : {24, 16, 8, 0}) bomb += static_cast<char>((30000u >> shift) & 0xff);
+  for (int shift : {24, 16, 8, 0}) bomb += static_cast<char>((30000u >> shift) & 0xff);
+  bomb += std::string("\x10\0\0\0", 4) + std::string(1 << 16, 'x');
+  for (bool with_camera : {true, false}) {
+    TempDir d;
+    make_folder(d);
+    if (!with_camera) fs::remove(d / "camera.toml");
+    std::ofstream(d / "depth/1.000000.png", std::ios::binary | std::ios::trunc) << bomb;
+    auto src = replay::TumSource::open(d.path.string(), replay::TumReplayConfig{});
+    Status st = src.is_ok() ? (*src)->next().status() : src.status();
+    EXPECT_EQ(st.code(), StatusCode::kCorrupt) << with_camera << ": " << st.to_string();
+    EXPECT_NE(st.message().find("declares 30000x30000"), std::string::npos) << st.message();
   }
 }
 
