@@ -44,7 +44,7 @@ printf '  %-22s %12s %8s %8s\n' target executions cov features
 log=build-fuzz/Testing/Temporary/LastTest.log
 awk '
   /^[0-9]+\/[0-9]+ Testing: / { target = $3 }
-  / DONE +cov: / { for (i = 1; i <= NF; ++i) { if ($i == "cov:") cov = $(i + 1); if ($i == "ft:") ft = $(i + 1) } }
+  /DONE +cov: / { for (i = 1; i <= NF; ++i) { if ($i == "cov:") cov = $(i + 1); if ($i == "ft:") ft = $(i + 1) } }
   /^Done [0-9]+ runs/ { printf "  %-22s %12s %8s %8s\n", target, $2, cov, ft }
 ' "$log"
 if ((status != 0)); then

@@ -14,6 +14,10 @@ namespace depthfuse::cli {
 // The command line, as every depthfuse program parses it (lib/daemon).
 using Args = daemon::Args;
 
+// The most rounds of re-registration a run may ask for (--iterations): the batch loop stops early
+// once the poses settle, and a larger number is a typo, not a plan.
+inline constexpr long kMaxIterations = 1000;
+
 // Loads --config if given (else defaults); prints the error and returns nullopt on failure.
 std::optional<AppConfig> load_config_or_report(const Args& args);
 

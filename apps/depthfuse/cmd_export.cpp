@@ -63,8 +63,7 @@ int run(int argc, char** argv) {
   store::ExportOptions options;
   long min_merges = 0;
   std::string err;
-  if (!args.get_int("min-merges", &min_merges, &err)) return cli::fail(err);
-  if (min_merges < 0 || min_merges > 65535) return cli::fail("--min-merges must be 0..65535");
+  if (!args.get_int("min-merges", &min_merges, &err, daemon::closed(0, 65535))) return cli::fail(err);
   options.min_merges = static_cast<uint32_t>(min_merges);
   if (args.has("bbox")) {
     Eigen::AlignedBox3f box;

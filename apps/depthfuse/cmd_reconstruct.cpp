@@ -34,9 +34,9 @@ Result<Input> load_input(const std::string& input, const cli::Args& args, const 
   Input in;
   long max_frames = 0, stride = 1;
   std::string err;
-  if (!args.get_int("max-frames", &max_frames, &err) || !args.get_int("stride", &stride, &err))
+  if (!args.get_int("max-frames", &max_frames, &err, daemon::closed(0, INT32_MAX)) ||
+      !args.get_int("stride", &stride, &err, daemon::closed(1, INT32_MAX)))
     return invalid_argument(err);
-  if (max_frames < 0 || stride < 1) return invalid_argument("--max-frames must be >= 0 and --stride >= 1");
 
   std::unique_ptr<FrameSource> source;
   if (fs::is_directory(input)) {
@@ -114,8 +114,8 @@ int run(int argc, char** argv) {
     return cli::fail("--method must be full, ylimaki17 or kyostila13, got '" + args.get("method") + "'");
   long iterations = rc.pipeline.outer_iterations;
   std::string err;
-  if (!args.get_int("iterations", &iterations, &err)) return cli::fail(err);
-  if (iterations < 0) return cli::fail("--iterations must be >= 0");
+  if (!args.get_int("iterations", &iterations, &err, daemon::closed(0, cli::kMaxIterations)))
+    return cli::fail(err);
   rc.pipeline.outer_iterations = static_cast<int>(iterations);
 
   cli::Progress progress;

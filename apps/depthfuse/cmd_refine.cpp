@@ -51,11 +51,10 @@ int run(int argc, char** argv) {
   if (args.positional().size() != 1) return cli::fail(std::string("expected one scan file\nusage: ") + kUsage);
   long iterations = -1, stride = 1, max_keyframes = 0;
   std::string err;
-  if (!args.get_int("iterations", &iterations, &err) || !args.get_int("keyframe-stride", &stride, &err) ||
-      !args.get_int("max-keyframes", &max_keyframes, &err))
+  if (!args.get_int("iterations", &iterations, &err, daemon::closed(0, cli::kMaxIterations)) ||
+      !args.get_int("keyframe-stride", &stride, &err, daemon::closed(1, INT32_MAX)) ||
+      !args.get_int("max-keyframes", &max_keyframes, &err, daemon::closed(0, INT32_MAX)))
     return cli::fail(err);
-  if (args.has("iterations") && iterations < 0) return cli::fail("--iterations must be >= 0");
-  if (stride < 1 || max_keyframes < 0) return cli::fail("--keyframe-stride must be >= 1, --max-keyframes >= 0");
 
   std::string path = args.positional()[0];
   if (args.has("out")) {

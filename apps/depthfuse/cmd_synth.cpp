@@ -27,7 +27,8 @@ int run(int argc, char** argv) {
   c.scene = *kind;
   long frames = c.frames, seed = static_cast<long>(c.seed);
   std::string err;
-  if (!args.get_int("frames", &frames, &err) || !args.get_int("seed", &seed, &err) ||
+  if (!args.get_int("frames", &frames, &err, daemon::closed(1, INT32_MAX)) ||
+      !args.get_int("seed", &seed, &err, daemon::closed(0, INT64_MAX)) ||
       !args.get_double("pose-noise-m", &c.pose_noise_m, &err) ||
       !args.get_double("pose-noise-deg", &c.pose_noise_deg, &err))
     return cli::fail(err);

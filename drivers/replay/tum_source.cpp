@@ -77,7 +77,7 @@ Result<std::pair<int, int>> png_size(const std::string& path) {
   static const unsigned char kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
   if (!in.read(reinterpret_cast<char*>(h), sizeof h) || std::memcmp(h, kSignature, 8) != 0 ||
       std::memcmp(h + 12, "IHDR", 4) != 0)
-    return corrupt(path + " is not a PNG");
+    return corrupt("cannot decode " + path + ": not a PNG");
   auto be32 = [](const unsigned char* p) {
     return (uint32_t{p[0]} << 24) | (uint32_t{p[1]} << 16) | (uint32_t{p[2]} << 8) | p[3];
   };
@@ -135,6 +135,23 @@ Result<CameraFile> read_camera_file(const std::string& path) {
     else if (k == "depth_scale") out.depth_scale = *v;
     else return invalid_argument(where + ": unknown key");
   }
+  // Physical ranges: values that parse but describe no camera would give an empty cloud and exit 0.
+  const CameraIntrinsics& k = out.intrinsics;
+  auto refuse = [&](const std::string& what) { return invalid_argument(path + ": camera." + what); };
+  if (k.width > kMaxUncalibratedSide || k.height > kMaxUncalibratedSide)
+    return refuse("width x height " + std::to_string(k.width) + "x" + std::to_string(k.height) +
+                  " is more than " + std::to_string(kMaxUncalibratedSide) + " px a side");
+  const double min_f = 0.1 * k.width, max_f = 100.0 * k.width;  // 160 to 0.6 degrees of view
+  if (!(k.fx >= min_f && k.fx <= max_f) || !(k.fy >= min_f && k.fy <= max_f))
+    return refuse("fx, fy (" + std::to_string(k.fx) + ", " + std::to_string(k.fy) +
+                  ") are not the focal lengths of a camera " + std::to_string(k.width) +
+                  " px wide (" + std::to_string(min_f) + " to " + std::to_string(max_f) + ")");
+  if (!(k.cx <= k.width && k.cy <= k.height))
+    return refuse("cx, cy (" + std::to_string(k.cx) + ", " + std::to_string(k.cy) +
+                  ") lie outside the image");
+  if (!(out.depth_scale >= 1.0 && out.depth_scale <= 1e6))
+    return refuse("depth_scale " + std::to_string(out.depth_scale) +
+                  " is not a PNG count per metre in [1, 1e6] (TUM: 5000, Kinect: 1000)");
   return out;
 }
 

@@ -54,6 +54,7 @@ TEST(DaemonStartup, BadArgumentsAreSaidWithTheUsageAndExitTwo) {
       {{"one", "two"}, "test-startup: unexpected argument 'two'\n"},
       {{"--rate"}, "test-startup: option --rate needs a value\n"},
       {{"--log-level", "loud"}, "test-startup: --log-level: "},
+      {{"--lcm", ""}, "test-startup: --lcm needs a URL"},
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.words[0]);

@@ -65,7 +65,14 @@ Startup::Startup(Program program, int argc, char** argv)
     return;
   }
   config_ = std::move(loaded).value();
-  if (!args_.get("lcm").empty()) config_.lcm.url = args_.get("lcm");
+  if (args_.has("lcm")) {
+    // An empty URL would quietly become liblcm's default bus, another one than the rig's.
+    if (args_.get("lcm").empty()) {
+      exit_code_ = usage_error("--lcm needs a URL, e.g. udpm://239.255.76.67:7667?ttl=0");
+      return;
+    }
+    config_.lcm.url = args_.get("lcm");
+  }
 }
 
 int Startup::usage_error(const std::string& problem) const {
