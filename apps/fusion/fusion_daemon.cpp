@@ -213,6 +213,15 @@ Status FusionDaemon::start_scan(const std::string& requested_name, std::string* 
     trajectory_.clear();
     return st.with_context("checkpoint store");
   }
+  // A resumed scan takes the id stored in its file, which names the files written at its end (PLY,
+  // trajectory): one that is not a scan name ("../../x", "/etc/x") would write them outside
+  // scan_dir.
+  if (!valid_scan_name(scan_.scan_id)) {
+    reconstructor_.reset();
+    trajectory_.clear();
+    return corrupt("the scan file for '" + name + "' holds the scan id '" + scan_.scan_id +
+                   "', which is not a scan name: not resumed");
+  }
   name = scan_.scan_id;
   point_count_ = static_cast<int64_t>(reconstructor_->map().point_count());
   last_checkpoint_ = Clock::now();

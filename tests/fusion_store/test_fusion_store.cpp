@@ -10,6 +10,7 @@
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/pose_t.hpp"
+#include "depthfuse/store/scan_recorder.hpp"
 #include "depthfuse/store/scan_store.hpp"
 #include "store_test_util.hpp"
 #include "lcm_test_util.hpp"
@@ -110,6 +111,27 @@ TEST_F(FusionStore, RecordedScanInspectsAndExports) {
   // The daemon's own PLY on stop is the same cloud, streamed from the file.
   EXPECT_EQ(ply_vertex_count(dir_.file("scans/kill-test.ply")), static_cast<int64_t>(summary->point_count))
       << fusion->log();
+}
+
+// A scan file's stored id names the files written at the scan's end: one that is not a scan name
+// is not resumed, and nothing is written outside scan_dir.
+TEST_F(FusionStore, StoredScanIdThatIsNotANameIsNotResumed) {
+  const std::string scan_dir = dir_.file("scans");
+  for (const std::string id : {"../../escaped", "/tmp/depthfuse-escaped"}) {
+    SCOPED_TRACE(id);
+    std::filesystem::remove(db_);
+    store::ScanMetadata meta;
+    meta.scan_id = id;
+    ASSERT_TRUE(store::ScanRecorder::create(db_, meta, "", "", store::RecorderConfig{}).is_ok());
+    auto fusion = start_fusion("fusion-id.log");
+    ASSERT_TRUE(eventually([&] { return fusion->log().find("is not a scan name") != std::string::npos; },
+                           seconds(20)))
+        << fusion->log();
+    fusion->signal(SIGTERM);
+    ASSERT_TRUE(fusion->wait(seconds(30))) << fusion->log();
+    for (const char* ext : {".ply", ".txt", ".dfscan"})
+      EXPECT_FALSE(std::filesystem::exists(std::filesystem::path(scan_dir) / (id + ext))) << ext;
+  }
 }
 
 TEST_F(FusionStore, KilledTwentyTimesResumesFromTheLastCheckpoint) {
