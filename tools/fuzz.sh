@@ -27,13 +27,13 @@ for tool in clang clang++; do
   command -v "$tool" >/dev/null || { echo "fuzz: $tool is missing (Debian: clang libclang-rt-14-dev)" >&2; exit 1; }
 done
 
+mkdir -p build-fuzz
 cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ -DDEPTHFUSE_FUZZ=ON \
-  -DDEPTHFUSE_VECTOR_CLONES=OFF -DDEPTHFUSE_FUZZ_SECONDS="$seconds" > build-fuzz.log 2>&1 ||
-  { tail -n 30 build-fuzz.log >&2; echo "fuzz: configuring the clang build failed" >&2; exit 1; }
-cmake --build build-fuzz -j"$(nproc)" --target fuzz_all >> build-fuzz.log 2>&1 ||
-  { tail -n 40 build-fuzz.log >&2; echo "fuzz: building the fuzz targets failed" >&2; exit 1; }
-rm -f build-fuzz.log
+  -DDEPTHFUSE_VECTOR_CLONES=OFF -DDEPTHFUSE_FUZZ_SECONDS="$seconds" > build-fuzz/build.log 2>&1 ||
+  { tail -n 30 build-fuzz/build.log >&2; echo "fuzz: configuring the clang build failed" >&2; exit 1; }
+cmake --build build-fuzz -j"$(nproc)" --target fuzz_all >> build-fuzz/build.log 2>&1 ||
+  { tail -n 40 build-fuzz/build.log >&2; echo "fuzz: building the fuzz targets failed" >&2; exit 1; }
 
 status=0
 ctest --test-dir build-fuzz -L fuzz --output-on-failure > build-fuzz/fuzz.log 2>&1 || status=$?

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The whole test suite: builds what changed, then runs every CTest test (unit, end-to-end over real
-# LCM on loopback, SQLite crash tests, packaging). Run tools/setup.sh once before.
+# LCM on loopback, SQLite crash tests, packaging), then every fuzz target for a bounded time
+# (tools/fuzz.sh; DEPTHFUSE_FUZZ_SECONDS per target, 20 by default). Run tools/setup.sh once before.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cmake --build build -j"$(nproc)"
@@ -15,4 +16,8 @@ if [[ -f $log ]] && grep -q '^\[  SKIPPED \] ' "$log"; then
        /^\[  SKIPPED \] / { if (on) print "  " $4 ": " why; on = 0; next }
        on && NF { why = why (why == "" ? "" : " ") $0 }' "$log"
 fi
+
+# Every input that arrives from outside (udpm datagrams, LCM messages, PLY, PNG, config, blobs)
+# under libFuzzer with ASan and UBSan, in its own clang build (build-fuzz/).
+tools/fuzz.sh --seconds "${DEPTHFUSE_FUZZ_SECONDS:-20}" || status=1
 exit "$status"

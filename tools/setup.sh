@@ -41,6 +41,7 @@ PACKAGES=(
   libtomlplusplus-dev libzstd-dev libturbojpeg0-dev
   python3-open3d python3-numpy
   iproute2 procps dpkg-dev file udev
+  clang libclang-rt-14-dev  # libFuzzer and the sanitizers for tools/fuzz.sh
 )
 
 if [[ $(id -u) -eq 0 ]]; then

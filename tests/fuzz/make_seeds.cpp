@@ -1,6 +1,6 @@
 // Writes a seed corpus for each fuzz target: valid inputs the fuzzer mutates from, so that it
 // starts past the fingerprints and magic numbers instead of guessing them.
-//   make_seeds <corpus-root>   -> <corpus-root>/fuzz_udpm/*, <corpus-root>/fuzz_lcm_messages/*
+//   make_seeds <corpus-root>   -> <corpus-root>/<target>/* for every target
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -12,7 +12,11 @@
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/lcm/frame_codec.hpp"
 #include "depthfuse/lcm/udpm.hpp"
+#include "depthfuse/ply.hpp"
 #include "depthfuse/pose_t.hpp"
+#include "depthfuse/store/blob_codec.hpp"
+
+#include <opencv2/imgcodecs.hpp>
 
 namespace fs = std::filesystem;
 using Bytes = std::vector<uint8_t>;
@@ -129,5 +133,39 @@ int main(int argc, char** argv) {
     write(root / "fuzz_lcm_messages", name, bytes);
     write(root / "fuzz_udpm", name, as_datagrams("DEPTHFUSE_" + name, bytes, 600, 1));
   }
+
+  // Files: a PLY of a few points, a 64x48 depth PNG, the shipped config, and each kind of blob
+  // (its first byte picks the decoder in fuzz_store_blobs).
+  PointArrays points;
+  for (int i = 0; i < 5; ++i) {
+    PointRecord r;
+    r.position_m = {0.1f * i, 0.2f, 1.0f};
+    r.merges = static_cast<uint16_t>(i);
+    points.push_back(r);
+  }
+  fs::create_directories(root / "fuzz_ply");
+  if (!write_ply((root / "fuzz_ply" / "five.ply").string(), points).is_ok()) return 1;
+  fs::create_directories(root / "fuzz_tum_png");
+  cv::Mat depth(48, 64, CV_16UC1, cv::Scalar(10000));
+  if (!cv::imwrite((root / "fuzz_tum_png" / "flat.png").string(), depth)) return 1;
+  fs::create_directories(root / "fuzz_config");
+  fs::copy_file(DEPTHFUSE_CONFIG_FILE, root / "fuzz_config" / "depthfuse.toml",
+                fs::copy_options::overwrite_existing);
+  store::BlobCodec codec(1);
+  auto blob_seed = [&](uint8_t which, const std::string& name, const Bytes& blob) {
+    Bytes b{which};
+    b.insert(b.end(), blob.begin(), blob.end());
+    write(root / "fuzz_store_blobs", name, b);
+  };
+  Bytes blob;
+  if (!codec.encode_points(points, &blob).is_ok()) return 1;
+  blob_seed(0, "points", blob);
+  if (!codec.encode_depth(frame.depth, &blob).is_ok()) return 1;
+  blob_seed(1, "depth", blob);
+  if (!codec.encode_color(frame.color, &blob).is_ok()) return 1;
+  blob_seed(2, "color", blob);
+  Pose pose_seed = Pose::Identity();
+  pose_seed.translation() = Eigen::Vector3d(0.5, -0.25, 1.0);
+  blob_seed(3, "pose", store::encode_pose(pose_seed));
   return 0;
 }
