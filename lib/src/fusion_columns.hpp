@@ -27,6 +27,7 @@ struct Vec3Columns {
     x[i] = v.x(); y[i] = v.y(); z[i] = v.z();
   }
   Vec3Columns from(size_t first) const { return {x + first, y + first, z + first}; }
+  operator Vec3Columns<const F>() const { return {x, y, z}; }
   template <typename Vector>
   static Vec3Columns over(Vector* column, size_t first) {
     return {column[0].data() + first, column[1].data() + first, column[2].data() + first};
@@ -46,6 +47,7 @@ struct Sym3Columns {
   Sym3Columns from(size_t first) const {
     return {xx + first, xy + first, xz + first, yy + first, yz + first, zz + first};
   }
+  operator Sym3Columns<const F>() const { return {xx, xy, xz, yy, yz, zz}; }
   template <typename Vector>
   static Sym3Columns over(Vector* column, size_t first) {
     return {column[0].data() + first, column[1].data() + first, column[2].data() + first,
@@ -71,6 +73,7 @@ struct PointColumns {
   PointColumns from(size_t first) const {
     return {position.from(first), information.from(first), normal.from(first)};
   }
+  operator PointColumns<const F>() const { return {position, information, normal}; }
   template <typename Vector>
   static PointColumns over(Vector* column, size_t first) {
     constexpr int kPosition = 0, kInformation = kPosition + Vec3Columns<F>::kColumns,

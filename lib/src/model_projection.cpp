@@ -247,6 +247,7 @@ void ModelProjection::render(const Pose& T_world_cam, const MeasurementImage& me
   cand_slot_.resize(n);
   cand_index_.resize(n);
   for (std::vector<float>& column : cand_point_) column.resize(n);
+  cand_columns_ = PointColumns<float>::over(cand_point_, 0);
   cand_merges_.resize(n);
   merged_row_.resize(n);
 }

@@ -166,13 +166,11 @@ class ModelProjection {
   void sum_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m,
                    size_t chunk_begin, size_t chunk_end, SurfaceSum* sum) const;
   // The candidates' points (CandidateColumns::point), from pixel 0.
-  PointColumns<const float> cand_point() const {
-    return PointColumns<const float>::over(cand_point_, 0);
-  }
+  PointColumns<const float> cand_point() const { return cand_columns_; }
   // The candidate columns at a pixel: world position, information, normal, merge count.
   void set_candidate_columns(size_t pixel, const Eigen::Vector3f& p_w, const Sym3f& L,
                              const Eigen::Vector3f& n, uint16_t merges) {
-    PointColumns<float>::over(cand_point_, 0).set(pixel, p_w, L, n);
+    cand_columns_.set(pixel, p_w, L, n);
     cand_merges_[pixel] = merges;
   }
   // gather_candidates()' first pass: cand_slot_ and cand_index_ from the keys, merged_row_
@@ -202,6 +200,9 @@ class ModelProjection {
   std::vector<float> front_depth_2_;    // render_surface(): the second half's
   // Per pixel: the candidate's point (CandidateColumns::point) and merge count.
   std::vector<float> cand_point_[PointColumns<float>::kColumns];
+  // The view over cand_point_, laid once when render() sizes it: the per-pixel accessors then load
+  // one column pointer each, as they would from the vectors themselves.
+  PointColumns<float> cand_columns_{};
   std::vector<uint16_t> cand_merges_;
   std::vector<int32_t> merged_row_;     // per pixel: see merged_in_row()
   size_t rendered_ = 0;
