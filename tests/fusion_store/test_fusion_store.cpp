@@ -120,6 +120,8 @@ TEST_F(FusionStore, StoredScanIdThatIsNotANameIsNotResumed) {
   for (const std::string id : {"../../escaped", "/tmp/depthfuse-escaped"}) {
     SCOPED_TRACE(id);
     std::filesystem::remove(db_);
+    for (const char* ext : {".ply", "-trajectory.txt", ".dfscan"})  // a failed run's leftovers
+      std::filesystem::remove(std::filesystem::path(scan_dir) / (id + ext));
     store::ScanMetadata meta;
     meta.scan_id = id;
     ASSERT_TRUE(store::ScanRecorder::create(db_, meta, "", "", store::RecorderConfig{}).is_ok());
@@ -129,7 +131,7 @@ TEST_F(FusionStore, StoredScanIdThatIsNotANameIsNotResumed) {
         << fusion->log();
     fusion->signal(SIGTERM);
     ASSERT_TRUE(fusion->wait(seconds(30))) << fusion->log();
-    for (const char* ext : {".ply", ".txt", ".dfscan"})
+    for (const char* ext : {".ply", "-trajectory.txt", ".dfscan"})
       EXPECT_FALSE(std::filesystem::exists(std::filesystem::path(scan_dir) / (id + ext))) << ext;
   }
 }

@@ -93,6 +93,8 @@ int main(int argc, char** argv) {
   frame.intrinsics = CameraIntrinsics::kinect_v2();
   frame.intrinsics.width = 32;
   frame.intrinsics.height = 24;
+  frame.intrinsics.cx = 15.5;
+  frame.intrinsics.cy = 11.5;
   frame.depth = DepthImage(32, 24);
   for (size_t i = 0; i < frame.depth.depth_m.size(); ++i) frame.depth.depth_m[i] = 0.8f + 0.001f * (i % 50);
   frame.color.width = 32;

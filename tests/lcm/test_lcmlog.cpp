@@ -27,6 +27,8 @@ Frame test_frame(uint32_t seq) {
   f.sensor_serial = "log";
   f.intrinsics.width = 48;
   f.intrinsics.height = 40;
+  f.intrinsics.cx = 23.5;  // the principal point inside the image, as receivers require
+  f.intrinsics.cy = 19.5;
   f.depth = DepthImage(48, 40);
   for (size_t i = 0; i < f.depth.depth_m.size(); ++i)
     f.depth.depth_m[i] = static_cast<float>((800 + (i * 7 + seq) % 2000) * 0.001);
