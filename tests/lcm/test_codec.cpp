@@ -421,6 +421,34 @@ TEST(SequenceTracker, CountsGapsOutOfOrderAndRestarts) {
   EXPECT_EQ(t.observe(2).verdict, V::kInOrder);
 }
 
+// One spoofed frame far ahead does not make the real stream late: three real frames in a row and
+// the reference follows them, and the frames the jump counted as lost are taken back.
+TEST(SequenceTracker, ResyncsAfterASpoofedJump) {
+  lcm::SequenceTracker t(1000);
+  using V = lcm::SequenceTracker::Verdict;
+  for (int s = 1; s <= 100; ++s) t.observe(s);
+  const auto spoof = t.observe(1100);
+  EXPECT_EQ(spoof.verdict, V::kGap);
+  EXPECT_EQ(spoof.lost, 999);
+  EXPECT_EQ(t.observe(101).verdict, V::kOutOfOrder);
+  EXPECT_EQ(t.observe(102).verdict, V::kOutOfOrder);
+  const auto resync = t.observe(103);
+  EXPECT_EQ(resync.verdict, V::kResync);
+  EXPECT_EQ(spoof.lost + resync.lost, 0);  // nothing of the real stream was lost
+  EXPECT_EQ(t.observe(104).verdict, V::kInOrder);
+  // Late frames that are not a run stay late: 90, 95, 97 are each out of order.
+  EXPECT_EQ(t.observe(90).verdict, V::kOutOfOrder);
+  EXPECT_EQ(t.observe(95).verdict, V::kOutOfOrder);
+  EXPECT_EQ(t.observe(97).verdict, V::kOutOfOrder);
+  EXPECT_EQ(t.observe(105).verdict, V::kInOrder);
+  // A run behind without a jump before it resyncs and takes nothing back.
+  EXPECT_EQ(t.observe(50).verdict, V::kOutOfOrder);
+  EXPECT_EQ(t.observe(51).verdict, V::kOutOfOrder);
+  const auto back = t.observe(52);
+  EXPECT_EQ(back.verdict, V::kResync);
+  EXPECT_EQ(back.lost, 0);
+}
+
 TEST(PoseArrays, RoundTripAndRejectGarbage) {
   Pose T = Pose::Identity();
   T.linear() = Eigen::AngleAxisd(2.5, Eigen::Vector3d(0.2, -1, 0.4).normalized()).toRotationMatrix();

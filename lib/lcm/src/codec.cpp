@@ -34,13 +34,28 @@ SequenceTracker::Observation SequenceTracker::observe(int64_t sequence) {
   } else if (delta > 1) {
     o.verdict = Verdict::kGap;
     o.lost = delta - 1;
+    before_jump_ = last_;
+    jump_to_ = sequence;
+    jump_lost_ = o.lost;
   } else if (-delta > restart_gap_) {
     o.verdict = Verdict::kRestart;
   } else {
-    // Late or repeated: the newest sequence stays the reference.
-    o.verdict = Verdict::kOutOfOrder;
-    return o;
+    // Late or repeated: the newest sequence stays the reference, unless the frames behind it keep
+    // coming one after the other.
+    behind_run_ = behind_run_ > 0 && sequence == behind_last_ + 1 ? behind_run_ + 1 : 1;
+    if (behind_run_ == 1) behind_first_ = sequence;
+    behind_last_ = sequence;
+    if (behind_run_ < kResyncAfter) {
+      o.verdict = Verdict::kOutOfOrder;
+      return o;
+    }
+    o.verdict = Verdict::kResync;
+    // A run inside the last jump, with nothing in order since: the stream went on from before the
+    // jump, and what lies between was lost, not what the jump said.
+    if (last_ == jump_to_ && behind_first_ > before_jump_)
+      o.lost = (behind_first_ - before_jump_ - 1) - jump_lost_;
   }
+  behind_run_ = 0;
   last_ = sequence;
   return o;
 }

@@ -71,14 +71,20 @@ struct ReceiveCounters {
 // Follows a stream's sequence numbers: a jump forward by n means n-1 frames were lost; going back
 // (or a repeat) is out of order. A jump back by more than `restart_gap` is taken as the sender
 // restarting (e.g. --loop, a new capture process) and resynchronises instead of counting forever.
+// One jump is not trusted either: kResyncAfter frames in a row, each one after the other but
+// behind the reference, are the stream, and the reference follows them (kResync). Without that, one
+// spoofed frame with the sequence +1000 had the next 1000 real frames rejected as late.
 class SequenceTracker {
  public:
+  static constexpr int kResyncAfter = 3;
   explicit SequenceTracker(int64_t restart_gap = 1000) : restart_gap_(restart_gap) {}
 
-  enum class Verdict { kFirst, kInOrder, kGap, kOutOfOrder, kRestart };
+  enum class Verdict { kFirst, kInOrder, kGap, kOutOfOrder, kRestart, kResync };
   struct Observation {
     Verdict verdict = Verdict::kFirst;
-    int64_t lost = 0;  // frames missing before this one
+    // Frames missing before this one. On kResync, negative when it takes back the frames a jump
+    // had counted as lost but the stream then delivered.
+    int64_t lost = 0;
   };
   Observation observe(int64_t sequence);
   void reset() { have_last_ = false; }
@@ -88,6 +94,11 @@ class SequenceTracker {
   int64_t restart_gap_;
   bool have_last_ = false;
   int64_t last_ = 0;
+  // The last jump forward: the reference before and after it, and the frames it counted as lost.
+  int64_t before_jump_ = 0, jump_to_ = -1, jump_lost_ = 0;
+  // Frames in a row behind the reference, each one after the other: the first and the last.
+  int64_t behind_first_ = 0, behind_last_ = 0;
+  int behind_run_ = 0;
 };
 
 }  // namespace depthfuse::lcm
