@@ -193,11 +193,37 @@ void FusionDaemon::on_command(const uint8_t* data, size_t size) {
 
 // ---------------------------------------------------------------- worker thread
 
+Status FusionDaemon::may_start_scan() const {
+  const auto& f = config_.fusion;
+  if (last_scan_start_) {
+    const double since_s =
+        std::chrono::duration<double>(Clock::now() - *last_scan_start_).count();
+    if (since_s < f.min_scan_interval_s)
+      return unavailable("a scan started " + std::to_string(since_s) +
+                         " s ago; scans start at most every " +
+                         std::to_string(f.min_scan_interval_s) +
+                         " s (fusion_daemon.min_scan_interval_s)");
+  }
+  std::error_code ec;
+  std::filesystem::path where = f.scan_dir;
+  while (!where.empty() && !std::filesystem::exists(where, ec)) where = where.parent_path();
+  const auto space = std::filesystem::space(where.empty() ? "." : where, ec);
+  if (ec) return io_error("cannot tell the free space of '" + f.scan_dir + "': " + ec.message());
+  const double free_mib = static_cast<double>(space.available) / (1024.0 * 1024.0);
+  if (free_mib < f.min_free_disk_mib)
+    return unavailable("only " + std::to_string(static_cast<int64_t>(free_mib)) + " MiB free in '" +
+                       f.scan_dir + "', below fusion_daemon.min_free_disk_mib (" +
+                       std::to_string(static_cast<int64_t>(f.min_free_disk_mib)) + ")");
+  return Status::ok();
+}
+
 Status FusionDaemon::start_scan(const std::string& requested_name, std::string* message) {
   std::string name = requested_name.empty() || requested_name == "-" ? generated_scan_name()
                                                                      : requested_name;
   if (!valid_scan_name(name))
     return invalid_argument("scan name '" + name + "' must be 1-100 characters of A-Z a-z 0-9 . _ -");
+  DF_RETURN_IF_ERROR(may_start_scan());
+  last_scan_start_ = Clock::now();
   std::error_code ec;
   std::filesystem::create_directories(config_.fusion.scan_dir, ec);
   if (ec)
@@ -345,7 +371,9 @@ void FusionDaemon::execute(const command_t& cmd) {
       break;
     case command_t::ACTION_NEW_SCAN: {
       std::string saved;
-      if (in_scan) st = stop_scan("final", &saved);
+      // Checked before the running scan is stopped: a refused `new` leaves it running.
+      st = may_start_scan();
+      if (st.is_ok() && in_scan) st = stop_scan("final", &saved);
       if (st.is_ok()) st = start_scan(cmd.argument, &message);
       if (st.is_ok() && !saved.empty()) message = saved + "; " + message;
       break;

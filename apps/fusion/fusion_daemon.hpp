@@ -14,6 +14,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -61,6 +62,9 @@ class FusionDaemon {
   void on_command(const uint8_t* data, size_t size);
   void worker_loop();
   void execute(const depthfuse::command_t& cmd);
+  // Whether a scan may start now: not sooner than min_scan_interval_s after the last, and with
+  // min_free_disk_mib free in scan_dir.
+  Status may_start_scan() const;
   Status start_scan(const std::string& requested_name, std::string* message);
   Status stop_scan(const std::string& reason, std::string* message);
   void fuse(QueuedFrame& item);
@@ -105,6 +109,7 @@ class FusionDaemon {
   std::vector<StampedPose> trajectory_;
   ScanContext scan_;
   std::chrono::steady_clock::time_point last_checkpoint_;
+  std::optional<std::chrono::steady_clock::time_point> last_scan_start_;  // for min_scan_interval_s
   std::thread worker_;
 };
 

@@ -554,6 +554,47 @@ TEST_F(LiveAppliance, HostileInputIsCountedAndSurvived) {
   EXPECT_TRUE(monitor->running()) << monitor->log();
 }
 
+// `scan new` from the network cannot fill the disk: scans start at most once per
+// min_scan_interval_s, and not at all below min_free_disk_mib (issue 22: 199 commands at 20/s made
+// 199 scans and 574 MB in 10 s).
+TEST_F(LiveAppliance, ABurstOfNewScansIsRateLimitedAndAFullDiskRefusesThem) {
+  const std::string config = dir_ + "/depthfuse.toml";
+  std::ofstream(config) << "[fusion_daemon]\nmin_scan_interval_s = 30.0\n";
+  auto fusion = start_fusion({"--config", config});
+  depthfuse::command_t cmd{};
+  cmd.protocol_version = depthfuse::command_t::PROTOCOL_VERSION;
+  cmd.target = "fusion";
+  cmd.action = depthfuse::command_t::ACTION_NEW_SCAN;
+  for (int i = 0; i < 20; ++i) {  // one second at 20/s
+    cmd.command_id = 5000 + i;
+    cmd.argument = "burst" + std::to_string(i);
+    ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kCommandChannel, cmd).is_ok());
+    std::this_thread::sleep_for(milliseconds(50));
+  }
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.last_command_id == 5019; },
+                                        seconds(10)))
+      << fusion->log();
+  int scans = 0;
+  for (const auto& e : std::filesystem::directory_iterator(dir_ + "/scans"))
+    if (e.path().extension() == ".dfscan") ++scans;
+  EXPECT_EQ(scans, 1) << fusion->log();  // burst0; the rest came sooner than 30 s after it
+  EXPECT_EQ(observer_->heartbeat("fusion")->scan_id, "burst0");
+  std::string out;
+  EXPECT_EQ(scan({"new", "later"}, &out), 1) << out;
+  EXPECT_NE(out.find("min_scan_interval_s"), std::string::npos) << out;
+  fusion->signal(SIGTERM);
+  ASSERT_TRUE(fusion->wait(seconds(30))) << fusion->log();
+
+  // A floor above any disk's free space: no scan starts, and the reason names the setting.
+  std::ofstream(config) << "[fusion_daemon]\nmin_free_disk_mib = 1e12\n";
+  fusion = start_fusion({"--config", config});
+  EXPECT_EQ(scan({"start", "nospace"}, &out), 1) << out;
+  EXPECT_NE(out.find("min_free_disk_mib"), std::string::npos) << out;
+  EXPECT_FALSE(std::filesystem::exists(dir_ + "/scans/nospace.dfscan"));
+  fusion->signal(SIGTERM);
+  ASSERT_TRUE(fusion->wait(seconds(30))) << fusion->log();
+}
+
 TEST_F(LiveAppliance, RecordedSessionReplaysAtItsPace) {
   const std::string log_path = dir_ + "/session.lcmlog";
   auto logger = start("logger", {"/usr/bin/lcm-logger", "--lcm-url=" + url_, "--quiet", log_path});

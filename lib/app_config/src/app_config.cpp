@@ -199,6 +199,8 @@ void read_fusion_daemon(TableReader& r, FusionDaemonConfig* f) {
   r.read("heartbeat_rate_hz", &f->heartbeat_rate_hz, positive());
   r.read("max_frame_width", &f->max_frame_width, at_least(1));
   r.read("max_frame_height", &f->max_frame_height, at_least(1));
+  r.read("min_free_disk_mib", &f->min_free_disk_mib, non_negative());
+  r.read("min_scan_interval_s", &f->min_scan_interval_s, non_negative());
   r.reject_unknown();
 }
 

@@ -43,6 +43,10 @@ struct FusionDaemonConfig {
   // The largest depth image the daemon takes, px: frames beyond it are refused before decoding.
   int max_frame_width = 640;
   int max_frame_height = 480;
+  // A scan starts only with this much free space where scans go, and at most once per
+  // min_scan_interval_s: a burst of `scan new` commands must not fill the disk.
+  double min_free_disk_mib = 512.0;
+  double min_scan_interval_s = 1.0;
 };
 
 struct MonitorConfig {
