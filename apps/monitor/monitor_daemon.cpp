@@ -18,8 +18,14 @@ using depthfuse::heartbeat_t;
 
 // A daemon silent for this many stale timeouts is forgotten (a renamed or retired daemon).
 constexpr double kForgetAfterStaleTimeouts = 20.0;
-// A bound on the table: heartbeats under more names than this are ignored.
+// Bounds on the table, in all and per host: a heartbeat under a new name takes the slot of the
+// longest-silent stale daemon (of its host first) when the table is full, and is ignored while
+// every slot is alive. So forged names from one host cannot keep a new daemon out for good.
 constexpr size_t kMaxDaemons = 64;
+constexpr size_t kMaxDaemonsPerHost = 8;
+// A real heartbeat is a few hundred bytes; a larger one is refused (and counted as malformed)
+// before it is decoded, so that it is never copied into the status the monitor sends.
+constexpr size_t kMaxHeartbeatBytes = 16 * 1024;
 
 }  // namespace
 
@@ -31,6 +37,10 @@ MonitorDaemon::MonitorDaemon(const MonitorOptions& options,
 }
 
 void MonitorDaemon::on_heartbeat(const uint8_t* data, size_t size) {
+  if (size > kMaxHeartbeatBytes) {
+    ++counters_.malformed;
+    return;
+  }
   heartbeat_t hb;
   const auto r = lcm::decode_message(data, size, &hb);
   counters_.count(r);
@@ -38,12 +48,37 @@ void MonitorDaemon::on_heartbeat(const uint8_t* data, size_t size) {
   if (hb.name == self_.name()) return;  // our own, we know it better
   auto it = daemons_.find(hb.name);
   if (it == daemons_.end()) {
-    if (daemons_.size() >= kMaxDaemons) return;
+    if (!make_room(hb.host)) return;
     it = daemons_.emplace(hb.name, Entry{}).first;
   }
   it->second.last = std::move(hb);
   it->second.received = Clock::now();
   ++it->second.count;
+}
+
+bool MonitorDaemon::make_room(const std::string& host) {
+  const auto now = Clock::now();
+  size_t on_host = 0;
+  auto stalest = daemons_.end(), stalest_on_host = daemons_.end();
+  for (auto it = daemons_.begin(); it != daemons_.end(); ++it) {
+    const bool same_host = it->second.last.host == host;
+    on_host += same_host;
+    if (stalest == daemons_.end() || it->second.received < stalest->second.received) stalest = it;
+    if (same_host && (stalest_on_host == daemons_.end() ||
+                      it->second.received < stalest_on_host->second.received))
+      stalest_on_host = it;
+  }
+  auto stale = [&](std::map<std::string, Entry>::iterator it) {
+    return std::chrono::duration<double>(now - it->second.received).count() > options_.stale_after_s;
+  };
+  if (on_host >= kMaxDaemonsPerHost) {
+    if (!stale(stalest_on_host)) return false;
+    daemons_.erase(stalest_on_host);
+  } else if (daemons_.size() >= kMaxDaemons) {
+    if (!stale(stalest)) return false;
+    daemons_.erase(stalest);
+  }
+  return true;
 }
 
 heartbeat_t MonitorDaemon::own_heartbeat() const {

@@ -39,6 +39,9 @@ class MonitorDaemon {
   };
 
   void on_heartbeat(const uint8_t* data, size_t size);
+  // Room in the table for a new daemon on `host`: false when its host's slots, or all slots, are
+  // taken by daemons that are alive; else the longest-silent stale one gives up its slot.
+  bool make_room(const std::string& host);
   depthfuse::heartbeat_t own_heartbeat() const;
   void publish_status(Clock::time_point now);
   size_t alive(Clock::time_point now) const;

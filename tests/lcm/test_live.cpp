@@ -595,6 +595,56 @@ TEST_F(LiveAppliance, ABurstOfNewScansIsRateLimitedAndAFullDiskRefusesThem) {
   ASSERT_TRUE(fusion->wait(seconds(30))) << fusion->log();
 }
 
+// Forged heartbeats cannot blind the monitor: one host holds at most 8 of its slots, a stale slot
+// goes to a new name, and a heartbeat too large to be real is refused before it is decoded
+// (issue 22: 70 forged names filled the 64-slot table for good; 1 MB heartbeats were relayed).
+TEST_F(LiveAppliance, ForgedHeartbeatsAreBoundedPerHostAndExpire) {
+  auto monitor = start("monitor", {bin("depthfuse-monitor"), "--lcm", url_, "--stale-after", "1",
+                                   "--rate", "10"});
+  auto send = [&](const std::string& name, const std::string& host, size_t error_bytes = 0) {
+    depthfuse::heartbeat_t hb{};
+    hb.protocol_version = depthfuse::heartbeat_t::PROTOCOL_VERSION;
+    hb.name = name;
+    hb.host = host;
+    hb.last_error.assign(error_bytes, 'x');
+    ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kHeartbeatChannel, hb).is_ok());
+  };
+  auto count_on = [&](const std::string& host) {
+    auto st = observer_->status();
+    int n = 0;
+    if (st)
+      for (const auto& d : st->daemons) n += d.last.host == host;
+    return n;
+  };
+  ASSERT_TRUE(eventually([&] { return observer_->status().has_value(); }, seconds(10)))
+      << monitor->log();  // the monitor listens
+  for (int i = 0; i < 12; ++i) send("forged" + std::to_string(i), "evil");
+  ASSERT_TRUE(eventually([&] { return count_on("evil") == 8; }, seconds(5))) << monitor->log();
+  send("real", "good");
+  EXPECT_TRUE(eventually([&] {
+    auto st = observer_->status();
+    return st && find_daemon(*st, "real") != nullptr;
+  }, seconds(5)));
+  EXPECT_EQ(count_on("evil"), 8);
+  // Once the forged ones are stale, a new name on that host gets a slot.
+  std::this_thread::sleep_for(milliseconds(1500));
+  send("newcomer", "evil");
+  EXPECT_TRUE(eventually([&] {
+    auto st = observer_->status();
+    return st && find_daemon(*st, "newcomer") != nullptr && count_on("evil") <= 8;
+  }, seconds(5)));
+  // A 1 MB heartbeat is refused and counted.
+  send("big", "good", 1 << 20);
+  EXPECT_TRUE(eventually([&] {
+    auto st = observer_->status();
+    return st && st->messages_malformed >= 1;
+  }, seconds(5)));
+  auto st = observer_->status();
+  ASSERT_TRUE(st.has_value());
+  EXPECT_EQ(find_daemon(*st, "big"), nullptr);
+  EXPECT_TRUE(monitor->running()) << monitor->log();
+}
+
 TEST_F(LiveAppliance, RecordedSessionReplaysAtItsPace) {
   const std::string log_path = dir_ + "/session.lcmlog";
   auto logger = start("logger", {"/usr/bin/lcm-logger", "--lcm-url=" + url_, "--quiet", log_path});
