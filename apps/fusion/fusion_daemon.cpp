@@ -113,6 +113,7 @@ void FusionDaemon::on_color(const uint8_t* data, size_t size) {
     return;
   }
   if (state_.load() != heartbeat_t::STATE_RUNNING) return;
+  if (!follows(msg.sensor_serial)) return;  // counted with its depth frame
   ColorImage color;
   if (auto st = lcm::decode_color_frame(msg, &color, frame_limits_); !st.is_ok()) {
     ++counters_.malformed;
@@ -128,6 +129,10 @@ void FusionDaemon::on_depth(const uint8_t* data, size_t size) {
   const auto r = lcm::decode_message(data, size, &msg);
   if (r != lcm::DecodeResult::kOk) {
     counters_.count(r);
+    return;
+  }
+  if (!follows(msg.sensor_serial)) {
+    ++frames_other_serial_;
     return;
   }
   QueuedFrame item;
@@ -555,6 +560,7 @@ void FusionDaemon::publish_heartbeat() {
     for (const auto& [counter, value] : sink_counters_) daemon::add_counter(&hb, counter, value);
   }
   daemon::add_counter(&hb, "frames_ignored", static_cast<double>(frames_ignored_.load()));
+  daemon::add_counter(&hb, "frames_other_serial", static_cast<double>(frames_other_serial_.load()));
   daemon::add_counter(&hb, "frames_registered", static_cast<double>(registered_.load()));
   daemon::add_counter(&hb, "icp_failures", static_cast<double>(icp_failures_.load()));
   daemon::add_counter(&hb, "process_errors", static_cast<double>(process_errors_.load()));

@@ -59,6 +59,10 @@ class FusionDaemon {
 
   void on_depth(const uint8_t* data, size_t size);
   void on_color(const uint8_t* data, size_t size);
+  // Whether a frame of this sensor serial is fused (fusion_daemon.capture_serial).
+  bool follows(const std::string& sensor_serial) const {
+    return config_.fusion.capture_serial.empty() || sensor_serial == config_.fusion.capture_serial;
+  }
   void on_command(const uint8_t* data, size_t size);
   void worker_loop();
   void execute(const depthfuse::command_t& cmd);
@@ -89,6 +93,7 @@ class FusionDaemon {
   std::atomic<bool> stopping_{false};
   lcm::ReceiveCounters counters_;             // all our channels together
   std::atomic<int64_t> frames_in_{0}, frames_fused_{0}, frames_ignored_{0};
+  std::atomic<int64_t> frames_other_serial_{0};  // not fusion_daemon.capture_serial's
   std::atomic<int64_t> process_errors_{0}, icp_failures_{0}, registered_{0};
   std::atomic<int64_t> point_count_{0};
   // When the worker started its current frame or command (steady clock, ns), 0 when waiting: a

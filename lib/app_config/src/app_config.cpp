@@ -18,6 +18,7 @@
 namespace depthfuse {
 namespace {
 
+using app_config_detail::any_string;
 using app_config_detail::at_least;
 using app_config_detail::closed;
 using app_config_detail::Diagnostics;
@@ -201,6 +202,7 @@ void read_fusion_daemon(TableReader& r, FusionDaemonConfig* f) {
   r.read("max_frame_height", &f->max_frame_height, at_least(1));
   r.read("min_free_disk_mib", &f->min_free_disk_mib, non_negative());
   r.read("min_scan_interval_s", &f->min_scan_interval_s, non_negative());
+  r.read("capture_serial", &f->capture_serial, any_string());
   r.reject_unknown();
 }
 

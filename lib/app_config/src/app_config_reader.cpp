@@ -101,6 +101,10 @@ StringRule non_empty() {
   };
 }
 
+StringRule any_string() {
+  return [](const std::string&) -> std::optional<std::string> { return std::nullopt; };
+}
+
 StringRule one_of(std::vector<std::string> allowed) {
   return [allowed = std::move(allowed)](const std::string& s) -> std::optional<std::string> {
     if (std::find(allowed.begin(), allowed.end(), s) != allowed.end()) return std::nullopt;

@@ -57,6 +57,7 @@ inline Bounds open_closed(double lo, double hi) { return {lo, true, hi, false}; 
 // A string rule: the problem with `s` ("must not be empty"), or nothing.
 using StringRule = std::function<std::optional<std::string>(const std::string& s)>;
 StringRule non_empty();
+StringRule any_string();
 StringRule one_of(std::vector<std::string> allowed);
 
 // Formats a number for a message: -5, 0.0015, 1e-07.

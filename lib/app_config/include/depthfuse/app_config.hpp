@@ -47,6 +47,9 @@ struct FusionDaemonConfig {
   // min_scan_interval_s: a burst of `scan new` commands must not fill the disk.
   double min_free_disk_mib = 512.0;
   double min_scan_interval_s = 1.0;
+  // The one capture the daemon follows, by sensor serial; empty: any. Frames of other serials are
+  // dropped before they are decompressed.
+  std::string capture_serial;
 };
 
 struct MonitorConfig {
