@@ -141,14 +141,7 @@ Result<CameraFile> read_camera_file(const std::string& path) {
   if (k.width > kMaxUncalibratedSide || k.height > kMaxUncalibratedSide)
     return refuse("width x height " + std::to_string(k.width) + "x" + std::to_string(k.height) +
                   " is more than " + std::to_string(kMaxUncalibratedSide) + " px a side");
-  const double min_f = 0.1 * k.width, max_f = 100.0 * k.width;  // 160 to 0.6 degrees of view
-  if (!(k.fx >= min_f && k.fx <= max_f) || !(k.fy >= min_f && k.fy <= max_f))
-    return refuse("fx, fy (" + std::to_string(k.fx) + ", " + std::to_string(k.fy) +
-                  ") are not the focal lengths of a camera " + std::to_string(k.width) +
-                  " px wide (" + std::to_string(min_f) + " to " + std::to_string(max_f) + ")");
-  if (!(k.cx <= k.width && k.cy <= k.height))
-    return refuse("cx, cy (" + std::to_string(k.cx) + ", " + std::to_string(k.cy) +
-                  ") lie outside the image");
+  if (auto problem = k.physical_problem()) return refuse(*problem);
   if (!(out.depth_scale >= 1.0 && out.depth_scale <= 1e6))
     return refuse("depth_scale " + std::to_string(out.depth_scale) +
                   " is not a PNG count per metre in [1, 1e6] (TUM: 5000, Kinect: 1000)");

@@ -23,6 +23,10 @@ struct CameraIntrinsics {
   double cy = 211.5;
 
   bool valid() const { return width > 0 && height > 0 && fx > 0 && fy > 0; }
+  // Why these values, though they parse, are no camera's (they would give an empty cloud), or
+  // nothing: focal lengths of 0.1 to 100 image widths (a field of view of about 160 to 0.6
+  // degrees), the principal point inside the image. Starts with the fields it names ("fx, fy").
+  std::optional<std::string> physical_problem() const;
   // Kinect V2 depth camera nominal values (see config/depthfuse.toml for the source).
   static CameraIntrinsics kinect_v2() { return {}; }
 };

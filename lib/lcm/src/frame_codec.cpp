@@ -207,16 +207,8 @@ Status check_depth_header(const depthfuse::depth_frame_t& msg, const FrameLimits
                           const std::string& what) {
   const auto& in = msg.intrinsics;
   DF_RETURN_IF_ERROR(check_image_size(in.width, in.height, limits, what));
-  const double k[4] = {in.fx, in.fy, in.cx, in.cy};
-  const double min_f = limits.min_focal_widths * in.width, max_f = limits.max_focal_widths * in.width;
-  if (!finite_all(k, 4) || !(in.fx >= min_f && in.fx <= max_f) || !(in.fy >= min_f && in.fy <= max_f))
-    return corrupt(what + ": focal lengths fx " + std::to_string(in.fx) + ", fy " +
-                   std::to_string(in.fy) + " px are not those of a camera " +
-                   std::to_string(in.width) + " px wide (" + std::to_string(min_f) + " to " +
-                   std::to_string(max_f) + ")");
-  if (!(in.cx >= 0 && in.cx <= in.width && in.cy >= 0 && in.cy <= in.height))
-    return corrupt(what + ": principal point (" + std::to_string(in.cx) + ", " +
-                   std::to_string(in.cy) + ") is outside the image");
+  const CameraIntrinsics k{in.width, in.height, in.fx, in.fy, in.cx, in.cy};
+  if (auto problem = k.physical_problem()) return corrupt(what + ": " + *problem);
   if (!(msg.depth_unit_m >= limits.min_depth_unit_m && msg.depth_unit_m <= limits.max_depth_unit_m))
     return corrupt(what + ": depth_unit_m " + std::to_string(msg.depth_unit_m) +
                    " is out of range");

@@ -41,10 +41,7 @@ struct CodecTiming {
 struct FrameLimits {
   int max_width = 640;    // px; Kinect V2 depth is 512 x 424, TUM's Kinect v1 640 x 480
   int max_height = 480;
-  // Focal lengths, in image widths (fx / width, fy / width): a field of view between about 0.6 and
-  // 160 degrees. The principal point lies inside the image.
-  double min_focal_widths = 0.1;
-  double max_focal_widths = 100.0;
+  // The intrinsics must be a camera's: CameraIntrinsics::physical_problem().
   double max_pose_hint_m = 1000.0;        // distance of a pose hint from the world origin
   double min_depth_unit_m = 1e-6;         // one count of depth: 1 um ... 1 m
   double max_depth_unit_m = 1.0;
