@@ -209,6 +209,28 @@ TEST(DepthFrameCodec, RefusesFramesBeyondTheLimitsBeforeDecoding) {
   EXPECT_NE(st.message().find("30000x30000 is larger"), std::string::npos) << st.message();
 }
 
+// A JPEG whose own header claims a huge image is refused before OpenCV allocates for it (the
+// fuzzer found 685 bytes that made imdecode ask for 2.3 GB).
+TEST(ColorFrameCodec, JpegDeclaringAHugeImageIsRefusedBeforeDecoding) {
+  depthfuse::color_frame_t msg;
+  lcm::ColorEncodeOptions jpeg;
+  jpeg.encoding = lcm::ColorEncoding::kJpeg;
+  ASSERT_TRUE(lcm::encode_color_frame(make_frame(32, 24, 5), jpeg, &msg).is_ok());
+  ColorImage back;
+  ASSERT_TRUE(lcm::decode_color_frame(msg, &back).is_ok());
+  size_t sof = 0;
+  for (size_t i = 2; i + 9 < msg.data.size() && !sof; ++i)
+    if (msg.data[i] == 0xFF && msg.data[i + 1] == 0xC0) sof = i;
+  ASSERT_GT(sof, 0u) << "no baseline frame header in the encoded JPEG";
+  for (size_t k : {sof + 5, sof + 7}) {  // height, width: 30000
+    msg.data[k] = 30000 >> 8;
+    msg.data[k + 1] = 30000 & 0xff;
+  }
+  const Status st = lcm::decode_color_frame(msg, &back);
+  EXPECT_EQ(st.code(), StatusCode::kCorrupt);
+  EXPECT_NE(st.message().find("the JPEG is 30000x30000"), std::string::npos) << st.message();
+}
+
 TEST(DepthFrameCodec, RejectsInconsistentMessages) {
   const Frame f = make_frame(64, 48, 1, false);
   depthfuse::depth_frame_t good;

@@ -6,6 +6,8 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <optional>
+#include <utility>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -191,6 +193,37 @@ Status encode_depth_frame(const Frame& frame, const DepthEncodeOptions& options,
 
 namespace {
 
+// A JPEG's width and height from its frame header (SOFn), without decoding it; nothing if the
+// data ends or the scan starts before one. OpenCV allocates for the size the JPEG declares before
+// it decodes a byte, so a few hundred bytes could claim gigabytes.
+std::optional<std::pair<int, int>> jpeg_size(const uint8_t* p, size_t n) {
+  if (n < 4 || p[0] != 0xFF || p[1] != 0xD8) return std::nullopt;
+  size_t i = 2;
+  while (i + 4 <= n) {
+    if (p[i] != 0xFF) return std::nullopt;
+    const uint8_t marker = p[i + 1];
+    if (marker == 0xFF) {  // fill byte
+      ++i;
+      continue;
+    }
+    if (marker == 0x01 || (marker >= 0xD0 && marker <= 0xD7)) {  // no length
+      i += 2;
+      continue;
+    }
+    const size_t length = (size_t{p[i + 2]} << 8) | p[i + 3];
+    const bool frame_header = marker >= 0xC0 && marker <= 0xCF && marker != 0xC4 &&
+                              marker != 0xC8 && marker != 0xCC;
+    if (frame_header) {
+      if (length < 7 || i + 9 > n) return std::nullopt;
+      const int height = (p[i + 5] << 8) | p[i + 6], width = (p[i + 7] << 8) | p[i + 8];
+      return std::make_pair(width, height);
+    }
+    if (marker == 0xDA || length < 2) return std::nullopt;  // the scan, before any frame header
+    i += 2 + length;
+  }
+  return std::nullopt;
+}
+
 // Refuses an image larger than the receiver's sensors, or not an image at all.
 Status check_image_size(int width, int height, const FrameLimits& limits, const std::string& what) {
   if (width <= 0 || height <= 0)
@@ -348,6 +381,12 @@ Status decode_color_frame(const depthfuse::color_frame_t& msg, ColorImage* out,
     DF_RETURN_IF_ERROR(zstd_decompress(msg.data.data(), msg.data.size(), bytes, &out->rgb,
                                        what.c_str()));
   } else if (msg.encoding == depthfuse::color_frame_t::ENCODING_JPEG) {
+    const auto declared = jpeg_size(msg.data.data(), msg.data.size());
+    if (!declared) return corrupt(what + ": the JPEG data has no frame header");
+    if (declared->first != msg.width || declared->second != msg.height)
+      return corrupt(what + ": the JPEG is " + std::to_string(declared->first) + "x" +
+                     std::to_string(declared->second) + ", the message says " +
+                     std::to_string(msg.width) + "x" + std::to_string(msg.height));
     cv::Mat bgr;
     try {
       bgr = cv::imdecode(cv::Mat(1, static_cast<int>(msg.data.size()), CV_8UC1,
