@@ -291,6 +291,7 @@ heartbeat_t CaptureDaemon::publish_heartbeat() {
   daemon::add_counter(&hb, "encode_publish_ms_mean", encode_us_.load() * 1e-3 / out);
   if (const FrameSource* source = source_.load()) device = source->device_status();  // not under mutex_
   if (device) daemon::add_device_status(*device, &hb);
+  daemon::add_receive_counters(*lcm_, &hb);
   (void)lcm_->publish_message(lcm::kHeartbeatChannel, hb);
   return hb;
 }

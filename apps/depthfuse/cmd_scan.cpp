@@ -11,6 +11,7 @@
 #include "depthfuse/base/clock.hpp"
 #include "depthfuse/base/log.hpp"
 #include "depthfuse/command_t.hpp"
+#include "depthfuse/daemon/heartbeat.hpp"
 #include "depthfuse/daemon/process_info.hpp"
 #include "depthfuse/daemon/startup.hpp"
 #include "depthfuse/heartbeat_t.hpp"
@@ -82,12 +83,17 @@ int cmd_scan(int argc, char** argv) {
 
   int result = -1;
   std::string message;
+  // The target's count of messages it refused as unsigned, first and last heard: when it grows
+  // while no acknowledgement comes, the command was refused for its signature.
+  int64_t refused_first = -1, refused_last = -1;
   bus->subscribe(lcm::kHeartbeatChannel, [&](const std::string&, const uint8_t* data, size_t size,
                                                int64_t) {
     heartbeat_t hb;
     if (lcm::decode_message(data, size, &hb) != lcm::DecodeResult::kOk) return;
-    if (hb.last_command_id != cmd.command_id) return;
     if (!target.empty() && hb.name != target) return;
+    refused_last = daemon::auth_refused_total(hb);
+    if (refused_first < 0) refused_first = refused_last;
+    if (hb.last_command_id != cmd.command_id) return;
     result = hb.last_command_result;
     message = hb.name + ": " + hb.last_command_message;
   });
@@ -119,9 +125,23 @@ int cmd_scan(int argc, char** argv) {
   if (result < 0) {
     char waited[32];
     std::snprintf(waited, sizeof waited, "%.1f", timeout_s);
-    DF_LOG(Scan, Error) << "no acknowledgement from '" << target << "' within " << waited
-                        << " s (sent " << sends << " times on " << bus->url()
-                        << "): is the daemon running? 'depthfuse status' lists the live ones";
+    if (refused_last > refused_first && refused_first >= 0) {
+      DF_LOG(Scan, Error) << "'" << target << "' refused the command: it is not signed with the "
+                          << "rig's key ("
+                          << (bus->authenticated() ? "this host's key is another one"
+                                                   : "this host has no key")
+                          << "; --key-file or lcm.key_file names it, see docs/protocol.md)";
+    } else if (bus->receive_counters().auth.dropped_total() > 0) {
+      DF_LOG(Scan, Error) << "no acknowledgement from '" << target << "' within " << waited
+                          << " s: what this host hears on the bus is not signed with its key ("
+                          << "another rig's key? --key-file or lcm.key_file names it)";
+    } else {
+      DF_LOG(Scan, Error) << "no acknowledgement from '" << target << "' within " << waited
+                          << " s (sent " << sends << " times on " << bus->url()
+                          << "): is the daemon running? 'depthfuse status' lists the live ones"
+                          << (bus->authenticated() ? "" : "; a rig with a key ignores commands "
+                                                          "from a host without it");
+    }
     return 3;
   }
   if (result == heartbeat_t::COMMAND_RESULT_OK) {

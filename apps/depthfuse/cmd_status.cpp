@@ -11,6 +11,7 @@
 
 #include "command.hpp"
 #include "depthfuse/base/log.hpp"
+#include "depthfuse/daemon/heartbeat.hpp"
 #include "depthfuse/daemon/startup.hpp"
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/codec.hpp"
@@ -126,6 +127,8 @@ void print_table(const depthfuse::status_t& st) {
       std::snprintf(queue, sizeof(queue), "-");
     std::string tail = h.scan_id.empty() ? "" : "scan " + h.scan_id;
     if (!h.last_error.empty()) tail += (tail.empty() ? "" : "; ") + std::string("last error: ") + h.last_error;
+    if (const std::string refused = daemon::auth_refusals(h); !refused.empty())
+      tail += (tail.empty() ? "" : "; ") + std::string("refused unsigned: ") + refused;
     char alive[16];
     if (d.alive)
       std::snprintf(alive, sizeof(alive), "yes");

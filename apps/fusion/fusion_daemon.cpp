@@ -558,6 +558,7 @@ void FusionDaemon::publish_heartbeat() {
     daemon::add_counter(&hb, "icp_fitness_mean", mean_fitness_);
     daemon::add_counter(&hb, "icp_rmse_mm_mean", mean_rmse_m_ * 1e3);
     for (const auto& [counter, value] : sink_counters_) daemon::add_counter(&hb, counter, value);
+    daemon::add_receive_counters(*lcm_, &hb);
   }
   daemon::add_counter(&hb, "frames_ignored", static_cast<double>(frames_ignored_.load()));
   daemon::add_counter(&hb, "frames_other_serial", static_cast<double>(frames_other_serial_.load()));

@@ -90,6 +90,7 @@ heartbeat_t MonitorDaemon::own_heartbeat() const {
   hb.messages_foreign = counters_.foreign.load();
   hb.input_rate_hz = 0;
   daemon::add_counter(&hb, "daemons", static_cast<double>(daemons_.size()));
+  daemon::add_receive_counters(*lcm_, &hb);
   return hb;
 }
 

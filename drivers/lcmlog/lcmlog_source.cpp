@@ -11,6 +11,7 @@
 #include "depthfuse/depth_frame_t.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/lcm/frame_codec.hpp"
+#include "depthfuse/lcm/message_auth.hpp"
 
 namespace depthfuse::lcmlog {
 
@@ -27,6 +28,13 @@ uint32_t be32(const uint8_t* p) {
 uint64_t be64(const uint8_t* p) { return (uint64_t(be32(p)) << 32) | be32(p + 4); }
 
 lcm_eventlog_t* as_log(void* p) { return static_cast<lcm_eventlog_t*>(p); }
+
+// A recorded message without the signature a rig with a key adds: the log is a file this host
+// chose to read, not the bus, and its signatures are long stale.
+size_t payload_size(const lcm_eventlog_event_t* ev) {
+  return lcm::unsigned_payload_size(static_cast<const uint8_t*>(ev->data),
+                                    static_cast<size_t>(ev->datalen));
+}
 
 enum class HeaderCheck { kOk, kEnd, kTruncated, kCorrupt };
 
@@ -128,7 +136,7 @@ Status LcmLogSource::index() {
     ++stats_.events;
     const std::string channel(ev->channel, static_cast<size_t>(ev->channellen));
     if (channel == options_.depth_channel) {
-      const auto r = lcm::decode_message(ev->data, static_cast<size_t>(ev->datalen), &depth_msg);
+      const auto r = lcm::decode_message(ev->data, payload_size(ev), &depth_msg);
       Frame probe;
       if (r == lcm::DecodeResult::kOk && lcm::decode_depth_frame(depth_msg, &probe).is_ok()) {
         depth_.push_back({event_offset, ev->timestamp});
@@ -141,7 +149,7 @@ Status LcmLogSource::index() {
         ++stats_.malformed;
       }
     } else if (channel == options_.color_channel) {
-      const auto r = lcm::decode_message(ev->data, static_cast<size_t>(ev->datalen), &color_msg);
+      const auto r = lcm::decode_message(ev->data, payload_size(ev), &color_msg);
       if (r == lcm::DecodeResult::kOk) {
         color_by_sequence_[color_msg.sequence] = {event_offset, ev->timestamp};
         ++stats_.color_frames;
@@ -165,7 +173,7 @@ Result<std::vector<uint8_t>> LcmLogSource::read_payload(long offset) {
   lcm_eventlog_event_t* ev = lcm_eventlog_read_next_event(as_log(log_));
   if (!ev) return corrupt("LCM log '" + path_ + "' changed since it was opened");
   std::vector<uint8_t> data(static_cast<const uint8_t*>(ev->data),
-                            static_cast<const uint8_t*>(ev->data) + ev->datalen);
+                            static_cast<const uint8_t*>(ev->data) + payload_size(ev));
   lcm_eventlog_free_event(ev);
   return data;
 }

@@ -39,6 +39,14 @@ fail() { echo "FAIL: $*" >&2; echo "--- calls:" >&2; cat "$WORK/log" >&2 2>/dev/
 mount -t tmpfs none /run
 mkdir -p /run/systemd/system
 mount --bind "$WORK/bin/systemd-sysctl" /usr/lib/systemd/systemd-sysctl
+# /etc as the scripts see it: the host's, with what they write (the rig key) kept in this
+# namespace, and the group that systemd-sysusers (a stub here) would have made.
+mkdir -p "$WORK/etc-overlay"
+mount -t tmpfs none "$WORK/etc-overlay"
+mkdir -p "$WORK/etc-overlay/upper" "$WORK/etc-overlay/work"
+mount -t overlay overlay \
+  -o "lowerdir=/etc,upperdir=$WORK/etc-overlay/upper,workdir=$WORK/etc-overlay/work" /etc
+grep -q '^depthfuse:' /etc/group || echo "depthfuse:x:64999:" >>/etc/group
 export PATH="$WORK/bin:$PATH"
 unset DPKG_ROOT
 
@@ -68,6 +76,10 @@ called "udevadm trigger --action=add --subsystem-match=usb --attr-match=idVendor
 called "systemctl daemon-reload"
 called "systemctl start depthfuse.target"
 order "systemctl daemon-reload" "systemctl start depthfuse.target"
+KEY=/etc/depthfuse/rig.key
+grep -qxE '[0-9a-f]{64}' "$KEY" || fail "postinst made no rig key of 64 hex digits: $(cat "$KEY" 2>&1)"
+[ "$(stat -c %a:%G "$KEY")" = 640:depthfuse ] || fail "$KEY is $(stat -c %a:%G "$KEY"), want 640:depthfuse"
+first_key=$(cat "$KEY")
 echo "ok: first installation"
 
 # Upgrade: nothing enabled again, the daemons restarted.
@@ -75,6 +87,7 @@ run postinst configure 0.1.0-1
 not_called "enable"
 not_called "systemctl start"
 called "systemctl try-restart depthfuse-lcm-route.service depthfuse-capture.service depthfuse-fusion.service depthfuse-monitor.service"
+[ "$(cat "$KEY")" = "$first_key" ] || fail "an upgrade replaced the rig key"
 echo "ok: upgrade"
 
 # A daemon that does not start, or a sysctl that does not apply, does not fail the installation.
@@ -112,8 +125,10 @@ run prerm upgrade
 run postrm remove
 called "systemctl daemon-reload"
 called "udevadm control --reload-rules"
+[ -e "$KEY" ] || fail "postrm remove (not purge) deleted the rig key"
 run postrm purge
 called "systemctl daemon-reload"
+[ ! -e "$KEY" ] || fail "postrm purge left the rig key"
 echo "ok: remove and purge"
 
 for s in postinst prerm postrm; do

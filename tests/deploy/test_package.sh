@@ -176,7 +176,10 @@ W=$R/etc/systemd/system
 for d in $DEPTHFUSE_DAEMONS; do
   [ -L "$W/depthfuse.target.wants/$d.service" ] || fail "$d.service is not enabled"
 done
-echo "ok: user depthfuse ($uid:$gid), /var/lib/depthfuse/scans, units enabled"
+KEY=$R/etc/depthfuse/rig.key
+grep -qxE '[0-9a-f]{64}' "$KEY" || fail "postinst made no rig key of 64 hex digits"
+[ "$(stat -c %a:%g "$KEY")" = "640:$gid" ] || fail "rig.key is $(stat -c %a:%g "$KEY"), want 640:$gid"
+echo "ok: user depthfuse ($uid:$gid), /var/lib/depthfuse/scans, units enabled, rig key"
 
 # The units as installed, against the binaries as installed.
 for arg in "$@"; do
@@ -210,6 +213,7 @@ if find "$W" -name 'depthfuse*' | grep .; then fail "remove left enablement link
 [ -f "$R/etc/depthfuse/depthfuse.toml" ] || fail "remove (not purge) deleted the conffile"
 "${DPKG[@]}" --purge depthfuse >"$WORK/purge.log" 2>&1 || { cat "$WORK/purge.log" >&2; fail "dpkg --purge failed"; }
 [ ! -e "$R/etc/depthfuse/depthfuse.toml" ] || fail "purge left the conffile"
+[ ! -e "$KEY" ] || fail "purge left the rig key"
 [ -f "$R/var/lib/depthfuse/scans/scan-0001.ply" ] || fail "purge deleted a scan"
 echo "ok: remove and purge (scans kept)"
 echo PASS

@@ -1,10 +1,12 @@
 // Datagrams from anyone on the network, into the udpm reassembler. The input is a sequence of
 // datagrams, each a 2-byte big-endian length, a sender byte, and that many bytes, so that the
 // fuzzer builds fragmented messages from several senders. Small limits make eviction reachable.
+// Each complete message then goes through the rig key's verification, as in a keyed receiver.
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
 
+#include "depthfuse/lcm/message_auth.hpp"
 #include "depthfuse/lcm/udpm.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
@@ -14,6 +16,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   limits.max_reassembly_bytes = 2 << 20;
   limits.max_partial_messages = 4;
   udpm::Reassembler reassembler(limits);
+  depthfuse::lcm::MessageAuth auth(depthfuse::lcm::RigKey::from_bytes({}), 2'000'000);
   while (size >= 3) {
     const size_t length = std::min<size_t>((size_t{data[0]} << 8) | data[1], size - 3);
     const uint64_t sender = data[2];
@@ -24,6 +27,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
       volatile uint8_t sink = 0;
       for (size_t i = 0; i < m->size; ++i) sink = sink ^ m->data[i];
       for (char c : m->channel) sink = sink ^ static_cast<uint8_t>(c);
+      const auto verdict = auth.verify(m->channel, m->data, m->size, 0);
+      if (verdict.ok && verdict.payload_size + depthfuse::lcm::kSignatureBytes != m->size)
+        __builtin_trap();
     }
     if (reassembler.reassembly_bytes() > limits.max_reassembly_bytes ||
         reassembler.partial_messages() > limits.max_partial_messages)

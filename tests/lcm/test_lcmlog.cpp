@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 
 #include "depthfuse/color_frame_t.hpp"
 #include "depthfuse/depth_frame_t.hpp"
@@ -13,6 +14,7 @@
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/lcm/frame_codec.hpp"
+#include "depthfuse/lcm/message_auth.hpp"
 #include "depthfuse/lcmlog/lcmlog_source.hpp"
 #include "depthfuse/source_factory.hpp"
 #include "lcm_test_util.hpp"
@@ -45,7 +47,14 @@ class LogWriter {
     if (log_) lcm_eventlog_destroy(log_);
   }
   bool ok() const { return log_ != nullptr; }
-  void write(const std::string& channel, const std::vector<uint8_t>& data, int64_t utime) {
+  // What a rig with a key records: every message with its signature (message_auth.hpp).
+  void sign_with(const lcm::RigKey& key) { auth_.emplace(key, 1'000'000); }
+  void write(const std::string& channel, std::vector<uint8_t> data, int64_t utime) {
+    if (auth_) {
+      const size_t n = data.size();
+      data.resize(n + lcm::kSignatureBytes);
+      auth_->sign(channel, data.data(), n, utime, data.data() + n);
+    }
     lcm_eventlog_event_t ev{};
     ev.timestamp = utime;
     ev.channellen = static_cast<int32_t>(channel.size());
@@ -65,6 +74,7 @@ class LogWriter {
 
  private:
   lcm_eventlog_t* log_;
+  std::optional<lcm::MessageAuth> auth_;
 };
 
 // A log of 5 good frames with unusable events in between.
@@ -120,6 +130,26 @@ TEST(LcmLogSource, ReadsFramesAndCountsUnusableEvents) {
   EXPECT_EQ((*src)->next().status().code(), StatusCode::kEndOfStream);
   ASSERT_TRUE((*src)->rewind().is_ok());
   EXPECT_EQ((*src)->next()->sequence, 0u);
+}
+
+TEST(LcmLogSource, ReadsARigsSignedRecording) {
+  const std::string path = testing::temp_dir("lcmlog-signed") + "/signed.lcmlog";
+  {
+    LogWriter w(path);
+    ASSERT_TRUE(w.ok());
+    w.sign_with(lcm::RigKey::from_bytes({}));
+    for (uint32_t i = 0; i < 3; ++i) w.write_frame(test_frame(i));
+  }
+  auto src = lcmlog::LcmLogSource::open(path, {});
+  ASSERT_TRUE(src.is_ok()) << src.status().to_string();
+  EXPECT_EQ((*src)->stats().depth_frames, 3u);
+  EXPECT_EQ((*src)->stats().malformed, 0u);
+  for (uint32_t i = 0; i < 3; ++i) {
+    auto f = (*src)->next();
+    ASSERT_TRUE(f.is_ok()) << f.status().to_string();
+    EXPECT_EQ(f->depth.depth_m, test_frame(i).depth.depth_m);
+    EXPECT_EQ(f->color.rgb, test_frame(i).color.rgb);
+  }
 }
 
 TEST(LcmLogSource, OpensThroughTheFactory) {

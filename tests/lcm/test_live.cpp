@@ -670,6 +670,58 @@ TEST_F(LiveAppliance, ForgedHeartbeatsAreBoundedPerHostAndExpire) {
   EXPECT_TRUE(monitor->running()) << monitor->log();
 }
 
+// With a rig key, what a stranger sends is dropped before it is decoded, and counted: a spoofed
+// frame neither blinds fusion nor counts as lost, and a command needs the key (the operator token).
+TEST_F(LiveAppliance, WithARigKeyOnlySignedMessagesAreHeard) {
+  auto write_key = [&](const std::string& name, char digit) {
+    const std::string path = dir_ + "/" + name;
+    std::ofstream(path) << std::string(64, digit) << "\n";
+    std::filesystem::permissions(path, std::filesystem::perms::owner_read |
+                                           std::filesystem::perms::owner_write);
+    return path;
+  };
+  const std::string key = write_key("rig.key", '3');
+  const std::string other_key = write_key("other.key", '4');
+  auto fusion = start_fusion({"--key-file", key, "--autostart", "keyed", "--queue", "64"});
+  auto capture = start_capture("synthetic:corner?frames=600&seed=7",
+                               {"--rate", "10", "--loop", "--key-file", key});
+  // The observer has no key: it reads signed messages but cannot sign.
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.frames_out >= 3; },
+                                        seconds(60)))
+      << fusion->log() << capture->log();
+  EXPECT_EQ(daemon::counter_value(*observer_->heartbeat("fusion"), "signed"), 1);
+
+  auto spoof = small_frame(observer_->heartbeat("fusion")->frames_in + 1000);
+  ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kDepthChannel, spoof).is_ok());
+  depthfuse::command_t stop{};
+  stop.protocol_version = depthfuse::command_t::PROTOCOL_VERSION;
+  stop.command_id = 99;
+  stop.target = "fusion";
+  stop.action = depthfuse::command_t::ACTION_STOP;
+  ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kCommandChannel, stop).is_ok());
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) {
+    return daemon::counter_value(hb, "auth_dropped_unsigned") >= 2;
+  }, seconds(10))) << fusion->log();
+  const int64_t fused_then = fused();
+  EXPECT_TRUE(observer_->wait_heartbeat("fusion", [&](auto& hb) {
+    return hb.frames_out >= fused_then + 5;
+  }, seconds(30))) << "fusion stopped fusing after the spoofed frame";
+  auto hb = *observer_->heartbeat("fusion");
+  EXPECT_EQ(hb.scan_id, "keyed");  // the unsigned stop did nothing
+  EXPECT_EQ(hb.frames_lost, 0);
+  EXPECT_EQ(hb.frames_out_of_order, 0);
+  EXPECT_EQ(hb.messages_malformed, 0);
+
+  std::string out;
+  EXPECT_EQ(scan({"stop", "--key-file", "", "--timeout", "2"}, &out), 3) << out;
+  EXPECT_NE(out.find("not signed with the rig's key"), std::string::npos) << out;
+  EXPECT_EQ(scan({"stop", "--key-file", other_key, "--timeout", "2"}, &out), 3) << out;
+  EXPECT_NE(out.find("not signed with its key"), std::string::npos) << out;
+  EXPECT_EQ(observer_->heartbeat("fusion")->scan_id, "keyed");
+  ASSERT_EQ(scan({"checkpoint", "--key-file", key}, &out), 0) << out;
+  EXPECT_TRUE(fusion->running()) << fusion->log();
+}
+
 TEST_F(LiveAppliance, RecordedSessionReplaysAtItsPace) {
   const std::string log_path = dir_ + "/session.lcmlog";
   auto logger = start("logger", {"/usr/bin/lcm-logger", "--lcm-url=" + url_, "--quiet", log_path});

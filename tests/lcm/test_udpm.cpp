@@ -254,8 +254,8 @@ TEST(UdpmTransport, HostileDatagramsAreDroppedAndTheBusGoesOn) {
   }, std::chrono::seconds(5), std::chrono::milliseconds(200)));
   EXPECT_EQ(received_bytes.load(), payload.size());
   const auto counters = listener.lcm()->receive_counters();
-  EXPECT_EQ(counters.dropped[static_cast<size_t>(udpm::Drop::kBadFragment)], 1u);
-  EXPECT_EQ(counters.dropped[static_cast<size_t>(udpm::Drop::kBadChannel)], 1u);
+  EXPECT_EQ(counters.udpm.dropped[static_cast<size_t>(udpm::Drop::kBadFragment)], 1u);
+  EXPECT_EQ(counters.udpm.dropped[static_cast<size_t>(udpm::Drop::kBadChannel)], 1u);
 }
 
 }  // namespace

@@ -156,6 +156,8 @@ std::optional<std::string> check_lcm_url(const std::string& url) {
 
 void read_lcm(TableReader& r, LcmConfig* l) {
   r.read("url", &l->url, check_lcm_url);
+  r.read("key_file", &l->key_file, app_config_detail::any_string());
+  r.read("max_clock_skew_s", &l->max_clock_skew_s, positive());
   r.reject_unknown();
 }
 

@@ -48,6 +48,51 @@ void add_device_status(const DeviceStatus& device, depthfuse::heartbeat_t* hb) {
   for (const auto& [key, value] : device.counters) add_counter(hb, key, value);
 }
 
+namespace {
+constexpr const char* kAuthDroppedPrefix = "auth_dropped_";
+
+// A counter's key from a reason's text: "bad magic" -> "<prefix>bad_magic".
+std::string counter_key(const char* prefix, const char* reason) {
+  std::string key = std::string(prefix) + reason;
+  for (char& c : key)
+    if (c == ' ') c = '_';
+  return key;
+}
+}  // namespace
+
+void add_receive_counters(const lcm::LcmTransport& transport, depthfuse::heartbeat_t* hb) {
+  const auto counters = transport.receive_counters();
+  add_counter(hb, "signed", transport.authenticated() ? 1 : 0);
+  if (transport.authenticated()) {
+    for (size_t i = 0; i < counters.auth.dropped.size(); ++i)
+      add_counter(hb, counter_key(kAuthDroppedPrefix, to_string(static_cast<lcm::AuthDrop>(i))),
+                  static_cast<double>(counters.auth.dropped[i]));
+  }
+  for (size_t i = 0; i < counters.udpm.dropped.size(); ++i) {
+    if (counters.udpm.dropped[i] == 0) continue;
+    add_counter(hb, counter_key("udpm_dropped_", to_string(static_cast<lcm::udpm::Drop>(i))),
+                static_cast<double>(counters.udpm.dropped[i]));
+  }
+}
+
+std::string auth_refusals(const depthfuse::heartbeat_t& hb) {
+  std::string text;
+  for (const auto& kv : hb.counters) {
+    if (kv.key.rfind(kAuthDroppedPrefix, 0) != 0 || kv.value <= 0) continue;
+    if (!text.empty()) text += ", ";
+    text += std::to_string(static_cast<int64_t>(kv.value)) + " " +
+            kv.key.substr(std::string(kAuthDroppedPrefix).size());
+  }
+  return text;
+}
+
+int64_t auth_refused_total(const depthfuse::heartbeat_t& hb) {
+  int64_t total = 0;
+  for (const auto& kv : hb.counters)
+    if (kv.key.rfind(kAuthDroppedPrefix, 0) == 0) total += static_cast<int64_t>(kv.value);
+  return total;
+}
+
 const char* state_name(int8_t state) {
   switch (state) {
     case depthfuse::heartbeat_t::STATE_STARTING: return "starting";

@@ -12,9 +12,11 @@ DF_LOG_CATEGORY(Startup)
 namespace depthfuse::daemon {
 namespace {
 
-const char* const kCommonOptions[] = {"config", "lcm", "log-level"};
+const char* const kCommonOptions[] = {"config", "lcm", "key-file", "log-level"};
 
 constexpr const char* kCommonUsage =
+    "  --key-file FILE   the rig key that signs and verifies LCM messages (default: the config's\n"
+    "                    lcm.key_file, /etc/depthfuse/rig.key); \"\" for none\n"
     "  --log-level SPEC  which messages to show: debug, info, warning or error, also per part\n"
     "                    (\"warning,Capture=debug\"); default info, or $DEPTHFUSE_LOG\n";
 
@@ -73,6 +75,7 @@ Startup::Startup(Program program, int argc, char** argv)
     }
     config_.lcm.url = args_.get("lcm");
   }
+  if (args_.has("key-file")) config_.lcm.key_file = args_.get("key-file");
 }
 
 int Startup::usage_error(const std::string& problem) const {
@@ -83,14 +86,45 @@ int Startup::usage_error(const std::string& problem) const {
 }
 
 std::unique_ptr<lcm::LcmTransport> Startup::open_lcm() const {
+  const LcmConfig& config = config_.lcm;
+  std::optional<lcm::RigKey> key;
+  if (!config.key_file.empty()) {
+    auto loaded = lcm::RigKey::load(config.key_file);
+    if (loaded) {
+      key = *loaded;
+    } else if (loaded.status().code() != StatusCode::kNotFound) {
+      // A key that is there but unusable is a broken rig, not an open one.
+      DF_LOG(Startup, Error) << loaded.status().to_string();
+      return nullptr;
+    }
+  }
+  std::string url = config.url;
+  if (!key) {
+    const std::string why = config.key_file.empty() ? "lcm.key_file is empty"
+                                                    : config.key_file + " does not exist";
+    std::string warning = "no rig key (" + why + "): LCM messages are neither signed nor "
+                          "verified, so anyone who can reach the bus can send frames and commands";
+    // Unauthenticated traffic stays on this host.
+    if (auto parsed = lcm::parse_lcm_url(url); parsed && parsed->ttl > 0) {
+      url = lcm::url_with_ttl0(*parsed);
+      warning += "; ttl=" + std::to_string(parsed->ttl) + " of the LCM URL is replaced by ttl=0";
+    }
+    DF_LOG(Startup, Warning) << warning << " (docs/protocol.md, \"Authentication\")";
+  }
   std::vector<std::string> warnings;
-  auto opened = lcm::LcmTransport::open(config_.lcm.url, &warnings);
+  auto opened = lcm::LcmTransport::open(url, &warnings);
   for (const auto& w : warnings) DF_LOG(Startup, Warning) << w;
   if (!opened) {
     DF_LOG(Startup, Error) << opened.status().to_string();
     return nullptr;
   }
-  return std::move(opened).value();
+  auto transport = std::move(opened).value();
+  if (key) {
+    transport->authenticate(*key, static_cast<int64_t>(config.max_clock_skew_s * 1e6));
+    DF_LOG(Startup, Debug) << "LCM messages signed and verified with rig key "
+                           << key->fingerprint() << " (" << config.key_file << ")";
+  }
+  return transport;
 }
 
 int run_main(const std::function<int()>& body) {

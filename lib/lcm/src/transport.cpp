@@ -54,6 +54,18 @@ std::string format_route_fix(const std::string& group) {
 
 std::string default_lcm_url() { return "udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304"; }
 
+std::string url_with_ttl0(const LcmUrl& url) {
+  if (url.provider != "udpm" || url.ttl == 0) return url.text;
+  const auto q = url.text.find('?');
+  if (q == std::string::npos) return url.text + "?ttl=0";
+  std::string query = "&" + url.text.substr(q + 1) + "&";
+  const auto at = query.find("&ttl=");
+  if (at == std::string::npos) return url.text + "&ttl=0";
+  const auto end = query.find('&', at + 1);
+  query.replace(at, end - at, "&ttl=0");
+  return url.text.substr(0, q + 1) + query.substr(1, query.size() - 2);
+}
+
 std::string loopback_test_url(int seed) {
   // Ports 20000..59999, away from LCM's default 7667 and the ephemeral range's usual start.
   const int port = 20000 + (seed < 0 ? -seed : seed) % 40000;
@@ -211,43 +223,75 @@ LcmTransport::~LcmTransport() {
 }
 
 Status LcmTransport::publish(const std::string& channel, const void* data, size_t size) {
-  if (size > static_cast<size_t>(INT32_MAX)) return invalid_argument("message too large for LCM");
+  if (size > static_cast<size_t>(INT32_MAX) - kSignatureBytes)
+    return invalid_argument("message too large for LCM");
   std::lock_guard<std::mutex> lock(publish_mutex_);
+  if (auth_) {
+    const auto* bytes = static_cast<const uint8_t*>(data);
+    signed_buffer_.assign(bytes, bytes + size);
+    signed_buffer_.resize(size + kSignatureBytes);
+    auth_->sign(channel, bytes, size, now_utime(), signed_buffer_.data() + size);
+    data = signed_buffer_.data();
+    size = signed_buffer_.size();
+  }
   if (lcm_publish(lcm_, channel.c_str(), data, static_cast<unsigned int>(size)) != 0)
     return io_error("LCM publish on " + channel + " failed (" + std::to_string(size) +
                     " bytes): " + std::strerror(errno));
   return Status::ok();
 }
 
-void LcmTransport::dispatch(const void* rbuf_v, const char* channel, void* user) {
-  const auto* rbuf = static_cast<const lcm_recv_buf_t*>(rbuf_v);
-  auto* handler = static_cast<Handler*>(user);
-  (*handler)(channel, static_cast<const uint8_t*>(rbuf->data), rbuf->data_size, rbuf->recv_utime);
+void LcmTransport::authenticate(const RigKey& key, int64_t max_skew_us) {
+  auth_ = std::make_unique<MessageAuth>(key, max_skew_us);
 }
 
 void LcmTransport::subscribe(const std::string& channel_regex, Handler handler) {
   auto sub = std::make_unique<Subscription>();
   sub->handler = std::move(handler);
-  if (udpm_) {
-    const std::string anchored = "^(" + channel_regex + ")$";
-    sub->valid = regcomp(&sub->regex, anchored.c_str(), REG_EXTENDED | REG_NOSUB) == 0;
-    if (!sub->valid) DF_LOG(Lcm, Error) << "invalid LCM channel expression '" << channel_regex << "'";
-  } else {
+  const std::string anchored = "^(" + channel_regex + ")$";
+  sub->valid = regcomp(&sub->regex, anchored.c_str(), REG_EXTENDED | REG_NOSUB) == 0;
+  if (!sub->valid) DF_LOG(Lcm, Error) << "invalid LCM channel expression '" << channel_regex << "'";
+  // Other providers receive through liblcm, once for all subscriptions: a message is verified
+  // once (a second verification would take it for a replay), then matched like udpm's.
+  if (!udpm_ && !lcm_subscribed_) {
     lcm_subscribe(
-        lcm_, channel_regex.c_str(),
+        lcm_, ".*",
         [](const lcm_recv_buf_t* rbuf, const char* channel, void* user) {
-          dispatch(rbuf, channel, user);
+          static_cast<LcmTransport*>(user)->deliver(
+              channel, static_cast<const uint8_t*>(rbuf->data), rbuf->data_size, rbuf->recv_utime);
         },
-        &sub->handler);
+        this);
+    lcm_subscribed_ = true;
   }
   subscriptions_.push_back(std::move(sub));
 }
 
-void LcmTransport::dispatch_udpm(const udpm::Message& message, int64_t recv_utime) {
-  const std::string channel(message.channel);
-  for (const auto& sub : subscriptions_) {
-    if (sub->matches(channel.c_str())) sub->handler(channel, message.data, message.size, recv_utime);
+void LcmTransport::deliver(std::string_view channel_view, const uint8_t* data, size_t size,
+                           int64_t recv_utime) {
+  size_t payload_size = unsigned_payload_size(data, size);
+  if (auth_) {
+    const auto verdict = auth_->verify(channel_view, data, size, now_utime());
+    if (!verdict.ok) {
+      // The first refusal of each kind is said; the rest are counted (heartbeats carry them).
+      if (auth_->counters().dropped[static_cast<size_t>(verdict.reason)] == 1)
+        DF_LOG(Lcm, Warning) << "dropped a message on " << channel_view << ": "
+                             << to_string(verdict.reason)
+                             << " (not signed with this rig's key; further ones are counted)";
+      update_counters();
+      return;
+    }
+    payload_size = verdict.payload_size;
   }
+  if (auth_) update_counters();
+  const std::string channel(channel_view);
+  for (const auto& sub : subscriptions_) {
+    if (sub->matches(channel.c_str())) sub->handler(channel, data, payload_size, recv_utime);
+  }
+}
+
+void LcmTransport::update_counters() {
+  std::lock_guard<std::mutex> lock(counters_mutex_);
+  counters_.udpm = reassembler_.counters();
+  if (auth_) counters_.auth = auth_->counters();
 }
 
 Result<bool> LcmTransport::handle_udpm(int timeout_ms) {
@@ -260,19 +304,16 @@ Result<bool> LcmTransport::handle_udpm(int timeout_ms) {
     const auto& d = **datagram;
     const int64_t recv_utime = now_utime();
     const auto message = reassembler_.feed(d.data, d.size, d.sender);
-    {
-      std::lock_guard<std::mutex> lock(counters_mutex_);
-      counters_ = reassembler_.counters();
-    }
+    update_counters();
     if (message) {
-      dispatch_udpm(*message, recv_utime);
+      deliver(message->channel, message->data, message->size, recv_utime);
       return true;
     }
     if (steady_ns() >= deadline_ns) return false;
   }
 }
 
-udpm::Counters LcmTransport::receive_counters() const {
+LcmTransport::ReceiveCounters LcmTransport::receive_counters() const {
   std::lock_guard<std::mutex> lock(counters_mutex_);
   return counters_;
 }

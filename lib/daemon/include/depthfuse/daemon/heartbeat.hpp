@@ -7,6 +7,7 @@
 #include "depthfuse/daemon/process_info.hpp"
 #include "depthfuse/frame_source.hpp"
 #include "depthfuse/heartbeat_t.hpp"
+#include "depthfuse/lcm/transport.hpp"
 
 namespace depthfuse::daemon {
 
@@ -34,6 +35,16 @@ double counter_value(const depthfuse::heartbeat_t& hb, const std::string& key, d
 // streams, idle while waiting for it, error while it fails) with, unless it streams, its summary
 // as hb->last_error. Paused, stopping, finished and error (a stuck driver) are left as they are.
 void add_device_status(const DeviceStatus& device, depthfuse::heartbeat_t* hb);
+
+// Puts what the daemon's LCM receiver dropped into its heartbeat: "signed" (1 with a rig key),
+// "auth_dropped_<reason>" for each reason authentication drops a message, and
+// "udpm_dropped_<reason>" for each reason the udpm receiver dropped a datagram at least once.
+void add_receive_counters(const lcm::LcmTransport& transport, depthfuse::heartbeat_t* hb);
+
+// The messages a daemon refused as not signed with the rig key, by reason ("3 unsigned, 1
+// bad_signature"), from its heartbeat; empty when none. And their number.
+std::string auth_refusals(const depthfuse::heartbeat_t& hb);
+int64_t auth_refused_total(const depthfuse::heartbeat_t& hb);
 
 const char* state_name(int8_t state);
 

@@ -9,8 +9,10 @@
 #include <memory>
 #include <mutex>
 #include <string>
+#include <string_view>
 #include <vector>
 
+#include "depthfuse/lcm/message_auth.hpp"
 #include "depthfuse/lcm/udpm.hpp"
 #include "depthfuse/status.hpp"
 
@@ -36,6 +38,9 @@ Result<LcmUrl> parse_lcm_url(const std::string& url);
 // The default URL of the appliance (same as LcmConfig::url).
 std::string default_lcm_url();
 
+// The URL with its udpm ttl set to 0 (traffic stays on this host); other URLs unchanged.
+std::string url_with_ttl0(const LcmUrl& url);
+
 // The URL with a udpm port chosen from a number (a process id), for tests that must not hear each
 // other: "udpm://239.255.76.67:<port>?ttl=0&recv_buf_size=4194304".
 std::string loopback_test_url(int seed);
@@ -55,7 +60,9 @@ LcmDiagnosis diagnose_lcm_url(const LcmUrl& url);
 
 // Publishing goes through liblcm. Receiving on an udpm URL goes through depthfuse's own udpm
 // receiver (udpm.hpp says why), with every datagram checked before it is used; other providers
-// (memq, file) receive through liblcm.
+// (memq, file) receive through liblcm. With a rig key (authenticate()), every message published
+// is signed and every message received is verified before any handler sees it
+// (message_auth.hpp); handlers get the payload without its signature either way.
 class LcmTransport {
  public:
   // channel, payload, size, receive time (microseconds, LCM's clock = wall clock)
@@ -71,6 +78,11 @@ class LcmTransport {
   LcmTransport& operator=(const LcmTransport&) = delete;
 
   const std::string& url() const { return url_; }
+
+  // From now on, signs what is published and drops what is received unless it is signed with
+  // `key` within `max_skew_us` of this host's clock. Call before handle() runs.
+  void authenticate(const RigKey& key, int64_t max_skew_us);
+  bool authenticated() const { return auth_ != nullptr; }
 
   Status publish(const std::string& channel, const void* data, size_t size);
 
@@ -97,29 +109,39 @@ class LcmTransport {
   // Dispatches messages until `budget_ms` has passed.
   Status handle_for(int budget_ms);
 
-  // What the udpm receiver took in and dropped, by reason (all zero on other providers).
-  udpm::Counters receive_counters() const;
+  // What the udpm receiver took in and dropped, by reason (all zero on other providers), and
+  // what authentication let through and dropped (all zero without a key). Any thread.
+  struct ReceiveCounters {
+    udpm::Counters udpm;
+    AuthCounters auth;
+  };
+  ReceiveCounters receive_counters() const;
 
  private:
   struct Subscription;
 
   LcmTransport(lcm_t* lcm, std::string url, std::unique_ptr<UdpmSocket> udpm);
-  static void dispatch(const void* rbuf, const char* channel, void* user);
   Result<bool> handle_udpm(int timeout_ms);
-  void dispatch_udpm(const udpm::Message& message, int64_t recv_utime);
+  // Every received message, from either receiver: verified, then handed to the subscriptions
+  // whose expression matches its channel.
+  void deliver(std::string_view channel, const uint8_t* data, size_t size, int64_t recv_utime);
+  void update_counters();
 
   lcm_t* lcm_ = nullptr;
   std::string url_;
   std::mutex publish_mutex_;
   std::mutex encode_mutex_;
   std::vector<uint8_t> encode_buffer_;
+  std::vector<uint8_t> signed_buffer_;  // a payload and its signature; under publish_mutex_
   std::vector<std::unique_ptr<Subscription>> subscriptions_;
+  bool lcm_subscribed_ = false;  // other providers: one catch-all liblcm subscription
+  std::unique_ptr<MessageAuth> auth_;
 
   // The udpm receiver; null on other providers. Used by the thread that calls handle().
   std::unique_ptr<UdpmSocket> udpm_;
   udpm::Reassembler reassembler_;
   mutable std::mutex counters_mutex_;  // guards counters_, a copy for other threads
-  udpm::Counters counters_;
+  ReceiveCounters counters_;
 };
 
 }  // namespace depthfuse::lcm
