@@ -38,7 +38,7 @@ PACKAGES=(
   libsqlite3-dev sqlite3 libsystemd-dev systemd
   liblcm-dev liblcm-bin liblcm-java libglib2.0-dev default-jdk-headless
   libgtest-dev libgmock-dev libbenchmark-dev
-  libtomlplusplus-dev libzstd-dev libturbojpeg0-dev
+  libtomlplusplus-dev libzstd-dev libturbojpeg0-dev libsodium-dev
   python3-open3d python3-numpy
   iproute2 procps dpkg-dev file udev
   clang libclang-rt-14-dev  # libFuzzer and the sanitizers for tools/fuzz.sh
