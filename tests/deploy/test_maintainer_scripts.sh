@@ -122,6 +122,7 @@ order "systemctl stop depthfuse.target depthfuse-capture.service depthfuse-fusio
 FAIL_TOOL="systemctl stop" run prerm remove   # a unit that fails to stop does not block removal
 run prerm upgrade
 [ ! -s "$WORK/log" ] || fail "prerm upgrade must leave the running appliance alone"
+run postinst configure ""  # a rig key again: the purges above took it
 run postrm remove
 called "systemctl daemon-reload"
 called "udevadm control --reload-rules"

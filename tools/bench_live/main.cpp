@@ -35,6 +35,7 @@
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/lcm/frame_codec.hpp"
+#include "depthfuse/lcm/message_auth.hpp"
 #include "depthfuse/lcm/transport.hpp"
 #include "depthfuse/pose_t.hpp"
 #include "depthfuse/synthetic/synthetic_source.hpp"
@@ -148,7 +149,7 @@ int run(int argc, char** argv) {
   std::vector<depthfuse::depth_frame_t> depth_msgs(a.distinct_frames);
   std::vector<depthfuse::color_frame_t> color_msgs(a.distinct_frames);
   std::vector<double> convert_ms, compress_ms, serialize_ms, decode_ms, depth_bytes, color_bytes,
-      jpeg_bytes, jpeg_ms, color_ms, plain_bytes, plain_ms;
+      jpeg_bytes, jpeg_ms, color_ms, plain_bytes, plain_ms, sign_verify_ms;
   size_t raw_depth_bytes = 0;
   for (int i = 0; i < a.distinct_frames; ++i) {
     depthfuse::Frame f = seq->render(static_cast<size_t>(i));
@@ -178,6 +179,19 @@ int run(int argc, char** argv) {
         !lcm::decode_depth_frame(back, &out).is_ok())
       return 1;
     decode_ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
+    {
+      // The rig key's cost: signing on the sender, verifying on the receiver (a throwaway key).
+      lcm::MessageAuth auth(lcm::RigKey::from_bytes({}), 2'000'000);
+      std::vector<uint8_t> signed_bytes(bytes);
+      signed_bytes.resize(bytes.size() + lcm::kSignatureBytes);
+      t0 = Clock::now();
+      auth.sign(lcm::kDepthChannel, bytes.data(), bytes.size(), depthfuse::now_utime(),
+                signed_bytes.data() + bytes.size());
+      const bool verified = auth.verify(lcm::kDepthChannel, signed_bytes.data(),
+                                        signed_bytes.size(), depthfuse::now_utime()).ok;
+      sign_verify_ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
+      if (!verified) return 1;
+    }
     if (!f.color.empty()) {
       lcm::CodecTiming ct;
       if (!lcm::encode_color_frame(f, {}, &color_msgs[i], &ct).is_ok()) return 1;
@@ -203,6 +217,7 @@ int run(int argc, char** argv) {
               mean(plain_ms), raw_depth_bytes, mean(plain_bytes), raw_depth_bytes / mean(plain_bytes));
   std::printf("  LCM serialisation               %7.2f ms\n", mean(serialize_ms));
   std::printf("  receive: LCM decode + unzstd + uint16 -> float  %7.2f ms\n", mean(decode_ms));
+  std::printf("  rig key: sign + verify the depth message  %7.2f ms\n", mean(sign_verify_ms));
   if (!color_ms.empty()) {
     std::printf("  colour RGB8 zstd -1             %7.2f ms   %d -> %.0f bytes\n", mean(color_ms),
                 512 * 424 * 3, mean(color_bytes));
@@ -222,6 +237,9 @@ int run(int argc, char** argv) {
     fargs.push_back("--config");
     fargs.push_back(a.config);
   }
+  // The daemon signs and verifies with the bench's key (or none, like the bench).
+  fargs.push_back("--key-file");
+  fargs.push_back(startup.config().lcm.key_file);
   const std::string fusion_log = scan_dir + ".fusion.log";
   const pid_t fusion_pid = ::fork();
   if (fusion_pid == 0) {
