@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 
 namespace depthfuse::kinect2::test {
 
@@ -56,6 +57,13 @@ SceneImages scene_images(int variant) {
       if (v > 380) depth = 5.0 + 0.01 * (v - 380);  // beyond max_depth
       if (u > 440 && v < 40) depth = 0.35;           // nearer than min_depth
       if (u > 20 && u < 40 && v > 20 && v < 60) albedo = 0.002;  // too weak to measure
+      if (u > 100 && u < 300 && v > 320 && v < 376) {
+        // Ever weaker towards the left, with jittered depth: the phases of the three frequencies
+        // disagree more and more, until unwrapping is refused.
+        albedo = 0.0005 + 0.03 * (u - 100) / 200.0;
+        const uint32_t hash = static_cast<uint32_t>(u * 73856093) ^ static_cast<uint32_t>(v * 19349663);
+        depth += 0.02 * ((hash % 1000) / 1000.0 - 0.5);
+      }
       float ir = static_cast<float>(std::min(60000.0, 9000.0 * albedo / (depth * depth) * 4.0));
       if (u > 480 && v > 200 && v < 230) ir = 65535.0f;  // saturated
       scene.depth.at(u, v) = static_cast<float>(depth);
