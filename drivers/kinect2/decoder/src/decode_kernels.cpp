@@ -11,7 +11,7 @@
     defined(__x86_64__) && defined(__ELF__)
 #define DF_K2_CLONES __attribute__((target_clones("default", "avx2")))
 #else
-#define DF_K2_CLONES
+#define DF_K2_CLONES __attribute__((target_clones("default", "avx2")))
 #endif
 
 namespace depthfuse::kinect2::kernels {
@@ -113,14 +113,50 @@ void ir_row(const float* __restrict amplitude0, const float* __restrict amplitud
                      65535.0f);
 }
 
+namespace {
+
+struct NeighbourSums {
+  float weight, a, b, distance;
+  bool zero_seen;
+};
+
+// One neighbour (phasor qa, qb, unit vector qua, qub) of the bilateral filter of a centre with
+// unit vector cua, cub.
+inline void add_neighbour(float g, float qa, float qb, float qua, float qub, float cua, float cub,
+                          float neighbour_threshold, float factor, NeighbourSums& sums) {
+  const float q_norm2 = qa * qa + qb * qb;
+  sums.zero_seen = sums.zero_seen | (q_norm2 == 0.0f);
+  float distance = -(qua * cua + qub * cub);
+  distance += 1.0f;
+  distance *= 0.5f;
+  const bool used = q_norm2 >= neighbour_threshold;
+  const float similarity = g * fast::exp(factor * distance);
+  const float weight = used ? similarity : 0.0f;
+  sums.distance += used ? distance : 0.0f;
+  sums.a += weight * qa;
+  sums.b += weight * qb;
+  sums.weight += weight;
+}
+
+}  // namespace
+
 DF_K2_CLONES
 void bilateral_row(const PhasorRows& above, const PhasorRows& here, const PhasorRows& below,
                    const KernelConstants& k, float* __restrict filtered_a,
                    float* __restrict filtered_b, float* __restrict edge_ok) {
-  const float* __restrict a_rows[3] = {above.a, here.a, below.a};
-  const float* __restrict b_rows[3] = {above.b, here.b, below.b};
-  const float* __restrict ua_rows[3] = {above.unit_a, here.unit_a, below.unit_a};
-  const float* __restrict ub_rows[3] = {above.unit_b, here.unit_b, below.unit_b};
+  // Rows y-1 (0), y (1), y+1 (2).
+  const float* __restrict a0 = above.a;
+  const float* __restrict b0 = above.b;
+  const float* __restrict ua0 = above.unit_a;
+  const float* __restrict ub0 = above.unit_b;
+  const float* __restrict a1 = here.a;
+  const float* __restrict b1 = here.b;
+  const float* __restrict ua1 = here.unit_a;
+  const float* __restrict ub1 = here.unit_b;
+  const float* __restrict a2 = below.a;
+  const float* __restrict b2 = below.b;
+  const float* __restrict ua2 = below.unit_a;
+  const float* __restrict ub2 = below.unit_b;
   // Constants in locals: a load under a condition would keep the loop from vectorising.
   const float threshold = k.bilateral_threshold;
   const float exp_factor = -1.442695f * k.bilateral_exp;
@@ -128,54 +164,43 @@ void bilateral_row(const PhasorRows& above, const PhasorRows& here, const Phasor
   float gaussian[9];
   for (int j = 0; j < 9; ++j) gaussian[j] = k.gaussian_kernel[j];
   for (int x = 1; x < kW - 1; ++x) {
-    const float ca = here.a[x];
-    const float cb = here.b[x];
+    const float ca = a1[x];
+    const float cb = b1[x];
     const float norm2 = ca * ca + cb * cb;
     // A weak centre is averaged with all its neighbours alike.
     const bool weak = norm2 < threshold;
     const float neighbour_threshold = weak ? 0.0f : threshold;
     const float factor = weak ? -0.0f : exp_factor;
-    const float cua = here.unit_a[x];
-    const float cub = here.unit_b[x];
+    const float cua = ua1[x];
+    const float cub = ub1[x];
+    NeighbourSums sums{0.0f, 0.0f, 0.0f, 0.0f, norm2 == 0.0f};
+    // The firmware's order of summation: row by row, the centre in its place.
+    add_neighbour(gaussian[0], a0[x - 1], b0[x - 1], ua0[x - 1], ub0[x - 1], cua, cub,
+                  neighbour_threshold, factor, sums);
+    add_neighbour(gaussian[1], a0[x], b0[x], ua0[x], ub0[x], cua, cub, neighbour_threshold,
+                  factor, sums);
+    add_neighbour(gaussian[2], a0[x + 1], b0[x + 1], ua0[x + 1], ub0[x + 1], cua, cub,
+                  neighbour_threshold, factor, sums);
+    add_neighbour(gaussian[3], a1[x - 1], b1[x - 1], ua1[x - 1], ub1[x - 1], cua, cub,
+                  neighbour_threshold, factor, sums);
+    sums.weight += gaussian[4];
+    sums.a += gaussian[4] * ca;
+    sums.b += gaussian[4] * cb;
+    add_neighbour(gaussian[5], a1[x + 1], b1[x + 1], ua1[x + 1], ub1[x + 1], cua, cub,
+                  neighbour_threshold, factor, sums);
+    add_neighbour(gaussian[6], a2[x - 1], b2[x - 1], ua2[x - 1], ub2[x - 1], cua, cub,
+                  neighbour_threshold, factor, sums);
+    add_neighbour(gaussian[7], a2[x], b2[x], ua2[x], ub2[x], cua, cub, neighbour_threshold,
+                  factor, sums);
+    add_neighbour(gaussian[8], a2[x + 1], b2[x + 1], ua2[x + 1], ub2[x + 1], cua, cub,
+                  neighbour_threshold, factor, sums);
     // Where the firmware's unit vector of a zero phasor (0 * inf) meets a weak centre, its
     // NaN empties the pixel and fails the edge test.
-    bool zero_seen = norm2 == 0.0f;
-    float weight_sum = 0.0f, sum_a = 0.0f, sum_b = 0.0f, distance_sum = 0.0f;
-    // The firmware's order of summation: row by row, the centre in its place.
-    auto neighbour = [&](int dy, int dx) {
-      const float g = gaussian[3 * dy + dx];
-      const int xi = x + dx - 1;
-      const float qa = a_rows[dy][xi];
-      const float qb = b_rows[dy][xi];
-      const float q_norm2 = qa * qa + qb * qb;
-      zero_seen = zero_seen | (q_norm2 == 0.0f);
-      float distance = -(ua_rows[dy][xi] * cua + ub_rows[dy][xi] * cub);
-      distance += 1.0f;
-      distance *= 0.5f;
-      const bool used = q_norm2 >= neighbour_threshold;
-      const float similarity = g * fast::exp(factor * distance);
-      const float weight = used ? similarity : 0.0f;
-      distance_sum += used ? distance : 0.0f;
-      sum_a += weight * qa;
-      sum_b += weight * qb;
-      weight_sum += weight;
-    };
-    neighbour(0, 0);
-    neighbour(0, 1);
-    neighbour(0, 2);
-    neighbour(1, 0);
-    weight_sum += gaussian[4];
-    sum_a += gaussian[4] * ca;
-    sum_b += gaussian[4] * cb;
-    neighbour(1, 2);
-    neighbour(2, 0);
-    neighbour(2, 1);
-    neighbour(2, 2);
-    const bool poisoned = weak & zero_seen;
-    filtered_a[x] = poisoned ? 0.0f : sum_a / weight_sum;
-    filtered_b[x] = poisoned ? 0.0f : sum_b / weight_sum;
+    const bool poisoned = weak & sums.zero_seen;
+    filtered_a[x] = poisoned ? 0.0f : sums.a / sums.weight;
+    filtered_b[x] = poisoned ? 0.0f : sums.b / sums.weight;
     const float edge_ok_before = edge_ok[x];
-    edge_ok[x] = (poisoned | !(distance_sum < max_edge)) ? 0.0f : edge_ok_before;
+    edge_ok[x] = (poisoned | !(sums.distance < max_edge)) ? 0.0f : edge_ok_before;
   }
 }
 
@@ -183,12 +208,6 @@ DF_K2_CLONES
 void unwrap_row(const UnwrapInput& in, const float* __restrict edge_ok, const KernelConstants& k,
                 float* __restrict depth_mm, float* __restrict edge_depth_mm,
                 float* __restrict ir_sum) {
-  const float* __restrict a0 = in.a[0];
-  const float* __restrict b0 = in.b[0];
-  const float* __restrict a1 = in.a[1];
-  const float* __restrict b1 = in.b[1];
-  const float* __restrict a2 = in.a[2];
-  const float* __restrict b2 = in.b[2];
   const float* __restrict z_table = in.z;
   const float* __restrict x_table = in.x;
   constexpr float kTwoPi = 6.28318548f;
@@ -202,31 +221,37 @@ void unwrap_row(const UnwrapInput& in, const float* __restrict edge_ok, const Ke
   const float sum_threshold = k.ab_threshold;
   const float phase_offset = k.phase_offset;
   const float unambiguous_mm = k.unambiguous_distance_mm;
+  // The three phases in units of their own wavelength: the frequencies wrap 3, 15 and 2 times
+  // over the unambiguous range. (Loops of their own: one loop for everything is more than GCC
+  // turns into straight-line vector code.)
+  alignas(32) float t[3][kW];
+  alignas(32) float amplitude[3][kW];
+  const float wraps[3] = {3.0f, 15.0f, 2.0f};
+  for (int f = 0; f < 3; ++f) {
+    const float* __restrict a = in.a[f];
+    const float* __restrict b = in.b[f];
+    float* __restrict tf = t[f];
+    float* __restrict amplitude_f = amplitude[f];
+    const float wrap = wraps[f];
+    for (int x = 0; x < kW; ++x) {
+      float phase = fast::atan2(b[x], a[x]);
+      phase = phase < 0.0f ? phase + kTwoPi : phase;
+      tf[x] = phase / kTwoPi * wrap;
+      amplitude_f[x] = std::sqrt(a[x] * a[x] + b[x] * b[x]) * ab_multiplier;
+    }
+  }
+  alignas(32) float unwrapped[kW];
+  alignas(32) float disagreement[kW];
   for (int x = 0; x < kW; ++x) {
-    float phase0 = fast::atan2(b0[x], a0[x]);
-    float phase1 = fast::atan2(b1[x], a1[x]);
-    float phase2 = fast::atan2(b2[x], a2[x]);
-    phase0 = phase0 < 0.0f ? phase0 + kTwoPi : phase0;
-    phase1 = phase1 < 0.0f ? phase1 + kTwoPi : phase1;
-    phase2 = phase2 < 0.0f ? phase2 + kTwoPi : phase2;
-    const float amplitude0 = std::sqrt(a0[x] * a0[x] + b0[x] * b0[x]) * ab_multiplier;
-    const float amplitude1 = std::sqrt(a1[x] * a1[x] + b1[x] * b1[x]) * ab_multiplier;
-    const float amplitude2 = std::sqrt(a2[x] * a2[x] + b2[x] * b2[x]) * ab_multiplier;
-    const float amplitude_sum = amplitude0 + amplitude1 + amplitude2;
-    const float amplitude_min = std::min(std::min(amplitude0, amplitude1), amplitude2);
-    const float amplitude_max = std::max(std::max(amplitude0, amplitude1), amplitude2);
-
-    // The three phases in units of their own wavelength: the frequencies wrap 3, 15 and 2 times
-    // over the unambiguous range. Unwrap 0 against 1, then both against 2.
-    const float t0 = phase0 / kTwoPi * 3.0f;
-    const float t1 = phase1 / kTwoPi * 15.0f;
-    const float t2 = phase2 / kTwoPi * 2.0f;
+    // Unwrap 0 against 1, then both against 2.
+    const float t0 = t[0][x], t1 = t[1][x], t2 = t[2][x];
     const float t5 = floor_small((t1 - t0) * 0.333333f + 0.5f) * 3.0f + t0;
     float t3 = -t2 + t5;
     const float t4 = t3 * 2.0f;
-    const bool t4_positive = t4 >= -t4;
-    t3 *= t4_positive ? 0.5f : -0.5f;
-    t3 = (t3 - floor_small(t3)) * (t4_positive ? 2.0f : -2.0f);
+    // +-0.5 and then +-2 by the sign of t4 (as one select: two keep GCC from vectorising for AVX2).
+    const float half = t4 >= -t4 ? 0.5f : -0.5f;
+    t3 *= half;
+    t3 = (t3 - floor_small(t3)) * (half * 4.0f);
     const bool shifted = (0.5f < std::abs(t3)) & (std::abs(t3) < 1.5f);
     float t6 = shifted ? t5 + 15.0f : t5;
     float t7 = shifted ? t1 + 15.0f : t1;
@@ -234,7 +259,7 @@ void unwrap_row(const UnwrapInput& in, const float* __restrict edge_ok, const Ke
     t6 *= 0.333333f;
     t7 *= 0.066667f;
     const float t9 = t8 + t6 + t7;
-    float t10 = t9 * 0.333333f;
+    const float t10 = t9 * 0.333333f;
     t6 *= kTwoPi;
     t7 *= kTwoPi;
     t8 *= kTwoPi;
@@ -242,8 +267,15 @@ void unwrap_row(const UnwrapInput& in, const float* __restrict edge_ok, const Ke
     const float d8 = t7 * 0.826977f - t8 * 0.110264f;
     const float d6 = t8 * 0.551318f - t6 * 0.826977f;
     const float d7 = t6 * 0.110264f - t7 * 0.551318f;
-    const float disagreement = d8 * d8 + d6 * d6 + d7 * d7;
-    t10 = t9 >= 0.0f ? t10 : 0.0f;
+    disagreement[x] = d8 * d8 + d6 * d6 + d7 * d7;
+    unwrapped[x] = t9 >= 0.0f ? t10 : 0.0f;
+  }
+  for (int x = 0; x < kW; ++x) {
+    const float amplitude0 = amplitude[0][x], amplitude1 = amplitude[1][x];
+    const float amplitude2 = amplitude[2][x];
+    const float amplitude_sum = amplitude0 + amplitude1 + amplitude2;
+    const float amplitude_min = std::min(std::min(amplitude0, amplitude1), amplitude2);
+    const float amplitude_max = std::max(std::max(amplitude0, amplitude1), amplitude2);
     // The disagreement a phasor of this amplitude may have.
     float confidence = fast::log(slope_positive ? amplitude_min : amplitude_max);
     confidence = (confidence * slope * 0.301030f + confidence_offset) *
@@ -251,10 +283,10 @@ void unwrap_row(const UnwrapInput& in, const float* __restrict edge_ok, const Ke
     confidence = fast::exp(confidence);
     confidence = std::min(max_confidence, std::max(min_confidence, confidence));
     confidence *= confidence;
-    const float unwrapped = confidence >= disagreement ? t10 : 0.0f;
+    const float trusted = confidence >= disagreement[x] ? unwrapped[x] : 0.0f;
     const bool weak =
         (amplitude_min < individual_threshold) | (amplitude_sum < sum_threshold);
-    float phase = weak ? 0.0f : unwrapped;
+    float phase = weak ? 0.0f : trusted;
     phase = 0.0f < phase ? phase + phase_offset : phase;
 
     // Phase to depth, with the correction for the light source beside the lens.
