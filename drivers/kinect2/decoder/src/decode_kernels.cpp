@@ -59,37 +59,53 @@ KernelConstants make_kernel_constants(const DecodeConstants& c, float min_depth_
 }
 
 void unpack_row(const uint8_t* row_bytes, const float* code_value, float* values) {
-  // Stream position p holds pixel x = 4 * (p % 128) + p / 128. Codes sit at bit 11 p; three bytes
-  // hold any of them. Positions 0 and 511 (x = 0 and x = 511) are not read.
+  // Stream position p holds pixel x = 4 * (p % 128) + p / 128, its code at bit 11 p. Eight codes
+  // fill 11 bytes; each group of eight is read as two 8-byte little-endian words (the 5 bytes
+  // past a row's end are the next row's or the next sub-image's: unpack_row is never given the
+  // last row of the packet).
+  for (int group = 0; group < kW / 8; ++group) {
+    uint64_t low, high;  // bits 0..63 and 64..127 of the group (little-endian)
+    std::memcpy(&low, row_bytes + 11 * group, 8);
+    std::memcpy(&high, row_bytes + 11 * group + 8, 8);
+    const int p0 = 8 * group;
+    float* out = values + 4 * (p0 & 127) + (p0 >> 7);
+    out[0] = code_value[low & 2047];
+    out[4] = code_value[(low >> 11) & 2047];
+    out[8] = code_value[(low >> 22) & 2047];
+    out[12] = code_value[(low >> 33) & 2047];
+    out[16] = code_value[(low >> 44) & 2047];
+    out[20] = code_value[((low >> 55) | (high << 9)) & 2047];
+    out[24] = code_value[(high >> 2) & 2047];
+    out[28] = code_value[(high >> 13) & 2047];
+  }
+  // Positions 0 and 511 (x = 0 and x = 511) are not read by the firmware's decoder.
   values[0] = code_value[0];
   values[kW - 1] = code_value[0];
-  for (int p = 1; p < kW - 1; ++p) {
-    const int bit = 11 * p;
-    const uint8_t* at = row_bytes + (bit >> 3);
-    const uint32_t word = uint32_t{at[0]} | (uint32_t{at[1]} << 8) | (uint32_t{at[2]} << 16);
-    values[4 * (p & 127) + (p >> 7)] = code_value[(word >> (bit & 7)) & 2047];
-  }
 }
 
 DF_K2_CLONES
 void correlate_row(const float* __restrict m0, const float* __restrict m1,
-                   const float* __restrict m2, const float* __restrict cos0,
-                   const float* __restrict cos1, const float* __restrict cos2,
-                   const float* __restrict nsin0, const float* __restrict nsin1,
-                   const float* __restrict nsin2, const float* __restrict z, float multiplier,
-                   float ab_multiplier, const PhasorRow& out) {
+                   const float* __restrict m2, const float* __restrict cos_p0,
+                   const float* __restrict sin_p0, const float* __restrict z,
+                   const PhaseSteps& steps, float multiplier, float ab_multiplier,
+                   const PhasorRow& out) {
   float* __restrict a_out = out.a;
   float* __restrict b_out = out.b;
   float* __restrict ua_out = out.unit_a;
   float* __restrict ub_out = out.unit_b;
   float* __restrict amplitude_out = out.amplitude;
+  const float c0 = steps.cos[0], c1 = steps.cos[1], c2 = steps.cos[2];
+  const float s0 = steps.sin[0], s1 = steps.sin[1], s2 = steps.sin[2];
   for (int x = 0; x < kW; ++x) {
     const bool inside = 0.0f < z[x];
     const bool saturated =
         (m0[x] == kRawSaturated) | (m1[x] == kRawSaturated) | (m2[x] == kRawSaturated);
-    // Patent US 8,587,771 B2: the phasor of the three phase-stepped correlations.
-    const float a = (cos0[x] * m0[x] + cos1[x] * m1[x] + cos2[x] * m2[x]) * multiplier;
-    const float b = (nsin0[x] * m0[x] + nsin1[x] * m1[x] + nsin2[x] * m2[x]) * multiplier;
+    // Patent US 8,587,771 B2: the phasor of the three phase-stepped correlations, the sums over
+    // k of m_k cos(P0 + step k) and -m_k sin(P0 + step k).
+    const float in_phase = m0[x] * c0 + m1[x] * c1 + m2[x] * c2;
+    const float quadrature = m0[x] * s0 + m1[x] * s1 + m2[x] * s2;
+    const float a = (cos_p0[x] * in_phase - sin_p0[x] * quadrature) * multiplier;
+    const float b = (-sin_p0[x] * in_phase - cos_p0[x] * quadrature) * multiplier;
     const float amplitude = std::sqrt(a * a + b * b) * ab_multiplier;
     const bool measured = inside & !saturated;
     const float a_kept = measured ? a : 0.0f;
@@ -130,7 +146,7 @@ inline void add_neighbour(float g, float qa, float qb, float qua, float qub, flo
   distance += 1.0f;
   distance *= 0.5f;
   const bool used = q_norm2 >= neighbour_threshold;
-  const float similarity = g * fast::exp(factor * distance);
+  const float similarity = g * fast::exp_weight(factor * distance);
   const float weight = used ? similarity : 0.0f;
   sums.distance += used ? distance : 0.0f;
   sums.a += weight * qa;

@@ -40,13 +40,14 @@ KernelConstants make_kernel_constants(const DecodeConstants& c, float min_depth_
                                       float max_depth_m);
 
 // One row of one sub-image (kRawRowBytes) to its 512 correlation values in pixel order. Columns 0
-// and 511 read as code 0, as the firmware's decoder has them.
+// and 511 read as code 0, as the firmware's decoder has them. Reads up to 5 bytes past the row:
+// never pass the packet's last row.
 void unpack_row(const uint8_t* row_bytes, const float* code_value, float* values);
 
-// One frequency of one row: the three correlation values m0..m2 with the per-pixel cos and -sin of
-// (P0 + phase step) to the phasor (a, b), its unit vector (0 where the phasor is 0) and amplitude.
-// Pixels with z <= 0 (outside the lens) give 0; saturated ones give a phasor of 0 and amplitude
-// 65535.
+// One frequency of one row: the three correlation values m0..m2 to the phasor (a, b) with the
+// per-pixel cos and sin of P0 and the phase steps' cos and sin (the sum over k of m_k times cos
+// and -sin of (P0 + step k)); its unit vector (0 where the phasor is 0) and amplitude. Pixels
+// with z <= 0 (outside the lens) give 0; saturated ones give a phasor of 0 and amplitude 65535.
 struct PhasorRow {
   float* a;
   float* b;
@@ -54,10 +55,13 @@ struct PhasorRow {
   float* unit_b;
   float* amplitude;
 };
-void correlate_row(const float* m0, const float* m1, const float* m2, const float* cos0,
-                   const float* cos1, const float* cos2, const float* nsin0, const float* nsin1,
-                   const float* nsin2, const float* z, float multiplier, float ab_multiplier,
-                   const PhasorRow& out);
+struct PhaseSteps {
+  float cos[3];
+  float sin[3];
+};
+void correlate_row(const float* m0, const float* m1, const float* m2, const float* cos_p0,
+                   const float* sin_p0, const float* z, const PhaseSteps& steps,
+                   float multiplier, float ab_multiplier, const PhasorRow& out);
 
 // IR amplitude of a row: the mean of the three frequencies' amplitudes, scaled, at most 65535.
 void ir_row(const float* amplitude0, const float* amplitude1, const float* amplitude2,

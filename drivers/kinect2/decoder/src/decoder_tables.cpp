@@ -67,20 +67,19 @@ RayTables make_ray_tables(const IrCalibration& calibration) {
 
 PhaseTables make_phase_tables(const P0Tables& p0, const DecodeConstants& constants) {
   PhaseTables tables;
-  for (int i = 0; i < 9; ++i) {
-    tables.cos[i].resize(kRawPixels);
-    tables.neg_sin[i].resize(kRawPixels);
+  for (int k = 0; k < 3; ++k) {
+    tables.cos_step[k] = std::cos(constants.phase_in_rad[k]);
+    tables.sin_step[k] = std::sin(constants.phase_in_rad[k]);
   }
   for (int f = 0; f < 3; ++f) {
+    tables.cos_p0[f].resize(kRawPixels);
+    tables.sin_p0[f].resize(kRawPixels);
     for (int y = 0; y < kRawHeight; ++y) {
       for (int x = 0; x < kRawWidth; ++x) {
         const float offset = p0_phase_rad(p0_at(p0, f, x, y));
         const size_t i = static_cast<size_t>(y) * kRawWidth + x;
-        for (int k = 0; k < 3; ++k) {
-          const float angle = offset + constants.phase_in_rad[k];
-          tables.cos[3 * f + k][i] = std::cos(angle);
-          tables.neg_sin[3 * f + k][i] = std::sin(-angle);
-        }
+        tables.cos_p0[f][i] = std::cos(offset);
+        tables.sin_p0[f][i] = std::sin(offset);
       }
     }
   }

@@ -112,6 +112,8 @@ class DepthDecoder::Impl {
                                                   options.max_depth_m)),
         rays_(make_ray_tables(calibration)),
         phases_(make_phase_tables(p0, DecodeConstants{})),
+        steps_{{phases_.cos_step[0], phases_.cos_step[1], phases_.cos_step[2]},
+               {phases_.sin_step[0], phases_.sin_step[1], phases_.sin_step[2]}},
         scratch_(options.threads) {
     for (int code = 0; code < 2048; ++code) code_value_[code] = code_to_correlation()[code];
     for (auto* group : {&a_, &b_, &unit_a_, &unit_b_})
@@ -187,10 +189,8 @@ class DepthDecoder::Impl {
       const int k = 3 * f;
       kernels::correlate_row(
           s.values[k].data(), s.values[k + 1].data(), s.values[k + 2].data(),
-          phases_.cos[k].data() + row, phases_.cos[k + 1].data() + row,
-          phases_.cos[k + 2].data() + row, phases_.neg_sin[k].data() + row,
-          phases_.neg_sin[k + 1].data() + row, phases_.neg_sin[k + 2].data() + row,
-          rays_.z_mm_per_phase.data() + row, constants_.ab_multiplier_per_frequency[f],
+          phases_.cos_p0[f].data() + row, phases_.sin_p0[f].data() + row,
+          rays_.z_mm_per_phase.data() + row, steps_, constants_.ab_multiplier_per_frequency[f],
           constants_.ab_multiplier,
           kernels::PhasorRow{a_[f].data() + row, b_[f].data() + row, unit_a_[f].data() + row,
                              unit_b_[f].data() + row, s.amplitude[f].data()});
@@ -258,6 +258,7 @@ class DepthDecoder::Impl {
   const kernels::KernelConstants constants_;
   const RayTables rays_;
   const PhaseTables phases_;
+  const kernels::PhaseSteps steps_;
   std::array<float, 2048> code_value_{};
   std::array<Plane, 3> a_, b_, unit_a_, unit_b_;  // phasors per frequency, whole frame
   Plane depth_mm_, edge_depth_mm_, ir_sum_;       // stage 2 output, whole frame

@@ -40,6 +40,21 @@ inline float exp(float x) {
   return p * bits_to_float((static_cast<int32_t>(n) + 127) << 23);
 }
 
+// e^x for x in [-10, 0], as the bilateral filter's weights need it: no clamping, Taylor to r^5
+// (relative error < 3e-6, far below what moves a filtered phase by a micrometre of depth).
+inline float exp_weight(float x) {
+  const float n = (x * 1.44269504f + 12582912.0f) - 12582912.0f;
+  float r = x - n * 0.693145752f;
+  r = r - n * 1.42860677e-6f;
+  float p = 1.0f / 120.0f;
+  p = p * r + 1.0f / 24.0f;
+  p = p * r + 1.0f / 6.0f;
+  p = p * r + 0.5f;
+  p = p * r + 1.0f;
+  p = p * r + 1.0f;
+  return p * bits_to_float((static_cast<int32_t>(n) + 127) << 23);
+}
+
 // ln x for finite x > 0 (normal numbers).
 inline float log(float x) {
   const int32_t bits = float_to_bits(x);

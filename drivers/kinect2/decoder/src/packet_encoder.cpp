@@ -112,9 +112,9 @@ class PacketEncoder::Impl {
       const double a = amplitude / constants.ab_multiplier_per_frequency[f];
       const double cos_phase = std::cos(phase), sin_phase = std::sin(phase);
       for (int k = 0; k < 3; ++k) {
-        // cos(alpha + phase) from the decoder's tables of cos(alpha) and -sin(alpha).
-        const double value = a * (phases_.cos[3 * f + k][i] * cos_phase +
-                                   phases_.neg_sin[3 * f + k][i] * sin_phase);
+        // cos(alpha + phase), alpha = P0 + step k, from the decoder's tables.
+        const double value =
+            a * (phases_.cos_at(f, k, i) * cos_phase + phases_.neg_sin_at(f, k, i) * sin_phase);
         codes[3 * f + k] = codebook_.code_of(static_cast<float>(value));
       }
     }
