@@ -129,6 +129,22 @@ void ir_row(const float* __restrict amplitude0, const float* __restrict amplitud
                      65535.0f);
 }
 
+DF_K2_CLONES
+void pair_weights(const float* __restrict unit_a, const float* __restrict unit_b,
+                  const float* __restrict other_unit_a, const float* __restrict other_unit_b,
+                  int count, const KernelConstants& k, float* __restrict distance,
+                  float* __restrict weight) {
+  const float exp_factor = -1.442695f * k.bilateral_exp;
+  for (int i = 0; i < count; ++i) {
+    // The firmware's expression, symmetric in the two pixels to the last bit.
+    float d = -(other_unit_a[i] * unit_a[i] + other_unit_b[i] * unit_b[i]);
+    d += 1.0f;
+    d *= 0.5f;
+    distance[i] = d;
+    weight[i] = fast::exp_weight(exp_factor * d);
+  }
+}
+
 namespace {
 
 struct NeighbourSums {
@@ -136,18 +152,14 @@ struct NeighbourSums {
   bool zero_seen;
 };
 
-// One neighbour (phasor qa, qb, unit vector qua, qub) of the bilateral filter of a centre with
-// unit vector cua, cub.
-inline void add_neighbour(float g, float qa, float qb, float qua, float qub, float cua, float cub,
-                          float neighbour_threshold, float factor, NeighbourSums& sums) {
+// One neighbour (phasor qa, qb) of the bilateral filter at the given distance from the centre,
+// with the weight of that distance for a strong centre (a weak one weighs all alike).
+inline void add_neighbour(float g, float qa, float qb, float distance, float similarity,
+                          bool weak, float neighbour_threshold, NeighbourSums& sums) {
   const float q_norm2 = qa * qa + qb * qb;
   sums.zero_seen = sums.zero_seen | (q_norm2 == 0.0f);
-  float distance = -(qua * cua + qub * cub);
-  distance += 1.0f;
-  distance *= 0.5f;
   const bool used = q_norm2 >= neighbour_threshold;
-  const float similarity = g * fast::exp_weight(factor * distance);
-  const float weight = used ? similarity : 0.0f;
+  const float weight = used ? (weak ? g : g * similarity) : 0.0f;
   sums.distance += used ? distance : 0.0f;
   sums.a += weight * qa;
   sums.b += weight * qb;
@@ -158,58 +170,57 @@ inline void add_neighbour(float g, float qa, float qb, float qua, float qub, flo
 
 DF_K2_CLONES
 void bilateral_row(const PhasorRows& above, const PhasorRows& here, const PhasorRows& below,
-                   const KernelConstants& k, float* __restrict filtered_a,
-                   float* __restrict filtered_b, float* __restrict edge_ok) {
+                   const NeighbourPairs& pairs, const KernelConstants& k,
+                   float* __restrict filtered_a, float* __restrict filtered_b,
+                   float* __restrict edge_ok) {
   // Rows y-1 (0), y (1), y+1 (2).
   const float* __restrict a0 = above.a;
   const float* __restrict b0 = above.b;
-  const float* __restrict ua0 = above.unit_a;
-  const float* __restrict ub0 = above.unit_b;
   const float* __restrict a1 = here.a;
   const float* __restrict b1 = here.b;
-  const float* __restrict ua1 = here.unit_a;
-  const float* __restrict ub1 = here.unit_b;
   const float* __restrict a2 = below.a;
   const float* __restrict b2 = below.b;
-  const float* __restrict ua2 = below.unit_a;
-  const float* __restrict ub2 = below.unit_b;
+  const float* __restrict d_ul = pairs.distance[0];
+  const float* __restrict d_u = pairs.distance[1];
+  const float* __restrict d_ur = pairs.distance[2];
+  const float* __restrict d_l = pairs.distance[3];
+  const float* __restrict d_r = pairs.distance[4];
+  const float* __restrict d_dl = pairs.distance[5];
+  const float* __restrict d_d = pairs.distance[6];
+  const float* __restrict d_dr = pairs.distance[7];
+  const float* __restrict w_ul = pairs.weight[0];
+  const float* __restrict w_u = pairs.weight[1];
+  const float* __restrict w_ur = pairs.weight[2];
+  const float* __restrict w_l = pairs.weight[3];
+  const float* __restrict w_r = pairs.weight[4];
+  const float* __restrict w_dl = pairs.weight[5];
+  const float* __restrict w_d = pairs.weight[6];
+  const float* __restrict w_dr = pairs.weight[7];
   // Constants in locals: a load under a condition would keep the loop from vectorising.
   const float threshold = k.bilateral_threshold;
-  const float exp_factor = -1.442695f * k.bilateral_exp;
   const float max_edge = k.bilateral_max_edge;
-  float gaussian[9];
-  for (int j = 0; j < 9; ++j) gaussian[j] = k.gaussian_kernel[j];
+  float g[9];
+  for (int j = 0; j < 9; ++j) g[j] = k.gaussian_kernel[j];
   for (int x = 1; x < kW - 1; ++x) {
     const float ca = a1[x];
     const float cb = b1[x];
     const float norm2 = ca * ca + cb * cb;
     // A weak centre is averaged with all its neighbours alike.
     const bool weak = norm2 < threshold;
-    const float neighbour_threshold = weak ? 0.0f : threshold;
-    const float factor = weak ? -0.0f : exp_factor;
-    const float cua = ua1[x];
-    const float cub = ub1[x];
+    const float t = weak ? 0.0f : threshold;
     NeighbourSums sums{0.0f, 0.0f, 0.0f, 0.0f, norm2 == 0.0f};
     // The firmware's order of summation: row by row, the centre in its place.
-    add_neighbour(gaussian[0], a0[x - 1], b0[x - 1], ua0[x - 1], ub0[x - 1], cua, cub,
-                  neighbour_threshold, factor, sums);
-    add_neighbour(gaussian[1], a0[x], b0[x], ua0[x], ub0[x], cua, cub, neighbour_threshold,
-                  factor, sums);
-    add_neighbour(gaussian[2], a0[x + 1], b0[x + 1], ua0[x + 1], ub0[x + 1], cua, cub,
-                  neighbour_threshold, factor, sums);
-    add_neighbour(gaussian[3], a1[x - 1], b1[x - 1], ua1[x - 1], ub1[x - 1], cua, cub,
-                  neighbour_threshold, factor, sums);
-    sums.weight += gaussian[4];
-    sums.a += gaussian[4] * ca;
-    sums.b += gaussian[4] * cb;
-    add_neighbour(gaussian[5], a1[x + 1], b1[x + 1], ua1[x + 1], ub1[x + 1], cua, cub,
-                  neighbour_threshold, factor, sums);
-    add_neighbour(gaussian[6], a2[x - 1], b2[x - 1], ua2[x - 1], ub2[x - 1], cua, cub,
-                  neighbour_threshold, factor, sums);
-    add_neighbour(gaussian[7], a2[x], b2[x], ua2[x], ub2[x], cua, cub, neighbour_threshold,
-                  factor, sums);
-    add_neighbour(gaussian[8], a2[x + 1], b2[x + 1], ua2[x + 1], ub2[x + 1], cua, cub,
-                  neighbour_threshold, factor, sums);
+    add_neighbour(g[0], a0[x - 1], b0[x - 1], d_ul[x], w_ul[x], weak, t, sums);
+    add_neighbour(g[1], a0[x], b0[x], d_u[x], w_u[x], weak, t, sums);
+    add_neighbour(g[2], a0[x + 1], b0[x + 1], d_ur[x], w_ur[x], weak, t, sums);
+    add_neighbour(g[3], a1[x - 1], b1[x - 1], d_l[x], w_l[x], weak, t, sums);
+    sums.weight += g[4];
+    sums.a += g[4] * ca;
+    sums.b += g[4] * cb;
+    add_neighbour(g[5], a1[x + 1], b1[x + 1], d_r[x], w_r[x], weak, t, sums);
+    add_neighbour(g[6], a2[x - 1], b2[x - 1], d_dl[x], w_dl[x], weak, t, sums);
+    add_neighbour(g[7], a2[x], b2[x], d_d[x], w_d[x], weak, t, sums);
+    add_neighbour(g[8], a2[x + 1], b2[x + 1], d_dr[x], w_dr[x], weak, t, sums);
     // Where the firmware's unit vector of a zero phasor (0 * inf) meets a weak centre, its
     // NaN empties the pixel and fails the edge test.
     const bool poisoned = weak & sums.zero_seen;

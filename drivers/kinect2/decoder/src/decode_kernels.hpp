@@ -67,18 +67,32 @@ void correlate_row(const float* m0, const float* m1, const float* m2, const floa
 void ir_row(const float* amplitude0, const float* amplitude1, const float* amplitude2,
             float ab_output_multiplier, float* ir);
 
+// The joint bilateral filter weighs each neighbour by how far its phasor's direction is from the
+// centre's: distance (1 - cos of the angle between them) / 2 and weight exp(-c distance). Both
+// are the same for either pixel of a pair, so they are computed once per pair of neighbouring
+// pixels: pair_weights does `count` pairs (unit_a[i], unit_b[i]) - (other_unit_a[i],
+// other_unit_b[i]).
+void pair_weights(const float* unit_a, const float* unit_b, const float* other_unit_a,
+                  const float* other_unit_b, int count, const KernelConstants& k,
+                  float* distance, float* weight);
+
+// The pairs of each pixel x of a row with its eight neighbours, in raster order (up-left, up,
+// up-right, left, right, down-left, down, down-right): distance[n][x] and weight[n][x].
+struct NeighbourPairs {
+  const float* distance[8];
+  const float* weight[8];
+};
+
 // The joint bilateral filter of one frequency over columns 1..510 of an inner row: `above`,
 // `here` and `below` are the phasor rows y-1, y, y+1. Writes the filtered phasor and ANDs the
 // "no edge" test into `edge_ok` (1 or 0).
 struct PhasorRows {
   const float* a;
   const float* b;
-  const float* unit_a;
-  const float* unit_b;
 };
 void bilateral_row(const PhasorRows& above, const PhasorRows& here, const PhasorRows& below,
-                   const KernelConstants& k, float* filtered_a, float* filtered_b,
-                   float* edge_ok);
+                   const NeighbourPairs& pairs, const KernelConstants& k, float* filtered_a,
+                   float* filtered_b, float* edge_ok);
 
 // Phase unwrapping of the three frequencies' phasors and the phase-to-depth mapping of one row:
 // raw depth in mm (0: no measurement) and the sum of the three amplitudes.

@@ -71,6 +71,17 @@ class HelperThread {
   std::thread thread_;
 };
 
+// The bilateral filter's pairs of a row's pixels with the row below (kernels::pair_weights), per
+// direction: 0 down-left (at the upper pixel's x), 1 down, 2 down-right (at x + 1); or with the
+// right neighbour (slot 0, at x + 1). Shifted so that no pointer before a row is ever formed.
+struct PairRow {
+  std::array<Plane, 3> distance, weight;
+  PairRow() {
+    for (auto* group : {&distance, &weight})
+      for (Plane& row : *group) row.assign(kRawWidth, 0.0f);
+  }
+};
+
 // Row buffers of one thread.
 struct Scratch {
   std::array<Plane, 9> values;      // unpacked correlations of the nine sub-images
@@ -78,6 +89,9 @@ struct Scratch {
   std::array<Plane, 3> filtered_a, filtered_b;
   Plane edge_ok;
   Plane ones;
+  // Per frequency: pairs of row y-1 and of row y with the row below, and of row y within itself.
+  std::array<PairRow, 3> down_above, down_here, right_here;
+  int down_above_row = -1;  // the row whose pairs down_above holds
 
   Scratch() {
     for (auto* group : {&amplitude, &filtered_a, &filtered_b})
@@ -147,12 +161,12 @@ class DepthDecoder::Impl {
     depth_out_ = depth->depth_m.data();
     ir_out_ = ir->amplitude.data();
 
-    run([this](Scratch& s, int first, int last) {
-      for (int y = first; y < last; ++y) correlate(s, y);
-    });
-    run([this](Scratch& s, int first, int last) {
-      for (int y = first; y < last; ++y) unwrap(s, y);
-    });
+    run([this](Scratch& s, int first, int last) { correlate_and_unwrap(s, first, last); });
+    if (helper_) {
+      // The two rows at the seam need both halves' phasors.
+      scratch_[0].down_above_row = -1;
+      for (int y : {kRawHeight / 2 - 1, kRawHeight / 2}) unwrap(scratch_[0], y);
+    }
     run([this](Scratch&, int first, int last) {
       for (int y = first; y < last; ++y) finish(y);
     });
@@ -178,6 +192,19 @@ class DepthDecoder::Impl {
 
   static size_t row_start(int y) { return static_cast<size_t>(y) * kRawWidth; }
 
+  // Stage 1 of rows [first, last), and stage 2 of each row among them whose neighbours are among
+  // them too, as soon as the row below is done: its phasors are still in cache.
+  void correlate_and_unwrap(Scratch& s, int first, int last) {
+    s.down_above_row = -1;
+    const int unwrap_first = first == 0 ? 0 : first + 1;
+    const int unwrap_last = last == kRawHeight ? last : last - 1;
+    for (int y = first; y < last; ++y) {
+      correlate(s, y);
+      if (y - 1 >= unwrap_first && y - 1 < unwrap_last) unwrap(s, y - 1);
+    }
+    if (last == kRawHeight) unwrap(s, kRawHeight - 1);
+  }
+
   // Stage 1: the packet's nine sub-images to phasors; IR output.
   void correlate(Scratch& s, int y) {
     const size_t row = row_start(y);
@@ -201,8 +228,44 @@ class DepthDecoder::Impl {
 
   kernels::PhasorRows phasor_rows(int f, int y) const {
     const size_t row = row_start(y);
-    return {a_[f].data() + row, b_[f].data() + row, unit_a_[f].data() + row,
-            unit_b_[f].data() + row};
+    return {a_[f].data() + row, b_[f].data() + row};
+  }
+
+  // The pairs of row r's pixels with those of row r + 1.
+  void down_pairs(int f, int r, PairRow& out) const {
+    const float* ua = unit_a_[f].data() + row_start(r);
+    const float* ub = unit_b_[f].data() + row_start(r);
+    const float* qa = ua + kRawWidth;
+    const float* qb = ub + kRawWidth;
+    kernels::pair_weights(ua + 1, ub + 1, qa, qb, kRawWidth - 1, constants_,
+                          out.distance[0].data() + 1, out.weight[0].data() + 1);
+    kernels::pair_weights(ua, ub, qa, qb, kRawWidth, constants_, out.distance[1].data(),
+                          out.weight[1].data());
+    kernels::pair_weights(ua, ub, qa + 1, qb + 1, kRawWidth - 1, constants_,
+                          out.distance[2].data() + 1, out.weight[2].data() + 1);
+  }
+
+  // The pairs of row r's pixels with their right neighbours.
+  void right_pairs(int f, int r, PairRow& out) const {
+    const float* ua = unit_a_[f].data() + row_start(r);
+    const float* ub = unit_b_[f].data() + row_start(r);
+    kernels::pair_weights(ua, ub, ua + 1, ub + 1, kRawWidth - 1, constants_,
+                          out.distance[0].data() + 1, out.weight[0].data() + 1);
+  }
+
+  // Pixel x's pairs with its eight neighbours, each read at index x.
+  static kernels::NeighbourPairs neighbour_pairs(const PairRow& above, const PairRow& here,
+                                                 const PairRow& right) {
+    kernels::NeighbourPairs pairs{};
+    const std::array<const PairRow*, 8> rows{&above, &above, &above, &right,
+                                             &right, &here,  &here,  &here};
+    const std::array<int, 8> slots{2, 1, 0, 0, 0, 0, 1, 2};
+    const std::array<int, 8> shifts{0, 0, 1, 0, 1, 0, 0, 1};
+    for (int n = 0; n < 8; ++n) {
+      pairs.distance[n] = rows[n]->distance[slots[n]].data() + shifts[n];
+      pairs.weight[n] = rows[n]->weight[slots[n]].data() + shifts[n];
+    }
+    return pairs;
   }
 
   // Stage 2: the bilateral filter (inner rows), phase unwrapping and depth.
@@ -214,18 +277,27 @@ class DepthDecoder::Impl {
     const float* edge_ok = s.ones.data();
     if (options_.bilateral_filter && y > 0 && y < kRawHeight - 1) {
       std::fill(s.edge_ok.begin(), s.edge_ok.end(), 1.0f);
+      // Rows are visited in order, so the pairs of row y - 1 are those row y made last time.
+      if (s.down_above_row != y - 1)
+        for (int f = 0; f < 3; ++f) down_pairs(f, y - 1, s.down_above[f]);
       for (int f = 0; f < 3; ++f) {
+        down_pairs(f, y, s.down_here[f]);
+        right_pairs(f, y, s.right_here[f]);
         float* fa = s.filtered_a[f].data();
         float* fb = s.filtered_b[f].data();
         for (int x : {0, kRawWidth - 1}) {
           fa[x] = a_[f][row + x];
           fb[x] = b_[f][row + x];
         }
-        kernels::bilateral_row(phasor_rows(f, y - 1), phasor_rows(f, y), phasor_rows(f, y + 1),
-                               constants_, fa, fb, s.edge_ok.data());
+        kernels::bilateral_row(
+            phasor_rows(f, y - 1), phasor_rows(f, y), phasor_rows(f, y + 1),
+            neighbour_pairs(s.down_above[f], s.down_here[f], s.right_here[f]), constants_, fa, fb,
+            s.edge_ok.data());
         in.a[f] = fa;
         in.b[f] = fb;
       }
+      std::swap(s.down_above, s.down_here);
+      s.down_above_row = y;
       edge_ok = s.edge_ok.data();
     } else {
       for (int f = 0; f < 3; ++f) {
