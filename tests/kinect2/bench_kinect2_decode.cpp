@@ -82,10 +82,10 @@ class RatioReporter : public benchmark::ConsoleReporter {
  public:
   void ReportRuns(const std::vector<Run>& runs) override {
     for (const Run& run : runs) {
-      if (run.run_type != Run::RT_Iteration || run.error_occurred) continue;
-      std::string name = run.benchmark_name();
-      const size_t suffix = name.find("/real_time");
-      if (suffix != std::string::npos) name.erase(suffix);
+      // With --benchmark_repetitions, the median.
+      const bool median = run.run_type == Run::RT_Aggregate && run.aggregate_name == "median";
+      if (!(run.run_type == Run::RT_Iteration || median) || run.error_occurred) continue;
+      std::string name = run.run_name.function_name;
       // All are registered in milliseconds.
       times_[name] = {run.GetAdjustedRealTime(), run.GetAdjustedCPUTime()};
     }

@@ -259,11 +259,11 @@ void unwrap_row(const UnwrapInput& in, const float* __restrict edge_ok, const Ke
     const float* __restrict b = in.b[f];
     float* __restrict tf = t[f];
     float* __restrict amplitude_f = amplitude[f];
-    const float wrap = wraps[f];
+    const float wrap_per_radian = wraps[f] / kTwoPi;
     for (int x = 0; x < kW; ++x) {
       float phase = fast::atan2(b[x], a[x]);
       phase = phase < 0.0f ? phase + kTwoPi : phase;
-      tf[x] = phase / kTwoPi * wrap;
+      tf[x] = phase * wrap_per_radian;
       amplitude_f[x] = std::sqrt(a[x] * a[x] + b[x] * b[x]) * ab_multiplier;
     }
   }
