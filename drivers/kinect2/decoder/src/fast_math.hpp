@@ -81,11 +81,12 @@ inline float atan2(float y, float x) {
   const float ay = std::abs(y);
   const float larger = std::max(ax, ay);
   const float smaller = std::min(ax, ay);
-  const float a = smaller / (larger > 0.0f ? larger : 1.0f);  // [0, 1]
-  // atan a = pi/4 + atan((a - 1) / (a + 1)) brings the argument within tan(pi/8).
-  const bool reduce = a > 0.414213562f;
-  const float reduced = (a - 1.0f) / (a + 1.0f);
-  const float r = reduce ? reduced : a;
+  // atan a = pi/4 + atan((a - 1) / (a + 1)) brings a = smaller / larger within tan(pi/8); as
+  // (smaller - larger) / (smaller + larger), one division either way.
+  const bool reduce = smaller > 0.414213562f * larger;
+  const float numerator = reduce ? smaller - larger : smaller;
+  const float denominator = reduce ? smaller + larger : (larger > 0.0f ? larger : 1.0f);
+  const float r = numerator / denominator;
   const float r2 = r * r;
   float p = 1.0f / 13.0f;
   p = p * r2 - 1.0f / 11.0f;
