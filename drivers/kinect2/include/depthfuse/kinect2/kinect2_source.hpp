@@ -51,7 +51,8 @@ struct Kinect2Status {
   int64_t last_frame_utime = 0;
 
   // One line for logs and heartbeats:
-  // "connected: streaming (serial 012345, cpu, 1200 frames, 0 stalls, 0 resets, 0 reconnects)"
+  // "connected: streaming (serial 012345, depthfuse pipeline, 1200 frames, 0 stalls, 0 USB resets,
+  // 0 reconnects)"
   std::string summary() const;
 };
 
