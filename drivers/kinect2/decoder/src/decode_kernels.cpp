@@ -11,7 +11,7 @@
     defined(__x86_64__) && defined(__ELF__)
 #define DF_K2_CLONES __attribute__((target_clones("default", "avx2")))
 #else
-#define DF_K2_CLONES __attribute__((target_clones("default", "avx2")))
+#define DF_K2_CLONES
 #endif
 
 namespace depthfuse::kinect2::kernels {
