@@ -330,14 +330,20 @@ TEST(Kinect2Conversion, RegisteredColourLinesUpWithDepthAndConvertsToRgb) {
   EXPECT_GT(coloured, (kDepthWidth / 3) * (kDepthHeight / 3) * 9 / 10);
 }
 
-TEST(Kinect2Pipeline, CpuIsAlwaysThere) {
-  EXPECT_TRUE(check_pipeline("cpu").is_ok());
-  Result<std::unique_ptr<libfreenect2::PacketPipeline>> p = make_packet_pipeline("cpu");
-  ASSERT_TRUE(p.is_ok()) << p.status().to_string();
-  EXPECT_NE(p.value()->getDepthPacketProcessor(), nullptr);
+TEST(Kinect2Pipeline, DepthfuseAndCpuAreAlwaysThere) {
+  for (const char* name : {"depthfuse", "cpu"}) {
+    EXPECT_TRUE(check_pipeline(name).is_ok()) << name;
+    Result<std::unique_ptr<libfreenect2::PacketPipeline>> p = make_packet_pipeline(name);
+    ASSERT_TRUE(p.is_ok()) << p.status().to_string();
+    EXPECT_NE(p.value()->getDepthPacketProcessor(), nullptr);
+  }
+  // depthfuse: libfreenect2 hands over raw packets and P0 tables.
+  auto depthfuse = make_packet_pipeline("depthfuse");
+  EXPECT_NE(dynamic_cast<libfreenect2::DumpPacketPipeline*>(depthfuse.value().get()), nullptr);
   const auto compiled = compiled_pipelines();
-  ASSERT_FALSE(compiled.empty());
-  EXPECT_EQ(compiled.front(), "cpu");
+  ASSERT_GE(compiled.size(), 2u);
+  EXPECT_EQ(compiled[0], "depthfuse");
+  EXPECT_EQ(compiled[1], "cpu");
 }
 
 TEST(Kinect2Pipeline, UnknownNameIsInvalid) {

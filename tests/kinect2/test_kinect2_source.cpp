@@ -59,7 +59,7 @@ TEST(Kinect2Source, WithoutADeviceNextIsUnavailableWithAClearMessage) {
   const Kinect2Status status = source->status();
   EXPECT_EQ(status.state, Kinect2State::kWaitingForDevice);
   EXPECT_EQ(status.frames, 0u);
-  EXPECT_EQ(status.pipeline, "cpu");
+  EXPECT_EQ(status.pipeline, "depthfuse");
   EXPECT_NE(status.summary().find("waiting for device"), std::string::npos) << status.summary();
   EXPECT_NE(source->describe().find("waiting for device"), std::string::npos)
       << source->describe();
@@ -121,7 +121,7 @@ TEST(Kinect2Source, OpensFromTheAppConfigAndIsRecognisable) {
   ASSERT_TRUE(source.is_ok()) << source.status().to_string();
   const Kinect2Source* kinect = as_kinect2_source(*source.value());
   ASSERT_NE(kinect, nullptr);
-  EXPECT_EQ(kinect->status().pipeline, "cpu");
+  EXPECT_EQ(kinect->status().pipeline, "depthfuse");
   ASSERT_TRUE(source.value()->nominal_rate_hz().has_value());
   EXPECT_DOUBLE_EQ(*source.value()->nominal_rate_hz(), 30.0);
 }

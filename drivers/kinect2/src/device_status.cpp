@@ -41,6 +41,7 @@ DeviceStatus to_device_status(const Kinect2Status& status) {
       {"kinect2_usb_resets", static_cast<double>(status.usb_resets)},
       {"kinect2_reconnects", static_cast<double>(status.reconnects)},
       {"kinect2_usb_hotplug", status.usb_hotplug ? 1.0 : 0.0},
+      {"kinect2_dropped_packets", static_cast<double>(status.dropped_packets)},
   };
   return device;
 }

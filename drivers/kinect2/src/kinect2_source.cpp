@@ -11,6 +11,7 @@
 #include <libfreenect2/registration.h>
 
 #include "depthfuse/kinect2/conversion.hpp"
+#include "depthfuse/kinect2/packet_decoding.hpp"
 #include "depthfuse/kinect2/packet_pipeline.hpp"
 #include "depthfuse/kinect2/usb_hotplug.hpp"
 #include "depthfuse/kinect2/usb_reset.hpp"
@@ -79,6 +80,7 @@ class Kinect2SourceImpl final : public Kinect2Source {
         monitor_(std::move(monitor)),
         link_(link_config(options_)),
         undistorted_(kinect2::kDepthWidth, kinect2::kDepthHeight, 4),
+        decoded_(kinect2::kDepthWidth, kinect2::kDepthHeight, 4),
         registered_(kinect2::kDepthWidth, kinect2::kDepthHeight, 4) {
     publish_status();
   }
@@ -115,6 +117,8 @@ class Kinect2SourceImpl final : public Kinect2Source {
           }
           // A malformed frame from the device: skip it, the stall timer still runs.
           last_frame_error_ = frame.status().message();
+          std::lock_guard<std::mutex> lock(status_mutex_);
+          ++dropped_packets_;
         }
         if (Clock::now() >= deadline) return unavailable(unavailable_message());
         continue;
@@ -209,6 +213,8 @@ class Kinect2SourceImpl final : public Kinect2Source {
 
     auto pipeline = kinect2::make_packet_pipeline(options_.pipeline);
     if (!pipeline.is_ok()) return pipeline.status();
+    // The depthfuse pipeline: raw packets, and the P0 tables once start() has read them.
+    auto* raw_packets = dynamic_cast<libfreenect2::DumpPacketPipeline*>(pipeline.value().get());
     // openDevice takes ownership of the pipeline, also when it fails.
     libfreenect2::Freenect2Device* device = context_->openDevice(serial, pipeline.value().release());
     if (device == nullptr)
@@ -235,9 +241,24 @@ class Kinect2SourceImpl final : public Kinect2Source {
       return discard(unavailable("could not start the streams of Kinect V2 " + serial +
                                  freenect2_reason()));
 
-    // start() has read the factory calibration from the device.
+    // start() has read the factory calibration and the P0 tables from the device.
     const std::string device_serial = device->getSerialNumber();
     libfreenect2::Freenect2Device::IrCameraParams ir = device->getIrCameraParams();
+    std::unique_ptr<kinect2::PacketDecoding> packet_decoding;
+    if (raw_packets != nullptr) {
+      size_t p0_size = 0;
+      const unsigned char* p0 = raw_packets->getDepthP0Tables(&p0_size);
+      kinect2::DepthDecoderOptions decoder;
+      decoder.min_depth_m = static_cast<float>(options_.min_depth_m);
+      decoder.max_depth_m = static_cast<float>(options_.max_depth_m);
+      decoder.bilateral_filter = options_.bilateral_filter;
+      decoder.edge_aware_filter = options_.edge_aware_filter;
+      // The factory parameters, from which libfreenect2's pipelines build their tables too.
+      auto decoding = kinect2::PacketDecoding::create(p0, p0 == nullptr ? 0 : p0_size, ir, decoder);
+      if (!decoding.is_ok())
+        return discard(decoding.status().with_context("Kinect V2 " + device_serial));
+      packet_decoding = std::move(decoding).value();
+    }
     for (const DeviceCalibration& calibration : options_.calibrations)
       if (calibration.serial == device_serial)
         ir = kinect2::with_calibrated_pinhole(ir, calibration.intrinsics);
@@ -249,6 +270,7 @@ class Kinect2SourceImpl final : public Kinect2Source {
         std::make_unique<libfreenect2::Registration>(ir, device->getColorCameraParams());
     device_ = device;
     listener_ = std::move(listener);
+    packet_decoding_ = std::move(packet_decoding);
     intrinsics_ = intrinsics.value();
     device_serial_ = device_serial;
     session_started_ = false;
@@ -264,6 +286,7 @@ class Kinect2SourceImpl final : public Kinect2Source {
     }
     listener_.reset();
     registration_.reset();
+    packet_decoding_.reset();
   }
 
   Status reset_device() {
@@ -298,6 +321,10 @@ class Kinect2SourceImpl final : public Kinect2Source {
     if (depth_it == frames.end() || depth_it->second == nullptr)
       return corrupt("libfreenect2 delivered a frame set without depth");
     const libfreenect2::Frame* depth = depth_it->second;
+    if (packet_decoding_) {
+      DF_RETURN_IF_ERROR(packet_decoding_->decode(*depth, &decoded_));
+      depth = &decoded_;
+    }
     if (depth->width != static_cast<size_t>(kinect2::kDepthWidth) ||
         depth->height != static_cast<size_t>(kinect2::kDepthHeight) || depth->bytes_per_pixel != 4)
       return corrupt("libfreenect2 delivered a depth frame of " + std::to_string(depth->width) +
@@ -354,6 +381,7 @@ class Kinect2SourceImpl final : public Kinect2Source {
     status_.stalls = link_.stalls();
     status_.usb_resets = link_.usb_resets();
     status_.reconnects = link_.reconnects();
+    status_.dropped_packets = dropped_packets_;
   }
 
   void publish_status() {
@@ -368,7 +396,9 @@ class Kinect2SourceImpl final : public Kinect2Source {
   libfreenect2::Freenect2Device* device_ = nullptr;   // owned; deleted in close_device()
   std::unique_ptr<libfreenect2::SyncMultiFrameListener> listener_;
   std::unique_ptr<libfreenect2::Registration> registration_;
+  std::unique_ptr<kinect2::PacketDecoding> packet_decoding_;  // the depthfuse pipeline only
   libfreenect2::Frame undistorted_;  // float mm, reused every frame
+  libfreenect2::Frame decoded_;      // float mm from the depthfuse decoder, reused every frame
   libfreenect2::Frame registered_;   // 4-byte colour, reused every frame
   CameraIntrinsics intrinsics_;
   std::string device_serial_;
@@ -378,6 +408,7 @@ class Kinect2SourceImpl final : public Kinect2Source {
   uint32_t session_base_ = 0;
   uint32_t next_sequence_ = 0;
   uint64_t delivered_ = 0;
+  uint64_t dropped_packets_ = 0;  // guarded by status_mutex_
   std::string last_frame_error_;
 
   mutable std::mutex status_mutex_;

@@ -14,10 +14,12 @@ std::string joined(const std::vector<std::string>& names) {
 
 }  // namespace
 
-std::vector<std::string> known_pipelines() { return {"cpu", "opengl", "opencl", "cuda"}; }
+std::vector<std::string> known_pipelines() {
+  return {"depthfuse", "cpu", "opengl", "opencl", "cuda"};
+}
 
 std::vector<std::string> compiled_pipelines() {
-  std::vector<std::string> names{"cpu"};
+  std::vector<std::string> names{"depthfuse", "cpu"};
 #ifdef LIBFREENECT2_WITH_OPENGL_SUPPORT
   names.push_back("opengl");
 #endif
@@ -49,6 +51,9 @@ Status check_pipeline(const std::string& name) {
 
 Result<std::unique_ptr<libfreenect2::PacketPipeline>> make_packet_pipeline(const std::string& name) {
   DF_RETURN_IF_ERROR(check_pipeline(name));
+  // libfreenect2 hands over the raw packets and the P0 tables; depthfuse decodes them.
+  if (name == "depthfuse")
+    return std::unique_ptr<libfreenect2::PacketPipeline>(new libfreenect2::DumpPacketPipeline());
   if (name == "cpu") return std::unique_ptr<libfreenect2::PacketPipeline>(new libfreenect2::CpuPacketPipeline());
 #ifdef LIBFREENECT2_WITH_OPENGL_SUPPORT
   if (name == "opengl")

@@ -179,7 +179,7 @@ void read_capture(TableReader& r, CaptureConfig* c) {
   r.read("source", &c->source, check_source);
   r.read("rate_hz", &c->rate_hz, non_negative());
   r.read("loop", &c->loop);
-  r.read("kinect2_pipeline", &c->kinect2_pipeline, one_of({"cpu", "opengl", "opencl", "cuda"}));
+  r.read("kinect2_pipeline", &c->kinect2_pipeline, one_of({"cpu", "opengl", "opencl", "cuda", "depthfuse"}));
   r.read("kinect2_min_depth_m", &c->kinect2_min_depth_m, positive());
   r.read("kinect2_max_depth_m", &c->kinect2_max_depth_m, positive());
   r.read("kinect2_bilateral_filter", &c->kinect2_bilateral_filter);

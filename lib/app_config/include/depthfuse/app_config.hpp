@@ -28,7 +28,7 @@ struct CaptureConfig {
   double rate_hz = 30.0;                    // 0 = as fast as possible
   bool loop = false;
   // kinect2 only
-  std::string kinect2_pipeline = "cpu";     // cpu | opengl | opencl | cuda
+  std::string kinect2_pipeline = "depthfuse";  // depthfuse | cpu | opengl | opencl | cuda
   double kinect2_min_depth_m = 0.5;
   double kinect2_max_depth_m = 4.5;
   bool kinect2_bilateral_filter = true;

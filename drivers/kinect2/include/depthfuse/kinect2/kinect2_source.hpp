@@ -20,7 +20,7 @@ namespace depthfuse::kinect2 {
 
 struct Kinect2Options {
   std::string serial;                  // empty = the first Kinect V2 found
-  std::string pipeline = "cpu";        // cpu | opengl | opencl | cuda (as compiled into libfreenect2)
+  std::string pipeline = "depthfuse";  // depthfuse | cpu | opengl | opencl | cuda (libfreenect2's)
   double min_depth_m = 0.5;            // libfreenect2 Config::MinDepth
   double max_depth_m = 4.5;            // libfreenect2 Config::MaxDepth
   bool bilateral_filter = true;        // Config::EnableBilateralFilter
@@ -47,10 +47,12 @@ struct Kinect2Status {
   uint32_t stalls = 0;
   uint32_t usb_resets = 0;
   uint32_t reconnects = 0;     // successful opens after the first
+  uint64_t dropped_packets = 0;  // packets the depthfuse decoder refused (each with its reason)
   int64_t last_frame_utime = 0;
 
   // One line for logs and heartbeats:
-  // "connected: streaming (serial 012345, cpu, 1200 frames, 0 stalls, 0 resets, 0 reconnects)"
+  // "connected: streaming (serial 012345, depthfuse pipeline, 1200 frames, 0 stalls, 0 USB resets,
+  // 0 reconnects)"
   std::string summary() const;
 };
 

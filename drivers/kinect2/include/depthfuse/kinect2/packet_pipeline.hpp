@@ -1,4 +1,5 @@
-// The depth decoding pipeline of libfreenect2, chosen by name (capture.kinect2_pipeline).
+// The depth decoding pipeline, chosen by name (capture.kinect2_pipeline): "depthfuse" (raw packets
+// from libfreenect2, decoded by depthfuse: packet_decoding.hpp) or one of libfreenect2's.
 #pragma once
 
 #include <memory>
@@ -11,9 +12,9 @@
 
 namespace depthfuse::kinect2 {
 
-// Every name capture.kinect2_pipeline accepts: cpu, opengl, opencl, cuda.
+// Every name capture.kinect2_pipeline accepts: depthfuse, cpu, opengl, opencl, cuda.
 std::vector<std::string> known_pipelines();
-// The ones compiled into the libfreenect2 this driver was built against (cpu always).
+// The ones usable here: depthfuse and cpu always, the others as compiled into libfreenect2.
 std::vector<std::string> compiled_pipelines();
 
 // Ok when `name` can be used here. kInvalidArgument for a name that is not a pipeline;

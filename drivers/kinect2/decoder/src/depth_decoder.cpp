@@ -1,0 +1,367 @@
+#include "depthfuse/kinect2/depth_decoder.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <condition_variable>
+#include <functional>
+#include <mutex>
+#include <thread>
+
+#include "decode_kernels.hpp"
+#include "decoder_tables.hpp"
+
+namespace depthfuse::kinect2 {
+
+namespace {
+
+using Plane = std::vector<float>;
+
+// A second thread that takes the lower half of the rows of each stage.
+class HelperThread {
+ public:
+  HelperThread() : thread_([this] { loop(); }) {}
+  ~HelperThread() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stopping_ = true;
+    }
+    wake_.notify_one();
+    thread_.join();
+  }
+
+  // Runs rows(first, mid) here and rows(mid, last) on the helper; returns when both are done.
+  void split(int first, int last, const std::function<void(int, int)>& rows) {
+    const int mid = (first + last) / 2;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      job_ = &rows;
+      job_first_ = mid;
+      job_last_ = last;
+      done_ = false;
+    }
+    wake_.notify_one();
+    rows(first, mid);
+    std::unique_lock<std::mutex> lock(mutex_);
+    finished_.wait(lock, [this] { return done_; });
+    job_ = nullptr;
+  }
+
+ private:
+  void loop() {
+    std::unique_lock<std::mutex> lock(mutex_);
+    for (;;) {
+      wake_.wait(lock, [this] { return stopping_ || (job_ != nullptr && !done_); });
+      if (stopping_) return;
+      const auto* job = job_;
+      const int first = job_first_, last = job_last_;
+      lock.unlock();
+      (*job)(first, last);
+      lock.lock();
+      done_ = true;
+      finished_.notify_one();
+    }
+  }
+
+  std::mutex mutex_;
+  std::condition_variable wake_, finished_;
+  const std::function<void(int, int)>* job_ = nullptr;
+  int job_first_ = 0, job_last_ = 0;
+  bool done_ = true;
+  bool stopping_ = false;
+  std::thread thread_;
+};
+
+// The bilateral filter's pairs of a row's pixels with the row below (kernels::pair_weights), per
+// direction: 0 down-left (at the upper pixel's x), 1 down, 2 down-right (at x + 1); or with the
+// right neighbour (slot 0, at x + 1). Shifted so that no pointer before a row is ever formed.
+struct PairRow {
+  std::array<Plane, 3> distance, weight;
+  PairRow() {
+    for (auto* group : {&distance, &weight})
+      for (Plane& row : *group) row.assign(kRawWidth, 0.0f);
+  }
+};
+
+// Row buffers of one thread.
+struct Scratch {
+  std::array<Plane, 9> values;      // unpacked correlations of the nine sub-images
+  std::array<Plane, 3> amplitude;   // per frequency
+  std::array<Plane, 3> filtered_a, filtered_b;
+  Plane edge_ok;
+  Plane ones;
+  // Per frequency: pairs of row y-1 and of row y with the row below, and of row y within itself.
+  std::array<PairRow, 3> down_above, down_here, right_here;
+  int down_above_row = -1;  // the row whose pairs down_above holds
+
+  Scratch() {
+    for (auto* group : {&amplitude, &filtered_a, &filtered_b})
+      for (Plane& row : *group) row.resize(kRawWidth);
+    for (Plane& row : values) row.resize(kRawWidth);
+    edge_ok.resize(kRawWidth);
+    ones.assign(kRawWidth, 1.0f);
+  }
+};
+
+}  // namespace
+
+Status check_decoder_options(const DepthDecoderOptions& o) {
+  if (!(std::isfinite(o.min_depth_m) && o.min_depth_m >= 0.0f))
+    return invalid_argument("depth decoder: min_depth_m must be finite and >= 0, got " +
+                            std::to_string(o.min_depth_m));
+  if (!(std::isfinite(o.max_depth_m) && o.max_depth_m > o.min_depth_m))
+    return invalid_argument("depth decoder: max_depth_m must be finite and greater than "
+                            "min_depth_m, got " +
+                            std::to_string(o.max_depth_m));
+  if (o.threads != 1 && o.threads != 2)
+    return invalid_argument("depth decoder: threads must be 1 or 2, got " +
+                            std::to_string(o.threads));
+  return Status::ok();
+}
+
+class DepthDecoder::Impl {
+ public:
+  Impl(const P0Tables& p0, const IrCalibration& calibration, const DepthDecoderOptions& options)
+      : options_(options),
+        constants_(kernels::make_kernel_constants(DecodeConstants{}, options.min_depth_m,
+                                                  options.max_depth_m)),
+        rays_(make_ray_tables(calibration)),
+        phases_(make_phase_tables(p0, DecodeConstants{})),
+        steps_{{phases_.cos_step[0], phases_.cos_step[1], phases_.cos_step[2]},
+               {phases_.sin_step[0], phases_.sin_step[1], phases_.sin_step[2]}},
+        scratch_(options.threads) {
+    for (int code = 0; code < 2048; ++code) code_value_[code] = code_to_correlation()[code];
+    for (auto* group : {&a_, &b_, &unit_a_, &unit_b_})
+      for (Plane& plane : *group) plane.resize(kRawPixels);
+    for (Plane* plane : {&depth_mm_, &edge_depth_mm_, &ir_sum_}) plane->resize(kRawPixels);
+    if (options.threads == 2) helper_ = std::make_unique<HelperThread>();
+  }
+
+  Status decode(const RawDepthPacket& packet, DepthImage* depth, IrImage* ir) {
+    if (packet.bytes == nullptr)
+      return invalid_argument("depth packet " + std::to_string(packet.sequence) + " has no data");
+    if (packet.size != kRawPacketBytes)
+      return invalid_argument("depth packet " + std::to_string(packet.sequence) + " has " +
+                              std::to_string(packet.size) + " bytes, expected " +
+                              std::to_string(kRawPacketBytes) + " (10 sub-images of 512x424 "
+                              "11-bit codes)");
+    if (have_sequence_ && static_cast<int32_t>(packet.sequence - last_sequence_) <= 0)
+      return invalid_argument("depth packet sequence " + std::to_string(packet.sequence) +
+                              " does not follow " + std::to_string(last_sequence_) +
+                              " (repeated or out of order)");
+    have_sequence_ = true;
+    last_sequence_ = packet.sequence;
+
+    depth->width = kRawWidth;
+    depth->height = kRawHeight;
+    depth->depth_m.resize(kRawPixels);
+    ir->width = kRawWidth;
+    ir->height = kRawHeight;
+    ir->amplitude.resize(kRawPixels);
+    packet_ = packet.bytes;
+    depth_out_ = depth->depth_m.data();
+    ir_out_ = ir->amplitude.data();
+
+    run([this](Scratch& s, int first, int last) { correlate_and_unwrap(s, first, last); });
+    if (helper_) {
+      // The two rows at the seam need both halves' phasors.
+      scratch_[0].down_above_row = -1;
+      for (int y : {kRawHeight / 2 - 1, kRawHeight / 2}) unwrap(scratch_[0], y);
+    }
+    run([this](Scratch&, int first, int last) {
+      for (int y = first; y < last; ++y) finish(y);
+    });
+    return Status::ok();
+  }
+
+  void restart_sequence() { have_sequence_ = false; }
+  const DepthDecoderOptions& options() const { return options_; }
+
+ private:
+  template <typename Rows>
+  void run(Rows rows) {
+    if (!helper_) {
+      rows(scratch_[0], 0, kRawHeight);
+      return;
+    }
+    // The first half runs on this thread, the second on the helper.
+    const std::function<void(int, int)> job = [&](int first, int last) {
+      rows(scratch_[first == 0 ? 0 : 1], first, last);
+    };
+    helper_->split(0, kRawHeight, job);
+  }
+
+  static size_t row_start(int y) { return static_cast<size_t>(y) * kRawWidth; }
+
+  // Stage 1 of rows [first, last), and stage 2 of each row among them whose neighbours are among
+  // them too, as soon as the row below is done: its phasors are still in cache.
+  void correlate_and_unwrap(Scratch& s, int first, int last) {
+    s.down_above_row = -1;
+    const int unwrap_first = first == 0 ? 0 : first + 1;
+    const int unwrap_last = last == kRawHeight ? last : last - 1;
+    for (int y = first; y < last; ++y) {
+      correlate(s, y);
+      if (y - 1 >= unwrap_first && y - 1 < unwrap_last) unwrap(s, y - 1);
+    }
+    if (last == kRawHeight) unwrap(s, kRawHeight - 1);
+  }
+
+  // Stage 1: the packet's nine sub-images to phasors; IR output.
+  void correlate(Scratch& s, int y) {
+    const size_t row = row_start(y);
+    const size_t storage = static_cast<size_t>(packet_storage_row(y)) * kRawRowBytes;
+    for (int i = 0; i < 9; ++i)
+      kernels::unpack_row(packet_ + i * kRawSubImageBytes + storage, code_value_.data(),
+                          s.values[i].data());
+    for (int f = 0; f < 3; ++f) {
+      const int k = 3 * f;
+      kernels::correlate_row(
+          s.values[k].data(), s.values[k + 1].data(), s.values[k + 2].data(),
+          phases_.cos_p0[f].data() + row, phases_.sin_p0[f].data() + row,
+          rays_.z_mm_per_phase.data() + row, steps_, constants_.ab_multiplier_per_frequency[f],
+          constants_.ab_multiplier,
+          kernels::PhasorRow{a_[f].data() + row, b_[f].data() + row, unit_a_[f].data() + row,
+                             unit_b_[f].data() + row, s.amplitude[f].data()});
+    }
+    kernels::ir_row(s.amplitude[0].data(), s.amplitude[1].data(), s.amplitude[2].data(),
+                    constants_.ab_output_multiplier, ir_out_ + row_start(kRawHeight - 1 - y));
+  }
+
+  kernels::PhasorRows phasor_rows(int f, int y) const {
+    const size_t row = row_start(y);
+    return {a_[f].data() + row, b_[f].data() + row};
+  }
+
+  // The pairs of row r's pixels with those of row r + 1.
+  void down_pairs(int f, int r, PairRow& out) const {
+    const float* ua = unit_a_[f].data() + row_start(r);
+    const float* ub = unit_b_[f].data() + row_start(r);
+    const float* qa = ua + kRawWidth;
+    const float* qb = ub + kRawWidth;
+    kernels::pair_weights(ua + 1, ub + 1, qa, qb, kRawWidth - 1, constants_,
+                          out.distance[0].data() + 1, out.weight[0].data() + 1);
+    kernels::pair_weights(ua, ub, qa, qb, kRawWidth, constants_, out.distance[1].data(),
+                          out.weight[1].data());
+    kernels::pair_weights(ua, ub, qa + 1, qb + 1, kRawWidth - 1, constants_,
+                          out.distance[2].data() + 1, out.weight[2].data() + 1);
+  }
+
+  // The pairs of row r's pixels with their right neighbours.
+  void right_pairs(int f, int r, PairRow& out) const {
+    const float* ua = unit_a_[f].data() + row_start(r);
+    const float* ub = unit_b_[f].data() + row_start(r);
+    kernels::pair_weights(ua, ub, ua + 1, ub + 1, kRawWidth - 1, constants_,
+                          out.distance[0].data() + 1, out.weight[0].data() + 1);
+  }
+
+  // Pixel x's pairs with its eight neighbours, each read at index x.
+  static kernels::NeighbourPairs neighbour_pairs(const PairRow& above, const PairRow& here,
+                                                 const PairRow& right) {
+    kernels::NeighbourPairs pairs{};
+    const std::array<const PairRow*, 8> rows{&above, &above, &above, &right,
+                                             &right, &here,  &here,  &here};
+    const std::array<int, 8> slots{2, 1, 0, 0, 0, 0, 1, 2};
+    const std::array<int, 8> shifts{0, 0, 1, 0, 1, 0, 0, 1};
+    for (int n = 0; n < 8; ++n) {
+      pairs.distance[n] = rows[n]->distance[slots[n]].data() + shifts[n];
+      pairs.weight[n] = rows[n]->weight[slots[n]].data() + shifts[n];
+    }
+    return pairs;
+  }
+
+  // Stage 2: the bilateral filter (inner rows), phase unwrapping and depth.
+  void unwrap(Scratch& s, int y) {
+    const size_t row = row_start(y);
+    kernels::UnwrapInput in{};
+    in.z = rays_.z_mm_per_phase.data() + row;
+    in.x = rays_.x_scaled.data() + row;
+    const float* edge_ok = s.ones.data();
+    if (options_.bilateral_filter && y > 0 && y < kRawHeight - 1) {
+      std::fill(s.edge_ok.begin(), s.edge_ok.end(), 1.0f);
+      // Rows are visited in order, so the pairs of row y - 1 are those row y made last time.
+      if (s.down_above_row != y - 1)
+        for (int f = 0; f < 3; ++f) down_pairs(f, y - 1, s.down_above[f]);
+      for (int f = 0; f < 3; ++f) {
+        down_pairs(f, y, s.down_here[f]);
+        right_pairs(f, y, s.right_here[f]);
+        float* fa = s.filtered_a[f].data();
+        float* fb = s.filtered_b[f].data();
+        for (int x : {0, kRawWidth - 1}) {
+          fa[x] = a_[f][row + x];
+          fb[x] = b_[f][row + x];
+        }
+        kernels::bilateral_row(
+            phasor_rows(f, y - 1), phasor_rows(f, y), phasor_rows(f, y + 1),
+            neighbour_pairs(s.down_above[f], s.down_here[f], s.right_here[f]), constants_, fa, fb,
+            s.edge_ok.data());
+        in.a[f] = fa;
+        in.b[f] = fb;
+      }
+      std::swap(s.down_above, s.down_here);
+      s.down_above_row = y;
+      edge_ok = s.edge_ok.data();
+    } else {
+      for (int f = 0; f < 3; ++f) {
+        in.a[f] = a_[f].data() + row;
+        in.b[f] = b_[f].data() + row;
+      }
+    }
+    kernels::unwrap_row(in, edge_ok, constants_, depth_mm_.data() + row,
+                        edge_depth_mm_.data() + row, ir_sum_.data() + row);
+  }
+
+  kernels::EdgeRows edge_rows(int y) const {
+    const size_t row = row_start(y);
+    return {depth_mm_.data() + row, edge_depth_mm_.data() + row, ir_sum_.data() + row};
+  }
+
+  // Stage 3: the edge-aware filter (inner rows) and the output in metres, flipped upright.
+  void finish(int y) {
+    float* out = depth_out_ + row_start(kRawHeight - 1 - y);
+    const float* raw = depth_mm_.data() + row_start(y);
+    if (!options_.edge_aware_filter)
+      kernels::depth_row(raw, /*range_check=*/false, constants_, out);
+    else if (y == 0 || y == kRawHeight - 1)
+      kernels::depth_row(raw, /*range_check=*/true, constants_, out);
+    else
+      kernels::edge_filter_row(edge_rows(y - 1), edge_rows(y), edge_rows(y + 1), constants_, out);
+  }
+
+  const DepthDecoderOptions options_;
+  const kernels::KernelConstants constants_;
+  const RayTables rays_;
+  const PhaseTables phases_;
+  const kernels::PhaseSteps steps_;
+  std::array<float, 2048> code_value_{};
+  std::array<Plane, 3> a_, b_, unit_a_, unit_b_;  // phasors per frequency, whole frame
+  Plane depth_mm_, edge_depth_mm_, ir_sum_;       // stage 2 output, whole frame
+  std::vector<Scratch> scratch_;
+  std::unique_ptr<HelperThread> helper_;
+  const uint8_t* packet_ = nullptr;
+  float* depth_out_ = nullptr;
+  float* ir_out_ = nullptr;
+  bool have_sequence_ = false;
+  uint32_t last_sequence_ = 0;
+};
+
+Result<std::unique_ptr<DepthDecoder>> DepthDecoder::create(const P0Tables& p0,
+                                                           const IrCalibration& calibration,
+                                                           const DepthDecoderOptions& options) {
+  DF_RETURN_IF_ERROR(check_decoder_options(options));
+  DF_RETURN_IF_ERROR(check_p0_tables(p0).with_context("depth decoder"));
+  DF_RETURN_IF_ERROR(check_ir_calibration(calibration).with_context("depth decoder"));
+  return std::unique_ptr<DepthDecoder>(
+      new DepthDecoder(std::make_unique<Impl>(p0, calibration, options)));
+}
+
+DepthDecoder::DepthDecoder(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+DepthDecoder::~DepthDecoder() = default;
+
+Status DepthDecoder::decode(const RawDepthPacket& packet, DepthImage* depth, IrImage* ir) {
+  return impl_->decode(packet, depth, ir);
+}
+
+void DepthDecoder::restart_sequence() { impl_->restart_sequence(); }
+
+const DepthDecoderOptions& DepthDecoder::options() const { return impl_->options(); }
+
+}  // namespace depthfuse::kinect2

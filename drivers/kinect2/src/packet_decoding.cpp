@@ -1,0 +1,52 @@
+#include "depthfuse/kinect2/packet_decoding.hpp"
+
+#include <cstring>
+#include <string>
+
+namespace depthfuse::kinect2 {
+
+IrCalibration ir_calibration(const libfreenect2::Freenect2Device::IrCameraParams& ir) {
+  IrCalibration c;
+  c.fx = ir.fx;
+  c.fy = ir.fy;
+  c.cx = ir.cx;
+  c.cy = ir.cy;
+  c.k1 = ir.k1;
+  c.k2 = ir.k2;
+  c.k3 = ir.k3;
+  c.p1 = ir.p1;
+  c.p2 = ir.p2;
+  return c;
+}
+
+Result<std::unique_ptr<PacketDecoding>> PacketDecoding::create(
+    const uint8_t* p0_response, size_t p0_size,
+    const libfreenect2::Freenect2Device::IrCameraParams& ir, const DepthDecoderOptions& options) {
+  auto p0 = parse_p0_response(p0_response, p0_size);
+  if (!p0.is_ok()) return p0.status().with_context("depthfuse depth pipeline");
+  auto decoder = DepthDecoder::create(p0.value(), ir_calibration(ir), options);
+  if (!decoder.is_ok()) return decoder.status().with_context("depthfuse depth pipeline");
+  return std::unique_ptr<PacketDecoding>(new PacketDecoding(std::move(decoder).value()));
+}
+
+Status PacketDecoding::decode(const libfreenect2::Frame& raw, libfreenect2::Frame* depth_mm) {
+  if (raw.format != libfreenect2::Frame::Raw)
+    return invalid_argument("depthfuse depth pipeline: expected a raw depth packet, got frame format " +
+                            std::to_string(static_cast<int>(raw.format)));
+  const size_t size = raw.width * raw.height * raw.bytes_per_pixel;
+  DF_RETURN_IF_ERROR(decoder_->decode(RawDepthPacket{raw.sequence, raw.timestamp, raw.data, size},
+                                      &depth_, &ir_));
+  if (depth_mm->width != kRawWidth || depth_mm->height != kRawHeight ||
+      depth_mm->bytes_per_pixel != sizeof(float))
+    return invalid_argument("depthfuse depth pipeline: the output frame must be 512x424x4");
+  depth_mm->format = libfreenect2::Frame::Float;
+  depth_mm->sequence = raw.sequence;
+  depth_mm->timestamp = raw.timestamp;
+  for (size_t i = 0; i < kRawPixels; ++i) {
+    const float mm = depth_.depth_m[i] * 1000.0f;
+    std::memcpy(depth_mm->data + i * sizeof(float), &mm, sizeof mm);
+  }
+  return Status::ok();
+}
+
+}  // namespace depthfuse::kinect2
