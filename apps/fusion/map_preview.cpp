@@ -87,6 +87,7 @@ void MapPreview::restart(const std::string& scan_id, const IncrementalReconstruc
   scanned_through_frame_ = 0;
   pending_.clear();
   queued_.clear();
+  snapshot_left_.clear();
   has_pose_ = false;
   registered_ = false;
   frame_sequence_ = 0;
@@ -240,6 +241,7 @@ void MapPreview::tick(int8_t state, const std::string& scan_id,
     const uint32_t through = reconstructor->next_frame_id() - 1;
     const uint32_t after = scanned_through_frame_;
     map.for_each_chunk([&](const ChunkKey& key, const Chunk& c) {
+      if (request != 0) snapshot_left_.insert(key);
       if (request != 0 || c.last_touched_frame > after) queue(key);
     });
     scanned_through_frame_ = through;
@@ -251,6 +253,9 @@ void MapPreview::tick(int8_t state, const std::string& scan_id,
       const ChunkKey key = pending_.front();
       pending_.pop_front();
       queued_.erase(key);
+      // The queue is first in, first out and holds a key once: every chunk of a snapshot goes
+      // out within one pass, however busy the scan keeps the others.
+      snapshot_left_.erase(key);
       const Chunk* chunk = map.find(key);
       if (!chunk || chunk->points.empty()) continue;  // evicted or emptied since it was queued
       msg.chunks.emplace_back();
@@ -268,8 +273,9 @@ void MapPreview::tick(int8_t state, const std::string& scan_id,
   } else {
     pending_.clear();
     queued_.clear();
+    snapshot_left_.clear();
   }
-  if (snapshot_id_ != 0 && pending_.empty()) {
+  if (snapshot_id_ != 0 && snapshot_left_.empty()) {
     msg.snapshot_complete = true;
     snapshot_id_ = 0;
   }

@@ -73,6 +73,7 @@ class MapPreview {
   std::deque<ChunkKey> pending_;
   std::unordered_set<ChunkKey, KeyHash> queued_;
   int64_t snapshot_id_ = 0;             // the request being answered, 0 when none
+  std::unordered_set<ChunkKey, KeyHash> snapshot_left_;  // its chunks not sent yet
   bool has_pose_ = false, registered_ = false;
   int64_t frame_sequence_ = 0;
   Pose T_world_cam_ = Pose::Identity();
