@@ -61,8 +61,10 @@ MapStore::Accepted MapStore::apply(const depthfuse::map_delta_t& msg, bool* want
     return Accepted::kMalformed;
   std::lock_guard<std::mutex> lock(mutex_);
   *want_snapshot = false;
-  if (msg.sender != sender_ || msg.scan_id != scan_id_) {
-    // Another map: pages start over, and the monitor asks for the whole of it.
+  // Between scans (no scan id) the last scan's map stays on the pages; another scan or another
+  // fusion daemon starts a new map.
+  if (msg.sender != sender_ || (!msg.scan_id.empty() && msg.scan_id != scan_id_)) {
+    // Pages start over, and the monitor asks for the whole of the new map.
     ++epoch_;
     sender_ = msg.sender;
     scan_id_ = msg.scan_id;
@@ -71,7 +73,7 @@ MapStore::Accepted MapStore::apply(const depthfuse::map_delta_t& msg, bool* want
     trajectory_.clear();
     bytes_ = points_ = 0;
     *want_snapshot = !msg.scan_id.empty();
-  } else if (msg.sequence != last_sequence_ + 1 && !msg.scan_id.empty()) {
+  } else if (msg.sequence != last_sequence_ + 1 && !msg.scan_id.empty() && msg.scan_id == scan_id_) {
     *want_snapshot = true;  // missed deltas (or the fusion daemon restarted)
   }
   last_sequence_ = msg.sequence;
