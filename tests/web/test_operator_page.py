@@ -8,7 +8,8 @@ processes on a per-test LCM port, then:
   2. headless chromium (driven over the DevTools protocol on a pipe) loads the page; a click on
      Start must start a scan, observed in the fusion daemon's own heartbeat on LCM
      (tools/lcm/watch.py); the cloud must then have points; a click on Pause must pause;
-  3. a screenshot goes to <out>/operator-page.png.
+  3. a screenshot goes to <out>/operator-page.png; a click on Stop ends the scan, and its map
+     stays on the page.
 Exit 0 pass, 1 fail, 77 skipped (no chromium).
 
   test_operator_page.py --bin build/bin --python-dir build/python --watch tools/lcm/watch.py --out DIR
@@ -28,7 +29,7 @@ import time
 import urllib.error
 import urllib.request
 
-HEARTBEAT_RUNNING, HEARTBEAT_PAUSED = 2, 3
+HEARTBEAT_IDLE, HEARTBEAT_RUNNING, HEARTBEAT_PAUSED = 1, 2, 3
 
 
 class Failure(Exception):
@@ -298,6 +299,13 @@ def run(args, work):
         browser.screenshot(shot)
         check(os.path.getsize(shot) > 10000, "the screenshot is nearly empty")
         print("screenshot: %s" % shot)
+        browser.click("btn-stop")
+        eventually(lambda: heartbeats.get("fusion")["state"] == HEARTBEAT_IDLE, 30,
+                   "Stop on the page did not end the scan")
+        time.sleep(1.5)  # a few idle deltas
+        check(browser.evaluate("dfState.points") >= points,
+              "the stopped scan's map left the page (%s points)" % browser.evaluate("dfState.points"))
+        print("Stop: fusion idle, the map stays on the page")
         return 0
     finally:
         if browser:
