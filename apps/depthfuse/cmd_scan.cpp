@@ -4,15 +4,13 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
-#include <random>
 #include <string>
 
 #include "command.hpp"
-#include "depthfuse/base/clock.hpp"
 #include "depthfuse/base/log.hpp"
 #include "depthfuse/command_t.hpp"
 #include "depthfuse/daemon/heartbeat.hpp"
-#include "depthfuse/daemon/process_info.hpp"
+#include "depthfuse/daemon/operator_command.hpp"
 #include "depthfuse/daemon/startup.hpp"
 #include "depthfuse/heartbeat_t.hpp"
 #include "depthfuse/lcm/channels.hpp"
@@ -27,17 +25,6 @@ namespace daemon = depthfuse::daemon;
 namespace lcm = depthfuse::lcm;
 using depthfuse::command_t;
 using depthfuse::heartbeat_t;
-
-bool parse_action(const std::string& s, int8_t* out) {
-  if (s == "start") *out = command_t::ACTION_START;
-  else if (s == "stop") *out = command_t::ACTION_STOP;
-  else if (s == "pause") *out = command_t::ACTION_PAUSE;
-  else if (s == "resume") *out = command_t::ACTION_RESUME;
-  else if (s == "new") *out = command_t::ACTION_NEW_SCAN;
-  else if (s == "checkpoint") *out = command_t::ACTION_CHECKPOINT_NOW;
-  else return false;
-  return true;
-}
 
 constexpr const char* kUsage =
     "usage: depthfuse scan start|stop|pause|resume|new|checkpoint [NAME] [--target DAEMON]\n"
@@ -58,7 +45,7 @@ int cmd_scan(int argc, char** argv) {
   const daemon::Args& args = startup.args();
   if (args.positional().empty()) return startup.usage_error("which action?");
   int8_t action = 0;
-  if (!parse_action(args.positional()[0], &action))
+  if (!daemon::parse_action(args.positional()[0], &action))
     return startup.usage_error("unknown action '" + args.positional()[0] + "'");
   double timeout_s = 3.0;
   std::string error;
@@ -69,17 +56,10 @@ int cmd_scan(int argc, char** argv) {
   auto bus = startup.open_lcm();
   if (!bus) return 1;
 
-  command_t cmd;
-  cmd.protocol_version = command_t::PROTOCOL_VERSION;
-  cmd.utime = depthfuse::now_utime();
-  // Unique enough across operators: time plus randomness; the daemon echoes it back.
-  cmd.command_id = (cmd.utime << 8) ^ static_cast<int64_t>(std::random_device{}() & 0xff);
-  if (cmd.command_id <= 0) cmd.command_id = 1;
-  cmd.target = target;
-  cmd.action = action;
-  cmd.argument = args.positional().size() > 1 ? args.positional()[1] : std::string();
   const char* user = std::getenv("USER");
-  cmd.sender = std::string(user ? user : "operator") + "@" + daemon::host_name();
+  const command_t cmd = daemon::make_command(
+      action, target, args.positional().size() > 1 ? args.positional()[1] : std::string(),
+      user ? user : "operator");
 
   int result = -1;
   std::string message;

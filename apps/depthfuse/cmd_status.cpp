@@ -3,16 +3,15 @@
 #if __has_include("depthfuse/status_t.hpp")
 #include <chrono>
 #include <cinttypes>
-#include <cmath>
 #include <cstdio>
 #include <cstdlib>
-#include <cstring>
 #include <string>
 
 #include "command.hpp"
 #include "depthfuse/base/log.hpp"
 #include "depthfuse/daemon/heartbeat.hpp"
 #include "depthfuse/daemon/startup.hpp"
+#include "depthfuse/daemon/status_json.hpp"
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/lcm/transport.hpp"
@@ -26,84 +25,8 @@ namespace daemon = depthfuse::daemon;
 namespace lcm = depthfuse::lcm;
 using depthfuse::heartbeat_t;
 
-const char* state_text(int8_t s) {
-  switch (s) {
-    case heartbeat_t::STATE_STARTING: return "starting";
-    case heartbeat_t::STATE_IDLE: return "idle";
-    case heartbeat_t::STATE_RUNNING: return "running";
-    case heartbeat_t::STATE_PAUSED: return "paused";
-    case heartbeat_t::STATE_STOPPING: return "stopping";
-    case heartbeat_t::STATE_ERROR: return "error";
-    case heartbeat_t::STATE_FINISHED: return "finished";
-  }
-  return "unknown";
-}
-
-std::string json_escape(const std::string& s) {
-  std::string out;
-  for (const unsigned char c : s) {
-    switch (c) {
-      case '"': out += "\\\""; break;
-      case '\\': out += "\\\\"; break;
-      case '\n': out += "\\n"; break;
-      case '\r': out += "\\r"; break;
-      case '\t': out += "\\t"; break;
-      default:
-        if (c < 0x20) {
-          char buf[8];
-          std::snprintf(buf, sizeof(buf), "\\u%04x", c);
-          out += buf;
-        } else {
-          out += static_cast<char>(c);
-        }
-    }
-  }
-  return out;
-}
-
-std::string json_number(double v) {
-  if (!std::isfinite(v)) return "null";
-  char buf[64];
-  std::snprintf(buf, sizeof(buf), "%.6g", v);
-  return buf;
-}
-
 void print_json(const depthfuse::status_t& st) {
-  std::printf("{\"protocol_version\": %d, \"utime\": %" PRId64 ", \"monitor_host\": \"%s\", "
-              "\"stale_after_s\": %s, \"messages_malformed\": %" PRId64
-              ", \"messages_bad_version\": %" PRId64 ", \"messages_foreign\": %" PRId64
-              ", \"daemons\": [",
-              st.protocol_version, st.utime, json_escape(st.monitor_host).c_str(),
-              json_number(st.stale_after_s).c_str(), st.messages_malformed,
-              st.messages_bad_version, st.messages_foreign);
-  for (size_t i = 0; i < st.daemons.size(); ++i) {
-    const auto& d = st.daemons[i];
-    const auto& h = d.last;
-    std::printf("%s{\"name\": \"%s\", \"alive\": %s, \"heartbeat_age_s\": %s, \"heartbeats\": %" PRId64
-                ", \"host\": \"%s\", \"pid\": %d, \"state\": \"%s\", \"uptime_s\": %s, "
-                "\"input_rate_hz\": %s, \"output_rate_hz\": %s, \"frames_in\": %" PRId64
-                ", \"frames_out\": %" PRId64 ", \"frames_dropped\": %" PRId64
-                ", \"frames_lost\": %" PRId64 ", \"messages_malformed\": %" PRId64
-                ", \"messages_bad_version\": %" PRId64 ", \"messages_foreign\": %" PRId64
-                ", \"frames_out_of_order\": %" PRId64 ", \"queue_depth\": %d, \"queue_capacity\": %d"
-                ", \"point_count\": %" PRId64 ", \"rss_bytes\": %" PRId64
-                ", \"scan_id\": \"%s\", \"last_error\": \"%s\", \"last_command_id\": %" PRId64
-                ", \"last_command_result\": %d, \"last_command_message\": \"%s\", \"counters\": {",
-                i ? ", " : "", json_escape(d.name).c_str(), d.alive ? "true" : "false",
-                json_number(d.heartbeat_age_s).c_str(), d.heartbeats, json_escape(h.host).c_str(),
-                h.pid, state_text(h.state), json_number(h.uptime_s).c_str(),
-                json_number(h.input_rate_hz).c_str(), json_number(h.output_rate_hz).c_str(),
-                h.frames_in, h.frames_out, h.frames_dropped, h.frames_lost, h.messages_malformed,
-                h.messages_bad_version, h.messages_foreign, h.frames_out_of_order, h.queue_depth,
-                h.queue_capacity, h.point_count, h.rss_bytes, json_escape(h.scan_id).c_str(),
-                json_escape(h.last_error).c_str(), h.last_command_id, h.last_command_result,
-                json_escape(h.last_command_message).c_str());
-    for (size_t k = 0; k < h.counters.size(); ++k)
-      std::printf("%s\"%s\": %s", k ? ", " : "", json_escape(h.counters[k].key).c_str(),
-                  json_number(h.counters[k].value).c_str());
-    std::printf("}}");
-  }
-  std::printf("]}\n");
+  std::printf("%s\n", daemon::status_json(st).c_str());
   std::fflush(stdout);
 }
 
@@ -136,7 +59,7 @@ void print_table(const depthfuse::status_t& st) {
       std::snprintf(alive, sizeof(alive), "STALE");
     std::printf("%-10s %-6s %-9s %-16s %8.1f %8.1f %8" PRId64 " %8" PRId64 " %8" PRId64
                 " %6s %10" PRId64 " %8.1f  %s\n",
-                d.name.c_str(), alive, state_text(h.state), where.c_str(), h.input_rate_hz,
+                d.name.c_str(), alive, daemon::state_name(h.state), where.c_str(), h.input_rate_hz,
                 h.output_rate_hz, h.frames_dropped, h.frames_lost, bad, queue, h.point_count,
                 h.rss_bytes / (1024.0 * 1024.0), tail.c_str());
   }

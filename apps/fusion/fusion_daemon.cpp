@@ -81,6 +81,7 @@ FusionDaemon::FusionDaemon(const AppConfig& config, const DaemonOptions& options
       sink_(std::move(sink)),
       hb_base_(options.name),
       queue_(static_cast<size_t>(std::max(1, config.fusion.queue_capacity_frames))),
+      preview_(config.map_preview, options.name, lcm_.get()),
       state_(heartbeat_t::STATE_IDLE) {
   frame_limits_.max_width = config.fusion.max_frame_width;
   frame_limits_.max_height = config.fusion.max_frame_height;
@@ -90,6 +91,8 @@ FusionDaemon::FusionDaemon(const AppConfig& config, const DaemonOptions& options
                                                int64_t) { on_color(d, n); });
   lcm_->subscribe(lcm::kCommandChannel, [this](const std::string&, const uint8_t* d, size_t n,
                                                  int64_t) { on_command(d, n); });
+  lcm_->subscribe(lcm::kMapRequestChannel, [this](const std::string&, const uint8_t* d, size_t n,
+                                                    int64_t) { preview_.on_request(d, n, &counters_); });
 }
 
 FusionDaemon::~FusionDaemon() {
@@ -426,6 +429,7 @@ void FusionDaemon::fuse(QueuedFrame& item) {
   point_count_ = points;
   ++frames_fused_;
   out_rate_.add();
+  preview_.frame_fused(item.frame.sequence, rep.T_world_cam, rep.registered);
   if (rep.registered) ++registered_;
   else if (trajectory_.size() > 1) ++icp_failures_;
 
@@ -490,6 +494,7 @@ void FusionDaemon::worker_loop() {
       ++frames_ignored_;  // queued just before a pause or stop
     }
 
+    preview_.tick(state_.load(), reconstructor_ ? scan_.scan_id : "", reconstructor_.get());
     refresh_sink_counters();
     if (reconstructor_ && sink_->durable() && state_.load() == heartbeat_t::STATE_RUNNING &&
         Clock::now() - last_checkpoint_ >
@@ -560,6 +565,9 @@ void FusionDaemon::publish_heartbeat() {
     for (const auto& [counter, value] : sink_counters_) daemon::add_counter(&hb, counter, value);
     daemon::add_receive_counters(*lcm_, &hb);
   }
+  std::vector<std::pair<std::string, double>> preview_counters;
+  preview_.add_counters(&preview_counters);
+  for (const auto& [counter, value] : preview_counters) daemon::add_counter(&hb, counter, value);
   daemon::add_counter(&hb, "frames_ignored", static_cast<double>(frames_ignored_.load()));
   daemon::add_counter(&hb, "frames_other_serial", static_cast<double>(frames_other_serial_.load()));
   daemon::add_counter(&hb, "frames_registered", static_cast<double>(registered_.load()));

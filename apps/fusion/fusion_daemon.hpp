@@ -29,6 +29,7 @@
 #include "depthfuse/lcm/frame_codec.hpp"
 #include "depthfuse/lcm/transport.hpp"
 #include "depthfuse/pipeline.hpp"
+#include "map_preview.hpp"
 
 namespace depthfuse::fusiond {
 
@@ -83,6 +84,7 @@ class FusionDaemon {
   std::unique_ptr<CheckpointSink> sink_;
   daemon::HeartbeatBase hb_base_;
   daemon::BoundedQueue<QueuedFrame> queue_;
+  MapPreview preview_;  // viewers' map deltas (worker), their snapshot requests (receive thread)
 
   // Receive thread only.
   std::map<std::string, lcm::SequenceTracker> sequences_;  // per publisher (source|serial)

@@ -1,17 +1,24 @@
 // depthfuse-monitor: the monitor daemon (MonitorDaemon) started from the command line.
 #include <string>
 
+#include "depthfuse/base/log.hpp"
 #include "depthfuse/daemon/signals.hpp"
 #include "depthfuse/daemon/startup.hpp"
 #include "monitor_daemon.hpp"
+
+DF_LOG_CATEGORY(MonitorMain)
 
 namespace {
 
 constexpr const char* kUsage =
     "usage: depthfuse-monitor [--lcm URL] [--config FILE] [--stale-after S] [--rate HZ]\n"
+    "                         [--http ADDR:PORT] [--web-root DIR]\n"
     "  --stale-after S  a daemon without a heartbeat for S seconds is reported stale\n"
     "                   (default: the config's monitor.stale_after_s)\n"
-    "  --rate HZ        status messages per second (default: monitor.publish_rate_hz)\n";
+    "  --rate HZ        status messages per second (default: monitor.publish_rate_hz)\n"
+    "  --http ADDR:PORT serve the operator's page there (default: monitor.http; empty = off);\n"
+    "                   loopback only unless monitor.http_allow_remote; PORT 0 takes a free one\n"
+    "  --web-root DIR   the page's files (default: monitor.web_root, else the installed ones)\n";
 
 }  // namespace
 
@@ -19,7 +26,7 @@ int main(int argc, char** argv) {
   namespace dd = depthfuse::daemon;
   namespace monitor = depthfuse::monitor;
   return dd::run_main([&] {
-    dd::Startup startup({"depthfuse-monitor", kUsage, {"stale-after", "rate"}, {}, {}, 0}, argc,
+    dd::Startup startup({"depthfuse-monitor", kUsage, {"stale-after", "rate", "http", "web-root"}, {}, {}, 0}, argc,
                         argv);
     if (auto code = startup.exit_code()) return *code;
     monitor::MonitorOptions options;
@@ -33,6 +40,17 @@ int main(int argc, char** argv) {
     auto lcm = startup.open_lcm();
     if (!lcm) return 1;
     monitor::MonitorDaemon daemon(options, std::move(lcm));
+    const auto& mc = startup.config().monitor;
+    monitor::WebServerOptions page;
+    page.listen = startup.args().get("http", mc.http);
+    page.allow_remote = mc.http_allow_remote;
+    page.web_root = startup.args().get("web-root", mc.web_root.empty() ? dd::installed_data_dir("web") : mc.web_root);
+    if (!page.listen.empty()) {
+      if (auto st = daemon.serve_page(page); !st.is_ok()) {
+        DF_LOG(MonitorMain, Error) << st.to_string();
+        return 1;
+      }
+    }
     return daemon.run(shutdown);
   });
 }

@@ -36,6 +36,13 @@ MonitorDaemon::MonitorDaemon(const MonitorOptions& options,
                                                    size_t size, int64_t) { on_heartbeat(data, size); });
 }
 
+Status MonitorDaemon::serve_page(const WebServerOptions& options) {
+  auto page = OperatorView::start(options, lcm_.get());
+  if (!page) return page.status();
+  page_ = std::move(*page);
+  return Status::ok();
+}
+
 void MonitorDaemon::on_heartbeat(const uint8_t* data, size_t size) {
   if (size > kMaxHeartbeatBytes) {
     ++counters_.malformed;
@@ -46,6 +53,7 @@ void MonitorDaemon::on_heartbeat(const uint8_t* data, size_t size) {
   counters_.count(r);
   if (r != lcm::DecodeResult::kOk) return;
   if (hb.name == self_.name()) return;  // our own, we know it better
+  if (page_) page_->on_heartbeat(hb);
   auto it = daemons_.find(hb.name);
   if (it == daemons_.end()) {
     if (!make_room(hb.host)) return;
@@ -91,6 +99,7 @@ heartbeat_t MonitorDaemon::own_heartbeat() const {
   hb.input_rate_hz = 0;
   daemon::add_counter(&hb, "daemons", static_cast<double>(daemons_.size()));
   daemon::add_receive_counters(*lcm_, &hb);
+  if (page_) page_->add_counters(&hb);
   return hb;
 }
 
@@ -126,6 +135,7 @@ void MonitorDaemon::publish_status(Clock::time_point now) {
   me.last = own_heartbeat();
   st.daemons.push_back(std::move(me));
   st.num_daemons = static_cast<int32_t>(st.daemons.size());
+  if (page_) page_->on_status(st);
   (void)lcm_->publish_message(lcm::kStatusChannel, st);
   (void)lcm_->publish_message(lcm::kHeartbeatChannel, own_heartbeat());
   ++statuses_published_;
@@ -156,6 +166,7 @@ int MonitorDaemon::run(const daemon::ShutdownSignal& shutdown) {
     }
     const int wait_ms = static_cast<int>(
         std::chrono::duration_cast<std::chrono::milliseconds>(next - Clock::now()).count());
+    if (page_) page_->poll();
     auto r = lcm_->handle(std::max(1, std::min(wait_ms, 100)));
     if (!r) {
       DF_LOG(Monitor, Error) << r.status().to_string();

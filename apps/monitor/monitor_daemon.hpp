@@ -15,6 +15,7 @@
 #include "depthfuse/daemon/signals.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/lcm/transport.hpp"
+#include "operator_view.hpp"
 
 namespace depthfuse::monitor {
 
@@ -26,6 +27,9 @@ struct MonitorOptions {
 class MonitorDaemon {
  public:
   MonitorDaemon(const MonitorOptions& options, std::unique_ptr<lcm::LcmTransport> lcm);
+
+  // Serves the operator's page (before run()); an error says why it cannot.
+  Status serve_page(const WebServerOptions& options);
 
   // Publishes until `shutdown` is requested; the exit code.
   int run(const daemon::ShutdownSignal& shutdown);
@@ -52,6 +56,7 @@ class MonitorDaemon {
   lcm::ReceiveCounters counters_;
   std::map<std::string, Entry> daemons_;
   int64_t statuses_published_ = 0;
+  std::unique_ptr<OperatorView> page_;  // null unless serve_page() was called
 };
 
 }  // namespace depthfuse::monitor

@@ -70,6 +70,14 @@ expect_file /usr/lib/sysusers.d/depthfuse.conf
 expect_file /usr/lib/tmpfiles.d/depthfuse.conf
 expect_file /etc/depthfuse/depthfuse.toml
 expect_file /usr/share/doc/depthfuse/deployment.md
+# The operator's page and three.js (copied from libjs-three at build time): it works offline.
+for arg in "$@"; do
+  if [ "$arg" = depthfuse-monitor=1 ]; then
+    for f in index.html app.js style.css three.min.js OrbitControls.js; do
+      expect_file "/usr/share/depthfuse/web/$f"
+    done
+  fi
+done
 # Nothing outside /usr and /etc, nothing from the build tree.
 if grep -vE '^/(usr|etc)(/|$)|^/$|^$' "$WORK/files"; then fail "files outside /usr and /etc (above)"; fi
 if grep -E '/usr/local|/work/|build-' "$WORK/files"; then fail "build-tree paths in the package (above)"; fi

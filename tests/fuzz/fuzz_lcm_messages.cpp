@@ -9,6 +9,8 @@
 #include "depthfuse/heartbeat_t.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/lcm/frame_codec.hpp"
+#include "depthfuse/map_delta_t.hpp"
+#include "depthfuse/map_request_t.hpp"
 #include "depthfuse/pose_t.hpp"
 #include "depthfuse/status_t.hpp"
 
@@ -41,5 +43,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   (void)decode(data, size, &heartbeat);
   status_t status;
   (void)decode(data, size, &status);
+  depthfuse::map_delta_t map_delta;
+  (void)decode(data, size, &map_delta);
+  depthfuse::map_request_t map_request;
+  (void)decode(data, size, &map_request);
   return 0;
 }

@@ -30,6 +30,8 @@ TYPES = {
     "DEPTHFUSE_HEARTBEAT": "heartbeat_t",
     "DEPTHFUSE_STATUS": "status_t",
     "DEPTHFUSE_COMMAND": "command_t",
+    "DEPTHFUSE_MAP": "map_delta_t",
+    "DEPTHFUSE_MAP_REQUEST": "map_request_t",
 }
 MAGIC_SHORT = 0x4C433032
 MAGIC_LONG = 0x4C433033

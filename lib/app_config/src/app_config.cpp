@@ -211,6 +211,19 @@ void read_fusion_daemon(TableReader& r, FusionDaemonConfig* f) {
 void read_monitor(TableReader& r, MonitorConfig* m) {
   r.read("stale_after_s", &m->stale_after_s, positive());
   r.read("publish_rate_hz", &m->publish_rate_hz, positive());
+  r.read("http", &m->http, any_string());
+  r.read("http_allow_remote", &m->http_allow_remote);
+  r.read("web_root", &m->web_root, any_string());
+  r.reject_unknown();
+}
+
+void read_map_preview(TableReader& r, MapPreviewConfig* p) {
+  r.read("enabled", &p->enabled);
+  r.read("rate_hz", &p->rate_hz, open_closed(0.0, 30.0));
+  r.read("cell_size_m", &p->cell_size_m, open_closed(0.0, 0.5));
+  r.read("max_bytes_per_s", &p->max_bytes_per_s, positive());
+  r.read("target_uncertainty_m", &p->target_uncertainty_m, positive());
+  r.read("max_points_per_delta", &p->max_points_per_delta, at_least(1000));
   r.reject_unknown();
 }
 
@@ -309,6 +322,7 @@ Result<AppConfig> parse(const std::string& text, const std::string& origin,
   section("capture", [&](TableReader& r) { read_capture(r, &config.capture); });
   section("fusion_daemon", [&](TableReader& r) { read_fusion_daemon(r, &config.fusion); });
   section("monitor", [&](TableReader& r) { read_monitor(r, &config.monitor); });
+  section("map_preview", [&](TableReader& r) { read_map_preview(r, &config.map_preview); });
   read_devices(top, &config);
   top.reject_unknown();
 

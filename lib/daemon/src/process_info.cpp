@@ -3,6 +3,7 @@
 
 #include <unistd.h>
 
+#include <filesystem>
 #include <fstream>
 
 namespace depthfuse::daemon {
@@ -11,6 +12,13 @@ std::string host_name() {
   char name[256] = {0};
   if (::gethostname(name, sizeof(name) - 1) != 0) return "unknown";
   return name;
+}
+
+std::string installed_data_dir(const std::string& name) {
+  std::error_code ec;
+  const std::filesystem::path exe = std::filesystem::read_symlink("/proc/self/exe", ec);
+  const std::filesystem::path prefix = ec ? std::filesystem::path("/usr") : exe.parent_path().parent_path();
+  return (prefix / "share" / "depthfuse" / name).string();
 }
 
 int process_id() { return static_cast<int>(::getpid()); }

@@ -60,6 +60,23 @@ struct FusionDaemonConfig {
 struct MonitorConfig {
   double stale_after_s = 3.0;               // a daemon without a heartbeat for this long is stale
   double publish_rate_hz = 1.0;
+  // The operator's page: "ADDR:PORT" to serve it on, empty = off. An address other than loopback
+  // needs http_allow_remote.
+  std::string http;
+  bool http_allow_remote = false;
+  std::string web_root;                     // the page's files; empty = the installed ones
+};
+
+// The fusion daemon's map preview for viewers (map_delta_t on DEPTHFUSE_MAP).
+struct MapPreviewConfig {
+  bool enabled = true;
+  double rate_hz = 2.0;                     // deltas per second
+  double cell_size_m = 0.015;               // one point per cell of this size
+  double max_bytes_per_s = 2e6;             // bandwidth cap of the deltas and snapshots
+  double target_uncertainty_m = 0.002;      // coverage: the share of points below this
+  // Points decimated per delta at most, so that one delta never holds the fusion thread long;
+  // the rest of the touched chunks go in the next deltas.
+  int max_points_per_delta = 100000;
 };
 
 // Calibration of one Kinect, chosen by serial number.
@@ -75,6 +92,7 @@ struct AppConfig {
   CaptureConfig capture;
   FusionDaemonConfig fusion;
   MonitorConfig monitor;
+  MapPreviewConfig map_preview;
   std::vector<DeviceCalibration> devices;
   std::string source_path;  // the file it was read from, empty for defaults
 

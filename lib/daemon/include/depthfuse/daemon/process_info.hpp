@@ -11,6 +11,9 @@ std::string host_name();
 int process_id();
 // Resident set size in bytes from /proc/self/statm, -1 when it cannot be read.
 int64_t resident_memory_bytes();
+// <the executable's folder>/../share/depthfuse/<name>: where the package installs the program's
+// data, and where the build puts it (build/bin, build/share), so one rule finds it in both.
+std::string installed_data_dir(const std::string& name);
 
 class Uptime {
  public:

@@ -9,6 +9,8 @@ inline constexpr const char* kPoseChannel = "DEPTHFUSE_POSE";            // pose
 inline constexpr const char* kHeartbeatChannel = "DEPTHFUSE_HEARTBEAT";  // heartbeat_t
 inline constexpr const char* kStatusChannel = "DEPTHFUSE_STATUS";        // status_t
 inline constexpr const char* kCommandChannel = "DEPTHFUSE_COMMAND";      // command_t
+inline constexpr const char* kMapChannel = "DEPTHFUSE_MAP";              // map_delta_t
+inline constexpr const char* kMapRequestChannel = "DEPTHFUSE_MAP_REQUEST";  // map_request_t
 
 // The protocol version every message of this build carries (the PROTOCOL_VERSION constants of the
 // message types agree with it; a test checks that).

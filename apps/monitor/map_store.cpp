@@ -1,0 +1,185 @@
+#include "map_store.hpp"
+
+#include <cmath>
+#include <cstring>
+
+#include "depthfuse/daemon/status_json.hpp"
+
+namespace depthfuse::monitor {
+
+namespace {
+
+constexpr uint32_t kChunkMagic = 0x4b484344;  // "DCHK" little-endian
+constexpr size_t kMaxTrajectoryPoses = 100000;
+constexpr float kMinPoseStepM = 0.005f;  // closer poses add nothing to the drawn path
+
+template <typename T>
+void put(std::vector<uint8_t>* out, T v) {
+  const size_t at = out->size();
+  out->resize(at + sizeof(T));
+  std::memcpy(out->data() + at, &v, sizeof(T));
+}
+
+bool well_formed(const depthfuse::map_chunk_t& c) {
+  return c.num_points >= 0 && c.num_coords == 3 * c.num_points &&
+         c.position.size() == static_cast<size_t>(c.num_coords) &&
+         c.normal.size() == static_cast<size_t>(c.num_coords) &&
+         c.uncertainty.size() == static_cast<size_t>(c.num_points) &&
+         (c.num_rgb == 0 || c.num_rgb == c.num_coords) &&
+         c.rgb.size() == static_cast<size_t>(c.num_rgb) && std::isfinite(c.coverage);
+}
+
+// The browser's layout, little-endian, every array 4-byte aligned: u32 magic, i32 key[3],
+// f32 centre[3], f32 coverage, u32 n, u32 flags (1: rgb), f32 xyz[3n] (world, m),
+// f32 uncertainty[n] (m), then if flags & 1 u8 rgb[3n] padded to 4.
+std::vector<uint8_t> pack(const depthfuse::map_chunk_t& c, const depthfuse::map_delta_t& msg) {
+  std::vector<uint8_t> out;
+  const size_t n = static_cast<size_t>(c.num_points);
+  out.reserve(40 + n * 16 + 4);
+  const float s = msg.chunk_size_m;
+  const float centre[3] = {(c.key[0] + 0.5f) * s, (c.key[1] + 0.5f) * s, (c.key[2] + 0.5f) * s};
+  put(&out, kChunkMagic);
+  for (int k = 0; k < 3; ++k) put(&out, c.key[k]);
+  for (int k = 0; k < 3; ++k) put(&out, centre[k]);
+  put(&out, c.coverage);
+  put(&out, static_cast<uint32_t>(n));
+  put(&out, static_cast<uint32_t>(c.num_rgb > 0 ? 1 : 0));
+  for (size_t i = 0; i < 3 * n; ++i) put(&out, centre[i % 3] + c.position[i] * msg.position_unit_m);
+  for (size_t i = 0; i < n; ++i) put(&out, c.uncertainty[i] * msg.uncertainty_unit_m);
+  if (c.num_rgb > 0) {
+    out.insert(out.end(), c.rgb.begin(), c.rgb.end());
+    out.resize((out.size() + 3) / 4 * 4, 0);
+  }
+  return out;
+}
+
+}  // namespace
+
+MapStore::Accepted MapStore::apply(const depthfuse::map_delta_t& msg, bool* want_snapshot) {
+  if (!(msg.chunk_size_m >= 0 && std::isfinite(msg.chunk_size_m) &&
+        std::isfinite(msg.position_unit_m) && std::isfinite(msg.uncertainty_unit_m)))
+    return Accepted::kMalformed;
+  std::lock_guard<std::mutex> lock(mutex_);
+  *want_snapshot = false;
+  // Between scans (no scan id) the last scan's map stays on the pages; another scan or another
+  // fusion daemon starts a new map.
+  if (msg.sender != sender_ || (!msg.scan_id.empty() && msg.scan_id != scan_id_)) {
+    // Pages start over, and the monitor asks for the whole of the new map.
+    ++epoch_;
+    sender_ = msg.sender;
+    scan_id_ = msg.scan_id;
+    chunks_.clear();
+    by_version_.clear();
+    trajectory_.clear();
+    bytes_ = points_ = 0;
+    *want_snapshot = !msg.scan_id.empty();
+  } else if (msg.sequence != last_sequence_ + 1 && !msg.scan_id.empty() && msg.scan_id == scan_id_) {
+    *want_snapshot = true;  // missed deltas (or the fusion daemon restarted)
+  }
+  last_sequence_ = msg.sequence;
+
+  Accepted result = Accepted::kOk;
+  for (const auto& c : msg.chunks) {
+    if (!well_formed(c)) {
+      result = Accepted::kMalformed;
+      continue;
+    }
+    const Key key{c.key[0], c.key[1], c.key[2]};
+    Entry& e = chunks_[key];
+    if (e.packed) {
+      by_version_.erase(e.version);
+      bytes_ -= e.packed->size();
+      points_ -= e.points;
+    }
+    auto packed = std::make_shared<const std::vector<uint8_t>>(pack(c, msg));
+    e.version = ++version_;
+    bytes_ += packed->size();
+    points_ += static_cast<size_t>(c.num_points);
+    e.points = static_cast<size_t>(c.num_points);
+    e.packed = std::move(packed);
+    by_version_[e.version] = key;
+  }
+  // Over the budget: the chunks unchanged for longest go (pages keep what they have).
+  while (bytes_ > max_bytes_ && !by_version_.empty()) {
+    auto oldest = by_version_.begin();
+    auto it = chunks_.find(oldest->second);
+    bytes_ -= it->second.packed->size();
+    points_ -= it->second.points;
+    chunks_.erase(it);
+    by_version_.erase(oldest);
+  }
+
+  if (msg.has_pose) {
+    const float p[3] = {static_cast<float>(msg.position_m[0]), static_cast<float>(msg.position_m[1]),
+                        static_cast<float>(msg.position_m[2])};
+    const size_t n = trajectory_.size();
+    const bool moved = n < 3 || std::hypot(p[0] - trajectory_[n - 3], p[1] - trajectory_[n - 2],
+                                           p[2] - trajectory_[n - 1]) >= kMinPoseStepM;
+    if (moved && n / 3 < kMaxTrajectoryPoses) trajectory_.insert(trajectory_.end(), p, p + 3);
+  }
+  last_ = msg;
+  last_.chunks.clear();
+  last_.num_chunks = 0;
+  have_last_ = true;
+  return result;
+}
+
+std::string MapStore::pose_json() const {
+  using daemon::json_number;
+  using daemon::json_string;
+  const auto& m = last_;
+  std::string j = "{\"type\": \"pose\", \"sender\": " + json_string(m.sender) +
+                  ", \"scan_id\": " + json_string(m.scan_id) + ", \"state\": " +
+                  std::to_string(m.state) + ", \"has_pose\": " + (m.has_pose ? "true" : "false") +
+                  ", \"registered\": " + (m.registered ? "true" : "false") +
+                  ", \"frame_sequence\": " + std::to_string(m.frame_sequence) + ", \"position_m\": [";
+  for (int k = 0; k < 3; ++k) j += (k ? ", " : "") + json_number(m.position_m[k]);
+  j += "], \"orientation_wxyz\": [";
+  for (int k = 0; k < 4; ++k) j += (k ? ", " : "") + json_number(m.orientation_wxyz[k]);
+  j += "], \"map_points\": " + std::to_string(m.map_points) +
+       ", \"chunks_pending\": " + std::to_string(m.chunks_pending) +
+       ", \"preview_points\": " + std::to_string(points_) +
+       ", \"preview_chunks\": " + std::to_string(chunks_.size()) +
+       ", \"cell_size_m\": " + json_number(m.cell_size_m) +
+       ", \"chunk_size_m\": " + json_number(m.chunk_size_m) +
+       ", \"target_uncertainty_m\": " + json_number(m.target_uncertainty_m) + "}";
+  return j;
+}
+
+void MapStore::changes(Cursor* cursor, size_t max_bytes, std::vector<std::string>* text,
+                       std::vector<std::shared_ptr<const std::vector<uint8_t>>>* chunks) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (cursor->epoch != epoch_) {
+    text->push_back("{\"type\": \"reset\", \"scan_id\": " + daemon::json_string(scan_id_) + "}");
+    *cursor = Cursor{epoch_, 0, 0};
+  }
+  if (have_last_) text->push_back(pose_json());
+  if (cursor->trajectory < trajectory_.size()) {
+    std::string j = "{\"type\": \"trajectory\", \"from\": " + std::to_string(cursor->trajectory / 3) +
+                    ", \"xyz\": [";
+    for (size_t i = cursor->trajectory; i < trajectory_.size(); ++i)
+      j += (i > cursor->trajectory ? ", " : "") + daemon::json_number(trajectory_[i]);
+    text->push_back(j + "]}");
+    cursor->trajectory = trajectory_.size();
+  }
+  size_t bytes = 0;
+  for (auto it = by_version_.upper_bound(cursor->version); it != by_version_.end(); ++it) {
+    if (bytes >= max_bytes) break;
+    const Entry& e = chunks_.at(it->second);
+    chunks->push_back(e.packed);
+    bytes += e.packed->size();
+    cursor->version = it->first;
+  }
+}
+
+size_t MapStore::chunk_count() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return chunks_.size();
+}
+
+size_t MapStore::point_count() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return points_;
+}
+
+}  // namespace depthfuse::monitor

@@ -1,0 +1,130 @@
+#include "operator_view.hpp"
+
+#include "depthfuse/base/clock.hpp"
+#include "depthfuse/base/log.hpp"
+#include "depthfuse/daemon/heartbeat.hpp"
+#include "depthfuse/daemon/operator_command.hpp"
+#include "depthfuse/daemon/process_info.hpp"
+#include "depthfuse/daemon/status_json.hpp"
+#include "depthfuse/lcm/channels.hpp"
+#include "depthfuse/map_delta_t.hpp"
+#include "depthfuse/map_request_t.hpp"
+
+DF_LOG_CATEGORY(OperatorView)
+
+namespace depthfuse::monitor {
+
+namespace {
+
+constexpr const char* kFusionName = "fusion";
+constexpr auto kResendPeriod = std::chrono::milliseconds(500);
+constexpr auto kCommandTimeout = std::chrono::seconds(3);
+constexpr auto kSnapshotRequestPeriod = std::chrono::seconds(2);
+constexpr size_t kMaxPendingCommands = 16;
+
+}  // namespace
+
+Result<std::unique_ptr<OperatorView>> OperatorView::start(const WebServerOptions& options,
+                                                          lcm::LcmTransport* lcm) {
+  std::unique_ptr<OperatorView> view(new OperatorView(lcm));
+  OperatorView* v = view.get();
+  auto server = WebServer::start(options, &view->store_,
+                                 [v](const std::string& action, const std::string& argument) {
+                                   return v->queue_command(action, argument);
+                                 });
+  if (!server) return server.status();
+  view->server_ = std::move(*server);
+  lcm->subscribe(lcm::kMapChannel, [v](const std::string&, const uint8_t* data, size_t size,
+                                       int64_t) { v->on_map(data, size); });
+  DF_LOG(OperatorView, Info) << "the operator's page is at " << view->server_->url();
+  return view;
+}
+
+void OperatorView::on_map(const uint8_t* data, size_t size) {
+  depthfuse::map_delta_t msg;
+  const auto r = lcm::decode_message(data, size, &msg);
+  map_counters_.count(r);
+  if (r != lcm::DecodeResult::kOk) return;
+  bool want = false;
+  if (store_.apply(msg, &want) != MapStore::Accepted::kOk) {
+    --map_counters_.received;
+    ++map_counters_.malformed;
+  }
+  want_snapshot_ = want_snapshot_ || want;
+}
+
+void OperatorView::on_heartbeat(const depthfuse::heartbeat_t& hb) {
+  if (hb.name != kFusionName) return;
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (auto it = pending_.begin(); it != pending_.end(); ++it) {
+    if (it->cmd.command_id == hb.last_command_id) {
+      pending_.erase(it);
+      break;
+    }
+  }
+}
+
+void OperatorView::on_status(const depthfuse::status_t& st) {
+  server_->set_status(daemon::status_json(st));
+}
+
+Result<int64_t> OperatorView::queue_command(const std::string& action, const std::string& argument) {
+  int8_t code = 0;
+  if (!daemon::parse_action(action, &code))
+    return invalid_argument("unknown action '" + action +
+                            "' (start, stop, pause, resume, new, checkpoint)");
+  Pending p;
+  p.cmd = daemon::make_command(code, kFusionName, argument, "page");
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (pending_.size() >= kMaxPendingCommands)
+    return unavailable("too many commands waiting for the fusion daemon's acknowledgement");
+  pending_.push_back(p);
+  return p.cmd.command_id;
+}
+
+void OperatorView::poll() {
+  const auto now = Clock::now();
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (auto it = pending_.begin(); it != pending_.end();) {
+      if (it->sent && now - it->first_sent > kCommandTimeout) {
+        DF_LOG(OperatorView, Warning) << "no acknowledgement from the fusion daemon for the page's "
+                                      << "command " << it->cmd.command_id;
+        ++commands_unacknowledged_;
+        it = pending_.erase(it);
+        continue;
+      }
+      if (!it->sent || now >= it->next_send) {
+        if (!it->sent) it->first_sent = now;
+        it->sent = true;
+        it->next_send = now + kResendPeriod;
+        if (auto st = lcm_->publish_message(lcm::kCommandChannel, it->cmd); !st.is_ok())
+          DF_LOG(OperatorView, Warning) << st.to_string();
+        ++commands_sent_;
+      }
+      ++it;
+    }
+  }
+  if (want_snapshot_ && now - last_request_ >= kSnapshotRequestPeriod) {
+    depthfuse::map_request_t req;
+    req.protocol_version = depthfuse::map_request_t::PROTOCOL_VERSION;
+    req.utime = now_utime();
+    req.request_id = req.utime;
+    req.target = kFusionName;
+    req.sender = "monitor@" + daemon::host_name();
+    if (auto st = lcm_->publish_message(lcm::kMapRequestChannel, req); st.is_ok()) {
+      want_snapshot_ = false;
+      last_request_ = now;
+    }
+  }
+}
+
+void OperatorView::add_counters(depthfuse::heartbeat_t* hb) const {
+  daemon::add_counter(hb, "map_deltas", static_cast<double>(map_counters_.received.load()));
+  daemon::add_counter(hb, "map_deltas_malformed", static_cast<double>(map_counters_.malformed.load()));
+  daemon::add_counter(hb, "map_preview_points", static_cast<double>(store_.point_count()));
+  daemon::add_counter(hb, "page_commands_sent", static_cast<double>(commands_sent_));
+  daemon::add_counter(hb, "page_commands_unacknowledged", static_cast<double>(commands_unacknowledged_));
+}
+
+}  // namespace depthfuse::monitor

@@ -1,0 +1,282 @@
+// The operator's page: the map preview as it grows, the camera and its path, the daemons' status,
+// the coverage, and the scan buttons. The monitor pushes everything over the WebSocket /ws: text
+// frames are JSON (status, pose, trajectory, reset), binary frames one map chunk each (layout in
+// docs/operator-view.md). window.dfState mirrors what the page shows, for tests.
+'use strict';
+
+const state = window.dfState = {
+  connected: false, points: 0, chunks: 0, status: null, pose: null, commands: [], errors: [],
+};
+
+// ------------------------------------------------------------------ the 3-D view
+const view = document.getElementById('view');
+const renderer = new THREE.WebGLRenderer({antialias: true, preserveDrawingBuffer: true});
+renderer.setPixelRatio(window.devicePixelRatio);
+view.appendChild(renderer.domElement);
+const scene = new THREE.Scene();
+scene.background = new THREE.Color(0x111111);
+const camera3d = new THREE.PerspectiveCamera(60, 1, 0.01, 100);
+camera3d.position.set(0, 1.5, 3);
+const controls = new THREE.OrbitControls(camera3d, renderer.domElement);
+// The map is in the depth camera's frame convention (x right, y down, z forward): turned so that
+// up is up on screen.
+const world = new THREE.Group();
+world.rotation.x = Math.PI;
+scene.add(world);
+scene.add(new THREE.AxesHelper(0.2));
+
+const chunks = new Map();  // "x,y,z" -> {points, box, n, coverage, data}
+let target = 0.002;         // target uncertainty of the coverage, m (from the pose message)
+let colourMode = 'uncertainty';
+let showCoverage = true;
+let framed = false;
+
+function resize() {
+  const w = view.clientWidth, h = view.clientHeight;
+  renderer.setSize(w, h);
+  camera3d.aspect = w / Math.max(1, h);
+  camera3d.updateProjectionMatrix();
+}
+window.addEventListener('resize', resize);
+resize();
+
+// Green below the target uncertainty, through yellow to red at four times it.
+function uncertaintyColour(u, out, i) {
+  const t = Math.min(1, Math.max(0, (u / target - 1) / 3));
+  out[i] = Math.min(1, 2 * t);
+  out[i + 1] = Math.min(1, 2 * (1 - t));
+  out[i + 2] = 0.1;
+}
+
+function coverageColour(c) {
+  return new THREE.Color().setHSL(0.33 * c, 0.9, 0.5);  // red (0) to green (1)
+}
+
+function chunkColours(c) {
+  const colours = new Float32Array(3 * c.n);
+  if (colourMode === 'rgb' && c.rgb) {
+    for (let i = 0; i < 3 * c.n; ++i) colours[i] = c.rgb[i] / 255;
+  } else {
+    for (let i = 0; i < c.n; ++i) uncertaintyColour(c.uncertainty[i], colours, 3 * i);
+  }
+  return colours;
+}
+
+// One binary frame: u32 magic, i32 key[3], f32 centre[3], f32 coverage, u32 n, u32 flags,
+// f32 xyz[3n], f32 uncertainty[n], then u8 rgb[3n] when flags & 1.
+function onChunk(buffer) {
+  const head = new DataView(buffer);
+  if (buffer.byteLength < 40 || head.getUint32(0, true) !== 0x4b484344) return;
+  const key = [head.getInt32(4, true), head.getInt32(8, true), head.getInt32(12, true)].join(',');
+  const centre = [head.getFloat32(16, true), head.getFloat32(20, true), head.getFloat32(24, true)];
+  const coverage = head.getFloat32(28, true);
+  const n = head.getUint32(32, true), flags = head.getUint32(36, true);
+  if (buffer.byteLength < 40 + 16 * n + ((flags & 1) ? 3 * n : 0)) return;
+  const c = {
+    n, coverage, centre,
+    xyz: new Float32Array(buffer, 40, 3 * n),
+    uncertainty: new Float32Array(buffer, 40 + 12 * n, n),
+    rgb: (flags & 1) ? new Uint8Array(buffer, 40 + 16 * n, 3 * n) : null,
+  };
+  const old = chunks.get(key);
+  if (old) {
+    state.points -= old.n;
+    world.remove(old.points);
+    world.remove(old.box);
+    old.points.geometry.dispose();
+  }
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute('position', new THREE.BufferAttribute(c.xyz, 3));
+  geometry.setAttribute('color', new THREE.BufferAttribute(chunkColours(c), 3));
+  c.points = new THREE.Points(geometry, new THREE.PointsMaterial({size: 0.008, vertexColors: true}));
+  c.box = old ? old.box : chunkBox(centre);
+  c.box.material.color = coverageColour(coverage);
+  c.box.visible = showCoverage;
+  world.add(c.points);
+  world.add(c.box);
+  chunks.set(key, c);
+  state.points += n;
+  state.chunks = chunks.size;
+  if (!framed) {
+    framed = true;
+    const p = new THREE.Vector3(...centre).applyMatrix4(world.matrixWorld);
+    controls.target.copy(p);
+    camera3d.position.set(p.x + 1.5, p.y + 2.0, p.z + 3.5);
+  }
+  showCoverageFigures();
+}
+
+let chunkSize = 0.5;
+function chunkBox(centre) {
+  const edges = new THREE.EdgesGeometry(new THREE.BoxBufferGeometry(chunkSize, chunkSize, chunkSize));
+  const box = new THREE.LineSegments(edges, new THREE.LineBasicMaterial({transparent: true, opacity: 0.35}));
+  box.position.set(...centre);
+  return box;
+}
+
+function clearMap() {
+  for (const c of chunks.values()) {
+    world.remove(c.points);
+    world.remove(c.box);
+    c.points.geometry.dispose();
+  }
+  chunks.clear();
+  state.points = 0;
+  state.chunks = 0;
+  trajectory.length = 0;
+  framed = false;
+  updateTrajectory();
+}
+
+// The camera: a small frustum at the last pose; its path as a line.
+const frustum = (() => {
+  const s = 0.08, d = 0.12;
+  const v = [0, 0, 0, -s, -s, d, 0, 0, 0, s, -s, d, 0, 0, 0, s, s, d, 0, 0, 0, -s, s, d,
+             -s, -s, d, s, -s, d, s, -s, d, s, s, d, s, s, d, -s, s, d, -s, s, d, -s, -s, d];
+  const g = new THREE.BufferGeometry();
+  g.setAttribute('position', new THREE.BufferAttribute(new Float32Array(v), 3));
+  const f = new THREE.LineSegments(g, new THREE.LineBasicMaterial({color: 0x44aaff}));
+  f.visible = false;
+  world.add(f);
+  return f;
+})();
+const trajectory = [];
+const pathLine = new THREE.Line(new THREE.BufferGeometry(), new THREE.LineBasicMaterial({color: 0xffaa00}));
+world.add(pathLine);
+function updateTrajectory() {
+  pathLine.geometry.dispose();
+  pathLine.geometry = new THREE.BufferGeometry();
+  pathLine.geometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(trajectory), 3));
+  state.trajectory = trajectory.length / 3;
+}
+
+function onPose(m) {
+  state.pose = m;
+  target = m.target_uncertainty_m || target;
+  chunkSize = m.chunk_size_m || chunkSize;
+  frustum.visible = m.has_pose;
+  if (m.has_pose) {
+    const [w, x, y, z] = m.orientation_wxyz;
+    frustum.position.set(...m.position_m);
+    frustum.quaternion.set(x, y, z, w);
+    frustum.material.color.set(m.registered ? 0x44aaff : 0xff4444);
+  }
+  document.getElementById('map-figures').textContent =
+      `${m.map_points} points in the map, ${state.points} shown in ${state.chunks} chunks ` +
+      `(one per ${(1000 * m.cell_size_m).toFixed(0)} mm); ${m.chunks_pending} chunks waiting ` +
+      `(bandwidth cap); tracking ${m.has_pose ? (m.registered ? 'ok' : 'LOST') : '-'}`;
+}
+
+function showCoverageFigures() {
+  let n = 0, covered = 0;
+  for (const c of chunks.values()) {
+    n += c.n;
+    covered += c.coverage * c.n;
+  }
+  const share = n ? covered / n : 0;
+  state.coverage = share;
+  document.getElementById('coverage').textContent =
+      `coverage: ${(100 * share).toFixed(1)} % of the points below ${(1000 * target).toFixed(1)} mm ` +
+      `(boxes: per chunk, red 0 % to green 100 %)`;
+}
+
+document.getElementById('colour-mode').addEventListener('change', (e) => {
+  colourMode = e.target.value;
+  for (const c of chunks.values())
+    c.points.geometry.setAttribute('color', new THREE.BufferAttribute(chunkColours(c), 3));
+});
+document.getElementById('show-coverage').addEventListener('change', (e) => {
+  showCoverage = e.target.checked;
+  for (const c of chunks.values()) c.box.visible = showCoverage;
+});
+
+// ------------------------------------------------------------------ status
+const stateNames = ['starting', 'idle', 'running', 'paused', 'stopping', 'error', 'finished'];
+function cell(row, text, cls) {
+  const td = row.insertCell();
+  td.textContent = text;
+  if (cls) td.className = cls;
+}
+function onStatus(st) {
+  state.status = st;
+  const body = document.querySelector('#daemons tbody');
+  body.innerHTML = '';
+  const errors = [];
+  for (const d of st.daemons) {
+    const row = body.insertRow();
+    cell(row, d.name);
+    cell(row, d.alive ? 'yes' : 'STALE', d.alive ? 'good' : 'bad');
+    cell(row, d.state, d.state === 'error' ? 'bad' : '');
+    cell(row, d.input_rate_hz.toFixed(1));
+    cell(row, d.output_rate_hz.toFixed(1));
+    cell(row, d.frames_dropped);
+    cell(row, d.point_count);
+    if (d.last_error) errors.push(`${d.name}: ${d.last_error}`);
+    if (d.name === 'fusion') {
+      document.getElementById('scan').textContent =
+          d.scan_id ? `scan ${d.scan_id} (${d.state})` : `no scan (${d.state})`;
+      if (d.last_command_message)
+        document.getElementById('command').textContent = d.last_command_message;
+    }
+  }
+  document.getElementById('errors').textContent = errors.join('\n');
+}
+
+// ------------------------------------------------------------------ the connection
+function connect() {
+  const ws = new WebSocket(`ws://${location.host}/ws`);
+  ws.binaryType = 'arraybuffer';
+  const shown = document.getElementById('connection');
+  ws.onopen = () => {
+    state.connected = true;
+    shown.textContent = 'connected';
+    shown.className = 'good';
+  };
+  ws.onclose = () => {
+    state.connected = false;
+    shown.textContent = 'disconnected: retrying';
+    shown.className = 'bad';
+    setTimeout(connect, 1000);  // the server starts the new connection from scratch
+  };
+  ws.onmessage = (e) => {
+    if (e.data instanceof ArrayBuffer) return onChunk(e.data);
+    const m = JSON.parse(e.data);
+    if (m.type === 'status') onStatus(m.status);
+    else if (m.type === 'pose') onPose(m);
+    else if (m.type === 'reset') clearMap();
+    else if (m.type === 'trajectory') {
+      trajectory.length = 3 * m.from;
+      trajectory.push(...m.xyz);
+      updateTrajectory();
+    }
+  };
+}
+connect();
+
+// ------------------------------------------------------------------ the buttons
+async function command(action) {
+  const body = new URLSearchParams({action});
+  const name = document.getElementById('scan-name').value.trim();
+  if (action === 'start' && name) body.set('argument', name);
+  const shown = document.getElementById('command');
+  try {
+    const r = await fetch('/api/command', {
+      method: 'POST', body, headers: {'X-Depthfuse': '1'},
+    });
+    const reply = await r.json();
+    state.commands.push({action, status: r.status, reply});
+    shown.textContent = r.ok ? `${action}: sent, waiting for the fusion daemon` : `${action}: ${reply.error}`;
+  } catch (err) {
+    state.commands.push({action, error: String(err)});
+    shown.textContent = `${action}: ${err}`;
+  }
+}
+for (const b of document.querySelectorAll('button[data-action]'))
+  b.addEventListener('click', () => command(b.dataset.action));
+
+function frame() {
+  requestAnimationFrame(frame);
+  controls.update();
+  renderer.render(scene, camera3d);
+}
+frame();

@@ -1,0 +1,339 @@
+#!/usr/bin/env python3
+"""The operator's page end to end, in a real browser.
+
+Starts depthfuse-capture (synthetic corner), depthfuse-fusion and depthfuse-monitor --http as real
+processes on a per-test LCM port, then:
+  1. the HTTP server: bad paths, a command without the page's header, a 10 MB request and a client
+     that never finishes its request are refused, and the status keeps coming (the LCM loop runs);
+  2. headless chromium (driven over the DevTools protocol on a pipe) loads the page; a click on
+     Start must start a scan, observed in the fusion daemon's own heartbeat on LCM
+     (tools/lcm/watch.py); the cloud must then have points; a click on Pause must pause;
+  3. a screenshot goes to <out>/operator-page.png; a click on Stop ends the scan, and its map
+     stays on the page.
+Exit 0 pass, 1 fail, 77 skipped (no chromium).
+
+  test_operator_page.py --bin build/bin --python-dir build/python --watch tools/lcm/watch.py --out DIR
+"""
+import argparse
+import base64
+import json
+import os
+import re
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import urllib.error
+import urllib.request
+
+HEARTBEAT_IDLE, HEARTBEAT_RUNNING, HEARTBEAT_PAUSED = 1, 2, 3
+
+
+class Failure(Exception):
+    pass
+
+
+def check(cond, what):
+    if not cond:
+        raise Failure(what)
+
+
+def eventually(pred, timeout_s, what, period_s=0.25):
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = pred()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise Failure("within %.0f s: %s" % (timeout_s, what))
+        time.sleep(period_s)
+
+
+class Daemons:
+    """Child processes with their output in log files; terminated (SIGTERM) at the end."""
+
+    def __init__(self, work):
+        self.work = work
+        self.procs = []
+
+    def start(self, name, argv):
+        log = open(os.path.join(self.work, name + ".log"), "w")
+        p = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT)
+        self.procs.append((name, p, log))
+        return p
+
+    def log(self, name):
+        with open(os.path.join(self.work, name + ".log")) as f:
+            return f.read()
+
+    def stop(self):
+        for _, p, _ in reversed(self.procs):
+            if p.poll() is None:
+                p.terminate()
+        for name, p, log in self.procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+            log.close()
+
+
+class Heartbeats:
+    """The fusion daemon's heartbeats, read from LCM by tools/lcm/watch.py in the background."""
+
+    def __init__(self, watch, python_dir, url):
+        self.proc = subprocess.Popen(
+            [sys.executable, watch, "--lcm", url, "--python-dir", python_dir, "--channel",
+             "DEPTHFUSE_HEARTBEAT"], stdout=subprocess.PIPE, text=True)
+        self.latest = {}
+        self.lock = threading.Lock()
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self):
+        for line in self.proc.stdout:
+            try:
+                m = json.loads(line).get("message", {})
+            except ValueError:
+                continue
+            with self.lock:
+                self.latest[m.get("name")] = m
+
+    def get(self, name):
+        with self.lock:
+            return self.latest.get(name)
+
+    def stop(self):
+        self.proc.terminate()
+        self.proc.wait()
+
+
+class Browser:
+    """Headless chromium, driven over the DevTools protocol on a pipe (--remote-debugging-pipe:
+    JSON messages separated by NUL on file descriptors 3 and 4), so no WebSocket client is needed."""
+
+    def __init__(self, chromium, profile, log_path):
+        to_browser_r, self.to_browser = os.pipe()
+        self.from_browser, from_browser_w = os.pipe()
+
+        def wire():
+            os.dup2(to_browser_r, 3)
+            os.dup2(from_browser_w, 4)
+
+        self.log = open(log_path, "w")
+        self.proc = subprocess.Popen(
+            [chromium, "--headless", "--no-sandbox", "--remote-debugging-pipe",
+             "--use-gl=angle", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+             "--window-size=1280,800", "--no-first-run", "--user-data-dir=" + profile,
+             "about:blank"],
+            stdout=self.log, stderr=subprocess.STDOUT, pass_fds=(3, 4), preexec_fn=wire)
+        os.close(to_browser_r)
+        os.close(from_browser_w)
+        self.next_id = 0
+        self.buffer = b""
+        self.session = None
+
+    def call(self, method, params=None, session=True, timeout_s=30):
+        self.next_id += 1
+        msg = {"id": self.next_id, "method": method, "params": params or {}}
+        if session and self.session:
+            msg["sessionId"] = self.session
+        os.write(self.to_browser, json.dumps(msg).encode() + b"\0")
+        deadline = time.monotonic() + timeout_s
+        while True:
+            while b"\0" in self.buffer:
+                raw, self.buffer = self.buffer.split(b"\0", 1)
+                reply = json.loads(raw)
+                if reply.get("id") == self.next_id:
+                    if "error" in reply:
+                        raise Failure("%s: %s" % (method, reply["error"]))
+                    return reply.get("result", {})
+            if time.monotonic() > deadline or self.proc.poll() is not None:
+                raise Failure("chromium did not answer %s" % method)
+            chunk = os.read(self.from_browser, 1 << 20)
+            if not chunk:
+                raise Failure("chromium closed the DevTools pipe")
+            self.buffer += chunk
+
+    def open(self, url):
+        target = self.call("Target.createTarget", {"url": url}, session=False)["targetId"]
+        self.session = self.call("Target.attachToTarget", {"targetId": target, "flatten": True},
+                                 session=False)["sessionId"]
+
+    def evaluate(self, expression):
+        r = self.call("Runtime.evaluate", {"expression": expression, "returnByValue": True})
+        return r.get("result", {}).get("value")
+
+    def click(self, element_id):
+        rect = self.evaluate("(() => { const r = document.getElementById(%s).getBoundingClientRect();"
+                             " return [r.x + r.width / 2, r.y + r.height / 2]; })()" % json.dumps(element_id))
+        check(rect, "no element #%s on the page" % element_id)
+        for kind in ("mousePressed", "mouseReleased"):
+            self.call("Input.dispatchMouseEvent", {"type": kind, "x": rect[0], "y": rect[1],
+                                                   "button": "left", "clickCount": 1})
+
+    def screenshot(self, path):
+        data = self.call("Page.captureScreenshot", {"format": "png"})["data"]
+        with open(path, "wb") as f:
+            f.write(base64.b64decode(data))
+
+    def close(self):
+        try:
+            self.call("Browser.close", session=False, timeout_s=5)
+        except Failure:
+            pass
+        try:
+            self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        self.log.close()
+
+
+def http(base, path, method="GET", body=None, headers=None):
+    req = urllib.request.Request(base + path, data=body, method=method, headers=headers or {})
+    try:
+        with urllib.request.urlopen(req, timeout=10) as r:
+            return r.status, r.read()
+    except urllib.error.HTTPError as e:
+        return e.code, e.read()
+
+
+def status_utime(base):
+    code, body = http(base, "api/status")
+    check(code == 200, "GET /api/status answered %d" % code)
+    return json.loads(body).get("utime", 0)
+
+
+def test_server(base, port):
+    code, body = http(base, "api/status")
+    check(code == 200, "GET /api/status: %d" % code)
+    st = json.loads(body)
+    check(any(d["name"] == "fusion" for d in st.get("daemons", [])),
+          "/api/status lists no fusion daemon: %s" % body[:300])
+    for path in ("no-such-page", "..%2f..%2fetc/passwd", "api/status/x"):
+        code, _ = http(base, path)
+        check(code == 404, "GET /%s answered %d, not 404" % (path, code))
+    code, body = http(base, "api/command", "POST", b"action=start")
+    check(code == 403, "a command without X-Depthfuse answered %d, not 403" % code)
+    code, body = http(base, "api/command", "POST", b"action=explode", {"X-Depthfuse": "1"})
+    check(code == 400 and b"unknown action" in body, "an unknown action answered %d %s" % (code, body))
+
+    # A client that sends half a request and waits, and one that announces 10 MB.
+    slow = socket.create_connection(("127.0.0.1", port))
+    slow.sendall(b"GET /api/status HTTP/1.1\r\nHost: x\r\n")
+    big = socket.create_connection(("127.0.0.1", port))
+    big.settimeout(10)
+    big.sendall(b"POST /api/command HTTP/1.1\r\nHost: x\r\nX-Depthfuse: 1\r\n"
+                b"Content-Type: application/x-www-form-urlencoded\r\nContent-Length: 10485760\r\n\r\n")
+    try:
+        big.sendall(b"a" * (1 << 20))
+    except OSError:
+        pass  # refused before the body: fine
+    reply = big.recv(4096)
+    check(b" 413 " in reply.split(b"\r\n")[0], "a 10 MB command was not refused with 413: %r" % reply[:100])
+    big.close()
+    before = status_utime(base)
+    eventually(lambda: status_utime(base) > before, 5,
+               "the status stopped changing with a slow client connected (LCM loop stalled?)")
+    slow.close()
+
+
+def run(args, work):
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    if not chromium:
+        print("SKIP: chromium is not installed (apt-get install chromium; tools/setup.sh)")
+        return 77
+    url = "udpm://239.255.76.67:%d?ttl=0&recv_buf_size=4194304" % (20000 + os.getpid() % 40000)
+    daemons = Daemons(work)
+    heartbeats = Heartbeats(args.watch, args.python_dir, url)
+    browser = None
+    try:
+        daemons.start("monitor", [os.path.join(args.bin, "depthfuse-monitor"), "--lcm", url,
+                                  "--http", "127.0.0.1:0"])
+        found = eventually(lambda: re.search(r"http://127\.0\.0\.1:(\d+)/", daemons.log("monitor")), 10,
+                           "the monitor never said where its page is:\n" + daemons.log("monitor"))
+        port = int(found.group(1))
+        base = "http://127.0.0.1:%d/" % port
+        daemons.start("fusion", [os.path.join(args.bin, "depthfuse-fusion"), "--lcm", url,
+                                 "--scan-dir", os.path.join(work, "scans")])
+        daemons.start("capture", [os.path.join(args.bin, "depthfuse-capture"), "--lcm", url,
+                                  "--source", "synthetic:corner", "--rate", "15", "--loop"])
+        eventually(lambda: heartbeats.get("fusion"), 15, "no fusion heartbeat on LCM")
+        eventually(lambda: any(d["name"] == "fusion" for d in
+                               json.loads(http(base, "api/status")[1]).get("daemons", [])),
+                   10, "the monitor's status never listed the fusion daemon")
+        test_server(base, port)
+        print("HTTP server: bad paths, missing header, 10 MB request, slow client: ok")
+
+        browser = Browser(chromium, os.path.join(work, "profile"), os.path.join(work, "chromium.log"))
+        browser.call("Target.setDiscoverTargets", {"discover": False}, session=False)
+        browser.open(base)
+        eventually(lambda: browser.evaluate(
+            "!!(window.dfState && dfState.connected && dfState.status &&"
+            " dfState.status.daemons.some(d => d.name === 'fusion'))"), 20,
+            "the page never connected and showed the fusion daemon")
+        check(heartbeats.get("fusion")["state"] != HEARTBEAT_RUNNING, "a scan runs before Start")
+        check(browser.evaluate("dfState.points") == 0, "the page shows points before any scan")
+        browser.click("btn-start")
+        eventually(lambda: heartbeats.get("fusion")["state"] == HEARTBEAT_RUNNING and
+                   heartbeats.get("fusion")["scan_id"], 15,
+                   "Start on the page did not start a scan (fusion heartbeat: %s)" % heartbeats.get("fusion"))
+        print("Start: fusion runs scan %s" % heartbeats.get("fusion")["scan_id"])
+        points = eventually(lambda: browser.evaluate("dfState.points") or 0, 30,
+                            "the page's cloud got no points")
+        eventually(lambda: browser.evaluate("dfState.trajectory") or 0, 10, "no trajectory drawn")
+        time.sleep(2)  # a few more deltas, for the picture
+        browser.click("btn-pause")
+        eventually(lambda: heartbeats.get("fusion")["state"] == HEARTBEAT_PAUSED, 15,
+                   "Pause on the page did not pause the scan")
+        points = browser.evaluate("dfState.points")
+        chunks = browser.evaluate("dfState.chunks")
+        coverage = browser.evaluate("dfState.coverage")
+        print("page: %d points in %d chunks, coverage %.3f; Pause: fusion paused" % (points, chunks, coverage))
+        os.makedirs(args.out, exist_ok=True)
+        shot = os.path.join(args.out, "operator-page.png")
+        browser.screenshot(shot)
+        check(os.path.getsize(shot) > 10000, "the screenshot is nearly empty")
+        print("screenshot: %s" % shot)
+        browser.click("btn-stop")
+        eventually(lambda: heartbeats.get("fusion")["state"] == HEARTBEAT_IDLE, 30,
+                   "Stop on the page did not end the scan")
+        time.sleep(1.5)  # a few idle deltas
+        check(browser.evaluate("dfState.points") >= points,
+              "the stopped scan's map left the page (%s points)" % browser.evaluate("dfState.points"))
+        print("Stop: fusion idle, the map stays on the page")
+        return 0
+    finally:
+        if browser:
+            browser.close()
+        daemons.stop()
+        heartbeats.stop()
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--bin", required=True)
+    ap.add_argument("--python-dir", required=True)
+    ap.add_argument("--watch", required=True)
+    ap.add_argument("--out", required=True)
+    args = ap.parse_args()
+    work = tempfile.mkdtemp(prefix="depthfuse-web-")
+    try:
+        code = run(args, work)
+    except Failure as e:
+        print("FAIL: %s\n(logs in %s)" % (e, work))
+        for name in ("monitor", "fusion", "capture"):
+            path = os.path.join(work, name + ".log")
+            if os.path.exists(path):
+                print("--- %s.log (tail)\n%s" % (name, open(path).read()[-2000:]))
+        return 1
+    shutil.rmtree(work, ignore_errors=True)
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())
