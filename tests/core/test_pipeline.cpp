@@ -15,6 +15,34 @@ TEST(Batch, RejectsEmptyAndMismatchedInput) {
   EXPECT_EQ(r2.status().code(), StatusCode::kInvalidArgument);
 }
 
+TEST(Batch, WithoutRoundsIsTheSequenceFusedFrameByFrame) {
+  // What `reconstruct --iterations 0` streams must be what the batch pipeline makes of the frames
+  // held: the same points, the same figures.
+  ReconstructionConfig c;
+  c.pipeline.outer_iterations = 0;
+  std::vector<Frame> frames;
+  std::vector<Pose> poses;
+  for (int i = 0; i < 4; ++i) {
+    const double a = 0.6 + i * 0.05;
+    poses.push_back(test::look_at({2.4 * std::cos(a), 2.4 * std::sin(a), 1.4}, {0.3, 0.3, 0.3}));
+    frames.push_back(test::render_corner(poses.back()));
+  }
+  auto batch = reconstruct_batch(frames, poses, c);
+  ASSERT_TRUE(batch.is_ok()) << batch.status().to_string();
+  SequenceFuser fuser(c);
+  for (size_t i = 0; i < frames.size(); ++i) ASSERT_TRUE(fuser.add(frames[i], poses[i]).is_ok());
+  const BatchResult streamed = fuser.finish();
+  EXPECT_EQ(streamed.input_measurements, batch->input_measurements);
+  EXPECT_EQ(streamed.prefiltered, batch->prefiltered);
+  EXPECT_EQ(streamed.postfiltered, batch->postfiltered);
+  ASSERT_EQ(streamed.iterations.size(), 1u);
+  EXPECT_EQ(streamed.iterations[0].points, batch->iterations[0].points);
+  const PointArrays a = streamed.map->gather(), b = batch->map->gather();
+  ASSERT_EQ(a.size(), b.size());
+  EXPECT_GT(a.size(), 10000u);
+  for (size_t i = 0; i < a.size(); i += 97) EXPECT_EQ(a.position(i), b.position(i)) << i;
+}
+
 TEST(Incremental, TracksTheCornerWithoutPoses) {
   ReconstructionConfig c;
   IncrementalReconstructor rec(c);
