@@ -2,8 +2,6 @@
 #include <algorithm>
 #include <chrono>
 #include <filesystem>
-#include <fstream>
-#include <limits>
 #include <optional>
 #include <sstream>
 
@@ -130,59 +128,26 @@ Result<Input> open_input(const std::string& input, const cli::Args& args, const 
   return in;
 }
 
-// Memory this machine has for the run now (MemAvailable), 0 when unknown.
-uint64_t available_memory_bytes() {
-  std::ifstream meminfo("/proc/meminfo");
-  std::string key;
-  uint64_t kib = 0;
-  while (meminfo >> key >> kib) {
-    if (key == "MemAvailable:") return kib * 1024;
-    meminfo.ignore(std::numeric_limits<std::streamsize>::max(), '\n');
-  }
-  return 0;
-}
-
-uint64_t frame_bytes(const Frame& f) {
-  return sizeof(Frame) + f.depth.depth_m.size() * sizeof(float) + f.color.rgb.size();
-}
-
 // Every frame of the input, for the passes of the batch pipeline (re-registration rounds, tracking)
 // that go over all of them. Refused before reading past the first frame when they would not fit in
-// the memory available, with the figure and how to lower it.
-// `why` names the pass that needs them; `may_stream` says whether --iterations 0 would not.
+// the memory available, with the figure and how to lower it; a source of unknown length is checked
+// as it grows, every kCheckEvery frames for the next kCheckEvery. `why` names the pass that needs
+// them; `may_stream` says whether --iterations 0 would not.
 Result<std::vector<Frame>> hold_frames(Input& in, const std::string& why, bool may_stream,
                                        cli::Progress& progress) {
-  const std::string lower =
-      std::string("; take fewer with --max-frames or --stride") +
-      (may_stream ? ", or fuse them as they stream with --iterations 0" : "");
+  const std::string lower = std::string("take fewer with --max-frames or --stride") +
+                            (may_stream ? ", or fuse them as they stream with --iterations 0" : "");
   std::vector<Frame> frames;
   const auto expected = in.expected();
-  const uint64_t available = available_memory_bytes();
   for (;;) {
     auto f = in.next();
     if (!f) return f.status();
     if (!*f) break;
-    if (frames.empty() && available) {
-      // A source of unknown length is checked as it grows instead.
-      const uint64_t per_frame = frame_bytes(**f);
-      const uint64_t n = expected ? *expected : 1;
-      if (per_frame * n > available) {
-        auto mib = [](uint64_t b) {
-          char text[32];
-          std::snprintf(text, sizeof text, "%.1f MiB", static_cast<double>(b) / (1 << 20));
-          return std::string(text);
-        };
-        return invalid_argument(
-            why + " holds every frame in memory: " + std::to_string(n) + " frames of " +
-            mib(per_frame) + " need " + mib(per_frame * n) + ", more than the " + mib(available) +
-            " available" + lower);
-      }
-    }
+    constexpr size_t kCheckEvery = 1000;
+    if (expected ? frames.empty() : frames.size() % kCheckEvery == 0)
+      DF_RETURN_IF_ERROR(cli::check_frames_fit(expected.value_or(kCheckEvery),
+                                               cli::frame_bytes(**f), why, lower));
     frames.push_back(std::move(**f));
-    if (!expected && available && frames.size() * frame_bytes(frames.back()) > available)
-      return invalid_argument(why + " holds every frame in memory: " +
-                                std::to_string(frames.size()) + " frames already exceed the " +
-                                std::to_string(available >> 20) + " MiB available" + lower);
     if (expected) progress("reading frames", frames.size(), *expected);
   }
   if (frames.empty()) return invalid_argument("empty sequence, no frames to fuse");
@@ -271,7 +236,7 @@ int run(int argc, char** argv) {
     auto held = hold_frames(*input,
                             rounds ? "re-registration (--iterations " +
                                          std::to_string(rc.pipeline.outer_iterations) + ")"
-                                   : std::string("tracking (the input has no poses)"),
+                                   : std::string("tracking (--track, or no poses in the input)"),
                             !pose_note.empty(), progress);
     if (!held) return failed(held.status());
     const std::vector<Frame>& frames = *held;
