@@ -11,8 +11,9 @@ measures the fused rate during the flood. At the end both daemons must still be 
 
   tools/bench/bus_flood.py [--bin DIR] [--packets N] [--rate PPS] [--quiet-s S] [--port P]
 
-The fused rate is the fusion daemon's frames_out over time, from the monitor's status
-(depthfuse status --json). A benchmark, not a test: it prints figures.
+The fused rate is the count of the fusion daemon's refined poses on DEPTHFUSE_POSE over time; the
+daemons' refusal counters come from the monitor's status (depthfuse status --json) after the flood.
+A benchmark, not a test: it prints figures.
 """
 import argparse
 import json
@@ -46,14 +47,18 @@ def parse_args():
 
 def status(bin_dir, url):
     """The fusion daemon's and the monitor's entries of one status, by name."""
-    out = subprocess.run([os.path.join(bin_dir, "depthfuse"), "status", "--json", "--lcm", url,
-                          "--timeout", "5"], capture_output=True, timeout=30).stdout
+    run = subprocess.run([os.path.join(bin_dir, "depthfuse"), "status", "--json", "--lcm", url,
+                          "--timeout", "5"], capture_output=True, timeout=30)
     # Forged heartbeats may name daemons with any bytes: the monitor lists them too.
-    for line in out.decode("utf-8", errors="replace").splitlines():
+    problem = "no status line"
+    for line in run.stdout.decode("utf-8", errors="replace").splitlines():
         try:
             return {d["name"]: d for d in json.loads(line, strict=False)["daemons"]}
-        except (ValueError, KeyError):
-            continue
+        except (ValueError, KeyError) as e:
+            problem = "%s in %r" % (e, line[:200])
+    print("depthfuse status (exit %d): %s; %s" % (run.returncode, problem,
+                                                  run.stderr.decode(errors="replace")[:300]),
+          file=sys.stderr)
     return {}
 
 
@@ -78,6 +83,47 @@ def record(port, seconds):
             seen.append(d)
     s.close()
     return seen
+
+
+class PoseCounter:
+    """Counts the fusion daemon's refined poses (LC02 datagrams on DEPTHFUSE_POSE, one a fused
+    frame) as they arrive, leaving out the flood's own packets (by their source port)."""
+
+    def __init__(self, port):
+        self.count = 0
+        self.flood_port = None
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        if hasattr(socket, "SO_REUSEPORT"):
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+        self._sock.bind(("", port))
+        self._sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, struct.pack(
+            "4s4s", socket.inet_aton(GROUP), socket.inet_aton("0.0.0.0")))
+        self._sock.settimeout(0.5)
+        self._stop = False
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self):
+        want = struct.pack(">I", SHORT_MAGIC)
+        while not self._stop:
+            try:
+                d, (_, sport) = self._sock.recvfrom(70000)
+            except socket.timeout:
+                continue
+            if sport != self.flood_port and d[:4] == want and d[8:23] == b"DEPTHFUSE_POSE\0":
+                self.count += 1
+
+    def rate(self, seconds):
+        n0, t0 = self.count, time.time()
+        time.sleep(seconds)
+        return (self.count - n0) / (time.time() - t0)
+
+    def stop(self):
+        self._stop = True
+        self._thread.join()
+        self._sock.close()
 
 
 def mutate(rng, d):
@@ -117,8 +163,11 @@ def mutate(rng, d):
     return bytes(b)
 
 
-def flood(port, seeds, packets, rate, rng):
+def flood(port, seeds, packets, rate, rng, poses=None):
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
+    s.bind(("", 0))
+    if poses:
+        poses.flood_port = s.getsockname()[1]
     s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 0)
     s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
     # A pool of mutations made up front, so that Python's speed does not set the rate.
@@ -139,17 +188,6 @@ def flood(port, seeds, packets, rate, rng):
         pool = [mutate(rng, rng.choice(seeds)) for _ in range(len(pool))]
     s.close()
     return sent, errors, time.time() - start
-
-
-def fused_rate(bin_dir, url, seconds):
-    """frames_out per second of the fusion daemon over `seconds`, and the last status."""
-    a = status(bin_dir, url).get("fusion")
-    t0 = time.time()
-    time.sleep(seconds)
-    b = status(bin_dir, url).get("fusion")
-    if not a or not b:
-        return float("nan"), b
-    return (b["frames_out"] - a["frames_out"]) / (time.time() - t0), b
 
 
 def main():
@@ -182,22 +220,17 @@ def main():
         print("# %s, %s" % (os.path.abspath(a.bin), url))
         print("recorded %d valid datagrams (%s)" % (len(seeds), ", ".join(
             "%d %s" % (n, k) for k, n in sorted(kinds.items()))))
-        quiet, _ = fused_rate(a.bin, url, a.quiet_s)
+        poses = PoseCounter(a.port)
+        quiet = poses.rate(a.quiet_s)
         print("fused rate without the flood: %.1f frames/s over %.0f s" % (quiet, a.quiet_s))
 
-        before = status(a.bin, url)
-        t0 = time.time()
         sender = {}
-        th = threading.Thread(target=lambda: sender.update(
-            zip(("sent", "errors", "seconds"), flood(a.port, seeds, a.packets, a.rate, rng))))
+        n0, t0 = poses.count, time.time()
+        th = threading.Thread(target=lambda: sender.update(zip(
+            ("sent", "errors", "seconds"), flood(a.port, seeds, a.packets, a.rate, rng, poses))))
         th.start()
-        first = before.get("fusion", {}).get("frames_out", 0)
-        while th.is_alive():
-            th.join(timeout=10)
-        after = status(a.bin, url)
-        elapsed = time.time() - t0
-        f_after = after.get("fusion", {})
-        during_rate = (f_after.get("frames_out", 0) - first) / elapsed if f_after else float("nan")
+        th.join()
+        during_rate = (poses.count - n0) / (time.time() - t0)
         print("flood: %d packets sent (%d send errors) in %.0f s, %.0f packets/s" % (
             sender["sent"], sender["errors"], sender["seconds"], sender["sent"] / sender["seconds"]))
         print("fused rate during the flood: %.1f frames/s" % during_rate)
@@ -206,17 +239,18 @@ def main():
         print("alive after the flood: " + ", ".join("%s %s" % (n, "yes" if v else "NO (exit %s)" %
                                                                 procs[n].returncode)
                                                     for n, v in alive.items()))
+        print("fused rate after the flood: %.1f frames/s over %.0f s" % (
+            poses.rate(a.quiet_s), a.quiet_s))
+        poses.stop()
         final = status(a.bin, url)
         for name in ("fusion", "monitor"):
             d = final.get(name)
             if not d:
-                print("%s: no status" % name)
+                print("%s: no status from the monitor" % name)
                 continue
             print("%s: alive %s, messages malformed %d, foreign %d, bad version %d, rss %.0f MiB" % (
                 name, d["alive"], d["messages_malformed"], d["messages_foreign"],
                 d["messages_bad_version"], d["rss_bytes"] / 2**20))
-        after_rate, _ = fused_rate(a.bin, url, min(a.quiet_s, 15))
-        print("fused rate after the flood: %.1f frames/s" % after_rate)
         return 0 if all(alive.values()) else 1
     finally:
         for p in procs.values():
