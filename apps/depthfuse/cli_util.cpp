@@ -2,6 +2,9 @@
 
 #include <unistd.h>
 
+#include <fstream>
+#include <limits>
+
 #include "depthfuse/base/log.hpp"
 #include "depthfuse/daemon/startup.hpp"
 
@@ -55,6 +58,41 @@ std::string describe_iteration(const BatchIterationReport& it, size_t frames) {
                   it.max_rotation_change_deg, it.mean_fitness, it.mean_rmse_m * 1000, it.seconds);
   }
   return line;
+}
+
+namespace {
+
+// Memory this machine has for a run now (MemAvailable), 0 when unknown.
+uint64_t available_memory_bytes() {
+  std::ifstream meminfo("/proc/meminfo");
+  std::string key;
+  uint64_t kib = 0;
+  while (meminfo >> key >> kib) {
+    if (key == "MemAvailable:") return kib * 1024;
+    meminfo.ignore(std::numeric_limits<std::streamsize>::max(), '\n');
+  }
+  return 0;
+}
+
+std::string mib(uint64_t bytes) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%.1f MiB", static_cast<double>(bytes) / (1 << 20));
+  return text;
+}
+
+}  // namespace
+
+Status check_frames_fit(uint64_t frames, uint64_t frame_bytes, const std::string& why,
+                        const std::string& lower) {
+  const uint64_t available = available_memory_bytes();
+  if (!available || frames * frame_bytes <= available) return Status::ok();
+  return invalid_argument(why + " holds every frame in memory: " + std::to_string(frames) +
+                          " frames of " + mib(frame_bytes) + " need " + mib(frames * frame_bytes) +
+                          ", more than the " + mib(available) + " available; " + lower);
+}
+
+uint64_t frame_bytes(const Frame& f) {
+  return sizeof(Frame) + f.depth.depth_m.size() * sizeof(float) + f.color.rgb.size();
 }
 
 int fail(const std::string& message) {

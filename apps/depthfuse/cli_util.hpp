@@ -1,6 +1,7 @@
 // Small helpers shared by the CLI's subcommands: option parsing, progress, config loading.
 #pragma once
 
+#include <cstdint>
 #include <cstdio>
 #include <optional>
 #include <string>
@@ -20,6 +21,14 @@ inline constexpr long kMaxIterations = 1000;
 
 // Loads --config if given (else defaults); prints the error and returns nullopt on failure.
 std::optional<AppConfig> load_config_or_report(const Args& args);
+
+// For a run that holds every frame of its input (the batch pipeline's rounds go over all of them):
+// an error when `frames` frames of `frame_bytes` each do not fit in the memory this machine has
+// available now, with both figures, `why` (what holds them) and `lower` (how to take fewer).
+Status check_frames_fit(uint64_t frames, uint64_t frame_bytes, const std::string& why,
+                        const std::string& lower);
+// The memory a frame holds: depth, colour and the frame itself.
+uint64_t frame_bytes(const Frame& frame);
 
 // A bar on a terminal, a plain line every 10 % otherwise (logs, CI).
 class Progress {

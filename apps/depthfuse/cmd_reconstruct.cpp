@@ -2,6 +2,7 @@
 #include <algorithm>
 #include <chrono>
 #include <filesystem>
+#include <optional>
 #include <sstream>
 
 #include "cli_util.hpp"
@@ -23,22 +24,75 @@ constexpr const char* kUsage =
     "         [--config FILE] [--camera camera.toml] [--trajectory-out FILE] [--report FILE]\n"
     "         [--max-frames N] [--stride N]";
 
+// The input sequence as the run reads it. --stride and --max-frames are applied here to sources that
+// do not apply them themselves (TUM folders do).
 struct Input {
-  std::vector<Frame> frames;
+  std::unique_ptr<FrameSource> source;
   std::string description;
   std::string pose_origin;  // where the initial poses come from, "" = none
+  size_t stride = 1;
+  size_t max_frames = 0;    // 0 = all
+  size_t taken = 0;         // frames next() has returned
+
+  // How many frames the run takes, when the source knows its length.
+  std::optional<size_t> expected() const {
+    const auto total = source->frame_count();
+    if (!total) return std::nullopt;
+    const size_t n = (*total + stride - 1) / stride;
+    return max_frames ? std::min(n, max_frames) : n;
+  }
+
+  // The next frame the run takes, nullopt at the end.
+  Result<std::optional<Frame>> next() {
+    if (peeked_) {
+      std::optional<Frame> f = std::move(peeked_);
+      peeked_.reset();
+      return f;
+    }
+    if (max_frames && taken >= max_frames) return std::optional<Frame>();
+    for (;;) {
+      auto f = source->next();
+      if (f.status().code() == StatusCode::kEndOfStream) return std::optional<Frame>();
+      if (!f) return f.status();
+      if (delivered_++ % stride) continue;
+      ++taken;
+      return std::optional<Frame>(std::move(f.value()));
+    }
+  }
+
+  // The frame next() returns next, left for it; nullptr at the end.
+  Result<const Frame*> peek() {
+    if (!peeked_) {
+      auto f = next();
+      if (!f) return f.status();
+      peeked_ = std::move(*f);
+    }
+    return peeked_ ? &*peeked_ : nullptr;
+  }
+
+  // A frame the run needs a pose for and that has none.
+  Status missing_pose(const Frame& f, bool from_hints) const {
+    return not_found("frame " + std::to_string(taken - 1) + " (t = " + std::to_string(f.utime / 1e6) +
+                     " s) has no pose" +
+                     (from_hints ? std::string(" hint, as the frames before it had (--track tracks "
+                                               "every frame instead)")
+                                 : " within 20 ms in " + pose_origin));
+  }
+
+ private:
+  size_t delivered_ = 0;  // frames the source returned
+  std::optional<Frame> peeked_;
 };
 
-Result<Input> load_input(const std::string& input, const cli::Args& args, const AppConfig& config,
-                         cli::Progress& progress) {
+Result<Input> open_input(const std::string& input, const cli::Args& args, const AppConfig& config) {
   Input in;
   long max_frames = 0, stride = 1;
   std::string err;
   if (!args.get_int("max-frames", &max_frames, &err, daemon::closed(0, INT32_MAX)) ||
       !args.get_int("stride", &stride, &err, daemon::closed(1, INT32_MAX)))
     return invalid_argument(err);
+  in.max_frames = static_cast<size_t>(max_frames);
 
-  std::unique_ptr<FrameSource> source;
   if (fs::is_directory(input)) {
     replay::TumReplayConfig rc;
     rc.max_frames = static_cast<size_t>(max_frames);
@@ -58,7 +112,7 @@ Result<Input> load_input(const std::string& input, const cli::Args& args, const 
     }
     auto s = replay::TumSource::open(input, rc);
     if (!s) return s.status();
-    source = std::move(s.value());
+    in.source = std::move(s.value());
   } else {
     std::string spec = input;
     if (input.find(':') == std::string::npos || fs::exists(input)) spec = "lcmlog:" + input;
@@ -66,37 +120,63 @@ Result<Input> load_input(const std::string& input, const cli::Args& args, const 
       return not_found("no such folder or file: " + input);
     auto s = open_frame_source(spec, config);
     if (!s) return s.status();
-    source = std::move(s.value());
+    in.source = std::move(s.value());
     if (args.has("poses")) return invalid_argument("--poses works with TUM folders only");
+    in.stride = static_cast<size_t>(stride);
   }
-  in.description = source->describe();
-
-  const auto total = source->frame_count();
-  for (size_t i = 0;; ++i) {
-    auto f = source->next();
-    if (f.status().code() == StatusCode::kEndOfStream) break;
-    if (!f) return f.status();
-    if (stride > 1 && !fs::is_directory(input) && i % stride) continue;
-    in.frames.push_back(std::move(f.value()));
-    if (total) progress("reading frames", in.frames.size(), *total);
-    if (max_frames && in.frames.size() >= static_cast<size_t>(max_frames)) break;
-  }
-  if (in.frames.empty()) return invalid_argument(input + ": empty sequence, no frames to fuse");
-
-  if (!in.pose_origin.empty()) {
-    for (size_t i = 0; i < in.frames.size(); ++i)
-      if (!in.frames[i].T_world_cam_hint)
-        return not_found("frame " + std::to_string(i) + " (t = " +
-                         std::to_string(in.frames[i].utime / 1e6) + " s) has no pose within 20 ms in " +
-                         in.pose_origin);
-  } else if (!args.has("track")) {
-    const bool all = std::all_of(in.frames.begin(), in.frames.end(),
-                                 [](const Frame& f) { return f.T_world_cam_hint.has_value(); });
-    if (all) in.pose_origin = "the frames' pose hints";
-  }
+  in.description = in.source->describe();
   return in;
 }
 
+// Every frame of the input, for the passes of the batch pipeline (re-registration rounds, tracking)
+// that go over all of them. Refused before reading past the first frame when they would not fit in
+// the memory available, with the figure and how to lower it; a source of unknown length is checked
+// as it grows, every kCheckEvery frames for the next kCheckEvery. `why` names the pass that needs
+// them; `may_stream` says whether --iterations 0 would not.
+Result<std::vector<Frame>> hold_frames(Input& in, const std::string& why, bool may_stream,
+                                       cli::Progress& progress) {
+  const std::string lower = std::string("take fewer with --max-frames or --stride") +
+                            (may_stream ? ", or fuse them as they stream with --iterations 0" : "");
+  std::vector<Frame> frames;
+  const auto expected = in.expected();
+  for (;;) {
+    auto f = in.next();
+    if (!f) return f.status();
+    if (!*f) break;
+    constexpr size_t kCheckEvery = 1000;
+    if (expected ? frames.empty() : frames.size() % kCheckEvery == 0)
+      DF_RETURN_IF_ERROR(cli::check_frames_fit(expected.value_or(kCheckEvery),
+                                               cli::frame_bytes(**f), why, lower));
+    frames.push_back(std::move(**f));
+    if (expected) progress("reading frames", frames.size(), *expected);
+  }
+  if (frames.empty()) return invalid_argument("empty sequence, no frames to fuse");
+  return frames;
+}
+
+// The batch pipeline without re-registration rounds, frame by frame as the input delivers them,
+// each with the pose it carries: nothing is held per frame (the trajectory goes to its file as it
+// grows).
+Result<BatchResult> fuse_streamed(Input& in, const ReconstructionConfig& rc, bool from_hints,
+                                  TumTrajectoryWriter* trajectory, bool* has_color,
+                                  cli::Progress& progress) {
+  SequenceFuser fuser(rc);
+  const auto expected = in.expected();
+  for (;;) {
+    auto f = in.next();
+    if (!f) return f.status();
+    if (!*f) break;
+    const Frame& frame = **f;
+    if (!frame.T_world_cam_hint) return in.missing_pose(frame, from_hints);
+    DF_RETURN_IF_ERROR(fuser.add(frame, *frame.T_world_cam_hint)
+                           .with_context("frame " + std::to_string(in.taken - 1)));
+    if (trajectory) trajectory->add({frame.utime / 1e6, *frame.T_world_cam_hint});
+    *has_color = *has_color || !frame.color.empty();
+    if (expected) progress("fusion 0", fuser.frames(), *expected);
+  }
+  if (fuser.frames() == 0) return invalid_argument("empty sequence, no frames to fuse");
+  return fuser.finish();
+}
 int run(int argc, char** argv) {
   cli::Args args(argc, argv, {"track", "help"});
   if (args.has("help")) return std::printf("usage: %s\n", kUsage), 0;
@@ -120,42 +200,91 @@ int run(int argc, char** argv) {
 
   cli::Progress progress;
   const auto t0 = std::chrono::steady_clock::now();
-  auto input = load_input(args.positional()[0], args, *config, progress);
+  const std::string& input_name = args.positional()[0];
+  auto input = open_input(input_name, args, *config);
   if (!input) return cli::fail(input.status().message());
-  std::vector<Frame>& frames = input->frames;
+  auto failed = [&](const Status& st) { return cli::fail(input_name + ": " + st.message()); };
 
-  std::vector<Pose> initial;
-  std::string pose_note = input->pose_origin;
-  if (pose_note.empty()) {
-    pose_note = "tracked from the first frame";
-    auto tracked = track_sequence(frames, rc, progress.fn());
-    if (!tracked) return cli::fail(tracked.status().message());
-    initial = std::move(*tracked);
-  } else {
-    for (const Frame& f : frames) initial.push_back(*f.T_world_cam_hint);
+  // Poses come from a file (TUM), or else from the frames' own hints when the first has one.
+  bool from_hints = false;
+  if (input->pose_origin.empty() && !args.has("track")) {
+    auto first = input->peek();
+    if (!first) return failed(first.status());
+    from_hints = *first && (*first)->T_world_cam_hint;
+    if (from_hints) input->pose_origin = "the frames' pose hints";
+  }
+  const bool rounds = rc.with_method(rc.pipeline.method).registration.enabled &&
+                      rc.pipeline.outer_iterations > 0;
+  TumTrajectoryWriter trajectory;
+  if (args.has("trajectory-out")) {
+    const Status s = trajectory.open(args.get("trajectory-out"));
+    if (!s) return cli::fail(s.message());
   }
 
-  auto result = reconstruct_batch(frames, initial, rc, progress.fn());
-  if (!result) return cli::fail(result.status().message());
+  std::optional<BatchResult> result;
+  size_t frame_count = 0;
+  bool has_color = false;
+  std::string pose_note = input->pose_origin;
+  if (!rounds && !pose_note.empty()) {
+    auto fused = fuse_streamed(*input, rc, from_hints,
+                               args.has("trajectory-out") ? &trajectory : nullptr, &has_color,
+                               progress);
+    if (!fused) return failed(fused.status());
+    result = std::move(*fused);
+    frame_count = input->taken;
+  } else {
+    auto held = hold_frames(*input,
+                            rounds ? "re-registration (--iterations " +
+                                         std::to_string(rc.pipeline.outer_iterations) + ")"
+                                   : std::string("tracking (--track, or no poses in the input)"),
+                            !pose_note.empty(), progress);
+    if (!held) return failed(held.status());
+    const std::vector<Frame>& frames = *held;
+    frame_count = frames.size();
+    has_color = std::any_of(frames.begin(), frames.end(),
+                            [](const Frame& f) { return !f.color.empty(); });
+    std::vector<Pose> initial;
+    // Hints on some frames only: tracked, as hints are all or nothing.
+    if (from_hints && !std::all_of(frames.begin(), frames.end(), [](const Frame& f) {
+          return f.T_world_cam_hint.has_value();
+        }))
+      pose_note.clear();
+    if (pose_note.empty()) {
+      pose_note = "tracked from the first frame";
+      auto tracked = track_sequence(frames, rc, progress.fn());
+      if (!tracked) return cli::fail(tracked.status().message());
+      initial = std::move(*tracked);
+    } else {
+      for (size_t i = 0; i < frames.size(); ++i) {
+        if (!frames[i].T_world_cam_hint) {
+          input->taken = i + 1;
+          return failed(input->missing_pose(frames[i], false));
+        }
+        initial.push_back(*frames[i].T_world_cam_hint);
+      }
+    }
+    auto batch = reconstruct_batch(frames, initial, rc, progress.fn());
+    if (!batch) return cli::fail(batch.status().message());
+    result = std::move(*batch);
+    for (size_t i = 0; i < frames.size(); ++i)
+      trajectory.add({frames[i].utime / 1e6, result->T_world_cam[i]});
+  }
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 
-  const bool has_color = std::any_of(frames.begin(), frames.end(), [](const Frame& f) { return !f.color.empty(); });
   PlyOptions po;
   po.with_color = has_color;
   const PointArrays cloud = result->map->gather();
   const Status w = write_ply(args.get("output"), cloud, po);
   if (!w) return cli::fail(w.message());
   if (args.has("trajectory-out")) {
-    std::vector<StampedPose> traj(frames.size());
-    for (size_t i = 0; i < frames.size(); ++i) traj[i] = {frames[i].utime / 1e6, result->T_world_cam[i]};
-    const Status s = write_tum_trajectory(args.get("trajectory-out"), traj);
+    const Status s = trajectory.close();
     if (!s) return cli::fail(s.message());
   }
 
   std::ostringstream r;
   r << "depthfuse reconstruct\n"
     << "  input:        " << input->description << "\n"
-    << "  frames:       " << frames.size() << "\n"
+    << "  frames:       " << frame_count << "\n"
     << "  initial poses: " << pose_note << "\n"
     << "  method:       " << to_string(rc.pipeline.method) << "\n"
     << "  measurements: " << result->input_measurements << " valid depth pixels\n"
@@ -165,7 +294,7 @@ int run(int argc, char** argv) {
     << 100.0 * (1.0 - static_cast<double>(cloud.size()) / std::max<size_t>(1, result->input_measurements))
     << " %)\n"
     << "  iterations:\n";
-  for (const auto& it : result->iterations) r << cli::describe_iteration(it, frames.size());
+  for (const auto& it : result->iterations) r << cli::describe_iteration(it, frame_count);
   if (result->converged_early) r << "  stopped early: the poses stopped moving\n";
   r << "  cloud:        " << args.get("output") << "\n";
   if (args.has("trajectory-out")) r << "  trajectory:   " << args.get("trajectory-out") << "\n";

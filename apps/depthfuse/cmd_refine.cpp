@@ -1,5 +1,6 @@
 // depthfuse refine: the paper's batch loop over a scan file's keyframes (re-register each one
 // against the whole cloud, fuse again, repeat), written back as a new checkpoint.
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 
@@ -87,11 +88,19 @@ int run(int argc, char** argv) {
   std::vector<Frame> frames;
   std::vector<Pose> poses;
   std::vector<uint32_t> ids;
+  size_t taken = (infos->size() + static_cast<size_t>(stride) - 1) / static_cast<size_t>(stride);
+  if (max_keyframes) taken = std::min(taken, static_cast<size_t>(max_keyframes));
   for (size_t i = 0; i < infos->size(); i += static_cast<size_t>(stride)) {
     if (max_keyframes && frames.size() >= static_cast<size_t>(max_keyframes)) break;
     auto k = scan.read_keyframe((*infos)[i].frame_id);
     if (!k) return cli::fail(k.status().message());
     frames.push_back(k->to_frame());
+    if (frames.size() == 1) {
+      const Status fits = cli::check_frames_fit(taken, cli::frame_bytes(frames[0]),
+                                                "refining (the batch pipeline's rounds)",
+                                                "take fewer with --max-keyframes or --keyframe-stride");
+      if (!fits) return cli::fail(path + ": " + fits.message());
+    }
     poses.push_back(k->T_world_cam);
     ids.push_back(k->frame_id);
     progress("reading keyframes", i + 1, infos->size());

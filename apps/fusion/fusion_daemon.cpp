@@ -30,7 +30,6 @@ using depthfuse::command_t;
 using depthfuse::heartbeat_t;
 using Clock = std::chrono::steady_clock;
 
-constexpr size_t kPendingColorFrames = 8;
 constexpr size_t kMaxPublishers = 16;
 constexpr size_t kRecentCommands = 64;
 constexpr double kMeanWeight = 0.1;  // exponential moving averages over ~10 frames
@@ -76,6 +75,7 @@ FusionDaemon::FusionDaemon(const AppConfig& config, const DaemonOptions& options
                            std::unique_ptr<lcm::LcmTransport> lcm,
                            std::unique_ptr<CheckpointSink> sink)
     : config_(config),
+      budget_(MemoryBudget::of(config)),
       options_(options),
       lcm_(std::move(lcm)),
       sink_(std::move(sink)),
@@ -573,6 +573,12 @@ void FusionDaemon::publish_heartbeat() {
   daemon::add_counter(&hb, "frames_registered", static_cast<double>(registered_.load()));
   daemon::add_counter(&hb, "icp_failures", static_cast<double>(icp_failures_.load()));
   daemon::add_counter(&hb, "process_errors", static_cast<double>(process_errors_.load()));
+  // fusion_daemon.memory_budget_mib as split: the per-frame work's parts, and the map's rest (its
+  // use: resident_mib).
+  daemon::add_counter(&hb, "budget_queue_mib", budget_.queue_mib);
+  daemon::add_counter(&hb, "budget_receive_mib", budget_.receive_mib);
+  daemon::add_counter(&hb, "budget_fusing_mib", budget_.worker_mib);
+  daemon::add_counter(&hb, "budget_map_mib", budget_.map_mib());
   if (auto st = lcm_->publish_message(lcm::kHeartbeatChannel, hb); !st.is_ok())
     set_error(st.message());
 }

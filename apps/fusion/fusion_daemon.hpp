@@ -30,6 +30,7 @@
 #include "depthfuse/lcm/transport.hpp"
 #include "depthfuse/pipeline.hpp"
 #include "map_preview.hpp"
+#include "memory_budget.hpp"
 
 namespace depthfuse::fusiond {
 
@@ -78,6 +79,7 @@ class FusionDaemon {
   void set_error(const std::string& e);
 
   AppConfig config_;
+  MemoryBudget budget_;            // reported in the heartbeat
   lcm::FrameLimits frame_limits_;  // what on_depth and on_color take from the bus
   DaemonOptions options_;
   std::unique_ptr<lcm::LcmTransport> lcm_;

@@ -1,9 +1,13 @@
 // depthfuse-fusion: the fusion daemon (FusionDaemon) started from the command line.
 #include <string>
 
+#include "depthfuse/base/log.hpp"
 #include "depthfuse/daemon/signals.hpp"
 #include "depthfuse/daemon/startup.hpp"
 #include "fusion_daemon.hpp"
+#include "memory_budget.hpp"
+
+DF_LOG_CATEGORY(Fusion)
 
 namespace {
 
@@ -45,6 +49,11 @@ int main(int argc, char** argv) {
     if (!args.get_int("queue", &queue, &error, dd::closed(1, 10000)))
       return startup.usage_error(error + " (frames)");
     config.fusion.queue_capacity_frames = static_cast<int>(queue);
+    // A config error, like the ones the config's own checks find.
+    if (auto budget = fusiond::MemoryBudget::of(config).check(); !budget.is_ok()) {
+      DF_LOG(Fusion, Error) << budget.message();
+      return 2;
+    }
 
     auto& shutdown = dd::ShutdownSignal::install();
     auto lcm = startup.open_lcm();

@@ -9,6 +9,7 @@
 
 #include "depthfuse/base/log.hpp"
 #include "depthfuse/store/export.hpp"
+#include "memory_budget.hpp"
 
 DF_LOG_CATEGORY(Fusion)
 
@@ -46,7 +47,7 @@ std::string SqliteCheckpointSink::describe() const {
 store::RecorderConfig SqliteCheckpointSink::recorder_config() const {
   store::RecorderConfig rc;
   rc.bounded_memory = true;
-  rc.pager.memory_budget_mib = config_.fusion.memory_budget_mib;
+  rc.pager.memory_budget_mib = MemoryBudget::of(config_).map_mib();
   rc.pager.evict_distance_m = config_.fusion.evict_distance_m;
   rc.pager.min_age_frames = config_.fusion.evict_min_age_frames;
   rc.keyframe_every_n_frames = config_.fusion.keyframe_every_n_frames;

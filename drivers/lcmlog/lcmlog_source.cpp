@@ -100,7 +100,9 @@ Result<std::unique_ptr<LcmLogSource>> LcmLogSource::open(const std::string& path
       why += ", " + std::to_string(src->stats_.bad_version) + " of an unknown protocol version";
     if (src->stats_.corrupt_regions) why += ", damaged";
     if (src->stats_.truncated) why += ", truncated";
-    return corrupt(why + ")");
+    why += ")";
+    if (!src->stats_.first_problem.empty()) why += "; the first refused: " + src->stats_.first_problem;
+    return corrupt(why);
   }
   return src;
 }
@@ -138,9 +140,14 @@ Status LcmLogSource::index() {
     if (channel == options_.depth_channel) {
       const auto r = lcm::decode_message(ev->data, payload_size(ev), &depth_msg);
       Frame probe;
-      if (r == lcm::DecodeResult::kOk && lcm::decode_depth_frame(depth_msg, &probe).is_ok()) {
+      const Status decoded = r == lcm::DecodeResult::kOk
+                                 ? lcm::decode_depth_frame(depth_msg, &probe, options_.limits)
+                                 : Status::ok();
+      if (r == lcm::DecodeResult::kOk && decoded.is_ok()) {
         depth_.push_back({event_offset, ev->timestamp});
         ++stats_.depth_frames;
+      } else if (r == lcm::DecodeResult::kOk) {
+        if (!stats_.malformed++) stats_.first_problem = decoded.message();
       } else if (r == lcm::DecodeResult::kForeign) {
         ++stats_.foreign;
       } else if (r == lcm::DecodeResult::kBadVersion) {
@@ -187,7 +194,8 @@ Result<Frame> LcmLogSource::load(size_t i) {
     return corrupt("LCM log '" + path_ + "': depth frame " + std::to_string(i) +
                    " no longer decodes");
   Frame frame;
-  DF_RETURN_IF_ERROR(lcm::decode_depth_frame(msg, &frame).with_context("LCM log '" + path_ + "'"));
+  DF_RETURN_IF_ERROR(lcm::decode_depth_frame(msg, &frame, options_.limits)
+                         .with_context("LCM log '" + path_ + "'"));
   auto it = color_by_sequence_.find(msg.sequence);
   if (it != color_by_sequence_.end()) {
     auto cp = read_payload(it->second.offset);
@@ -195,7 +203,7 @@ Result<Frame> LcmLogSource::load(size_t i) {
     ColorImage color;
     // A colour image that does not fit is dropped; the depth frame is still good.
     if (cp && lcm::decode_message(cp->data(), cp->size(), &cmsg) == lcm::DecodeResult::kOk &&
-        lcm::decode_color_frame(cmsg, &color).is_ok() && color.width == frame.depth.width &&
+        lcm::decode_color_frame(cmsg, &color, options_.limits).is_ok() && color.width == frame.depth.width &&
         color.height == frame.depth.height)
       frame.color = std::move(color);
   }
@@ -225,9 +233,10 @@ std::optional<double> LcmLogSource::nominal_rate_hz() const {
 
 Result<std::unique_ptr<FrameSource>> open_lcmlog_source(const std::string& arg,
                                                         const AppConfig& config) {
-  (void)config;
   std::string path = arg;
   LcmLogSource::Options options;
+  options.limits.max_width = config.fusion.max_frame_width;
+  options.limits.max_height = config.fusion.max_frame_height;
   if (const auto q = arg.find('?'); q != std::string::npos) {
     path = arg.substr(0, q);
     const std::string query = arg.substr(q + 1);

@@ -115,28 +115,54 @@ void IncrementalReconstructor::reset(std::unique_ptr<PointMap> map, uint32_t nex
   last_T_world_cam_ = last_T_world_cam;
 }
 
+SequenceFuser::SequenceFuser(const ReconstructionConfig& config)
+    : config_(config.with_method(config.pipeline.method)),
+      map_(std::make_unique<PointMap>(config.fusion.chunk_size_m)),
+      fuser_(config_.sensor, config_.fusion),
+      start_(Clock::now()) {}
+
+SequenceFuser::~SequenceFuser() = default;
+
+Status SequenceFuser::add(const Frame& frame, const Pose& T_world_cam) {
+  const Result<size_t> removed = measure(frame, config_, &scratch_);
+  if (!removed) return removed.status();
+  // The pre-filter only marks measurements invalid: those it removed were valid before.
+  measurements_ += scratch_.valid_count() + *removed;
+  prefiltered_ += *removed;
+  ++frames_;
+  fuser_.fuse(scratch_, &frame.color, T_world_cam, static_cast<uint32_t>(frames_), map_.get());
+  return Status::ok();
+}
+
+BatchResult SequenceFuser::finish() {
+  BatchResult result;
+  result.input_measurements = measurements_;
+  result.prefiltered = prefiltered_;
+  BatchIterationReport pass;
+  pass.points = map_->point_count();
+  pass.seconds = ms_since(start_) / 1000;
+  result.iterations.push_back(pass);
+  if (config_.postfilter.enabled) result.postfiltered = postfilter(map_.get());
+  result.map = std::move(map_);
+  return result;
+}
+
 namespace {
 
 // Fuses every frame with its pose into a fresh map.
 Result<std::unique_ptr<PointMap>> fuse_all(const std::vector<Frame>& frames,
                                            const std::vector<Pose>& poses,
-                                           const ReconstructionConfig& c, MeasurementImage* m,
-                                           size_t* prefiltered, size_t* measurements,
-                                           const ProgressFn& progress, const std::string& stage) {
-  auto map = std::make_unique<PointMap>(c.fusion.chunk_size_m);
-  Fuser fuser(c.sensor, c.fusion);
-  *prefiltered = 0;
-  *measurements = 0;
+                                           const ReconstructionConfig& c, size_t* prefiltered,
+                                           size_t* measurements, const ProgressFn& progress,
+                                           const std::string& stage) {
+  SequenceFuser fuser(c);
   for (size_t i = 0; i < frames.size(); ++i) {
-    const Result<size_t> removed = measure(frames[i], c, m);
-    if (!removed) return removed.status().with_context("frame " + std::to_string(i));
-    // The pre-filter only marks measurements invalid: those it removed were valid before.
-    *measurements += m->valid_count() + *removed;
-    *prefiltered += *removed;
-    fuser.fuse(*m, &frames[i].color, poses[i], static_cast<uint32_t>(i + 1), map.get());
+    DF_RETURN_IF_ERROR(fuser.add(frames[i], poses[i]).with_context("frame " + std::to_string(i)));
     if (progress) progress(stage, i + 1, frames.size());
   }
-  return map;
+  *prefiltered = fuser.prefiltered();
+  *measurements = fuser.measurements();
+  return fuser.take_map();
 }
 
 }  // namespace
@@ -153,7 +179,7 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
 
   BatchResult result;
   result.T_world_cam = T_world_cam_initial;
-  MeasurementImage m;
+  MeasurementImage m;  // the re-registration's
   size_t measurements = 0;
 
   const int rounds = c.registration.enabled ? std::max(0, c.pipeline.outer_iterations) : 0;
@@ -165,7 +191,7 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
   if (rounds > 0) c_refine.fusion.redundancy_gate = 0.0;
 
   auto t0 = Clock::now();
-  auto fused = fuse_all(frames, result.T_world_cam, c_refine, &m, &result.prefiltered, &measurements,
+  auto fused = fuse_all(frames, result.T_world_cam, c_refine, &result.prefiltered, &measurements,
                         progress, "fusion 0");
   if (!fused) return fused.status();
   result.map = std::move(fused.value());
@@ -209,7 +235,7 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
       rep.mean_rmse_m /= registered;
     }
     result.T_world_cam = refined;
-    fused = fuse_all(frames, result.T_world_cam, c_refine, &m, &result.prefiltered, &measurements,
+    fused = fuse_all(frames, result.T_world_cam, c_refine, &result.prefiltered, &measurements,
                      progress, "fusion " + std::to_string(round));
     if (!fused) return fused.status();
     result.map = std::move(fused.value());
@@ -223,7 +249,7 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
     }
   }
   if (rounds > 0 && c.fusion.redundancy_gate > 0.0) {
-    fused = fuse_all(frames, result.T_world_cam, c, &m, &result.prefiltered, &measurements,
+    fused = fuse_all(frames, result.T_world_cam, c, &result.prefiltered, &measurements,
                      progress, "final fusion");
     if (!fused) return fused.status();
     result.map = std::move(fused.value());

@@ -58,17 +58,39 @@ Result<std::vector<StampedPose>> read_tum_trajectory(const std::string& path) {
 }
 
 Status write_tum_trajectory(const std::string& path, const std::vector<StampedPose>& poses) {
-  std::FILE* f = std::fopen(path.c_str(), "w");
-  if (!f) return io_error("cannot create " + path + ": " + std::strerror(errno));
-  std::fprintf(f, "# timestamp tx ty tz qx qy qz qw (camera-to-world), written by depthfuse\n");
-  for (const auto& p : poses) {
-    const Eigen::Quaterniond q(p.T_world_cam.linear());
-    const Eigen::Vector3d t = p.T_world_cam.translation();
-    std::fprintf(f, "%.6f %.6f %.6f %.6f %.9f %.9f %.9f %.9f\n", p.timestamp_s, t.x(), t.y(), t.z(),
-                 q.x(), q.y(), q.z(), q.w());
-  }
-  const bool ok = std::fflush(f) == 0 && !std::ferror(f);
-  if (std::fclose(f) != 0 || !ok) return io_error("cannot write " + path + ": " + std::strerror(errno));
+  TumTrajectoryWriter writer;
+  DF_RETURN_IF_ERROR(writer.open(path));
+  for (const auto& p : poses) writer.add(p);
+  return writer.close();
+}
+
+TumTrajectoryWriter::~TumTrajectoryWriter() {
+  if (file_) std::fclose(file_);
+}
+
+Status TumTrajectoryWriter::open(const std::string& path) {
+  if (file_) std::fclose(file_);
+  path_ = path;
+  file_ = std::fopen(path.c_str(), "w");
+  if (!file_) return io_error("cannot create " + path + ": " + std::strerror(errno));
+  std::fprintf(file_, "# timestamp tx ty tz qx qy qz qw (camera-to-world), written by depthfuse\n");
+  return Status::ok();
+}
+
+void TumTrajectoryWriter::add(const StampedPose& p) {
+  if (!file_) return;
+  const Eigen::Quaterniond q(p.T_world_cam.linear());
+  const Eigen::Vector3d t = p.T_world_cam.translation();
+  std::fprintf(file_, "%.6f %.6f %.6f %.6f %.9f %.9f %.9f %.9f\n", p.timestamp_s, t.x(), t.y(),
+               t.z(), q.x(), q.y(), q.z(), q.w());
+}
+
+Status TumTrajectoryWriter::close() {
+  if (!file_) return io_error("cannot write " + path_ + ": not open");
+  const bool ok = std::fflush(file_) == 0 && !std::ferror(file_);
+  const bool closed = std::fclose(file_) == 0;
+  file_ = nullptr;
+  if (!ok || !closed) return io_error("cannot write " + path_ + ": " + std::strerror(errno));
   return Status::ok();
 }
 

@@ -1,6 +1,9 @@
 // End to end on the analytic corner. (The noisy synthetic comparison of the three methods lives
 // in tests/pipeline.)
 #include <gtest/gtest.h>
+#include <malloc.h>
+
+#include <algorithm>
 
 #include "core_test_util.hpp"
 #include "depthfuse/pipeline.hpp"
@@ -13,6 +16,59 @@ TEST(Batch, RejectsEmptyAndMismatchedInput) {
   std::vector<Frame> frames(1, test::render_corner(test::look_at({2, 2, 1.5}, {0.3, 0.3, 0.3})));
   auto r2 = reconstruct_batch(frames, {}, ReconstructionConfig{});
   EXPECT_EQ(r2.status().code(), StatusCode::kInvalidArgument);
+}
+
+TEST(Batch, WithoutRoundsIsTheSequenceFusedFrameByFrame) {
+  // What `reconstruct --iterations 0` streams must be what the batch pipeline makes of the frames
+  // held: the same points, the same figures.
+  ReconstructionConfig c;
+  c.pipeline.outer_iterations = 0;
+  std::vector<Frame> frames;
+  std::vector<Pose> poses;
+  for (int i = 0; i < 4; ++i) {
+    const double a = 0.6 + i * 0.05;
+    poses.push_back(test::look_at({2.4 * std::cos(a), 2.4 * std::sin(a), 1.4}, {0.3, 0.3, 0.3}));
+    frames.push_back(test::render_corner(poses.back()));
+  }
+  auto batch = reconstruct_batch(frames, poses, c);
+  ASSERT_TRUE(batch.is_ok()) << batch.status().to_string();
+  SequenceFuser fuser(c);
+  for (size_t i = 0; i < frames.size(); ++i) ASSERT_TRUE(fuser.add(frames[i], poses[i]).is_ok());
+  const BatchResult streamed = fuser.finish();
+  EXPECT_EQ(streamed.input_measurements, batch->input_measurements);
+  EXPECT_EQ(streamed.prefiltered, batch->prefiltered);
+  EXPECT_EQ(streamed.postfiltered, batch->postfiltered);
+  ASSERT_EQ(streamed.iterations.size(), 1u);
+  EXPECT_EQ(streamed.iterations[0].points, batch->iterations[0].points);
+  const PointArrays a = streamed.map->gather(), b = batch->map->gather();
+  ASSERT_EQ(a.size(), b.size());
+  EXPECT_GT(a.size(), 10000u);
+  for (size_t i = 0; i < a.size(); i += 97) EXPECT_EQ(a.position(i), b.position(i)) << i;
+}
+
+TEST(Incremental, FrameWorkStaysWithinItsBound) {
+  // The heap that processing frames holds beyond the map, tracked (coarse to fine, the most
+  // scratch) and with hints, against kWorkBytesPerPixel. Near the bound too, so that it stays true
+  // as a figure for the fusion daemon's budget rather than a loose ceiling.
+  ReconstructionConfig c;
+  c.fusion.threads = 2;
+  c.registration.threads = 2;
+  IncrementalReconstructor rec(c);
+  const size_t heap_before = mallinfo2().uordblks;
+  size_t pixels = 0, most = 0;
+  for (int i = 0; i < 6; ++i) {
+    const double a = 0.6 + i * 0.01;
+    const Pose T = test::look_at({2.4 * std::cos(a), 2.4 * std::sin(a), 1.4}, {0.3, 0.3, 0.3});
+    Frame f = test::render_corner(T);
+    if (i % 2 == 0) f.T_world_cam_hint = T;
+    pixels = f.depth.depth_m.size();
+    const size_t frame_bytes = f.depth.depth_m.size() * sizeof(float) + f.color.rgb.size();
+    ASSERT_TRUE(rec.process(f).is_ok());
+    const size_t heap = mallinfo2().uordblks - heap_before;
+    most = std::max(most, heap - std::min(heap, rec.map().memory_bytes() + frame_bytes));
+  }
+  EXPECT_LE(most, IncrementalReconstructor::kWorkBytesPerPixel * pixels);
+  EXPECT_GE(most, IncrementalReconstructor::kWorkBytesPerPixel * pixels * 6 / 10);
 }
 
 TEST(Incremental, TracksTheCornerWithoutPoses) {

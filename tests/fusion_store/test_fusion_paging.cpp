@@ -11,8 +11,9 @@
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/store/scan_store.hpp"
-#include "store_test_util.hpp"
 #include "lcm_test_util.hpp"
+#include "memory_budget.hpp"
+#include "store_test_util.hpp"
 
 namespace depthfuse::testing {
 namespace {
@@ -23,6 +24,9 @@ using std::chrono::seconds;
 // The walk is 0.5 m/s along a ~71.4 m tour, so at 1 frame per scan second one loop is ~143
 // frames; 160 frames go round once and back through the first rooms, which were evicted by then.
 constexpr int kFrames = 160;
+// A queue longer than the scan: neither daemon drops a frame however far behind it falls, so both
+// fuse exactly the same frames.
+constexpr int kQueue = kFrames + 50;
 constexpr const char* kSource = "synthetic:rooms?frames=160&rate_hz=1&seed=7";
 
 struct DaemonRun {
@@ -39,24 +43,30 @@ class FusionPaging : public ::testing::Test {
     url_ = test_url();
     require_multicast_route(url_);
   }
-  void configure(DaemonRun* run, const std::string& name, double budget_mib) {
+  // The map gets map_budget_mib: the budget adds the per-frame work of the synthetic frames and
+  // the test's queue.
+  void configure(DaemonRun* run, const std::string& name, double map_budget_mib) {
     run->name = name;
     run->dir = dir_.file(name);
     std::filesystem::create_directories(run->dir);
     run->config = run->dir + "/depthfuse.toml";
     run->db = run->dir + "/scan.db";
-    std::ofstream(run->config) << "[fusion_daemon]\nmemory_budget_mib = " << budget_mib
+    AppConfig config;
+    config.fusion.max_frame_width = 512;
+    config.fusion.max_frame_height = 424;
+    config.fusion.queue_capacity_frames = kQueue;
+    const double budget_mib = map_budget_mib + fusiond::MemoryBudget::of(config).frame_work_mib();
+    std::ofstream(run->config) << std::fixed << "[fusion_daemon]\nmemory_budget_mib = " << budget_mib
+                               << "\nmax_frame_width = 512\nmax_frame_height = 424"
                                << "\ncheckpoint_interval_s = 3.0\nkeyframe_every_n_frames = 20\n"
                                   "heartbeat_rate_hz = 5.0\nscan_dir = \""
                                << run->dir << "/scans\"\n";
   }
   void start(DaemonRun* run) {
-    // A queue longer than the scan: neither daemon drops a frame however far behind it falls, so
-    // both fuse exactly the same frames.
     run->process = std::make_unique<Process>(
         std::vector<std::string>{bin("depthfuse-fusion"), "--config", run->config, "--lcm", url_,
                                  "--name", run->name, "--scan-db", run->db, "--queue",
-                                 std::to_string(kFrames + 50), "--autostart", "paging"},
+                                 std::to_string(kQueue), "--autostart", "paging"},
         run->dir + "/fusion.log");
   }
   std::string url_;
@@ -134,6 +144,7 @@ TEST_F(FusionPaging, TinyBudgetEvictsReloadsAndGivesTheUnboundedCloud) {
   EXPECT_GT(loaded, 20) << "the walk's return loaded nothing back";
   EXPECT_EQ(daemon::counter_value(*unbounded.last_hb, "chunks_evicted_total"), 0);
   EXPECT_LT(bounded.max_resident_mib, 0.5 * unbounded.max_resident_mib);
+  EXPECT_NEAR(daemon::counter_value(*bounded.last_hb, "budget_map_mib"), 4.0, 1e-3);
   EXPECT_EQ(bounded.last_hb->frames_dropped, 0);
   EXPECT_EQ(unbounded.last_hb->frames_dropped, 0);
   std::printf("bounded: evicted %.0f chunks, loaded %.0f back, resident at most %.1f MiB; "

@@ -22,21 +22,21 @@
 namespace depthfuse {
 namespace {
 
-Frame test_frame(uint32_t seq) {
+Frame test_frame(uint32_t seq, int width = 48, int height = 40) {
   Frame f;
   f.utime = 1'000'000 + seq * 33'333;
   f.sequence = seq;
   f.sensor_serial = "log";
-  f.intrinsics.width = 48;
-  f.intrinsics.height = 40;
-  f.intrinsics.cx = 23.5;  // the principal point inside the image, as receivers require
-  f.intrinsics.cy = 19.5;
-  f.depth = DepthImage(48, 40);
+  f.intrinsics.width = width;
+  f.intrinsics.height = height;
+  f.intrinsics.cx = (width - 1) / 2.0;  // the principal point inside the image, as receivers require
+  f.intrinsics.cy = (height - 1) / 2.0;
+  f.depth = DepthImage(width, height);
   for (size_t i = 0; i < f.depth.depth_m.size(); ++i)
     f.depth.depth_m[i] = static_cast<float>((800 + (i * 7 + seq) % 2000) * 0.001);
-  f.color.width = 48;
-  f.color.height = 40;
-  f.color.rgb.assign(48 * 40 * 3, static_cast<uint8_t>(seq * 10));
+  f.color.width = width;
+  f.color.height = height;
+  f.color.rgb.assign(static_cast<size_t>(width) * height * 3, static_cast<uint8_t>(seq * 10));
   return f;
 }
 
@@ -164,6 +164,37 @@ TEST(LcmLogSource, OpensThroughTheFactory) {
   auto other = open_frame_source("lcmlog:" + path + "?depth_channel=ELSEWHERE", AppConfig{});
   EXPECT_EQ(other.status().code(), StatusCode::kCorrupt);
   EXPECT_NE(other.status().message().find("ELSEWHERE"), std::string::npos);
+}
+
+TEST(LcmLogSource, TakesTheConfiguredFrameLimits) {
+  // A log of 800x600 frames: beyond the default limits (640x480), within a rig's configured ones;
+  // and the 48x40 frames of the mixed log beyond a configured 40 px width.
+  const std::string dir = testing::temp_dir("lcmlog-limits");
+  const std::string large = dir + "/large.lcmlog";
+  {
+    LogWriter w(large);
+    ASSERT_TRUE(w.ok());
+    for (uint32_t i = 0; i < 2; ++i) w.write_frame(test_frame(i, 800, 600));
+  }
+  auto refused = open_frame_source("lcmlog:" + large, AppConfig{});
+  EXPECT_EQ(refused.status().code(), StatusCode::kCorrupt);
+  EXPECT_NE(refused.status().message().find("800x600"), std::string::npos)
+      << refused.status().message();
+  AppConfig wide;
+  wide.fusion.max_frame_width = 800;
+  wide.fusion.max_frame_height = 600;
+  auto taken = open_frame_source("lcmlog:" + large, wide);
+  ASSERT_TRUE(taken.is_ok()) << taken.status().to_string();
+  auto f = (*taken)->next();
+  ASSERT_TRUE(f.is_ok()) << f.status().to_string();
+  EXPECT_EQ(f->depth.width, 800);
+  EXPECT_EQ(f->color.width, 800);
+
+  AppConfig narrow;
+  narrow.fusion.max_frame_width = 40;
+  auto small = open_frame_source("lcmlog:" + write_mixed_log(dir), narrow);
+  EXPECT_EQ(small.status().code(), StatusCode::kCorrupt);
+  EXPECT_NE(small.status().message().find("48x40"), std::string::npos) << small.status().message();
 }
 
 TEST(LcmLogSource, TruncatedLogEndsAtTheLastCompleteEvent) {

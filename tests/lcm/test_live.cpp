@@ -620,6 +620,33 @@ TEST_F(LiveAppliance, FusionFollowsTheConfiguredCaptureSerialAlone) {
   EXPECT_EQ(hb.messages_malformed, 0);
 }
 
+// fusion_daemon.memory_budget_mib holds the per-frame work (queue, receiving, fusing), bounded by
+// the frame limits and the queue, and the map gets the rest; the heartbeat says the split. A
+// budget that the per-frame work alone fills is refused at start (issue 22: the budget bounded
+// only the map).
+TEST_F(LiveAppliance, FusionBudgetsThePerFrameWorkAndRefusesABudgetItFills) {
+  auto fusion = start_fusion();
+  const auto hb = *observer_->heartbeat("fusion");
+  const double queue = daemon::counter_value(hb, "budget_queue_mib");
+  const double receive = daemon::counter_value(hb, "budget_receive_mib");
+  const double fusing = daemon::counter_value(hb, "budget_fusing_mib");
+  const double map = daemon::counter_value(hb, "budget_map_mib");
+  // Four queued 640x480 frames of float depth and RGB colour, and 8 colour frames waiting.
+  EXPECT_NEAR(queue, (4 * 640 * 480 * 7 + 8 * 640 * 480 * 3) / 1048576.0, 0.01);
+  EXPECT_GT(receive, 0);
+  EXPECT_GT(fusing, 640 * 480 * 7 / 1048576.0);
+  EXPECT_NEAR(queue + receive + fusing + map, 256.0, 0.01);
+
+  const std::string config = dir_ + "/small-budget.toml";
+  std::ofstream(config) << "[fusion_daemon]\nmemory_budget_mib = 40.0\n";
+  std::string out;
+  EXPECT_EQ(run_command({bin("depthfuse-fusion"), "--config", config, "--lcm", url_, "--queue", "100"},
+                        dir_ + "/small-budget.log", &out),
+            2);
+  EXPECT_NE(out.find("memory_budget_mib = 40.0 leaves the map nothing"), std::string::npos) << out;
+  EXPECT_NE(out.find("queue_capacity_frames"), std::string::npos) << out;
+}
+
 // Forged heartbeats cannot blind the monitor: one host holds at most 8 of its slots, a stale slot
 // goes to a new name, and a heartbeat too large to be real is refused before it is decoded
 // (issue 22: 70 forged names filled the 64-slot table for good; 1 MB heartbeats were relayed).

@@ -3,6 +3,7 @@
 //  - reconstruct_batch: the outer loop over a whole sequence (fuse, re-register, fuse again).
 #pragma once
 
+#include <chrono>
 #include <functional>
 #include <memory>
 #include <optional>
@@ -32,6 +33,11 @@ struct FrameReport {
 
 class IncrementalReconstructor {
  public:
+  // What process() holds for a frame besides the map, per pixel of the frame: the measurement
+  // image, the rendered model, the model projections of ICP and fusion (two threads) and their
+  // scratch. A bound for budgets, held by a test (Incremental.FrameWorkStaysWithinItsBound).
+  static constexpr size_t kWorkBytesPerPixel = 96;
+
   explicit IncrementalReconstructor(const ReconstructionConfig& config);
   ~IncrementalReconstructor();
 
@@ -91,6 +97,35 @@ struct BatchResult {
   size_t prefiltered = 0;                // removed by the pre-filter (last fusion)
   size_t postfiltered = 0;               // removed by the post-filter
   bool converged_early = false;
+};
+
+// One fusion pass of the batch pipeline, frame by frame: each frame pre-filtered and fused with
+// the pose given into a fresh map. Without re-registration rounds (outer_iterations 0, or a method
+// without registration) it is the whole pipeline, and a sequence streams through it from its
+// source with nothing held per frame.
+class SequenceFuser {
+ public:
+  // The config as reconstruct_batch takes it (its method is applied here).
+  explicit SequenceFuser(const ReconstructionConfig& config);
+  ~SequenceFuser();
+
+  Status add(const Frame& frame, const Pose& T_world_cam);
+  size_t frames() const { return frames_; }
+  size_t measurements() const { return measurements_; }  // valid depth pixels (before pre-filter)
+  size_t prefiltered() const { return prefiltered_; }
+  // The map as fused, for the next pass.
+  std::unique_ptr<PointMap> take_map() { return std::move(map_); }
+  // The end of a pipeline without rounds: the map post-filtered (if the method has it) and the
+  // one pass's figures. T_world_cam stays empty: the poses were the caller's.
+  BatchResult finish();
+
+ private:
+  ReconstructionConfig config_;
+  std::unique_ptr<PointMap> map_;
+  Fuser fuser_;
+  MeasurementImage scratch_;
+  size_t frames_ = 0, measurements_ = 0, prefiltered_ = 0;
+  std::chrono::steady_clock::time_point start_;
 };
 
 // The paper's batch pipeline. frames[i] is fused with T_world_cam_initial[i]. With method full it

@@ -1,6 +1,7 @@
 // TUM trajectory files: "timestamp tx ty tz qx qy qz qw" per line, camera-to-world.
 #pragma once
 
+#include <cstdio>
 #include <string>
 #include <vector>
 
@@ -13,6 +14,23 @@ namespace depthfuse {
 // more than 1e-3) with the file name and line number; normalises the quaternion.
 Result<std::vector<StampedPose>> read_tum_trajectory(const std::string& path);
 Status write_tum_trajectory(const std::string& path, const std::vector<StampedPose>& poses);
+
+// The same file written pose by pose, for a sequence too long to hold its trajectory.
+class TumTrajectoryWriter {
+ public:
+  TumTrajectoryWriter() = default;
+  TumTrajectoryWriter(const TumTrajectoryWriter&) = delete;
+  TumTrajectoryWriter& operator=(const TumTrajectoryWriter&) = delete;
+  ~TumTrajectoryWriter();
+
+  Status open(const std::string& path);  // creates (or truncates) the file, writes the header
+  void add(const StampedPose& pose);
+  Status close();                        // errors of any write since open() are reported here
+
+ private:
+  std::FILE* file_ = nullptr;
+  std::string path_;
+};
 
 // Index of the pose nearest in time to t_s, if within max_dt_s; -1 otherwise. poses sorted by time.
 long nearest_pose(const std::vector<StampedPose>& poses, double t_s, double max_dt_s);

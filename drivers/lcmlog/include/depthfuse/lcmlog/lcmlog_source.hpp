@@ -14,6 +14,7 @@
 
 #include "depthfuse/app_config.hpp"
 #include "depthfuse/frame_source.hpp"
+#include "depthfuse/lcm/frame_codec.hpp"
 
 namespace depthfuse::lcmlog {
 
@@ -21,7 +22,8 @@ struct LcmLogStats {
   size_t events = 0;             // complete events in the log
   size_t depth_frames = 0;       // usable depth frames
   size_t color_frames = 0;
-  size_t malformed = 0;          // failed to decode or failed their checks
+  size_t malformed = 0;          // failed to decode or failed their checks (limits included)
+  std::string first_problem;     // why the first malformed depth frame was refused
   size_t bad_version = 0;
   size_t foreign = 0;            // another type on a depthfuse channel
   size_t corrupt_regions = 0;    // damaged event headers skipped
@@ -33,6 +35,9 @@ class LcmLogSource : public FrameSource {
   struct Options {
     std::string depth_channel = "DEPTHFUSE_DEPTH";
     std::string color_channel = "DEPTHFUSE_COLOR";
+    // Frames beyond them are refused on their header, as the fusion daemon refuses them on the
+    // bus; open_lcmlog_source takes fusion_daemon.max_frame_width/height.
+    lcm::FrameLimits limits;
   };
   static Result<std::unique_ptr<LcmLogSource>> open(const std::string& path, const Options& options);
   ~LcmLogSource() override;

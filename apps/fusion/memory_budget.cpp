@@ -1,0 +1,48 @@
+#include "memory_budget.hpp"
+
+#include <cstdio>
+#include <string>
+
+#include "depthfuse/pipeline.hpp"
+
+namespace depthfuse::fusiond {
+
+namespace {
+
+constexpr double kMiB = 1024.0 * 1024.0;
+// Bytes per pixel: depth as float metres, colour as RGB; on the wire depth is 16-bit counts
+// (compressed no larger, as the codec refuses) and colour at most raw RGB.
+constexpr double kDepthBytes = sizeof(float), kColorBytes = 3, kWireDepthBytes = 2;
+
+}  // namespace
+
+MemoryBudget MemoryBudget::of(const AppConfig& config) {
+  const auto& f = config.fusion;
+  const double pixels = static_cast<double>(f.max_frame_width) * f.max_frame_height;
+  const double frame = pixels * (kDepthBytes + kColorBytes);
+  MemoryBudget b;
+  b.total_mib = f.memory_budget_mib;
+  b.queue_mib = (f.queue_capacity_frames * frame + static_cast<double>(kPendingColorFrames) * pixels * kColorBytes) / kMiB;
+  // Depth and colour messages, each as reassembled from the bus and as the decoded LCM type; the
+  // depth codec's inflated bytes and counts, the colour codec's decompressed or JPEG-decoded image
+  // and its conversion; the frame being built.
+  const double messages = 2 * pixels * (kWireDepthBytes + kColorBytes);
+  const double decoding = pixels * (2 * kWireDepthBytes + 2 * kColorBytes);
+  b.receive_mib = (messages + decoding + frame) / kMiB;
+  b.worker_mib = (frame + pixels * IncrementalReconstructor::kWorkBytesPerPixel) / kMiB;
+  return b;
+}
+
+Status MemoryBudget::check() const {
+  if (map_mib() > 0) return Status::ok();
+  char text[512];
+  std::snprintf(text, sizeof text,
+                "fusion_daemon.memory_budget_mib = %.1f leaves the map nothing: the per-frame work "
+                "alone takes %.1f MiB (queue %.1f, receiving %.1f, fusing %.1f); raise the budget, "
+                "or lower fusion_daemon.queue_capacity_frames (--queue) or "
+                "max_frame_width/max_frame_height",
+                total_mib, frame_work_mib(), queue_mib, receive_mib, worker_mib);
+  return invalid_argument(text);
+}
+
+}  // namespace depthfuse::fusiond

@@ -1,0 +1,268 @@
+#!/usr/bin/env python3
+"""Bus flood benchmark (issue 22): fuzzed udpm packets against a running monitor and fusion daemon.
+
+A capture daemon publishes the synthetic room at 30 Hz (looping) to a fusion daemon and a monitor on
+a private loopback port. The script records the valid datagrams on the bus for a few seconds (LC02
+short messages and LC03 fragments of our messages: depth and colour frames, poses, heartbeats,
+status), measures the fused rate for --quiet-s seconds, then sends --packets mutations of them (bit
+flips, bytes set to 0x00/0xff, truncations and extensions, LC03 header fields set to extreme
+values, fragments out of their message, channel names garbled) at --rate packets per second, and
+measures the fused rate during the flood. At the end both daemons must still be alive.
+
+  tools/bench/bus_flood.py [--bin DIR] [--packets N] [--rate PPS] [--quiet-s S] [--port P]
+
+The fused rate is the count of the fusion daemon's refined poses on DEPTHFUSE_POSE over time; the
+daemons' refusal counters come from the monitor's status (depthfuse status --json) after the flood.
+A benchmark, not a test: it prints figures.
+"""
+import argparse
+import json
+import os
+import random
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+GROUP = "239.255.76.67"
+SHORT_MAGIC = 0x4C433032  # "LC02"
+FRAGMENT_MAGIC = 0x4C433033  # "LC03"
+
+
+def parse_args():
+    here = os.path.dirname(os.path.abspath(__file__))
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--bin", default=os.path.join(here, "..", "..", "build", "bin"))
+    p.add_argument("--packets", type=int, default=1_000_000)
+    p.add_argument("--rate", type=float, default=10_000.0, help="packets per second")
+    p.add_argument("--quiet-s", type=float, default=30.0, help="measurement without the flood")
+    p.add_argument("--port", type=int, default=7697)
+    p.add_argument("--seed", type=int, default=1)
+    return p.parse_args()
+
+
+def status(bin_dir, url):
+    """The fusion daemon's and the monitor's entries of one status, by name."""
+    run = subprocess.run([os.path.join(bin_dir, "depthfuse"), "status", "--json", "--lcm", url,
+                          "--timeout", "5"], capture_output=True, timeout=30)
+    # Forged heartbeats may name daemons with any bytes: the monitor lists them too.
+    problem = "no status line"
+    for line in run.stdout.decode("utf-8", errors="replace").splitlines():
+        try:
+            return {d["name"]: d for d in json.loads(line, strict=False)["daemons"]}
+        except (ValueError, KeyError) as e:
+            problem = "%s in %r" % (e, line[:200])
+    print("depthfuse status (exit %d): %s; %s" % (run.returncode, problem,
+                                                  run.stderr.decode(errors="replace")[:300]),
+          file=sys.stderr)
+    return {}
+
+
+def record(port, seconds):
+    """Valid datagrams seen on the bus for `seconds`."""
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    if hasattr(socket, "SO_REUSEPORT"):
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+    s.bind(("", port))
+    s.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP,
+                 struct.pack("4s4s", socket.inet_aton(GROUP), socket.inet_aton("0.0.0.0")))
+    s.settimeout(0.5)
+    seen = []
+    end = time.time() + seconds
+    while time.time() < end:
+        try:
+            d, _ = s.recvfrom(70000)
+        except socket.timeout:
+            continue
+        if len(d) >= 8 and struct.unpack(">I", d[:4])[0] in (SHORT_MAGIC, FRAGMENT_MAGIC):
+            seen.append(d)
+    s.close()
+    return seen
+
+
+class PoseCounter:
+    """Counts the fusion daemon's refined poses (LC02 datagrams on DEPTHFUSE_POSE, one a fused
+    frame) as they arrive, leaving out the flood's own packets (by their source port)."""
+
+    def __init__(self, port):
+        self.count = 0
+        self.flood_port = None
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        if hasattr(socket, "SO_REUSEPORT"):
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+        self._sock.bind(("", port))
+        self._sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, struct.pack(
+            "4s4s", socket.inet_aton(GROUP), socket.inet_aton("0.0.0.0")))
+        self._sock.settimeout(0.5)
+        self._stop = False
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self):
+        want = struct.pack(">I", SHORT_MAGIC)
+        while not self._stop:
+            try:
+                d, (_, sport) = self._sock.recvfrom(70000)
+            except socket.timeout:
+                continue
+            if sport != self.flood_port and d[:4] == want and d[8:23] == b"DEPTHFUSE_POSE\0":
+                self.count += 1
+
+    def rate(self, seconds):
+        n0, t0 = self.count, time.time()
+        time.sleep(seconds)
+        return (self.count - n0) / (time.time() - t0)
+
+    def stop(self):
+        self._stop = True
+        self._thread.join()
+        self._sock.close()
+
+
+def mutate(rng, d):
+    """One fuzzed datagram from a valid one. Nine in ten keep at most their first 1400 bytes (the
+    headers, the channel and the start of the message): loopback carries 64 KB fragments at only
+    about a thousand a second on a small machine, and the bounds checks are in the first bytes."""
+    b = bytearray(d if rng.random() < 0.1 else d[:1400])
+    kind = rng.randrange(8)
+    if kind == 0:  # bit flips
+        for _ in range(rng.randint(1, 8)):
+            i = rng.randrange(len(b))
+            b[i] ^= 1 << rng.randrange(8)
+    elif kind == 1:  # bytes set to extremes
+        for _ in range(rng.randint(1, 4)):
+            b[rng.randrange(len(b))] = rng.choice((0x00, 0xFF, 0x7F, 0x80))
+    elif kind == 2:  # truncated
+        b = b[:rng.randrange(len(b))]
+    elif kind == 3:  # extended with noise, within the largest UDP datagram
+        b += bytes(rng.getrandbits(8) for _ in range(rng.randint(1, 64)))
+        del b[65507:]
+    elif kind == 4 and len(b) >= 20 and struct.unpack(">I", b[:4])[0] == FRAGMENT_MAGIC:
+        # An LC03 header field set to an extreme: message size, fragment offset, number, count.
+        field = rng.choice(((8, ">I"), (12, ">I"), (16, ">H"), (18, ">H")))
+        extreme = rng.choice((0, 1, 0xFFFF, 0xFFFFFF00, 0xFFFFFFFF, 0x7FFFFFFF))
+        extreme &= 0xFFFF if field[1] == ">H" else 0xFFFFFFFF
+        struct.pack_into(field[1], b, field[0], extreme)
+    elif kind == 5 and len(b) >= 8:  # another sequence number: fragments of no message
+        struct.pack_into(">I", b, 4, rng.getrandbits(32))
+    elif kind == 6:  # the channel name garbled (its bytes after the header)
+        start = 20 if struct.unpack(">I", b[:4])[0] == FRAGMENT_MAGIC else 8
+        for i in range(start, min(len(b), start + 16)):
+            if rng.random() < 0.3:
+                b[i] = rng.getrandbits(8)
+    else:  # random bytes from some offset on
+        i = rng.randrange(len(b))
+        b[i:] = bytes(rng.getrandbits(8) for _ in range(min(len(b) - i, 64))) + b[i + 64:]
+    return bytes(b)
+
+
+def flood(port, seeds, packets, rate, rng, poses=None):
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
+    s.bind(("", 0))
+    if poses:
+        poses.flood_port = s.getsockname()[1]
+    s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 0)
+    s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
+    # A pool of mutations made up front, so that Python's speed does not set the rate.
+    pool = [mutate(rng, rng.choice(seeds)) for _ in range(min(packets, 20000))]
+    sent = errors = 0
+    start = time.time()
+    while sent < packets:
+        for d in pool[:min(len(pool), packets - sent)]:
+            try:
+                s.sendto(d, (GROUP, port))
+            except OSError:
+                errors += 1
+            sent += 1
+            if sent % 1000 == 0:
+                ahead = sent / rate - (time.time() - start)
+                if ahead > 0:
+                    time.sleep(ahead)
+        pool = [mutate(rng, rng.choice(seeds)) for _ in range(len(pool))]
+    s.close()
+    return sent, errors, time.time() - start
+
+
+def main():
+    a = parse_args()
+    url = "udpm://%s:%d?ttl=0&recv_buf_size=4194304" % (GROUP, a.port)
+    work = tempfile.mkdtemp(prefix="depthfuse-flood.")
+    rng = random.Random(a.seed)
+    procs = {}
+
+    def start(name, argv):
+        log = open(os.path.join(work, name + ".log"), "w")
+        procs[name] = subprocess.Popen([os.path.join(a.bin, argv[0])] + argv[1:] + ["--lcm", url],
+                                       stdout=log, stderr=subprocess.STDOUT)
+
+    try:
+        start("monitor", ["depthfuse-monitor"])
+        start("fusion", ["depthfuse-fusion", "--scan-dir", os.path.join(work, "scans"),
+                         "--autostart", "flood"])
+        time.sleep(1)
+        start("capture", ["depthfuse-capture", "--source", "synthetic:room?frames=900", "--rate",
+                          "30", "--loop"])
+        time.sleep(5)
+        seeds = record(a.port, 5)
+        kinds = {}
+        for d in seeds:
+            k = "LC03" if struct.unpack(">I", d[:4])[0] == FRAGMENT_MAGIC else "LC02"
+            kinds[k] = kinds.get(k, 0) + 1
+        if not seeds:
+            sys.exit("no datagrams on the bus: is the multicast route there (tools/lcm/route)?")
+        print("# %s, %s" % (os.path.abspath(a.bin), url))
+        print("recorded %d valid datagrams (%s)" % (len(seeds), ", ".join(
+            "%d %s" % (n, k) for k, n in sorted(kinds.items()))))
+        poses = PoseCounter(a.port)
+        quiet = poses.rate(a.quiet_s)
+        print("fused rate without the flood: %.1f frames/s over %.0f s" % (quiet, a.quiet_s))
+
+        sender = {}
+        n0, t0 = poses.count, time.time()
+        th = threading.Thread(target=lambda: sender.update(zip(
+            ("sent", "errors", "seconds"), flood(a.port, seeds, a.packets, a.rate, rng, poses))))
+        th.start()
+        th.join()
+        during_rate = (poses.count - n0) / (time.time() - t0)
+        print("flood: %d packets sent (%d send errors) in %.0f s, %.0f packets/s" % (
+            sender["sent"], sender["errors"], sender["seconds"], sender["sent"] / sender["seconds"]))
+        print("fused rate during the flood: %.1f frames/s" % during_rate)
+        time.sleep(2)
+        alive = {n: p.poll() is None for n, p in procs.items()}
+        print("alive after the flood: " + ", ".join("%s %s" % (n, "yes" if v else "NO (exit %s)" %
+                                                                procs[n].returncode)
+                                                    for n, v in alive.items()))
+        print("fused rate after the flood: %.1f frames/s over %.0f s" % (
+            poses.rate(a.quiet_s), a.quiet_s))
+        poses.stop()
+        final = status(a.bin, url)
+        for name in ("fusion", "monitor"):
+            d = final.get(name)
+            if not d:
+                print("%s: no status from the monitor" % name)
+                continue
+            print("%s: alive %s, messages malformed %d, foreign %d, bad version %d, rss %.0f MiB" % (
+                name, d["alive"], d["messages_malformed"], d["messages_foreign"],
+                d["messages_bad_version"], d["rss_bytes"] / 2**20))
+        return 0 if all(alive.values()) else 1
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        for p in procs.values():
+            try:
+                p.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                p.kill()
+        subprocess.run(["rm", "-rf", work])
+
+
+if __name__ == "__main__":
+    sys.exit(main())

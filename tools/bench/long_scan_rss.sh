@@ -1,0 +1,71 @@
+#!/usr/bin/env bash
+# Long-scan memory benchmark (issue 22): a capture daemon publishes the synthetic room at 30 Hz,
+# looping, to a fusion daemon with the default memory budget, for M minutes; every minute the fusion
+# daemon's resident memory (VmRSS), its fused frame count and rate are printed, read from
+# /proc/<pid>/status and from the monitor's status (depthfuse status --json).
+#
+#   tools/bench/long_scan_rss.sh [--minutes M] [--bin DIR] [--lcm URL] [--frames N]
+#     --minutes M  length of the scan (default 20)
+#     --bin DIR    the depthfuse binaries to measure (default: build/bin of this tree)
+#     --lcm URL    default: a private loopback port, so a running appliance is not disturbed
+#     --frames N   frames of one loop around the room (default 900: 30 s at 30 Hz)
+# A benchmark, not a test: it prints figures and leaves the judging to the reader.
+set -euo pipefail
+
+here="$(cd "$(dirname "$0")/../.." && pwd)"
+minutes=20
+bin="$here/build/bin"
+lcm_url="udpm://239.255.76.67:7689?ttl=0&recv_buf_size=4194304"
+frames=900
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --minutes) minutes="$2"; shift 2 ;;
+    --bin) bin="$2"; shift 2 ;;
+    --lcm) lcm_url="$2"; shift 2 ;;
+    --frames) frames="$2"; shift 2 ;;
+    *) echo "unknown option $1" >&2; exit 2 ;;
+  esac
+done
+
+work="$(mktemp -d /tmp/depthfuse-long-scan.XXXXXX)"
+pids=()
+cleanup() {
+  for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
+  for p in "${pids[@]}"; do wait "$p" 2>/dev/null || true; done
+  rm -rf "$work"
+}
+trap cleanup EXIT
+
+"$bin/depthfuse-monitor" --lcm "$lcm_url" >"$work/monitor.log" 2>&1 &
+pids+=($!)
+"$bin/depthfuse-fusion" --lcm "$lcm_url" --scan-dir "$work/scans" --autostart long-scan \
+  >"$work/fusion.log" 2>&1 &
+fusion_pid=$!
+pids+=($fusion_pid)
+sleep 1
+"$bin/depthfuse-capture" --lcm "$lcm_url" --source "synthetic:room?frames=$frames" --rate 30 --loop \
+  >"$work/capture.log" 2>&1 &
+pids+=($!)
+
+rss_mib() { awk '/^VmRSS:/ { printf "%.1f", $2 / 1024 }' "/proc/$1/status"; }
+# "frames_out output_rate_hz" of the fusion daemon, from one status of the monitor.
+fused() {
+  "$bin/depthfuse" status --json --lcm "$lcm_url" --timeout 3 2>/dev/null |
+    python3 -c 'import json, sys
+s = json.loads(sys.stdin.readline())
+d = [d for d in s["daemons"] if d["name"] == "fusion"]
+print(d[0]["frames_out"], d[0]["output_rate_hz"], d[0]["point_count"]) if d else print("- - -")' ||
+    echo "- - -"
+}
+
+echo "# $bin, synthetic:room?frames=$frames at 30 Hz (looping) for $minutes min"
+echo "# minute  fusion_rss_mib  frames_fused  fused_rate_hz  map_points"
+for ((m = 0; m <= minutes; m++)); do
+  if [ "$m" -gt 0 ]; then sleep 60; fi
+  if ! kill -0 "$fusion_pid" 2>/dev/null; then
+    echo "fusion daemon died; its log:" >&2
+    tail -20 "$work/fusion.log" >&2
+    exit 1
+  fi
+  printf '%8d  %14s  %s\n' "$m" "$(rss_mib "$fusion_pid")" "$(fused)"
+done
