@@ -21,7 +21,7 @@ Result<TriangleMesh> mesh_scan(store::ScanStore& scan, const store::ExportOption
     char gb[64];
     std::snprintf(gb, sizeof gb, "%.2f GB, more than the %.2f GB", cloud_bytes / 1e9,
                   static_cast<double>(budget) / 1e9);
-    return invalid_argument(scan.path() + ": its " + std::to_string(stored) + " points alone need " + gb +
+    return invalid_argument(scan.path() + ": holding its " + std::to_string(stored) + " points needs about " + gb +
                             (options.memory_budget_bytes ? " allowed" : " available") +
                             "; mesh a part of it (a bounding box)");
   }

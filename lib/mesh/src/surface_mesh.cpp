@@ -11,7 +11,6 @@
 #include <cstdio>
 #include <fstream>
 #include <string>
-#include <thread>
 
 namespace depthfuse::mesh {
 
@@ -151,7 +150,9 @@ Result<TriangleMesh> mesh_points(const PointArrays& points, const MeshOptions& o
   poisson.setDepth(options.depth);
   poisson.setInputCloud(cloud);
   poisson.setSearchMethod(tree);
-  poisson.setThreads(static_cast<int>(std::max(1u, std::thread::hardware_concurrency())));
+  // One thread: PCL's OpenMP loops cover part of Poisson only and spin at their barriers; on the
+  // 2-core development machine two threads took twice the CPU time and the wall time of one.
+  poisson.setThreads(1);
   Cloud surface;
   std::vector<pcl::Vertices> polygons;
   poisson.reconstruct(surface, polygons);
