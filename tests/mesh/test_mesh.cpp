@@ -3,7 +3,6 @@
 // analytic planes, and no triangle bridging the corner's open side (every triangle's centroid near
 // a plane). Bad mesh options are refused with a reason.
 #include <gtest/gtest.h>
-#include <sys/wait.h>
 
 #include <algorithm>
 #include <cstdio>
@@ -21,26 +20,11 @@
 #include "store_test_util.hpp"
 
 using namespace depthfuse;
+using depthfuse::store::test::Proc;
+using depthfuse::store::test::run;
 using depthfuse::store::test::TempDir;
 
 namespace {
-
-struct Proc {
-  int code = -1;
-  std::string output;
-};
-
-Proc run(const std::string& cmd) {
-  Proc r;
-  FILE* p = popen((cmd + " 2>&1").c_str(), "r");
-  if (!p) return r;
-  char buf[4096];
-  size_t n;
-  while ((n = fread(buf, 1, sizeof(buf), p)) > 0) r.output.append(buf, n);
-  const int status = pclose(p);
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-  return r;
-}
 
 const std::string kCli = DEPTHFUSE_CLI;
 
