@@ -18,10 +18,11 @@ namespace {
 
 using Cloud = pcl::PointCloud<pcl::PointNormal>;
 
-// Peak bytes per input point and per occupied finest cell, measured with /usr/bin/time on the
-// synthetic corner at depths 9-11 (docs/results.md, "Issue 21: mesh").
-constexpr double kBytesPerPoint = 400.0;
-constexpr double kBytesPerCell = 2000.0;
+// Peak bytes per input point and per octree cell holding a point (summed over the levels), fitted
+// from above to export --mesh's peak resident memory on the synthetic corner at depths 9-11
+// (docs/results.md, "Issue 21: mesh").
+constexpr double kBytesPerPoint = 1500.0;
+constexpr double kBytesPerCell = 700.0;
 // Neighbours over which a point's spacing is averaged.
 constexpr int kSpacingNeighbours = 6;
 
@@ -65,19 +66,30 @@ MemoryEstimate estimate_memory(const PointArrays& points, int depth) {
   const Eigen::AlignedBox3f box = usable_bounds(points, &n);
   if (n == 0) return e;
   e.cell_m = std::max(cell_size_m(box, depth), 1e-9);
+  // Morton keys of the finest cells: a cell's parent is its key >> 3, so one sort serves every level.
   std::vector<uint64_t> keys;
   keys.reserve(n);
+  const uint32_t last = (1u << depth) - 1;
   for (size_t i = 0; i < points.size(); ++i) {
     if (!usable(points.position(i), points.normal(i))) continue;
     const Eigen::Vector3f rel = (points.position(i) - box.min()) / static_cast<float>(e.cell_m);
-    // depth <= kMaxDepth < 21: every coordinate fits in 21 bits.
-    const auto k = [&](int a) { return static_cast<uint64_t>(std::max(0.0f, rel[a])) & 0x1fffff; };
-    keys.push_back(k(0) << 42 | k(1) << 21 | k(2));
+    uint64_t key = 0;
+    for (int a = 0; a < 3; ++a) {
+      const uint32_t c = std::min(last, static_cast<uint32_t>(std::max(0.0f, rel[a])));
+      for (int b = 0; b < depth; ++b) key |= static_cast<uint64_t>((c >> b) & 1u) << (3 * b + a);
+    }
+    keys.push_back(key);
   }
   std::sort(keys.begin(), keys.end());
-  e.occupied_cells = static_cast<size_t>(std::unique(keys.begin(), keys.end()) - keys.begin());
+  size_t cells_all_levels = 0;
+  for (int shift = 0; shift < 3 * depth; shift += 3) {
+    size_t level = 1;
+    for (size_t i = 1; i < keys.size(); ++i) level += (keys[i] >> shift) != (keys[i - 1] >> shift);
+    if (shift == 0) e.occupied_cells = level;
+    cells_all_levels += level;
+  }
   e.bytes = static_cast<size_t>(kBytesPerPoint * static_cast<double>(n) +
-                                kBytesPerCell * static_cast<double>(e.occupied_cells));
+                                kBytesPerCell * static_cast<double>(cells_all_levels));
   return e;
 }
 
@@ -127,15 +139,16 @@ Result<TriangleMesh> mesh_points(const PointArrays& points, const MeshOptions& o
   r.estimate = estimate_memory(points, options.depth);
   const size_t budget = options.memory_budget_bytes ? *options.memory_budget_bytes : available_memory_bytes();
   if (budget && r.estimate.bytes > budget) {
-    std::string hint = "no depth from " + std::to_string(kMinDepth) + " fits";
-    for (int d = options.depth - 1; d >= kMinDepth; --d) {
+    std::string hint;
+    for (int d = options.depth - 1; d >= kMinDepth && hint.empty(); --d) {
       const MemoryEstimate lower = estimate_memory(points, d);
-      if (lower.bytes <= budget) {
+      if (lower.bytes <= budget)
         hint = "depth " + std::to_string(d) + " (" + millimetres(lower.cell_m) + " cells) needs about " +
                gigabytes(static_cast<double>(lower.bytes));
-        break;
-      }
     }
+    if (hint.empty())
+      hint = "no depth fits (the points alone need about " +
+             gigabytes(kBytesPerPoint * static_cast<double>(r.input_points)) + "): mesh a part of them";
     return invalid_argument("meshing " + std::to_string(r.input_points) + " points at depth " +
                             std::to_string(options.depth) + " (" + millimetres(r.estimate.cell_m) +
                             " cells, " + std::to_string(r.estimate.occupied_cells) +

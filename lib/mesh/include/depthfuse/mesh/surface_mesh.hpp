@@ -36,7 +36,8 @@ struct MemoryEstimate {
   size_t occupied_cells = 0;          // finest cells holding at least one point
 };
 
-// What meshing `points` at `depth` needs, from the occupied finest cells (one sort of their keys).
+// What meshing `points` at `depth` needs, from the points and the octree cells holding them on
+// every level (one sort of the finest cells' Morton keys).
 MemoryEstimate estimate_memory(const PointArrays& points, int depth);
 
 // The memory the kernel reports as available now (MemAvailable), 0 when unknown.
