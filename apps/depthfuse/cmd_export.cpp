@@ -1,5 +1,7 @@
 // depthfuse export: a scan file's cloud to PLY or PCD, streamed chunk by chunk (bounded memory),
-// from the last checkpoint; works while the fusion daemon is writing the file.
+// from the last checkpoint; works while the fusion daemon is writing the file. --mesh: a triangle
+// mesh of the cloud instead (lib/mesh), which holds the cloud whole and says so when it does not fit.
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <sstream>
@@ -7,6 +9,8 @@
 #include "cli_util.hpp"
 #include "command.hpp"
 #include "depthfuse/base/log.hpp"
+#include "depthfuse/mesh/scan_mesh.hpp"
+#include "mesh_options.hpp"
 #include "depthfuse/store/export.hpp"
 #include "depthfuse/store/scan_store.hpp"
 
@@ -20,7 +24,9 @@ constexpr const char* kCmd = "export";
 constexpr const char* kUsage =
     "depthfuse export <scan.db> -o out.ply|out.pcd [--min-merges N]\n"
     "         [--bbox x0,y0,z0,x1,y1,z1] [--no-color] [--no-stats] [--trajectory FILE]\n"
-    "         [--skip-damaged]";
+    "         [--skip-damaged]\n"
+    "       depthfuse export <scan.db> --mesh -o mesh.ply [--min-merges N] [--bbox ...] [--no-color]\n"
+    "         [--skip-damaged] [--mesh-depth N] [--mesh-trim F] [--mesh-memory-mb N]";
 
 bool parse_bbox(const std::string& text, Eigen::AlignedBox3f* out, std::string* err) {
   double v[6];
@@ -50,13 +56,45 @@ bool parse_bbox(const std::string& text, Eigen::AlignedBox3f* out, std::string* 
   return true;
 }
 
+int export_mesh(const cli::Args& args, const store::ExportOptions& filters, const std::string& out) {
+  mesh::MeshOptions options;
+  std::string err;
+  if (!cli::parse_mesh_options(args, &options, &err)) return cli::fail(err);
+  options.with_color = filters.with_color;
+  if (args.has("no-stats") || args.has("trajectory"))
+    return cli::fail("--no-stats and --trajectory are for cloud exports, not --mesh");
+  if (const Status path_ok = cli::check_mesh_path(out); !path_ok) return cli::fail(path_ok.message());
+
+  auto opened = store::ScanStore::open(args.positional()[0], store::OpenMode::kReadOnly);
+  if (!opened) return cli::fail(opened.status().message());
+  const auto t0 = std::chrono::steady_clock::now();
+  mesh::MeshReport report;
+  std::vector<std::string> damaged;
+  auto m = mesh::mesh_scan(**opened, filters, options, &report, &damaged);
+  for (const std::string& d : damaged) DF_LOG(Export, Warning) << "skipped: " << d;
+  if (!m) return cli::fail(m.status().message());
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  auto line = cli::write_mesh(out, *m, report, seconds);
+  if (!line) return cli::fail(line.status().message());
+  std::fputs(line->c_str(), stdout);
+  if (!damaged.empty()) {
+    DF_LOG(Export, Error) << damaged.size() << " damaged chunks were left out";
+    return 1;
+  }
+  return 0;
+}
+
 int run(int argc, char** argv) {
-  cli::Args args(argc, argv, {"no-color", "no-stats", "skip-damaged", "help"});
+  cli::Args args(argc, argv, {"no-color", "no-stats", "skip-damaged", "mesh", "help"});
   if (args.has("help")) return std::printf("usage: %s\n", kUsage), 0;
   if (!args.ok()) return cli::fail(args.error());
-  const std::string bad = args.unknown(
-      {"output", "min-merges", "bbox", "no-color", "no-stats", "trajectory", "skip-damaged"});
-  if (!bad.empty()) return cli::fail("unknown option " + bad + "\nusage: " + kUsage);
+  std::vector<std::string> known = {"output", "min-merges", "bbox", "no-color", "no-stats",
+                                    "trajectory", "skip-damaged", "mesh"};
+  if (args.has("mesh")) known.insert(known.end(), cli::mesh_option_names().begin(), cli::mesh_option_names().end());
+  const std::string bad = args.unknown(known);
+  if (!bad.empty())
+    return cli::fail("unknown option " + bad + (bad.rfind("--mesh-", 0) == 0 ? " (without --mesh)" : "") +
+                     "\nusage: " + kUsage);
   if (args.positional().size() != 1 || !args.has("output"))
     return cli::fail(std::string("expected one scan file and -o out.ply|out.pcd\nusage: ") + kUsage);
 
@@ -74,6 +112,7 @@ int run(int argc, char** argv) {
   options.with_fusion_stats = !args.has("no-stats");
   options.skip_damaged = args.has("skip-damaged");
   const std::string out = args.get("output");
+  if (args.has("mesh")) return export_mesh(args, options, out);
   if (auto format = store::cloud_format_for(out); !format) return cli::fail(format.status().message());
 
   auto opened = store::ScanStore::open(args.positional()[0], store::OpenMode::kReadOnly);

@@ -7,10 +7,12 @@
 
 #include "cli_util.hpp"
 #include "command.hpp"
+#include "depthfuse/mesh/surface_mesh.hpp"
 #include "depthfuse/ply.hpp"
 #include "depthfuse/replay/tum_source.hpp"
 #include "depthfuse/source_factory.hpp"
 #include "depthfuse/trajectory.hpp"
+#include "mesh_options.hpp"
 
 namespace fs = std::filesystem;
 using namespace depthfuse;
@@ -22,7 +24,8 @@ constexpr const char* kUsage =
     "depthfuse reconstruct <tum-folder|lcm-log|synthetic:SCENE[?...]> -o cloud.ply\n"
     "         [--poses FILE] [--track] [--method full|ylimaki17|kyostila13] [--iterations N]\n"
     "         [--config FILE] [--camera camera.toml] [--trajectory-out FILE] [--report FILE]\n"
-    "         [--max-frames N] [--stride N]";
+    "         [--max-frames N] [--stride N] [--mesh mesh.ply [--mesh-depth N] [--mesh-trim F]\n"
+    "         [--mesh-memory-mb N]]";
 
 // The input sequence as the run reads it. --stride and --max-frames are applied here to sources that
 // do not apply them themselves (TUM folders do).
@@ -181,11 +184,23 @@ int run(int argc, char** argv) {
   cli::Args args(argc, argv, {"track", "help"});
   if (args.has("help")) return std::printf("usage: %s\n", kUsage), 0;
   if (!args.ok()) return cli::fail(args.error());
-  const std::string bad = args.unknown({"poses", "track", "method", "iterations", "config", "camera",
-                                        "trajectory-out", "report", "max-frames", "stride", "output"});
+  std::vector<std::string> known = {"poses", "track", "method", "iterations", "config", "camera",
+                                    "trajectory-out", "report", "max-frames", "stride", "output", "mesh"};
+  known.insert(known.end(), cli::mesh_option_names().begin(), cli::mesh_option_names().end());
+  const std::string bad = args.unknown(known);
   if (!bad.empty()) return cli::fail("unknown option " + bad + "\nusage: " + kUsage);
   if (args.positional().size() != 1 || !args.has("output"))
     return cli::fail(std::string("expected one input and -o cloud.ply\nusage: ") + kUsage);
+
+  mesh::MeshOptions mesh_options;
+  std::string mesh_err;
+  if (!cli::parse_mesh_options(args, &mesh_options, &mesh_err)) return cli::fail(mesh_err);
+  for (const std::string& name : cli::mesh_option_names())
+    if (args.has(name) && !args.has("mesh")) return cli::fail("--" + name + " without --mesh FILE");
+  if (args.has("mesh")) {
+    const Status path_ok = cli::check_mesh_path(args.get("mesh"));
+    if (!path_ok) return cli::fail(path_ok.message());
+  }
 
   auto config = cli::load_config_or_report(args);
   if (!config) return 1;
@@ -276,6 +291,18 @@ int run(int argc, char** argv) {
   const PointArrays cloud = result->map->gather();
   const Status w = write_ply(args.get("output"), cloud, po);
   if (!w) return cli::fail(w.message());
+  std::string mesh_line;
+  if (args.has("mesh")) {
+    const auto m0 = std::chrono::steady_clock::now();
+    mesh_options.with_color = has_color;
+    mesh::MeshReport mesh_report;
+    auto m = mesh::mesh_points(cloud, mesh_options, &mesh_report);
+    if (!m) return cli::fail(m.status().message());
+    auto line = cli::write_mesh(args.get("mesh"), *m, mesh_report,
+                                std::chrono::duration<double>(std::chrono::steady_clock::now() - m0).count());
+    if (!line) return cli::fail(line.status().message());
+    mesh_line = *line;
+  }
   if (args.has("trajectory-out")) {
     const Status s = trajectory.close();
     if (!s) return cli::fail(s.message());
@@ -297,6 +324,7 @@ int run(int argc, char** argv) {
   for (const auto& it : result->iterations) r << cli::describe_iteration(it, frame_count);
   if (result->converged_early) r << "  stopped early: the poses stopped moving\n";
   r << "  cloud:        " << args.get("output") << "\n";
+  if (!mesh_line.empty()) r << "  " << mesh_line;
   if (args.has("trajectory-out")) r << "  trajectory:   " << args.get("trajectory-out") << "\n";
   r << "  time:         " << seconds << " s\n";
   std::fputs(r.str().c_str(), stdout);

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <cmath>
@@ -204,6 +205,24 @@ inline void flip_byte(const std::string& path, long offset) {
   c = static_cast<char>(c ^ 0x5A);
   f.seekp(offset);
   f.write(&c, 1);
+}
+
+// A command line's exit code and its stdout and stderr together (the CLI tests).
+struct Proc {
+  int code = -1;
+  std::string output;
+};
+
+inline Proc run(const std::string& cmd) {
+  Proc r;
+  FILE* p = popen((cmd + " 2>&1").c_str(), "r");
+  if (!p) return r;
+  char buf[4096];
+  size_t n;
+  while ((n = fread(buf, 1, sizeof(buf), p)) > 0) r.output.append(buf, n);
+  const int status = pclose(p);
+  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  return r;
 }
 
 }  // namespace depthfuse::store::test

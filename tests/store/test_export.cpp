@@ -24,27 +24,11 @@
 using namespace depthfuse;
 using namespace depthfuse::store;
 using test::make_points;
+using test::Proc;
+using test::run;
 using test::TempDir;
 
 namespace {
-
-struct Proc {
-  int code = -1;
-  std::string output;
-};
-
-// Runs a command line, capturing stdout and stderr together.
-Proc run(const std::string& cmd) {
-  Proc r;
-  FILE* p = popen((cmd + " 2>&1").c_str(), "r");
-  if (!p) return r;
-  char buf[4096];
-  size_t n;
-  while ((n = fread(buf, 1, sizeof(buf), p)) > 0) r.output.append(buf, n);
-  const int status = pclose(p);
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-  return r;
-}
 
 std::string cli() { return DEPTHFUSE_CLI; }
 

@@ -5,7 +5,8 @@ Reads a TUM RGB-D folder the way depthfuse's replay driver does (depth.txt, 16-b
 rgb.txt and poses associated to each depth frame by the nearest timestamp within 20 ms, every
 --stride-th frame, at most --max-frames), integrates the depth maps into a TSDF volume and writes
 the volume's extracted point cloud as a binary little-endian PLY (float x y z nx ny nz [uchar rgb])
-that `depthfuse eval` reads.
+that `depthfuse eval` reads; --mesh also writes the volume's marching-cubes triangle mesh (its
+vertices are what `depthfuse eval` measures).
 
 Run it with Debian's Python, which has python3-open3d (0.16):
   /usr/bin/python3 tools/eval/open3d_tsdf.py FOLDER --poses FOLDER/groundtruth.txt -o o3d.ply
@@ -140,6 +141,7 @@ def main():
     ap.add_argument("folder", help="TUM RGB-D folder (depth.txt, depth/*.png)")
     ap.add_argument("--poses", help="TUM trajectory, camera-to-world (default FOLDER/groundtruth.txt)")
     ap.add_argument("-o", "--output", required=True, help="output PLY")
+    ap.add_argument("--mesh", help="also write the marching-cubes triangle mesh to this PLY")
     ap.add_argument("--camera", help="camera.toml with [camera] (default FOLDER/camera.toml)")
     ap.add_argument("--fx", type=float)
     ap.add_argument("--fy", type=float)
@@ -247,6 +249,13 @@ def main():
           f"sdf_trunc {sdf_trunc * 1e3:g} mm, depth_trunc {a.depth_trunc_m:g} m, "
           f"color {'RGB8' if use_color else 'none'}, poses {poses_path}")
     print(f"  points: {len(xyz)}  integrate: {integrate_s:.1f} s  cloud: {a.output}")
+    if a.mesh:
+        t0 = time.time()
+        mesh = volume.extract_triangle_mesh()
+        if not o3d.io.write_triangle_mesh(a.mesh, mesh, write_ascii=False, write_vertex_normals=False):
+            fail(f"cannot write {a.mesh}")
+        print(f"  mesh: {len(mesh.vertices)} vertices, {len(mesh.triangles)} triangles, "
+              f"extract {time.time() - t0:.1f} s: {a.mesh}")
 
 
 if __name__ == "__main__":
