@@ -228,6 +228,7 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
     const Chunk* c = map->find(candidates_[i].key);
     if (c->dirty) writes.emplace_back(candidates_[i].key, c);
   }
+  if (before_staging_ && !writes.empty()) before_staging_();
   Status st = store_->stage_chunks(writes);
   if (!st) {
     skip_eviction_calls_ = config_.retry_after_failure_calls;

@@ -14,6 +14,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <unordered_map>
 #include <unordered_set>
@@ -89,6 +90,12 @@ class MapPager {
     unloadable_.erase(key);
   }
 
+  // Called before evicted chunks are staged. A checkpoint written in the background holds the map
+  // as of an earlier frame and promotes the chunks staged up to that frame: a chunk staged since
+  // then could replace such a staged copy before the checkpoint took it, so the recorder waits
+  // for the checkpoint here.
+  void set_before_staging(std::function<void()> fn) { before_staging_ = std::move(fn); }
+
   // Bytes a chunk holds in memory, as the budget counts them.
   static size_t chunk_bytes(const Chunk& chunk);
 
@@ -107,6 +114,7 @@ class MapPager {
   std::unordered_map<ChunkKey, uint32_t, ChunkKeyHash> loaded_at_;  // frame a chunk was loaded at
   PagerStats stats_;
   int skip_eviction_calls_ = 0;
+  std::function<void()> before_staging_;
   struct Candidate {
     ChunkKey key;
     uint32_t last_used_frame;
