@@ -6,13 +6,15 @@ round starts the daemon on the same file (it resumes from the last checkpoint), 
 after the scan (re)started, kills it with SIGKILL and runs `depthfuse inspect` on the file. A frame
 is lost when the daemon fused it (published its pose) but the file's last checkpoint does not hold
 it: lost = (first frame of the round + poses published - 1) - last checkpoint frame after the kill.
-Then a steady run without kills gives the fused rate and the checkpoints' cost (heartbeat counters).
+Then steady runs without kills (alternating between the modes) give the fused rate and the
+checkpoints' cost (the fusion daemon's heartbeat counters).
 
 Both modes run side by side in one invocation: incremental checkpoints (this build, interval 1 s)
 and the old 30 s interval (--baseline-bin, the binaries of an earlier build; interval 30 s).
 
   tools/bench/kill9.py [--kills 100] [--bin build/bin] [--baseline-bin DIR] [--steady-s 30]
-                       [--min-s 0.1] [--max-s 4] [--scene room] [--lcm URL] [--workdir DIR]
+                       [--steady-runs 2] [--min-s 0.1] [--max-s 4] [--scene room] [--lcm URL]
+                       [--workdir DIR]
 """
 import argparse
 import json
@@ -72,7 +74,7 @@ class Watcher:
 
 def counter(hb, name):
     for c in hb.get("counters", []):
-        if c.get("name") == name:
+        if c.get("key") == name:
             return c.get("value")
     return None
 
@@ -95,22 +97,37 @@ def inspect(cli, db):
     return r.returncode, int(m.group(1)) if m else 0, r.stdout + r.stderr
 
 
-def run_mode(name, bin_dir, interval_s, args, watcher, cli):
-    work = os.path.join(args.workdir, name.replace(" ", "-"))
-    shutil.rmtree(work, ignore_errors=True)
-    os.makedirs(work)
-    cfg = os.path.join(work, "depthfuse.toml")
-    with open(cfg, "w") as f:
-        f.write("[fusion_daemon]\ncheckpoint_interval_s = %g\nscan_dir = \"%s\"\n" %
-                (interval_s, os.path.join(work, "scans")))
-    db = os.path.join(work, "scan.db")
-    fusion = os.path.join(bin_dir, "depthfuse-fusion")
+class Mode:
+    """One way of running the daemon: its binaries (and their CLI) and checkpoint interval."""
 
-    def start(log):
+    def __init__(self, name, bin_dir, interval_s, args):
+        self.name, self.args = name, args
+        self.work = os.path.join(args.workdir, name.replace(" ", "-"))
+        shutil.rmtree(self.work, ignore_errors=True)
+        os.makedirs(self.work)
+        self.cfg = os.path.join(self.work, "depthfuse.toml")
+        with open(self.cfg, "w") as f:
+            f.write("[fusion_daemon]\ncheckpoint_interval_s = %g\nscan_dir = \"%s\"\n" %
+                    (interval_s, os.path.join(self.work, "scans")))
+        self.db = os.path.join(self.work, "scan.db")
+        self.fusion = os.path.join(bin_dir, "depthfuse-fusion")
+        self.cli = os.path.join(bin_dir, "depthfuse")  # inspect of the schema these binaries write
+        self.rates, self.heartbeats = [], []
+
+    def start(self, log):
         out = open(log, "w")
-        return subprocess.Popen([fusion, "--config", cfg, "--lcm", args.lcm, "--scan-db", db,
-                                 "--autostart", "k9"], stdout=out, stderr=subprocess.STDOUT)
+        return subprocess.Popen([self.fusion, "--config", self.cfg, "--lcm", self.args.lcm, "--scan-db",
+                                 self.db, "--autostart", "k9"], stdout=out, stderr=subprocess.STDOUT)
 
+    def remove_scan(self):
+        for suffix in ("", "-wal", "-shm"):
+            if os.path.exists(self.db + suffix):
+                os.remove(self.db + suffix)
+
+
+def kill_rounds(mode, args, watcher):
+    name, db, start, cli = mode.name, mode.db, mode.start, mode.cli
+    work = mode.work
     lost, inspect_ok, rounds, problems = [], 0, 0, []
     expected_start = 1
     for i in range(args.kills):
@@ -146,32 +163,32 @@ def run_mode(name, bin_dir, interval_s, args, watcher, cli):
               (name, i + 1, first, last_fused, last, lost[-1], "ok" if code == 0 else "FAILED"),
               flush=True)
 
-    # Steady: a fresh scan without kills, the fused rate and the checkpoints' cost.
-    for suffix in ("", "-wal", "-shm"):
-        if os.path.exists(db + suffix):
-            os.remove(db + suffix)
-    proc = start(os.path.join(work, "fusion-steady.log"))
-    wait_for_line(os.path.join(work, "fusion-steady.log"), r"scan k9 started", 60)
+    return {
+        "mode": name, "kills": rounds, "inspect_ok": inspect_ok,
+        "lost_max": max(lost) if lost else 0, "lost_mean": statistics.mean(lost) if lost else 0,
+        "lost_over_30": sum(1 for x in lost if x > 30), "problems": problems,
+    }
+
+
+def steady(mode, args, watcher, run):
+    """A fresh scan without kills for --steady-s: its fused rate and the heartbeats' figures."""
+    mode.remove_scan()
+    log = os.path.join(mode.work, "fusion-steady-%d.log" % run)
+    proc = mode.start(log)
+    wait_for_line(log, r"scan k9 started", 60)
     t0 = time.monotonic()
     time.sleep(args.steady_s)
     t1 = time.monotonic()
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    rate = len(watcher.poses_between(t0, t1)) / (t1 - t0)
-    hbs = watcher.heartbeats_between(t0, t1)
+    mode.rates.append(len(watcher.poses_between(t0, t1)) / (t1 - t0))
+    mode.heartbeats += watcher.heartbeats_between(t0, t1)
+    print("%-14s steady run %d: %.1f frames fused per second" % (mode.name, run + 1, mode.rates[-1]), flush=True)
 
-    def figures(counter_name):
-        vals = [v for v in (counter(h, counter_name) for h in hbs) if v]
-        return (statistics.mean(vals), max(vals)) if vals else (0.0, 0.0)
 
-    return {
-        "mode": name, "kills": rounds, "inspect_ok": inspect_ok,
-        "lost_max": max(lost) if lost else 0, "lost_mean": statistics.mean(lost) if lost else 0,
-        "lost_over_30": sum(1 for x in lost if x > 30), "rate_hz": rate,
-        "snapshot_ms": figures("checkpoint_snapshot_ms"), "encode_ms": figures("checkpoint_encode_ms"),
-        "write_ms": figures("checkpoint_write_ms"), "chunks": figures("checkpoint_chunks"),
-        "problems": problems,
-    }
+def figures(mode, counter_name):
+    vals = [v for v in (counter(h, counter_name) for h in mode.heartbeats) if v]
+    return (statistics.mean(vals), max(vals)) if vals else (0.0, 0.0)
 
 
 def main():
@@ -181,6 +198,7 @@ def main():
     ap.add_argument("--baseline-bin", default="", help="binaries with the 30 s interval ('' = skip)")
     ap.add_argument("--python-dir", default=os.path.join(ROOT, "build", "python"))
     ap.add_argument("--steady-s", type=float, default=30.0)
+    ap.add_argument("--steady-runs", type=int, default=2)
     ap.add_argument("--min-s", type=float, default=0.1, help="earliest kill after the scan (re)starts")
     ap.add_argument("--max-s", type=float, default=4.0, help="latest kill after the scan (re)starts")
     ap.add_argument("--scene", default="room")
@@ -189,18 +207,23 @@ def main():
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args()
     random.seed(args.seed)
-    cli = os.path.join(args.bin, "depthfuse")
 
     watcher = Watcher(args.lcm, args.python_dir)
     capture = subprocess.Popen(
         [os.path.join(args.bin, "depthfuse-capture"), "--source", "synthetic:%s?frames=600" % args.scene,
          "--rate", "30", "--loop", "--lcm", args.lcm, "--color", "none"],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    modes = [Mode("incremental 1s", args.bin, 1.0, args)]
+    if args.baseline_bin:
+        modes.append(Mode("baseline 30s", args.baseline_bin, 30.0, args))
     results = []
     try:
-        results.append(run_mode("incremental 1s", args.bin, 1.0, args, watcher, cli))
-        if args.baseline_bin:
-            results.append(run_mode("baseline 30s", args.baseline_bin, 30.0, args, watcher, cli))
+        for m in modes:
+            results.append(kill_rounds(m, args, watcher))
+        # Alternating, so that the load of a shared machine weighs on both alike.
+        for run in range(args.steady_runs):
+            for m in modes:
+                steady(m, args, watcher, run)
     finally:
         capture.terminate()
         capture.wait()
@@ -209,12 +232,15 @@ def main():
     print("\n%d kills per mode at random moments %.1f-%.1f s after each (re)start; capture 30 Hz "
           "synthetic %s" % (args.kills, args.min_s, args.max_s, args.scene))
     print("| mode | kills | inspect ok | frames lost max | mean | kills losing > 30 | fused rate "
-          "(steady %.0f s) | checkpoint on the fusion thread (mean / max) | encode | write |" % args.steady_s)
+          "(%d x %.0f s, alternating) | checkpoint on the fusion thread (mean / max) | encode | write |"
+          % (args.steady_runs, args.steady_s))
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for r in results:
-        print("| %s | %d | %d | %d | %.1f | %d | %.1f fps | %.1f / %.1f ms | %.0f / %.0f ms | %.0f / %.0f ms |" %
-              (r["mode"], r["kills"], r["inspect_ok"], r["lost_max"], r["lost_mean"], r["lost_over_30"],
-               r["rate_hz"], *r["snapshot_ms"], *r["encode_ms"], *r["write_ms"]))
+    for m, r in zip(modes, results):
+        rates = "%.1f fps (%s)" % (statistics.mean(m.rates), ", ".join("%.1f" % x for x in m.rates)) if m.rates else "-"
+        print("| %s | %d | %d | %d | %.1f | %d | %s | %.1f / %.1f ms | %.0f / %.0f ms | %.0f / %.0f ms |" %
+              (r["mode"], r["kills"], r["inspect_ok"], r["lost_max"], r["lost_mean"], r["lost_over_30"], rates,
+               *figures(m, "checkpoint_snapshot_ms"), *figures(m, "checkpoint_encode_ms"),
+               *figures(m, "checkpoint_write_ms")))
     for r in results:
         for p in r["problems"]:
             print("%s: %s" % (r["mode"], p))

@@ -242,7 +242,8 @@ bool ScanRecorder::checkpoint_in_background(PointMap* map, const std::string& re
   job.poses.swap(pending_poses_);
   status_.pending_poses = 0;
   if (!writer_)
-    writer_ = std::make_unique<CheckpointWriter>(store_.get(), &mutex_, config_.store.compression_level);
+    writer_ = std::make_unique<CheckpointWriter>(store_.get(), &mutex_,
+                                                 config_.background_compression_level);
   writer_->start(std::move(job));
   status_.last_snapshot_seconds = static_cast<double>(steady_ns() - t0_ns) * 1e-9;
   return true;

@@ -27,6 +27,9 @@ struct RecorderConfig {
   MapPagerConfig pager;
   int keyframe_every_n_frames = 10;  // 0 = no keyframes
   bool keyframe_color = true;        // store the registered colour image with the depth
+  // zstd level of the chunks background checkpoints write: they rewrite every chunk in view about
+  // every second, so speed counts for more than the last few percent of size.
+  int background_compression_level = 1;
   StoreOptions store;
 };
 
