@@ -321,6 +321,37 @@ TEST(ScanStore, StagedChunksArePromotedByACheckpointAndDroppedAfterACrash) {
   EXPECT_EQ(s->read_keyframe(31).status().code(), StatusCode::kNotFound);
 }
 
+// A checkpoint written in the background holds the map as of an earlier frame F: chunks staged
+// by frames after F are neither promoted nor replaced by it (a crash discards them), those of its
+// frames are promoted.
+TEST(ScanStore, ACheckpointOfAnEarlierFrameLeavesLaterStagedChunksStaged) {
+  TempDir dir;
+  const std::string path = dir.file("scan.db");
+  const ChunkKey a{1, 0, 0}, b{2, 0, 0};
+  const Chunk a_staged = chunk_of(make_points(a, 1, 30), 15);
+  const Chunk b_at_20 = chunk_of(make_points(b, 2, 40), 18), b_staged = chunk_of(make_points(b, 3, 50), 25);
+  {
+    auto s = open_or_die(path, OpenMode::kCreate);
+    ASSERT_TRUE(s);
+    checkpoint(*s, {}, 10);
+    ASSERT_TRUE(s->stage_chunks({{a, &a_staged}, {b, &b_staged}}));
+    ASSERT_TRUE(s->begin_checkpoint(20));
+    ASSERT_TRUE(s->write_chunk(b, b_at_20));
+    CheckpointInfo info;
+    info.last_frame_id = 20;
+    ASSERT_TRUE(s->commit_checkpoint(info));
+    EXPECT_TRUE(bit_equal(s->read_chunk(a)->chunk.points, a_staged.points));   // promoted
+    EXPECT_TRUE(bit_equal(s->read_chunk(b)->chunk.points, b_at_20.points));    // as of frame 20
+    EXPECT_TRUE(bit_equal(s->read_chunk(b, true)->chunk.points, b_staged.points));  // still staged
+    // The process dies before the next checkpoint.
+  }
+  auto s = open_or_die(path, OpenMode::kReadWrite);
+  ASSERT_TRUE(s);
+  EXPECT_EQ(s->open_report().discarded_staged_chunks, 1u);
+  EXPECT_TRUE(bit_equal(s->read_chunk(b, true)->chunk.points, b_at_20.points));
+  EXPECT_TRUE(bit_equal(s->read_chunk(a)->chunk.points, a_staged.points));
+}
+
 TEST(ScanStore, OneWriterAtATime) {
   TempDir dir;
   const std::string path = dir.file("scan.db");

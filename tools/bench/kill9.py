@@ -13,7 +13,7 @@ Both modes run side by side in one invocation: incremental checkpoints (this bui
 and the old 30 s interval (--baseline-bin, the binaries of an earlier build; interval 30 s).
 
   tools/bench/kill9.py [--kills 100] [--bin build/bin] [--baseline-bin DIR] [--steady-s 30]
-                       [--steady-runs 2] [--min-s 0.1] [--max-s 4] [--scene room] [--lcm URL]
+                       [--steady-runs 2] [--min-s 0.1] [--max-s 6] [--scene room] [--lcm URL]
                        [--workdir DIR]
 """
 import argparse
@@ -113,11 +113,14 @@ class Mode:
         self.fusion = os.path.join(bin_dir, "depthfuse-fusion")
         self.cli = os.path.join(bin_dir, "depthfuse")  # inspect of the schema these binaries write
         self.rates, self.heartbeats = [], []
+        self.proc = None
 
     def start(self, log):
         out = open(log, "w")
-        return subprocess.Popen([self.fusion, "--config", self.cfg, "--lcm", self.args.lcm, "--scan-db",
-                                 self.db, "--autostart", "k9"], stdout=out, stderr=subprocess.STDOUT)
+        self.proc = subprocess.Popen([self.fusion, "--config", self.cfg, "--lcm", self.args.lcm,
+                                      "--scan-db", self.db, "--autostart", "k9"],
+                                     stdout=out, stderr=subprocess.STDOUT)
+        return self.proc
 
     def remove_scan(self):
         for suffix in ("", "-wal", "-shm"):
@@ -144,6 +147,11 @@ def kill_rounds(mode, args, watcher):
         if first != expected_start:
             problems.append("round %d: resumed at frame %d, the file's last checkpoint says %d" %
                             (i, first, expected_start))
+        # The random moment counts from the round's first fused frame: resuming a big map on a
+        # loaded machine takes a while, and a kill before fusion restarts would lose nothing.
+        deadline = time.monotonic() + 60
+        while not watcher.poses_between(t_start, time.monotonic()) and time.monotonic() < deadline:
+            time.sleep(0.01)
         time.sleep(random.uniform(args.min_s, args.max_s))
         proc.send_signal(signal.SIGKILL)
         proc.wait()
@@ -199,8 +207,8 @@ def main():
     ap.add_argument("--python-dir", default=os.path.join(ROOT, "build", "python"))
     ap.add_argument("--steady-s", type=float, default=30.0)
     ap.add_argument("--steady-runs", type=int, default=2)
-    ap.add_argument("--min-s", type=float, default=0.1, help="earliest kill after the scan (re)starts")
-    ap.add_argument("--max-s", type=float, default=4.0, help="latest kill after the scan (re)starts")
+    ap.add_argument("--min-s", type=float, default=0.1, help="earliest kill after the round's first fused frame")
+    ap.add_argument("--max-s", type=float, default=6.0, help="latest kill after the round's first fused frame")
     ap.add_argument("--scene", default="room")
     ap.add_argument("--lcm", default="udpm://239.255.76.67:%d?ttl=0" % (7700 + os.getpid() % 200))
     ap.add_argument("--workdir", default="/tmp/depthfuse-kill9")
@@ -225,11 +233,14 @@ def main():
             for m in modes:
                 steady(m, args, watcher, run)
     finally:
+        for m in modes:
+            if m.proc and m.proc.poll() is None:
+                m.proc.kill()
         capture.terminate()
         capture.wait()
         watcher.stop()
 
-    print("\n%d kills per mode at random moments %.1f-%.1f s after each (re)start; capture 30 Hz "
+    print("\n%d kills per mode at random moments %.1f-%.1f s after each round's first fused frame; capture 30 Hz "
           "synthetic %s" % (args.kills, args.min_s, args.max_s, args.scene))
     print("| mode | kills | inspect ok | frames lost max | mean | kills losing > 30 | fused rate "
           "(%d x %.0f s, alternating) | checkpoint on the fusion thread (mean / max) | encode | write |"

@@ -15,11 +15,37 @@ ScanRecorder::ScanRecorder(std::unique_ptr<ScanStore> store, const RecorderConfi
   status_.path = store_->path();
   if (config_.bounded_memory) {
     pager_ = std::make_unique<MapPager>(config_.pager, store_.get());
-    // Called from record_frame, which holds the mutex.
+    pager_->set_store_mutex(&mutex_);
     pager_->set_before_staging([this] {
       if (writer_) writer_->wait_idle();
     });
   }
+}
+
+namespace {
+// Keyframes the fusion thread holds while the background writer has the store (~1 MB each).
+constexpr size_t kMaxPendingKeyframes = 4;
+}  // namespace
+
+Status ScanRecorder::write_pending_keyframes() {
+  Status result;
+  for (const Keyframe& k : pending_keyframes_) {
+    Status st = store_->write_keyframe(k);
+    if (st) ++status_.keyframes_written;
+    else if (result) result = note(st);
+  }
+  pending_keyframes_.clear();
+  return result;
+}
+
+// The fusion thread never waits for the background writer's transaction: what needs the store
+// and can wait (the outcome, keyframes) waits for a frame where the store is free.
+Status ScanRecorder::catch_up(PointMap* map) {
+  std::unique_lock<std::mutex> lock(mutex_, std::try_to_lock);
+  if (!lock && pending_keyframes_.size() < kMaxPendingKeyframes) return Status::ok();
+  if (!lock) lock.lock();
+  collect_background(map);
+  return write_pending_keyframes();
 }
 
 ScanRecorder::~ScanRecorder() = default;
@@ -113,8 +139,7 @@ Result<std::unique_ptr<ScanRecorder>> ScanRecorder::resume(const std::string& pa
 Status ScanRecorder::prepare_frame(const Frame& frame, IncrementalReconstructor& reconstructor,
                                    const std::optional<Pose>& prediction) {
   if (!pager_) return Status::ok();
-  std::lock_guard<std::mutex> lock(mutex_);
-  collect_background(&reconstructor.map());
+  (void)catch_up(&reconstructor.map());
   Pose guess = Pose::Identity();
   if (frame.T_world_cam_hint) guess = *frame.T_world_cam_hint;
   else if (prediction) guess = *prediction;
@@ -125,8 +150,6 @@ Status ScanRecorder::prepare_frame(const Frame& frame, IncrementalReconstructor&
 }
 
 Status ScanRecorder::record_frame(const Frame& frame, const FrameReport& report, PointMap* map) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  collect_background(map);
   PoseRecord p;
   p.frame_id = report.frame_id;
   p.utime = frame.utime;
@@ -145,13 +168,11 @@ Status ScanRecorder::record_frame(const Frame& frame, const FrameReport& report,
   Status result;
   const int every = config_.keyframe_every_n_frames;
   if (every > 0 && (frames_since_keyframe_ % static_cast<uint64_t>(every)) == 0 &&
-      !frame.depth.empty()) {
-    Status st = store_->write_keyframe(
+      !frame.depth.empty())
+    pending_keyframes_.push_back(
         Keyframe::from_frame(frame, report.frame_id, report.T_world_cam, config_.keyframe_color));
-    if (st) ++status_.keyframes_written;
-    else result = note(st);
-  }
   ++frames_since_keyframe_;
+  result = catch_up(map);
 
   if (pager_) {
     Status st = pager_->update(map, report.T_world_cam.translation().cast<float>(), report.frame_id);
@@ -219,8 +240,9 @@ void ScanRecorder::checkpoint_committed(const CheckpointRecord& rec, std::vector
 }
 
 bool ScanRecorder::checkpoint_in_flight() const {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return writer_ && writer_->busy();
+  // The writer holds the mutex while it writes: then it is in flight, and asking does not wait.
+  std::unique_lock<std::mutex> lock(mutex_, std::try_to_lock);
+  return !lock || (writer_ && writer_->busy());
 }
 
 bool ScanRecorder::checkpoint_in_background(PointMap* map, const std::string& reason,
@@ -228,6 +250,8 @@ bool ScanRecorder::checkpoint_in_background(PointMap* map, const std::string& re
   std::lock_guard<std::mutex> lock(mutex_);
   collect_background(map);
   if (writer_ && writer_->busy()) return false;
+  // The checkpoint's frames' keyframes go first: readers list the keyframes up to its frame.
+  (void)write_pending_keyframes();
   const int64_t t0_ns = steady_ns();
   CheckpointJob job;
   job.snapshot_ns = t0_ns;
@@ -280,6 +304,7 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
   std::lock_guard<std::mutex> lock(mutex_);
   if (writer_) writer_->wait_idle();
   collect_background(map);
+  (void)write_pending_keyframes();
   const int64_t t0_ns = steady_ns();
   ScanStore& store = *store_;
   Status st = store.begin_checkpoint();

@@ -136,11 +136,17 @@ class ScanRecorder {
   void checkpoint_committed(const CheckpointRecord& rec, std::vector<ChunkKey> resident);
   // With the mutex held: applies a finished background checkpoint's outcome to the map and status.
   void collect_background(PointMap* map);
+  // Without waiting: when the writer is not in its transaction, collects its outcome and writes the
+  // pending keyframes (all of them, waiting if need be, once kMaxPendingKeyframes are waiting).
+  Status catch_up(PointMap* map);
+  // With the mutex held.
+  Status write_pending_keyframes();
 
   std::unique_ptr<ScanStore> store_;
   RecorderConfig config_;
   std::unique_ptr<MapPager> pager_;
   std::vector<PoseRecord> pending_poses_;
+  std::vector<Keyframe> pending_keyframes_;  // taken while the writer held the store
   std::vector<ChunkKey> resident_at_checkpoint_;  // to notice chunks removed from the map
   uint32_t last_frame_id_ = 0;
   std::optional<Pose> last_pose_;
