@@ -210,7 +210,7 @@ def main():
     ap.add_argument("--min-s", type=float, default=0.1, help="earliest kill after the round's first fused frame")
     ap.add_argument("--max-s", type=float, default=6.0, help="latest kill after the round's first fused frame")
     ap.add_argument("--scene", default="room")
-    ap.add_argument("--lcm", default="udpm://239.255.76.67:%d?ttl=0" % (7700 + os.getpid() % 200))
+    ap.add_argument("--lcm", default="udpm://239.255.76.67:%d?ttl=0&recv_buf_size=4194304" % (7700 + os.getpid() % 200))
     ap.add_argument("--workdir", default="/tmp/depthfuse-kill9")
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args()

@@ -165,14 +165,13 @@ Status ScanRecorder::record_frame(const Frame& frame, const FrameReport& report,
   ++status_.frames_recorded;
   status_.pending_poses = pending_poses_.size();
 
-  Status result;
   const int every = config_.keyframe_every_n_frames;
   if (every > 0 && (frames_since_keyframe_ % static_cast<uint64_t>(every)) == 0 &&
       !frame.depth.empty())
     pending_keyframes_.push_back(
         Keyframe::from_frame(frame, report.frame_id, report.T_world_cam, config_.keyframe_color));
   ++frames_since_keyframe_;
-  result = catch_up(map);
+  Status result = catch_up(map);
 
   if (pager_) {
     Status st = pager_->update(map, report.T_world_cam.translation().cast<float>(), report.frame_id);

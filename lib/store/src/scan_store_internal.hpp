@@ -8,8 +8,9 @@
 //   scan_store_checkpoint.cpp  writing: checkpoints, chunks, poses, keyframes, staging
 //   scan_store_read.cpp        reading: snapshots, chunks, poses, keyframes, checkpoints, summary
 //   scan_store_integrity.cpp   checking every table and blob
-// A ScanStore is used from one thread: the fusion daemon's worker thread owns the writer (through
-// ScanRecorder); readers are other processes (depthfuse export and inspect), each with its own
+// A ScanStore is used by one thread at a time: the fusion daemon's worker thread owns the writer
+// (through ScanRecorder, whose background checkpoint thread takes it under the recorder's mutex);
+// readers are other processes (depthfuse export and inspect), each with its own
 // connection.
 #pragma once
 

@@ -1,6 +1,7 @@
 // What the fusion daemon needs from the store, in one object: a new or resumed scan file, the pose
 // of every fused frame, a keyframe every n frames, bounded memory through the MapPager, and
-// checkpoints (periodic, on command, on SIGTERM, final). Errors are returned and also kept in
+// checkpoints (periodic ones written by a thread of its own, on command, on SIGTERM, final). All
+// calls come from one thread (the fusion daemon's worker). Errors are returned and also kept in
 // status() for the heartbeat; a failed checkpoint leaves the previous one intact and everything it
 // would have written stays pending for the next attempt.
 #pragma once

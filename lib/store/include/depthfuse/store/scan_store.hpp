@@ -10,7 +10,8 @@
 // run while the daemon writes.
 //
 // One writer per file (an advisory lock, so a second writer gets kUnavailable); any number of
-// readers. A ScanStore is used from one thread.
+// readers. A ScanStore is used by one thread at a time (ScanRecorder shares its writer between the
+// fusion thread and its background checkpoint thread under a mutex).
 #pragma once
 
 #include <cstdint>
