@@ -272,7 +272,7 @@ bool ScanRecorder::checkpoint_in_background(PointMap* map, const std::string& re
   return true;
 }
 
-void ScanRecorder::collect_background(PointMap* map) {
+void ScanRecorder::collect_background(PointMap* map, bool clear_dirty) {
   if (!writer_) return;
   std::optional<CheckpointOutcome> out = writer_->take_outcome();
   if (!out) return;
@@ -290,7 +290,7 @@ void ScanRecorder::collect_background(PointMap* map) {
   // A chunk a later frame touched has changes the checkpoint does not hold: it stays dirty.
   for (const ChunkKey& key : job.written) {
     Chunk* c = map->find(key);
-    if (c && c->last_touched_frame <= job.info.last_frame_id) c->dirty = false;
+    if (clear_dirty && c && c->last_touched_frame <= job.info.last_frame_id) c->dirty = false;
   }
   status_.last_checkpoint_chunks = job.written.size();
   status_.last_checkpoint_seconds = static_cast<double>(steady_ns() - job.snapshot_ns) * 1e-9;
@@ -302,7 +302,9 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
                                                         bool postfilter_evicted) {
   std::lock_guard<std::mutex> lock(mutex_);
   if (writer_) writer_->wait_idle();
-  collect_background(map);
+  // This checkpoint writes every dirty chunk anyway, and finish() comes after a post-filter that
+  // changed chunks without touching a frame: none is taken for clean here.
+  collect_background(map, /*clear_dirty=*/false);
   (void)write_pending_keyframes();
   const int64_t t0_ns = steady_ns();
   ScanStore& store = *store_;

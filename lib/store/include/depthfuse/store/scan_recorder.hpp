@@ -136,7 +136,9 @@ class ScanRecorder {
   Status checkpoint_failed(const Status& error);
   void checkpoint_committed(const CheckpointRecord& rec, std::vector<ChunkKey> resident);
   // With the mutex held: applies a finished background checkpoint's outcome to the map and status.
-  void collect_background(PointMap* map);
+  // `clear_dirty`: the chunks it wrote and no later frame touched are clean. Not when the map may
+  // have changed outside fusion since (the end of scan's post-filter touches no frame).
+  void collect_background(PointMap* map, bool clear_dirty = true);
   // Without waiting: when the writer is not in its transaction, collects its outcome and writes the
   // pending keyframes (all of them, waiting if need be, once kMaxPendingKeyframes are waiting).
   Status catch_up(PointMap* map);
