@@ -118,13 +118,18 @@ int run(int argc, char** argv) {
   auto opened = store::ScanStore::open(args.positional()[0], store::OpenMode::kReadOnly);
   if (!opened) return cli::fail(opened.status().message());
   store::ScanStore& scan = **opened;
-  auto report = store::export_cloud(scan, out, options);
-  if (!report) return cli::fail(report.status().message());
-  for (const std::string& d : report->damaged) DF_LOG(Export, Warning) << "skipped: " << d;
+  // The trajectory first: a damaged pose (its checksum fails) stops the export before the cloud
+  // is written.
   if (args.has("trajectory")) {
     const Status st = store::export_trajectory(scan, args.get("trajectory"));
-    if (!st) return cli::fail(st.message());
+    if (!st) return cli::fail(st.message() + " (nothing exported)");
   }
+  auto report = store::export_cloud(scan, out, options);
+  if (!report) {
+    if (args.has("trajectory")) std::remove(args.get("trajectory").c_str());
+    return cli::fail(report.status().message());
+  }
+  for (const std::string& d : report->damaged) DF_LOG(Export, Warning) << "skipped: " << d;
   std::printf("wrote %llu points from %zu chunks to %s", static_cast<unsigned long long>(report->points_written),
               report->chunks_read, out.c_str());
   if (report->points_filtered) std::printf(" (%llu filtered out)", static_cast<unsigned long long>(report->points_filtered));

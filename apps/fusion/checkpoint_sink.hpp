@@ -61,9 +61,16 @@ class CheckpointSink {
   virtual Status frame_fused(const Frame& frame, const FrameReport& report,
                              IncrementalReconstructor& reconstructor) = 0;
   // reason: "periodic" (every fusion_daemon.checkpoint_interval_s, only when durable()) or
-  // "command" (depthfuse scan checkpoint).
+  // "command" (depthfuse scan checkpoint). A periodic checkpoint may be written in the background
+  // (the frames keep coming); a commanded one is written when this returns.
   virtual Status checkpoint(const std::string& reason, IncrementalReconstructor& reconstructor,
                             const FusionProgress& progress) = 0;
+  // A background checkpoint is still being written: the next periodic one waits for it.
+  virtual bool checkpoint_in_flight() const { return false; }
+  // How long the last background checkpoint took from its snapshot to its commit, s: the daemon
+  // starts the next one that much before the interval is up, so that what a crash can lose stays
+  // within fusion_daemon.checkpoint_interval_s.
+  virtual double checkpoint_latency_s() const { return 0.0; }
   // The scan is over; reconstructor.finish() has post-filtered the resident map. reason: "final"
   // (stop, new scan) or "sigterm". A durable sink writes its final checkpoint here.
   virtual Status end_scan(const std::string& reason, IncrementalReconstructor& reconstructor,

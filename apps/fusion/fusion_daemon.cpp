@@ -496,15 +496,20 @@ void FusionDaemon::worker_loop() {
 
     preview_.tick(state_.load(), reconstructor_ ? scan_.scan_id : "", reconstructor_.get());
     refresh_sink_counters();
+    // A crash loses the frames since the last committed checkpoint's snapshot: the next snapshot
+    // comes early by the time the last one took to commit, so that this stays within the
+    // interval. One still being written delays the next rather than queueing it.
     if (reconstructor_ && sink_->durable() && state_.load() == heartbeat_t::STATE_RUNNING &&
         Clock::now() - last_checkpoint_ >
-            std::chrono::duration<double>(config_.fusion.checkpoint_interval_s)) {
+            std::chrono::duration<double>(config_.fusion.checkpoint_interval_s -
+                                          sink_->checkpoint_latency_s()) &&
+        !sink_->checkpoint_in_flight()) {
       const FusionProgress progress{static_cast<uint64_t>(frames_in_.load()),
                                     static_cast<uint64_t>(frames_fused_.load()),
                                     static_cast<uint64_t>(queue_.dropped())};
+      last_checkpoint_ = Clock::now();
       if (auto st = sink_->checkpoint("periodic", *reconstructor_, progress); !st.is_ok())
         set_error("checkpoint: " + st.to_string());
-      last_checkpoint_ = Clock::now();
     }
   }
   // Shutting down (SIGTERM): a running scan is saved, not lost; if the scan directory cannot take

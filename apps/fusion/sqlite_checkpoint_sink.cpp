@@ -59,6 +59,7 @@ Status SqliteCheckpointSink::begin_scan(const ScanContext& scan) {
   resume_.reset();
   final_written_ = false;
   resumed_received_ = resumed_dropped_ = 0;
+  reported_failures_ = 0;
   if (!options_.scan_db_path.empty() && !scan_db_used_) {
     path_ = options_.scan_db_path;
     scan_db_used_ = true;
@@ -129,9 +130,32 @@ Status SqliteCheckpointSink::frame_fused(const Frame& frame, const FrameReport& 
 Status SqliteCheckpointSink::checkpoint(const std::string& reason, IncrementalReconstructor& reconstructor,
                                         const FusionProgress& progress) {
   if (!recorder_) return invalid_argument("no scan file is open");
+  // Periodic checkpoints come every second or so: written on the recorder's own thread from a copy
+  // of what changed, so that fusion does not wait for the encoding and the fsync. Their failures
+  // reach the heartbeat through the recorder's status (checkpoint_failures, last_error).
+  if (reason == "periodic") {
+    (void)recorder_->checkpoint_in_background(&reconstructor.map(), reason, counters_of(progress));
+    // A background checkpoint that failed since the last call is this call's error (the daemon
+    // makes it the heartbeat's last_error).
+    const store::RecorderStatus& st = recorder_->status();
+    if (st.checkpoint_failures > reported_failures_) {
+      reported_failures_ = st.checkpoint_failures;
+      return Status(st.checkpoint_error_code, st.checkpoint_error)
+          .with_context("checkpoint of " + path_ + " (the last good one is kept)");
+    }
+    return Status::ok();
+  }
   auto r = recorder_->checkpoint(&reconstructor.map(), reason, counters_of(progress));
   if (!r) return r.status().with_context("checkpoint of " + path_ + " (the last good one is kept)");
   return Status::ok();
+}
+
+bool SqliteCheckpointSink::checkpoint_in_flight() const {
+  return recorder_ && recorder_->checkpoint_in_flight();
+}
+
+double SqliteCheckpointSink::checkpoint_latency_s() const {
+  return recorder_ ? recorder_->status().last_checkpoint_seconds : 0.0;
 }
 
 Status SqliteCheckpointSink::end_scan(const std::string& reason, IncrementalReconstructor& reconstructor,
@@ -180,6 +204,12 @@ void SqliteCheckpointSink::add_counters(std::vector<std::pair<std::string, doubl
   counters->emplace_back("checkpoint_failures", static_cast<double>(s.checkpoint_failures));
   counters->emplace_back("last_checkpoint_frame",
                          s.last_checkpoint ? static_cast<double>(s.last_checkpoint->last_frame_id) : 0.0);
+  // The last background checkpoint: the fusion thread's share (copying the changed chunks), then
+  // the writer thread's (encoding them; the transaction with its fsync).
+  counters->emplace_back("checkpoint_snapshot_ms", s.last_snapshot_seconds * 1e3);
+  counters->emplace_back("checkpoint_encode_ms", s.last_encode_seconds * 1e3);
+  counters->emplace_back("checkpoint_write_ms", s.last_write_seconds * 1e3);
+  counters->emplace_back("checkpoint_chunks", static_cast<double>(s.last_checkpoint_chunks));
   counters->emplace_back("resident_mib", s.pager.resident_bytes / (1024.0 * 1024.0));
   counters->emplace_back("evicted_chunks", static_cast<double>(s.pager.evicted_chunks));
   // Paging activity since the scan (or its resume) began: chunks written out and brought back.

@@ -31,6 +31,8 @@ class SqliteCheckpointSink : public CheckpointSink {
                      IncrementalReconstructor& reconstructor) override;
   Status checkpoint(const std::string& reason, IncrementalReconstructor& reconstructor,
                     const FusionProgress& progress) override;
+  bool checkpoint_in_flight() const override;
+  double checkpoint_latency_s() const override;
   Status end_scan(const std::string& reason, IncrementalReconstructor& reconstructor,
                   const FusionProgress& progress) override;
   Result<size_t> write_cloud(const std::string& ply_path,
@@ -53,6 +55,7 @@ class SqliteCheckpointSink : public CheckpointSink {
   std::unique_ptr<store::ResumePoint> resume_;  // between begin_scan and restore
   bool final_written_ = false;      // end_scan's checkpoint committed
   uint64_t resumed_received_ = 0, resumed_dropped_ = 0;  // counted before a resume
+  uint64_t reported_failures_ = 0;  // background checkpoint failures already returned
 };
 
 }  // namespace depthfuse::fusiond

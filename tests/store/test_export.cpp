@@ -164,7 +164,7 @@ TEST(Export, DamagedFilesGetClearErrorsFromInspectAndExport) {
   const Proc ok = run(cli() + " inspect " + good);
   ASSERT_EQ(ok.code, 0) << ok.output;
   EXPECT_NE(ok.output.find("integrity      ok"), std::string::npos) << ok.output;
-  EXPECT_NE(ok.output.find("schema version 2"), std::string::npos) << ok.output;
+  EXPECT_NE(ok.output.find("schema version " + std::to_string(kSchemaVersion)), std::string::npos) << ok.output;
   EXPECT_NE(ok.output.find("in 30 chunks"), std::string::npos) << ok.output;
 
   // A flipped byte inside one chunk's blob.
@@ -211,6 +211,63 @@ TEST(Export, DamagedFilesGetClearErrorsFromInspectAndExport) {
       EXPECT_NE(r.output.find(c.expect), std::string::npos) << cmd << "\n" << r.output;
     }
   }
+}
+
+// Poses carry a checksum like chunks: one flipped bit in a stored pose is named by inspect, and
+// export --trajectory fails instead of writing the wrong pose.
+TEST(Export, AFlippedBitInAStoredPoseIsNamedAndStopsTheExport) {
+  TempDir dir;
+  const std::string scan = dir.file("poses.db");
+  auto pose_of = [](uint32_t f) {
+    Pose T = Pose::Identity();
+    T.translation() = Eigen::Vector3d(0.6 + 0.01 * f, -0.2, 1.5);
+    return T;
+  };
+  {
+    auto s = ScanStore::open(scan, OpenMode::kCreate);
+    ASSERT_TRUE(s);
+    ASSERT_TRUE((*s)->begin_checkpoint());
+    const ChunkKey k{0, 0, 0};
+    Chunk c;
+    c.points = make_points(k, 1, 100);
+    ASSERT_TRUE((*s)->write_chunk(k, c));
+    for (uint32_t f = 1; f <= 10; ++f) {
+      PoseRecord p;
+      p.frame_id = f;
+      p.utime = 1000000 * f;
+      p.T_world_cam = pose_of(f);
+      ASSERT_TRUE((*s)->write_pose(p));
+    }
+    CheckpointInfo info;
+    info.last_frame_id = 10;
+    info.frames_fused = 10;
+    ASSERT_TRUE((*s)->commit_checkpoint(info));
+  }
+  Proc r = run(cli() + " inspect " + scan);
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_NE(r.output.find("10 pose records checksummed"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("unchecked"), std::string::npos) << r.output;
+
+  // One bit of frame 7's x translation (the low bytes of a double: the pose stays a valid pose).
+  {
+    std::ifstream in(scan, std::ios::binary);
+    const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    const std::vector<uint8_t> blob = encode_pose(pose_of(7));
+    const size_t at = bytes.find(std::string(blob.begin(), blob.end()));
+    ASSERT_NE(at, std::string::npos);
+    std::fstream f(scan, std::ios::binary | std::ios::in | std::ios::out);
+    f.seekp(static_cast<std::streamoff>(at + 3 * sizeof(double) + 1));
+    f.put(static_cast<char>(bytes[at + 3 * sizeof(double) + 1] ^ 0x10));
+  }
+  r = run(cli() + " inspect " + scan);
+  EXPECT_EQ(r.code, 1) << r.output;
+  EXPECT_NE(r.output.find("pose of frame 7: checksum mismatch"), std::string::npos) << r.output;
+  const std::string out = dir.file("out.ply"), traj = dir.file("traj.txt");
+  r = run(cli() + " export " + scan + " -o " + out + " --trajectory " + traj);
+  EXPECT_EQ(r.code, 1) << r.output;
+  EXPECT_NE(r.output.find("pose of frame 7: checksum mismatch"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(traj));
+  EXPECT_FALSE(std::filesystem::exists(out));
 }
 
 TEST(Export, WorksWhileAWriterIsCheckpointing) {

@@ -9,6 +9,7 @@
 #include <random>
 
 #include "depthfuse/store/blob_codec.hpp"
+#include "depthfuse/store/scan_recorder.hpp"
 #include "depthfuse/store/scan_store.hpp"
 #include "store_test_util.hpp"
 
@@ -320,6 +321,37 @@ TEST(ScanStore, StagedChunksArePromotedByACheckpointAndDroppedAfterACrash) {
   EXPECT_EQ(s->read_keyframe(31).status().code(), StatusCode::kNotFound);
 }
 
+// A checkpoint written in the background holds the map as of an earlier frame F: chunks staged
+// by frames after F are neither promoted nor replaced by it (a crash discards them), those of its
+// frames are promoted.
+TEST(ScanStore, ACheckpointOfAnEarlierFrameLeavesLaterStagedChunksStaged) {
+  TempDir dir;
+  const std::string path = dir.file("scan.db");
+  const ChunkKey a{1, 0, 0}, b{2, 0, 0};
+  const Chunk a_staged = chunk_of(make_points(a, 1, 30), 15);
+  const Chunk b_at_20 = chunk_of(make_points(b, 2, 40), 18), b_staged = chunk_of(make_points(b, 3, 50), 25);
+  {
+    auto s = open_or_die(path, OpenMode::kCreate);
+    ASSERT_TRUE(s);
+    checkpoint(*s, {}, 10);
+    ASSERT_TRUE(s->stage_chunks({{a, &a_staged}, {b, &b_staged}}));
+    ASSERT_TRUE(s->begin_checkpoint(20));
+    ASSERT_TRUE(s->write_chunk(b, b_at_20));
+    CheckpointInfo info;
+    info.last_frame_id = 20;
+    ASSERT_TRUE(s->commit_checkpoint(info));
+    EXPECT_TRUE(bit_equal(s->read_chunk(a)->chunk.points, a_staged.points));   // promoted
+    EXPECT_TRUE(bit_equal(s->read_chunk(b)->chunk.points, b_at_20.points));    // as of frame 20
+    EXPECT_TRUE(bit_equal(s->read_chunk(b, true)->chunk.points, b_staged.points));  // still staged
+    // The process dies before the next checkpoint.
+  }
+  auto s = open_or_die(path, OpenMode::kReadWrite);
+  ASSERT_TRUE(s);
+  EXPECT_EQ(s->open_report().discarded_staged_chunks, 1u);
+  EXPECT_TRUE(bit_equal(s->read_chunk(b, true)->chunk.points, b_at_20.points));
+  EXPECT_TRUE(bit_equal(s->read_chunk(a)->chunk.points, a_staged.points));
+}
+
 TEST(ScanStore, OneWriterAtATime) {
   TempDir dir;
   const std::string path = dir.file("scan.db");
@@ -447,13 +479,21 @@ TEST(ScanStore, MigratesASchema1File) {
     ASSERT_TRUE(s);
     EXPECT_TRUE(s->open_report().migrated);
     EXPECT_EQ(s->open_report().found_schema_version, 1);
-    EXPECT_EQ(s->schema_version(), 2);
+    EXPECT_EQ(s->schema_version(), kSchemaVersion);
+    // Poses of an older schema have no checksum: checked as far as they can be, and said so.
+    auto integrity = s->integrity_check();
+    ASSERT_TRUE(integrity);
+    EXPECT_TRUE(integrity->ok());
+    EXPECT_EQ(integrity->poses_checked, 20u);
+    EXPECT_EQ(integrity->poses_unchecked, 20u);
   }
   // The same through the CLI: inspect refuses, inspect --upgrade migrates and checks.
   const std::string cli = DEPTHFUSE_CLI;
   EXPECT_NE(std::system((cli + " inspect " + copy + " > /dev/null 2>&1").c_str()), 0);
   EXPECT_EQ(std::system((cli + " inspect --upgrade " + copy + " > /dev/null 2>&1").c_str()), 0);
   EXPECT_EQ(std::system((cli + " inspect " + copy + " > /dev/null 2>&1").c_str()), 0);
+  EXPECT_EQ(std::system((cli + " inspect " + copy + " | grep -q '0 pose records checksummed, 20 "
+                         "unchecked'").c_str()), 0);
   auto s = open_or_die(path, OpenMode::kReadOnly);
   ASSERT_TRUE(s);
   auto c = s->read_chunk(key);
@@ -492,6 +532,63 @@ TEST(ScanStore, MigratesASchema1File) {
   auto rec = checkpoint(*w, {{{1, 0, 0}, make_points({1, 0, 0}, 4, 10)}}, 21);
   EXPECT_EQ(rec.id, 4);
   EXPECT_EQ(rec.point_count, 87u);
+}
+
+// Stored frame numbers that disagree are problems for inspect, and a writer does not resume them.
+TEST(ScanStore, FrameNumbersThatDisagreeAreNotResumed) {
+  TempDir dir;
+  const std::string good = dir.file("good.db");
+  {
+    auto s = open_or_die(good, OpenMode::kCreate);
+    ASSERT_TRUE(s);
+    ASSERT_TRUE(s->begin_checkpoint());
+    for (uint32_t f = 1; f <= 12; ++f) {
+      PoseRecord p;
+      p.frame_id = f;
+      p.T_world_cam = some_pose(f * 0.1);
+      ASSERT_TRUE(s->write_pose(p));
+    }
+    CheckpointInfo info;
+    info.last_frame_id = 12;
+    info.frames_fused = 12;
+    ASSERT_TRUE(s->commit_checkpoint(info));
+  }
+  struct Case {
+    const char* damage;
+    const char* expect;
+  };
+  for (const Case& c : {
+           Case{"UPDATE checkpoints SET last_frame_id = 40;", "holds frames up to 40 but the newest pose is of frame 12"},
+           Case{"UPDATE checkpoints SET last_frame_id = 4294967295;", "last frame id 4294967295 is out of range"},
+           Case{"UPDATE checkpoints SET frames_fused = 5;", "counts 5 frames fused but the file holds 12 poses"},
+           Case{"INSERT INTO checkpoints SELECT 2, utime, reason, 3, frames_fused, point_count, chunk_count, "
+                "T_world_cam FROM checkpoints WHERE id = 1;",
+                "checkpoint 2 holds frames up to 3, fewer than checkpoint 1 before it (12)"},
+       }) {
+    SCOPED_TRACE(c.damage);
+    const std::string path = dir.file("bad.db");
+    std::filesystem::remove(path);
+    std::filesystem::copy_file(good, path);
+    sqlite3* db = nullptr;
+    ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+    sql(db, c.damage);
+    sqlite3_close(db);
+    ResumePoint at;
+    auto resumed = ScanRecorder::resume(path, RecorderConfig{}, &at);
+    ASSERT_FALSE(resumed);
+    EXPECT_EQ(resumed.status().code(), StatusCode::kCorrupt);
+    EXPECT_NE(resumed.status().message().find(c.expect), std::string::npos) << resumed.status().message();
+    auto r = open_or_die(path, OpenMode::kReadOnly);
+    ASSERT_TRUE(r);
+    auto integrity = r->integrity_check(/*check_blobs=*/false);
+    ASSERT_TRUE(integrity);
+    ASSERT_FALSE(integrity->ok());
+    EXPECT_NE(integrity->problems[0].find(c.expect), std::string::npos) << integrity->problems[0];
+  }
+  ResumePoint at;
+  auto resumed = ScanRecorder::resume(good, RecorderConfig{}, &at);
+  ASSERT_TRUE(resumed) << resumed.status().to_string();
+  EXPECT_EQ(at.next_frame_id, 13u);
 }
 
 TEST(ScanStore, RejectsForeignAndNewerFiles) {

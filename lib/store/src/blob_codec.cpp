@@ -481,4 +481,17 @@ Status decode_pose(const void* blob, size_t size, const std::string& what, Pose*
   return Status::ok();
 }
 
+uint32_t pose_record_checksum(const PoseFields& f, const void* pose_blob, size_t pose_size) {
+  uint8_t head[12], tail[21];
+  put<uint32_t>(head, f.frame_id);
+  put<int64_t>(head + 4, f.utime);
+  tail[0] = f.registered ? 1 : 0;
+  put<double>(tail + 1, f.fitness);
+  put<double>(tail + 9, f.rmse_m);
+  put<uint32_t>(tail + 17, f.correspondences);
+  uint32_t crc = crc32(head, sizeof(head));
+  crc = crc32(pose_blob, pose_size, crc);
+  return crc32(tail, sizeof(tail), crc);
+}
+
 }  // namespace depthfuse::store

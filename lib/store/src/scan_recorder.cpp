@@ -4,6 +4,7 @@
 
 #include <malloc.h>
 
+#include "checkpoint_writer.hpp"
 #include "depthfuse/base/clock.hpp"
 #include "depthfuse/fusion.hpp"
 
@@ -12,7 +13,39 @@ namespace depthfuse::store {
 ScanRecorder::ScanRecorder(std::unique_ptr<ScanStore> store, const RecorderConfig& config)
     : store_(std::move(store)), config_(config) {
   status_.path = store_->path();
-  if (config_.bounded_memory) pager_ = std::make_unique<MapPager>(config_.pager, store_.get());
+  if (config_.bounded_memory) {
+    pager_ = std::make_unique<MapPager>(config_.pager, store_.get());
+    pager_->set_store_mutex(&mutex_);
+    pager_->set_before_staging([this] {
+      if (writer_) writer_->wait_idle();
+    });
+  }
+}
+
+namespace {
+// Keyframes the fusion thread holds while the background writer has the store (~1 MB each).
+constexpr size_t kMaxPendingKeyframes = 4;
+}  // namespace
+
+Status ScanRecorder::write_pending_keyframes() {
+  Status result;
+  for (const Keyframe& k : pending_keyframes_) {
+    Status st = store_->write_keyframe(k);
+    if (st) ++status_.keyframes_written;
+    else if (result) result = note(st);
+  }
+  pending_keyframes_.clear();
+  return result;
+}
+
+// The fusion thread never waits for the background writer's transaction: what needs the store
+// and can wait (the outcome, keyframes) waits for a frame where the store is free.
+Status ScanRecorder::catch_up(PointMap* map) {
+  std::unique_lock<std::mutex> lock(mutex_, std::try_to_lock);
+  if (!lock && pending_keyframes_.size() < kMaxPendingKeyframes) return Status::ok();
+  if (!lock) lock.lock();
+  collect_background(map);
+  return write_pending_keyframes();
 }
 
 ScanRecorder::~ScanRecorder() = default;
@@ -54,6 +87,13 @@ Result<std::unique_ptr<ScanRecorder>> ScanRecorder::resume(const std::string& pa
   if (!meta) return meta.status();
   auto last = store.last_checkpoint();
   if (!last) return last.status();
+  // The frame ids continue from the file's: numbers that disagree would give two frames one id or
+  // a trajectory with holes, so the scan is not resumed.
+  if (const std::vector<std::string> problems = store.frame_problems(); !problems.empty()) {
+    std::string all;
+    for (const std::string& p : problems) all += (all.empty() ? "" : "; ") + p;
+    return corrupt(all + " (not resumed: `depthfuse inspect` lists what is wrong)");
+  }
   resume->metadata = *meta;
   resume->checkpoint = *last;
   resume->open_report = store.open_report();
@@ -99,6 +139,7 @@ Result<std::unique_ptr<ScanRecorder>> ScanRecorder::resume(const std::string& pa
 Status ScanRecorder::prepare_frame(const Frame& frame, IncrementalReconstructor& reconstructor,
                                    const std::optional<Pose>& prediction) {
   if (!pager_) return Status::ok();
+  (void)catch_up(&reconstructor.map());
   Pose guess = Pose::Identity();
   if (frame.T_world_cam_hint) guess = *frame.T_world_cam_hint;
   else if (prediction) guess = *prediction;
@@ -124,16 +165,13 @@ Status ScanRecorder::record_frame(const Frame& frame, const FrameReport& report,
   ++status_.frames_recorded;
   status_.pending_poses = pending_poses_.size();
 
-  Status result;
   const int every = config_.keyframe_every_n_frames;
   if (every > 0 && (frames_since_keyframe_ % static_cast<uint64_t>(every)) == 0 &&
-      !frame.depth.empty()) {
-    Status st = store_->write_keyframe(
+      !frame.depth.empty())
+    pending_keyframes_.push_back(
         Keyframe::from_frame(frame, report.frame_id, report.T_world_cam, config_.keyframe_color));
-    if (st) ++status_.keyframes_written;
-    else result = note(st);
-  }
   ++frames_since_keyframe_;
+  Status result = catch_up(map);
 
   if (pager_) {
     Status st = pager_->update(map, report.T_world_cam.translation().cast<float>(), report.frame_id);
@@ -157,33 +195,132 @@ Result<CheckpointRecord> ScanRecorder::finish(PointMap* map, const FrameCounters
   auto rec = write_checkpoint(map, reason, counters, true);
   // Pages freed by rewritten and promoted chunks go back to the file system; failing here loses
   // nothing (the checkpoint is committed).
+  std::lock_guard<std::mutex> lock(mutex_);
   if (rec) (void)note(store_->compact());
   return rec;
+}
+
+CheckpointInfo ScanRecorder::checkpoint_info(const std::string& reason,
+                                             const FrameCounters& counters) const {
+  CheckpointInfo info;
+  info.reason = reason;
+  info.last_frame_id = last_frame_id_;
+  info.T_world_cam = last_pose_;
+  info.frames_received = counters.received;
+  info.frames_fused = frames_fused_;
+  info.frames_dropped = counters.dropped;
+  return info;
+}
+
+std::vector<ChunkKey> ScanRecorder::removed_chunks(const PointMap& map) const {
+  // Only those: a map that never held a chunk cannot delete it.
+  std::vector<ChunkKey> removed;
+  for (const ChunkKey& key : resident_at_checkpoint_)
+    if (!map.find(key) && !(pager_ && pager_->is_evicted(key))) removed.push_back(key);
+  return removed;
+}
+
+Status ScanRecorder::checkpoint_failed(const Status& error) {
+  const Status st = error.with_context("checkpoint (the previous checkpoint is intact)");
+  status_.checkpoint_error = st.to_string();
+  status_.checkpoint_error_code = st.code();
+  ++status_.checkpoint_failures;
+  return note(st);
+}
+
+void ScanRecorder::checkpoint_committed(const CheckpointRecord& rec, std::vector<ChunkKey> resident) {
+  resident_at_checkpoint_ = std::move(resident);
+  ++status_.checkpoints_written;
+  status_.last_checkpoint = rec;
+  status_.last_error_code = StatusCode::kOk;
+  status_.last_error.clear();
+  status_.checkpoint_error.clear();
+  status_.checkpoint_error_code = StatusCode::kOk;
+}
+
+bool ScanRecorder::checkpoint_in_flight() const {
+  // The writer holds the mutex while it writes: then it is in flight, and asking does not wait.
+  std::unique_lock<std::mutex> lock(mutex_, std::try_to_lock);
+  return !lock || (writer_ && writer_->busy());
+}
+
+bool ScanRecorder::checkpoint_in_background(PointMap* map, const std::string& reason,
+                                            const FrameCounters& counters) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  collect_background(map);
+  if (writer_ && writer_->busy()) return false;
+  // The checkpoint's frames' keyframes go first: readers list the keyframes up to its frame.
+  (void)write_pending_keyframes();
+  const int64_t t0_ns = steady_ns();
+  CheckpointJob job;
+  job.snapshot_ns = t0_ns;
+  job.info = checkpoint_info(reason, counters);
+  map->for_each_chunk([&](const ChunkKey& key, const Chunk& c) {
+    job.resident.push_back(key);
+    if (!c.dirty) return;
+    job.chunks.emplace_back(key, c);
+    job.written.push_back(key);
+  });
+  job.removed = removed_chunks(*map);
+  job.poses.swap(pending_poses_);
+  status_.pending_poses = 0;
+  if (!writer_)
+    writer_ = std::make_unique<CheckpointWriter>(store_.get(), &mutex_,
+                                                 config_.background_compression_level);
+  writer_->start(std::move(job));
+  status_.last_snapshot_seconds = static_cast<double>(steady_ns() - t0_ns) * 1e-9;
+  return true;
+}
+
+void ScanRecorder::collect_background(PointMap* map, bool clear_dirty) {
+  if (!writer_) return;
+  std::optional<CheckpointOutcome> out = writer_->take_outcome();
+  if (!out) return;
+  CheckpointJob& job = out->job;
+  status_.last_encode_seconds = out->encode_seconds;
+  status_.last_write_seconds = out->write_seconds;
+  if (!out->record) {
+    // Nothing of it was written: its poses are pending again, its chunks are still dirty (or were
+    // staged dirty since), and the removed ones are found again from the last checkpoint's keys.
+    pending_poses_.insert(pending_poses_.begin(), job.poses.begin(), job.poses.end());
+    status_.pending_poses = pending_poses_.size();
+    (void)checkpoint_failed(out->record.status());
+    return;
+  }
+  // A chunk a later frame touched has changes the checkpoint does not hold: it stays dirty.
+  for (const ChunkKey& key : job.written) {
+    Chunk* c = map->find(key);
+    if (clear_dirty && c && c->last_touched_frame <= job.info.last_frame_id) c->dirty = false;
+  }
+  status_.last_checkpoint_chunks = job.written.size();
+  status_.last_checkpoint_seconds = static_cast<double>(steady_ns() - job.snapshot_ns) * 1e-9;
+  checkpoint_committed(*out->record, std::move(job.resident));
 }
 
 Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std::string& reason,
                                                         const FrameCounters& counters,
                                                         bool postfilter_evicted) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (writer_) writer_->wait_idle();
+  // This checkpoint writes every dirty chunk anyway, and finish() comes after a post-filter that
+  // changed chunks without touching a frame: none is taken for clean here.
+  collect_background(map, /*clear_dirty=*/false);
+  (void)write_pending_keyframes();
   const int64_t t0_ns = steady_ns();
   ScanStore& store = *store_;
   Status st = store.begin_checkpoint();
-  if (!st) {
-    status_.checkpoint_error = st.to_string();
-    ++status_.checkpoint_failures;
-    return note(st);
-  }
+  if (!st) return checkpoint_failed(st);
   std::vector<ChunkKey> emptied_evicted;
+  size_t written = 0;
   auto body = [&]() -> Status {
     map->for_each_chunk([&](const ChunkKey& key, const Chunk& c) {
-      if (st && c.dirty) st = store.write_chunk(key, c);
+      if (st && c.dirty) {
+        st = store.write_chunk(key, c);
+        ++written;
+      }
     });
     DF_RETURN_IF_ERROR(st);
-    // Chunks that were in the map at the last checkpoint and have left it without being evicted
-    // leave the file too. (Only those: a map that never held a chunk cannot delete it.)
-    for (const ChunkKey& key : resident_at_checkpoint_) {
-      if (!map->find(key) && !(pager_ && pager_->is_evicted(key)))
-        DF_RETURN_IF_ERROR(store.delete_chunk(key));
-    }
+    for (const ChunkKey& key : removed_chunks(*map)) DF_RETURN_IF_ERROR(store.delete_chunk(key));
     if (postfilter_evicted && pager_) {
       // The post-filter is per point, so applying it chunk by chunk equals applying it to the
       // whole map; only one evicted chunk is in memory at a time.
@@ -205,43 +342,27 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
     for (const PoseRecord& p : pending_poses_) DF_RETURN_IF_ERROR(store.write_pose(p));
     return Status::ok();
   };
-  auto failed = [&](const Status& error) {
-    const Status st2 = error.with_context("checkpoint (the previous checkpoint is intact)");
-    status_.checkpoint_error = st2.to_string();
-    ++status_.checkpoint_failures;
-    return note(st2);
-  };
   st = body();
   if (!st) {
     store.rollback_checkpoint();
-    return failed(st);
+    return checkpoint_failed(st);
   }
-  CheckpointInfo info;
-  info.reason = reason;
-  info.last_frame_id = last_frame_id_;
-  info.T_world_cam = last_pose_;
-  info.frames_received = counters.received;
-  info.frames_fused = frames_fused_;
-  info.frames_dropped = counters.dropped;
-  auto rec = store.commit_checkpoint(info);
-  if (!rec) return failed(rec.status());
-  resident_at_checkpoint_.clear();
+  auto rec = store.commit_checkpoint(checkpoint_info(reason, counters));
+  if (!rec) return checkpoint_failed(rec.status());
+  std::vector<ChunkKey> resident;
   map->for_each_chunk([&](const ChunkKey& k, Chunk& c) {
     c.dirty = false;
-    resident_at_checkpoint_.push_back(k);
+    resident.push_back(k);
   });
   for (const ChunkKey& k : emptied_evicted) pager_->forget(k);
   pending_poses_.clear();
   status_.pending_poses = 0;
-  ++status_.checkpoints_written;
-  status_.last_checkpoint = *rec;
+  status_.last_checkpoint_chunks = written;
+  checkpoint_committed(*rec, std::move(resident));
   // Encoding and writing the chunks freed heap memory that glibc would keep until the pager's next
   // eviction: give it back now, so that resident memory follows the budget through checkpoints too.
   if (pager_ && config_.pager.release_memory_to_os) malloc_trim(0);
   status_.last_checkpoint_seconds = static_cast<double>(steady_ns() - t0_ns) * 1e-9;
-  status_.last_error_code = StatusCode::kOk;
-  status_.last_error.clear();
-  status_.checkpoint_error.clear();
   return rec;
 }
 

@@ -4,6 +4,8 @@
 // writer, the CLI's main thread for readers.
 #include <unistd.h>
 
+#include <cstdio>
+
 #include "depthfuse/store/blob_codec.hpp"
 #include "scan_store_internal.hpp"
 
@@ -95,11 +97,23 @@ Result<std::optional<std::string>> ScanStore::Impl::get_meta(const std::string& 
   return std::optional<std::string>(st->row().text(0));
 }
 
+Status encode_chunk(BlobCodec& codec, const ChunkKey& key, const Chunk& chunk, EncodedChunk* out) {
+  out->key = key;
+  out->point_count = static_cast<uint32_t>(chunk.points.size());
+  out->bounds_m = bounds_of(chunk.points);
+  out->last_touched_frame = chunk.last_touched_frame;
+  return codec.encode_points(chunk.points, &out->blob).with_context("encoding chunk " + to_string(key));
+}
+
 Status ScanStore::Impl::write_chunk_row(bool staged, const ChunkKey& key, const Chunk& chunk,
                                         int64_t last_column) {
-  DF_RETURN_IF_ERROR(codec.encode_points(chunk.points, &blob).with_context(
-      path + ": encoding chunk " + to_string(key)));
-  const Eigen::AlignedBox3f box = bounds_of(chunk.points);
+  DF_RETURN_IF_ERROR(encode_chunk(codec, key, chunk, &encoded).with_context(path));
+  return write_chunk_row(staged, encoded, last_column);
+}
+
+Status ScanStore::Impl::write_chunk_row(bool staged, const EncodedChunk& chunk, int64_t last_column) {
+  const ChunkKey& key = chunk.key;
+  const Eigen::AlignedBox3f& box = chunk.bounds_m;
   const std::string sql =
       std::string("INSERT OR REPLACE INTO ") + (staged ? "chunk_staging (" : "chunks (") +
       kChunkColumns + (staged ? ", staged_utime" : ", checkpoint_id") +
@@ -107,7 +121,7 @@ Status ScanStore::Impl::write_chunk_row(bool staged, const ChunkKey& key, const 
   auto st = db.prepare(sql, "writing chunk " + to_string(key));
   if (!st) return st.status();
   st->bind(1, key.x).bind(2, key.y).bind(3, key.z);
-  st->bind(4, static_cast<int64_t>(chunk.points.size()));
+  st->bind(4, static_cast<int64_t>(chunk.point_count));
   if (box.isEmpty()) {
     for (int i = 5; i <= 10; ++i) st->bind_null(i);
   } else {
@@ -118,7 +132,16 @@ Status ScanStore::Impl::write_chunk_row(bool staged, const ChunkKey& key, const 
   }
   st->bind(11, chunk.last_touched_frame);
   st->bind(12, last_column);
-  st->bind_blob(13, blob);
+  st->bind_blob(13, chunk.blob);
+  return st->run();
+}
+
+Status ScanStore::Impl::delete_staged_of_checkpoint(const ChunkKey& key) {
+  auto st = db.prepare(
+      "DELETE FROM chunk_staging WHERE x = ? AND y = ? AND z = ? AND last_touched_frame <= ?;",
+      "deleting staged chunk " + to_string(key));
+  if (!st) return st.status();
+  st->bind(1, key.x).bind(2, key.y).bind(3, key.z).bind(4, static_cast<int64_t>(checkpoint_up_to_frame));
   return st->run();
 }
 
@@ -152,6 +175,12 @@ Result<CheckpointRecord> ScanStore::Impl::checkpoint_of(const sql::Row& row) {
   r.id = row.int64(0);
   r.utime = row.int64(1);
   r.reason = row.text(2);
+  const std::string what = path + ": checkpoint " + std::to_string(r.id);
+  // A resume continues at last_frame_id + 1, which must be a frame id too.
+  if (row.int64(3) < 0 || row.int64(3) >= kAllFrames - 1)
+    return corrupt(what + ": last frame id " + std::to_string(row.int64(3)) + " is out of range");
+  for (int col = 4; col <= 6; ++col)
+    if (row.int64(col) < 0) return corrupt(what + ": a negative count (" + std::to_string(row.int64(col)) + ")");
   r.last_frame_id = static_cast<uint32_t>(row.int64(3));
   r.frames_fused = static_cast<uint64_t>(row.int64(4));
   r.point_count = static_cast<uint64_t>(row.int64(5));
@@ -163,6 +192,43 @@ Result<CheckpointRecord> ScanStore::Impl::checkpoint_of(const sql::Row& row) {
     r.T_world_cam = T;
   }
   return r;
+}
+
+PoseFields pose_fields(const PoseRecord& p) {
+  PoseFields f;
+  f.frame_id = p.frame_id;
+  f.utime = p.utime;
+  f.registered = p.registered;
+  f.fitness = p.fitness;
+  f.rmse_m = p.rmse_m;
+  f.correspondences = p.correspondences;
+  return f;
+}
+
+Result<PoseRecord> ScanStore::Impl::pose_of(const sql::Row& row, bool* checked) {
+  PoseRecord p;
+  const int64_t frame_id = row.int64(0);
+  const std::string what = path + ": pose of frame " + std::to_string(frame_id);
+  if (frame_id < 1 || frame_id >= kAllFrames)
+    return corrupt(what + ": the frame id is out of range (1 to " + std::to_string(kAllFrames - 1) + ")");
+  p.frame_id = static_cast<uint32_t>(frame_id);
+  p.utime = row.int64(1);
+  p.registered = row.int64(3) != 0;
+  p.fitness = row.real(4);
+  p.rmse_m = row.real(5);
+  p.correspondences = static_cast<uint32_t>(row.int64(6));
+  if (checked) *checked = !row.is_null(7);
+  if (!row.is_null(7)) {
+    const uint32_t stored = static_cast<uint32_t>(row.int64(7));
+    const uint32_t computed = pose_record_checksum(pose_fields(p), row.blob(2), row.blob_size(2));
+    if (stored != computed) {
+      char buf[80];
+      std::snprintf(buf, sizeof(buf), ": checksum mismatch (stored 0x%08x, computed 0x%08x)", stored, computed);
+      return corrupt(what + buf);
+    }
+  }
+  DF_RETURN_IF_ERROR(decode_pose(row.blob(2), row.blob_size(2), what, &p.T_world_cam));
+  return p;
 }
 
 ScanStore::ScanStore(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}

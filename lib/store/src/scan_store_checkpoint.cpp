@@ -1,6 +1,7 @@
 // Writing a scan file: checkpoints (begin, write chunks and poses, commit with a full sync or roll
 // back whole), keyframes, the metadata and configuration, the pager's staged chunks, and returning
-// freed pages. Runs on the fusion daemon's worker thread (through ScanRecorder and MapPager), or on
+// freed pages. Runs on the fusion daemon's worker thread (through ScanRecorder and MapPager) or the
+// recorder's checkpoint writer thread, one at a time, or on
 // the CLI's main thread for `depthfuse refine` and `inspect --upgrade`.
 #include <cstdio>
 
@@ -42,7 +43,7 @@ Status ScanStore::set_config(const std::string& toml_text, const std::string& so
   });
 }
 
-Status ScanStore::begin_checkpoint() {
+Status ScanStore::begin_checkpoint(uint32_t up_to_frame) {
   Impl& s = *impl_;
   DF_RETURN_IF_ERROR(s.require_writable("begin_checkpoint"));
   if (s.in_checkpoint) return invalid_argument(s.path + ": a checkpoint is already open");
@@ -58,6 +59,7 @@ Status ScanStore::begin_checkpoint() {
     return id.status();
   }
   s.checkpoint_id = *id;
+  s.checkpoint_up_to_frame = up_to_frame;
   s.in_checkpoint = true;
   return Status::ok();
 }
@@ -75,15 +77,22 @@ void ScanStore::rollback_checkpoint() {
 Status ScanStore::write_chunk(const ChunkKey& key, const Chunk& chunk) {
   Impl& s = *impl_;
   if (!s.in_checkpoint) return invalid_argument(s.path + ": write_chunk outside a checkpoint");
-  DF_RETURN_IF_ERROR(s.delete_chunk_row(/*staged=*/true, key));
-  if (chunk.points.empty()) return s.delete_chunk_row(/*staged=*/false, key);
-  return s.write_chunk_row(/*staged=*/false, key, chunk, s.checkpoint_id);
+  DF_RETURN_IF_ERROR(encode_chunk(s.codec, key, chunk, &s.encoded).with_context(s.path));
+  return write_chunk(s.encoded);
+}
+
+Status ScanStore::write_chunk(const EncodedChunk& chunk) {
+  Impl& s = *impl_;
+  if (!s.in_checkpoint) return invalid_argument(s.path + ": write_chunk outside a checkpoint");
+  DF_RETURN_IF_ERROR(s.delete_staged_of_checkpoint(chunk.key));
+  if (chunk.point_count == 0) return s.delete_chunk_row(/*staged=*/false, chunk.key);
+  return s.write_chunk_row(/*staged=*/false, chunk, s.checkpoint_id);
 }
 
 Status ScanStore::delete_chunk(const ChunkKey& key) {
   Impl& s = *impl_;
   if (!s.in_checkpoint) return invalid_argument(s.path + ": delete_chunk outside a checkpoint");
-  DF_RETURN_IF_ERROR(s.delete_chunk_row(/*staged=*/true, key));
+  DF_RETURN_IF_ERROR(s.delete_staged_of_checkpoint(key));
   return s.delete_chunk_row(/*staged=*/false, key);
 }
 
@@ -95,16 +104,18 @@ Status ScanStore::delete_all_chunks() {
 }
 
 Status ScanStore::write_pose(const PoseRecord& p) {
+  if (p.frame_id == 0 || p.frame_id == kAllFrames)
+    return invalid_argument(impl_->path + ": pose with frame id " + std::to_string(p.frame_id));
   DF_RETURN_IF_ERROR(impl_->require_writable("write_pose"));
   return impl_->in_transaction("writing poses", [&]() -> Status {
-    auto st = impl_->db.prepare(
-        "INSERT OR REPLACE INTO poses (frame_id, utime, T_world_cam, registered, fitness, rmse_m, "
-        "correspondences) VALUES (?, ?, ?, ?, ?, ?, ?);",
-        "writing the pose of frame " + std::to_string(p.frame_id));
+    auto st = impl_->db.prepare(std::string("INSERT OR REPLACE INTO poses (") + kPoseColumns +
+                                    ") VALUES (?, ?, ?, ?, ?, ?, ?, ?);",
+                                "writing the pose of frame " + std::to_string(p.frame_id));
     if (!st) return st.status();
     const std::vector<uint8_t> pose = encode_pose(p.T_world_cam);
     st->bind(1, p.frame_id).bind(2, p.utime).bind_blob(3, pose).bind(4, p.registered ? 1 : 0);
     st->bind(5, p.fitness).bind(6, p.rmse_m).bind(7, p.correspondences);
+    st->bind(8, pose_record_checksum(pose_fields(p), pose.data(), pose.size()));
     return st->run();
   });
 }
@@ -162,18 +173,20 @@ Result<CheckpointRecord> ScanStore::commit_checkpoint(const CheckpointInfo& info
   rec.frames_fused = info.frames_fused;
   rec.T_world_cam = info.T_world_cam;
   auto body = [&]() -> Status {
-    // Staged chunks (evicted since the last checkpoint) become part of this one; staged empty
-    // chunks are deletions.
+    // Staged chunks (evicted since the last checkpoint) of the checkpoint's frames become part of
+    // it; staged empty chunks are deletions. Those a later frame touched stay staged.
+    const std::string ours = "last_touched_frame <= " + std::to_string(s.checkpoint_up_to_frame);
     DF_RETURN_IF_ERROR(s.db.exec(
         "DELETE FROM chunks WHERE EXISTS (SELECT 1 FROM chunk_staging AS s WHERE s.x = chunks.x "
-        "AND s.y = chunks.y AND s.z = chunks.z AND s.point_count = 0);",
+        "AND s.y = chunks.y AND s.z = chunks.z AND s.point_count = 0 AND s." + ours + ");",
         ctx));
     DF_RETURN_IF_ERROR(s.db.exec(
         std::string("INSERT OR REPLACE INTO chunks (") + kChunkColumns +
             ", checkpoint_id, data) SELECT " + kChunkColumns + ", " +
-            std::to_string(s.checkpoint_id) + ", data FROM chunk_staging WHERE point_count > 0;",
+            std::to_string(s.checkpoint_id) + ", data FROM chunk_staging WHERE point_count > 0 AND " +
+            ours + ";",
         ctx));
-    DF_RETURN_IF_ERROR(s.db.exec("DELETE FROM chunk_staging;", ctx));
+    DF_RETURN_IF_ERROR(s.db.exec("DELETE FROM chunk_staging WHERE " + ours + ";", ctx));
     auto counts = s.db.prepare("SELECT COUNT(*), COALESCE(SUM(point_count), 0) FROM chunks;", ctx);
     if (!counts) return counts.status();
     auto row = counts->step();

@@ -1,5 +1,6 @@
-// Checking a scan file: SQLite's own integrity check, then every chunk, keyframe and pose blob
-// decoded and checksummed, and every chunk's row checked against its points. Finds all problems
+// Checking a scan file: SQLite's own integrity check, the stored frame numbers against each other,
+// then every chunk, keyframe and pose decoded and checksummed (poses written before schema 3 have
+// no checksum: counted as unchecked), and every chunk's row checked against its points. Finds all problems
 // rather than stopping at the first. Runs in the CLI (depthfuse inspect) and the tests, on a
 // reader.
 #include "scan_store_internal.hpp"
@@ -28,6 +29,46 @@ bool check_rows(sql::Database& db, const std::string& sql, const std::string& co
 
 }  // namespace
 
+std::vector<std::string> ScanStore::frame_problems() {
+  Impl& s = *impl_;
+  std::vector<std::string> problems;
+  ScopedRead snapshot(*this);
+  auto cps = checkpoints();
+  if (!cps) return {cps.status().message()};
+  const CheckpointRecord* prev = nullptr;
+  for (const CheckpointRecord& c : *cps) {
+    const std::string what = s.path + ": checkpoint " + std::to_string(c.id);
+    if (prev && c.last_frame_id < prev->last_frame_id)
+      problems.push_back(what + " holds frames up to " + std::to_string(c.last_frame_id) +
+                         ", fewer than checkpoint " + std::to_string(prev->id) + " before it (" +
+                         std::to_string(prev->last_frame_id) + ")");
+    if (prev && c.frames_fused < prev->frames_fused)
+      problems.push_back(what + " counts " + std::to_string(c.frames_fused) +
+                         " frames fused, fewer than checkpoint " + std::to_string(prev->id) +
+                         " before it (" + std::to_string(prev->frames_fused) + ")");
+    prev = &c;
+  }
+  const uint32_t last = prev ? prev->last_frame_id : 0;
+  auto st = s.db.prepare("SELECT COUNT(*), COALESCE(MIN(frame_id), 0), COALESCE(MAX(frame_id), 0) "
+                         "FROM poses WHERE " + kCommittedFrames + ";",
+                         "counting poses");
+  if (!st) return {st.status().message()};
+  auto row = st->step();
+  if (!row) return {row.status().message()};
+  const int64_t count = st->row().int64(0), first = st->row().int64(1), newest = st->row().int64(2);
+  const std::string where = s.path + ": the last checkpoint";
+  if (count > 0 && first < 1)
+    problems.push_back(s.path + ": a pose has frame id " + std::to_string(first) + " (ids start at 1)");
+  // (A file may hold no poses at all: the store's own tests write chunks only.)
+  if (count > 0 && newest != last)
+    problems.push_back(where + " holds frames up to " + std::to_string(last) +
+                       " but the newest pose is of frame " + std::to_string(newest));
+  if (prev && static_cast<uint64_t>(count) > prev->frames_fused)
+    problems.push_back(where + " counts " + std::to_string(prev->frames_fused) + " frames fused but the file holds " +
+                       std::to_string(count) + " poses");
+  return problems;
+}
+
 Result<IntegrityReport> ScanStore::integrity_check(bool check_blobs) {
   Impl& s = *impl_;
   IntegrityReport rep;
@@ -41,8 +82,10 @@ Result<IntegrityReport> ScanStore::integrity_check(bool check_blobs) {
         return corrupt(s.path + ": sqlite integrity_check: " + line);
       },
       &rep);
-  // A file SQLite cannot even check has no blobs worth decoding.
-  if (!checked || !check_blobs) return rep;
+  // A file SQLite cannot even check has no rows worth reading.
+  if (!checked) return rep;
+  for (std::string& p : frame_problems()) rep.problems.push_back(std::move(p));
+  if (!check_blobs) return rep;
   // Every chunk blob: decodes, checksums match, and its row's count and bounds agree.
   for (const bool staged : {false, true}) {
     StoredChunk c;
@@ -75,17 +118,17 @@ Result<IntegrityReport> ScanStore::integrity_check(bool check_blobs) {
     auto k = read_keyframe(id);
     if (!k) rep.problems.push_back(k.status().message());
   }
+  // Every pose row: its checksum (schema 3), then its pose. Rows written before have none.
   check_rows(
-      s.db, "SELECT frame_id, T_world_cam FROM poses ORDER BY frame_id;", "reading poses",
-      [&](const sql::Row& row) {
+      s.db, std::string("SELECT ") + kPoseColumns + " FROM poses ORDER BY frame_id;", "reading poses",
+      [&](const sql::Row& row) -> Status {
         ++rep.poses_checked;
-        Pose T;
-        return decode_pose(row.blob(1), row.blob_size(1),
-                           s.path + ": pose of frame " + std::to_string(row.int64(0)), &T);
+        bool checked = false;
+        auto p = s.pose_of(row, &checked);
+        if (!checked) ++rep.poses_unchecked;
+        return p.status();
       },
       &rep);
-  auto cps = checkpoints();
-  if (!cps) rep.problems.push_back(cps.status().message());
   auto meta = metadata();
   if (!meta) rep.problems.push_back(meta.status().message());
   return rep;

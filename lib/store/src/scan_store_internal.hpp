@@ -8,8 +8,9 @@
 //   scan_store_checkpoint.cpp  writing: checkpoints, chunks, poses, keyframes, staging
 //   scan_store_read.cpp        reading: snapshots, chunks, poses, keyframes, checkpoints, summary
 //   scan_store_integrity.cpp   checking every table and blob
-// A ScanStore is used from one thread: the fusion daemon's worker thread owns the writer (through
-// ScanRecorder); readers are other processes (depthfuse export and inspect), each with its own
+// A ScanStore is used by one thread at a time: the fusion daemon's worker thread owns the writer
+// (through ScanRecorder, whose background checkpoint thread takes it under the recorder's mutex);
+// readers are other processes (depthfuse export and inspect), each with its own
 // connection.
 #pragma once
 
@@ -31,6 +32,8 @@ namespace depthfuse::store {
 // checkpoint_id; chunk_staging: staged_utime).
 inline constexpr const char* kChunkColumns =
     "x, y, z, point_count, min_x, min_y, min_z, max_x, max_y, max_z, last_touched_frame";
+inline constexpr const char* kPoseColumns =
+    "frame_id, utime, T_world_cam, registered, fitness, rmse_m, correspondences, checksum";
 inline constexpr const char* kCheckpointColumns =
     "id, utime, reason, last_frame_id, frames_fused, point_count, chunk_count, T_world_cam";
 
@@ -49,6 +52,9 @@ ChunkInfo chunk_info_of(const sql::Row& row);
 
 Eigen::AlignedBox3f bounds_of(const PointArrays& a);
 
+// The values of a pose row that its checksum covers besides the pose blob.
+PoseFields pose_fields(const PoseRecord& p);
+
 inline bool file_exists(const std::string& path) {
   struct stat st {};
   return ::stat(path.c_str(), &st) == 0;
@@ -65,8 +71,9 @@ struct ScanStore::Impl {
   BlobCodec codec;
   bool in_checkpoint = false;
   int64_t checkpoint_id = 0;       // of the open checkpoint
+  uint32_t checkpoint_up_to_frame = kAllFrames;  // of the open checkpoint
   int read_depth = 0;              // nested begin_read calls
-  std::vector<uint8_t> blob;       // scratch for encoding chunks
+  EncodedChunk encoded;            // scratch for encoding chunks
 
   explicit Impl(int level) : codec(level) {}
   ~Impl();
@@ -91,10 +98,16 @@ struct ScanStore::Impl {
   Status set_meta(const std::vector<std::pair<std::string, std::string>>& kv);
   Result<std::optional<std::string>> get_meta(const std::string& key);
   Status write_chunk_row(bool staged, const ChunkKey& key, const Chunk& chunk, int64_t last_column);
+  Status write_chunk_row(bool staged, const EncodedChunk& chunk, int64_t last_column);
   Status delete_chunk_row(bool staged, const ChunkKey& key);
+  // Deletes the staged copy of `key` unless a frame after the open checkpoint's touched it.
+  Status delete_staged_of_checkpoint(const ChunkKey& key);
   // Reads a row of select_chunks(staged, "data") and decodes its blob into `out`.
   Status decode_chunk_row(const sql::Row& row, bool staged, StoredChunk* out);
   Result<CheckpointRecord> checkpoint_of(const sql::Row& row);
+  // A row of kPoseColumns: decoded and, when it has one, its checksum checked. `*checked` says
+  // whether it had one.
+  Result<PoseRecord> pose_of(const sql::Row& row, bool* checked = nullptr);
 
   // scan_store_open.cpp
   Status open_existing();

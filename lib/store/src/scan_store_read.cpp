@@ -141,21 +141,9 @@ Status ScanStore::for_each_chunk(const std::function<Status(const ChunkInfo&, Po
 Result<std::vector<PoseRecord>> ScanStore::read_poses() {
   Impl& s = *impl_;
   return s.db.collect<PoseRecord>(
-      "SELECT frame_id, utime, T_world_cam, registered, fitness, rmse_m, correspondences FROM poses "
-      "WHERE " + kCommittedFrames + " ORDER BY frame_id;",
-      "reading poses", [&](const sql::Row& row) -> Result<PoseRecord> {
-        PoseRecord p;
-        p.frame_id = static_cast<uint32_t>(row.int64(0));
-        p.utime = row.int64(1);
-        DF_RETURN_IF_ERROR(decode_pose(row.blob(2), row.blob_size(2),
-                                       s.path + ": pose of frame " + std::to_string(p.frame_id),
-                                       &p.T_world_cam));
-        p.registered = row.int64(3) != 0;
-        p.fitness = row.real(4);
-        p.rmse_m = row.real(5);
-        p.correspondences = static_cast<uint32_t>(row.int64(6));
-        return p;
-      });
+      std::string("SELECT ") + kPoseColumns + " FROM poses WHERE " + kCommittedFrames +
+          " ORDER BY frame_id;",
+      "reading poses", [&](const sql::Row& row) { return s.pose_of(row); });
 }
 
 Result<std::vector<KeyframeInfo>> ScanStore::list_keyframes() {

@@ -13,7 +13,7 @@ const char* const kTables[] = {"meta", "checkpoints", "chunks", "chunk_staging",
 
 namespace {
 
-// Schema 2 (current). Blob columns come last in each row: SQLite stores a row's columns in order
+// Schema 2, and 3 with poses.checksum added by migrate_2_to_3. Blob columns come last in each row: SQLite stores a row's columns in order
 // and a big blob spills into overflow pages, so the small columns stay cheap to read.
 //
 // The committed chunks and the staged ones share a layout; only the column before the blob
@@ -124,6 +124,16 @@ PRAGMA user_version = 2;
   return Status::ok();
 }
 
+// Schema 2 -> 3: pose rows carry a CRC-32 of their values (blob_codec.hpp,
+// pose_record_checksum). Rows written before have none (NULL): readers cannot check them and
+// `inspect` says so; their values are not guessed at.
+Status migrate_2_to_3(sql::Database& db) {
+  return db.exec(R"sql(
+ALTER TABLE poses ADD COLUMN checksum INTEGER;
+PRAGMA user_version = 3;
+)sql", "migrating schema 2 to 3");
+}
+
 }  // namespace
 
 Status create_current(sql::Database& db) {
@@ -131,17 +141,22 @@ Status create_current(sql::Database& db) {
   DF_RETURN_IF_ERROR(db.exec(kCreateV2, ctx));
   DF_RETURN_IF_ERROR(db.exec(chunks_v2(), ctx));
   DF_RETURN_IF_ERROR(db.exec(added_in_v2(), ctx));
+  DF_RETURN_IF_ERROR(migrate_2_to_3(db));
   DF_RETURN_IF_ERROR(db.exec("PRAGMA application_id = " + std::to_string(kApplicationId) + ";", ctx));
   DF_RETURN_IF_ERROR(db.exec("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";", ctx));
   return Status::ok();
 }
 
 Status migrate(sql::Database& db, int from_version) {
-  static_assert(kSchemaVersion == 2, "add the migration step to the new version here");
+  static_assert(kSchemaVersion == 3, "add the migration step to the new version here");
   int v = from_version;
   if (v == 1) {
     DF_RETURN_IF_ERROR(migrate_1_to_2(db));
     v = 2;
+  }
+  if (v == 2) {
+    DF_RETURN_IF_ERROR(migrate_2_to_3(db));
+    v = 3;
   }
   if (v != kSchemaVersion)
     return unsupported(db.path() + ": no migration from schema version " +

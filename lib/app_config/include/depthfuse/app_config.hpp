@@ -42,7 +42,7 @@ struct FusionDaemonConfig {
   double memory_budget_mib = 256.0;         // fused map resident in memory
   double evict_distance_m = 1.5;            // chunks within this of the camera are never evicted
   int evict_min_age_frames = 30;            // chunks seen within this many frames go last
-  double checkpoint_interval_s = 30.0;
+  double checkpoint_interval_s = 1.0;       // at most this much scanning is lost to a crash
   int keyframe_every_n_frames = 10;         // depth kept for offline refinement
   double heartbeat_rate_hz = 1.0;
   // The largest depth image the daemon takes, px: frames beyond it are refused before decoding.

@@ -90,4 +90,16 @@ class BlobCodec {
 std::vector<uint8_t> encode_pose(const Pose& T);
 Status decode_pose(const void* blob, size_t size, const std::string& what, Pose* out);
 
+// A row of the poses table but its pose blob, as the checksum covers it.
+struct PoseFields {
+  uint32_t frame_id = 0;
+  int64_t utime = 0;
+  bool registered = false;
+  double fitness = 0.0, rmse_m = 0.0;
+  uint32_t correspondences = 0;
+};
+// CRC-32 of a pose row (poses.checksum): frame_id u32, utime i64, the pose blob's bytes,
+// registered u8, fitness f64, rmse_m f64, correspondences u32, little-endian, in this order.
+uint32_t pose_record_checksum(const PoseFields& fields, const void* pose_blob, size_t pose_size);
+
 }  // namespace depthfuse::store

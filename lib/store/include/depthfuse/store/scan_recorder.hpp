@@ -1,12 +1,14 @@
 // What the fusion daemon needs from the store, in one object: a new or resumed scan file, the pose
 // of every fused frame, a keyframe every n frames, bounded memory through the MapPager, and
-// checkpoints (periodic, on command, on SIGTERM, final). Errors are returned and also kept in
+// checkpoints (periodic ones written by a thread of its own, on command, on SIGTERM, final). All
+// calls come from one thread (the fusion daemon's worker). Errors are returned and also kept in
 // status() for the heartbeat; a failed checkpoint leaves the previous one intact and everything it
 // would have written stays pending for the next attempt.
 #pragma once
 
 #include <cstdint>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
@@ -19,11 +21,16 @@
 
 namespace depthfuse::store {
 
+class CheckpointWriter;
+
 struct RecorderConfig {
   bool bounded_memory = true;        // run the MapPager
   MapPagerConfig pager;
   int keyframe_every_n_frames = 10;  // 0 = no keyframes
   bool keyframe_color = true;        // store the registered colour image with the depth
+  // zstd level of the chunks background checkpoints write: they rewrite every chunk in view about
+  // every second, so speed counts for more than the last few percent of size.
+  int background_compression_level = 1;
   StoreOptions store;
 };
 
@@ -40,13 +47,19 @@ struct RecorderStatus {
   size_t pending_poses = 0;                  // recorded since the last checkpoint
   uint64_t checkpoints_written = 0;          // by this process
   std::optional<CheckpointRecord> last_checkpoint;
-  double last_checkpoint_seconds = 0.0;      // how long the last checkpoint took
+  double last_checkpoint_seconds = 0.0;      // how long the last checkpoint took, start to commit
+  // The last background checkpoint: the caller's share (copying what changed), then the writer
+  // thread's (encoding the chunks; the transaction and its fsync).
+  double last_snapshot_seconds = 0.0;
+  double last_encode_seconds = 0.0, last_write_seconds = 0.0;
+  size_t last_checkpoint_chunks = 0;         // chunks the last checkpoint wrote
   PagerStats pager;
   StatusCode last_error_code = StatusCode::kOk;
   std::string last_error;                    // the latest failure, cleared by the next success
   // The latest failed checkpoint, cleared only by a successful one (a full disk stays visible in
   // the heartbeat while frames keep being fused).
   std::string checkpoint_error;
+  StatusCode checkpoint_error_code = StatusCode::kOk;
   uint64_t checkpoint_failures = 0;
 };
 
@@ -90,12 +103,24 @@ class ScanRecorder {
   Result<CheckpointRecord> checkpoint(PointMap* map, const std::string& reason,
                                       const FrameCounters& counters = {});
 
+  // The same checkpoint without stalling the caller: copies the changed resident chunks, the keys
+  // that left the map and the buffered poses, and a thread of the recorder's encodes and writes
+  // them (the transaction holds the map as of the last recorded frame; see
+  // ScanStore::begin_checkpoint). False when the previous one is still in flight: nothing is
+  // started. Its outcome reaches status() at the next call after its commit; a failure leaves
+  // everything pending for the next checkpoint, as with checkpoint().
+  bool checkpoint_in_background(PointMap* map, const std::string& reason,
+                                const FrameCounters& counters = {});
+  bool checkpoint_in_flight() const;
+
   // End of scan, after IncrementalReconstructor::finish() post-filtered the resident map: applies
   // the same post-filter to evicted chunks (one at a time) and writes a final checkpoint.
   Result<CheckpointRecord> finish(PointMap* map, const FrameCounters& counters = {},
                                   const std::string& reason = "final");
 
   const RecorderStatus& status() const { return status_; }
+  // For reading while no background checkpoint can be in flight: before the first one, or after
+  // finish().
   ScanStore& store() { return *store_; }
   MapPager* pager() { return pager_.get(); }
   uint32_t last_frame_id() const { return last_frame_id_; }
@@ -105,17 +130,35 @@ class ScanRecorder {
   Status note(Status st);
   Result<CheckpointRecord> write_checkpoint(PointMap* map, const std::string& reason,
                                             const FrameCounters& counters, bool postfilter_evicted);
+  CheckpointInfo checkpoint_info(const std::string& reason, const FrameCounters& counters) const;
+  // Chunks that were in the map at the last checkpoint and have left it without being evicted.
+  std::vector<ChunkKey> removed_chunks(const PointMap& map) const;
+  Status checkpoint_failed(const Status& error);
+  void checkpoint_committed(const CheckpointRecord& rec, std::vector<ChunkKey> resident);
+  // With the mutex held: applies a finished background checkpoint's outcome to the map and status.
+  // `clear_dirty`: the chunks it wrote and no later frame touched are clean. Not when the map may
+  // have changed outside fusion since (the end of scan's post-filter touches no frame).
+  void collect_background(PointMap* map, bool clear_dirty = true);
+  // Without waiting: when the writer is not in its transaction, collects its outcome and writes the
+  // pending keyframes (all of them, waiting if need be, once kMaxPendingKeyframes are waiting).
+  Status catch_up(PointMap* map);
+  // With the mutex held.
+  Status write_pending_keyframes();
 
   std::unique_ptr<ScanStore> store_;
   RecorderConfig config_;
   std::unique_ptr<MapPager> pager_;
   std::vector<PoseRecord> pending_poses_;
+  std::vector<Keyframe> pending_keyframes_;  // taken while the writer held the store
   std::vector<ChunkKey> resident_at_checkpoint_;  // to notice chunks removed from the map
   uint32_t last_frame_id_ = 0;
   std::optional<Pose> last_pose_;
   uint64_t frames_fused_ = 0;                // including those before a resume
   uint64_t frames_since_keyframe_ = 0;
   RecorderStatus status_;
+  // The store is shared with the background writer's thread: every use holds this mutex.
+  mutable std::mutex mutex_;
+  std::unique_ptr<CheckpointWriter> writer_;  // created by the first background checkpoint
 };
 
 }  // namespace depthfuse::store

@@ -10,7 +10,8 @@
 // run while the daemon writes.
 //
 // One writer per file (an advisory lock, so a second writer gets kUnavailable); any number of
-// readers. A ScanStore is used from one thread.
+// readers. A ScanStore is used by one thread at a time (ScanRecorder shares its writer between the
+// fusion thread and its background checkpoint thread under a mutex).
 #pragma once
 
 #include <cstdint>
@@ -25,11 +26,12 @@
 
 #include "depthfuse/point_map.hpp"
 #include "depthfuse/status.hpp"
+#include "depthfuse/store/blob_codec.hpp"
 #include "depthfuse/types.hpp"
 
 namespace depthfuse::store {
 
-constexpr int kSchemaVersion = 2;                 // PRAGMA user_version of files written now
+constexpr int kSchemaVersion = 3;                 // PRAGMA user_version of files written now
 constexpr int32_t kApplicationId = 0x44465343;    // PRAGMA application_id: "DFSC"
 
 enum class OpenMode {
@@ -99,6 +101,20 @@ struct ChunkInfo {
   size_t blob_bytes = 0;
 };
 
+// A chunk encoded ahead of the checkpoint that writes it (a checkpoint written in the background
+// encodes before it takes the store, so that the fusion thread's own writes do not wait for it).
+struct EncodedChunk {
+  ChunkKey key;
+  uint32_t point_count = 0;
+  Eigen::AlignedBox3f bounds_m;              // empty for an empty chunk
+  uint32_t last_touched_frame = 0;
+  std::vector<uint8_t> blob;                 // DFB1 points
+};
+Status encode_chunk(BlobCodec& codec, const ChunkKey& key, const Chunk& chunk, EncodedChunk* out);
+
+// "Every frame": a checkpoint that takes all staged chunks.
+constexpr uint32_t kAllFrames = 0xFFFFFFFFu;
+
 struct StoredChunk {
   ChunkInfo info;
   Chunk chunk;                               // dirty = false: it is what the file holds
@@ -150,6 +166,9 @@ struct IntegrityReport {
   bool ok() const { return problems.empty(); }
   std::vector<std::string> problems;         // each names the table/row/column at fault
   size_t chunks_checked = 0, keyframes_checked = 0, poses_checked = 0;
+  // Of poses_checked: rows written before schema 3, without a checksum. Their pose decodes (96
+  // bytes, finite, a rotation) but a changed value cannot be told from a true one.
+  size_t poses_unchecked = 0;
 };
 
 // Chunk iteration options.
@@ -183,9 +202,14 @@ class ScanStore {
 
   // ---- Checkpoints: begin, write, commit. Nothing is visible to readers before commit; a failed
   // write or commit rolls the whole checkpoint back and the previous one stays intact.
-  Status begin_checkpoint();
-  // An empty chunk deletes the key. Replaces a staged copy of the same key.
+  // `up_to_frame`: the checkpoint holds the map as of this frame. Staged chunks last touched by a
+  // later frame (the pager evicted them while the checkpoint was being written in the background)
+  // are neither promoted nor replaced by it: they stay staged for the next checkpoint.
+  Status begin_checkpoint(uint32_t up_to_frame = kAllFrames);
+  // An empty chunk deletes the key. Replaces a staged copy of the same key (one of the checkpoint's
+  // frames).
   Status write_chunk(const ChunkKey& key, const Chunk& chunk);
+  Status write_chunk(const EncodedChunk& chunk);
   Status delete_chunk(const ChunkKey& key);
   Status delete_all_chunks();                       // e.g. refine replaces the cloud
   Status write_pose(const PoseRecord& pose);        // insert or replace by frame id
@@ -214,6 +238,8 @@ class ScanStore {
   // Committed chunks in key order, one decoded at a time. The callback may move the points.
   Status for_each_chunk(const std::function<Status(const ChunkInfo&, PointArrays&)>& fn,
                         const ChunkFilter& filter = {});
+  // Each row's checksum is checked (kCorrupt naming the frame); rows written before schema 3 have
+  // none and are taken as they are.
   Result<std::vector<PoseRecord>> read_poses();
   Result<std::vector<KeyframeInfo>> list_keyframes();
   Result<Keyframe> read_keyframe(uint32_t frame_id);
@@ -225,7 +251,12 @@ class ScanStore {
   Status compact();
   // A compact copy of the file as of now (VACUUM INTO); `path` must not exist. Works read-only.
   Status copy_to(const std::string& path);
-  // PRAGMA integrity_check plus decoding and checking every blob (`check_blobs`).
+  // Whether the stored frame numbers agree with each other: checkpoints in order (frames and
+  // counts never going back), the last checkpoint's frame is its newest pose's, no more poses than
+  // frames fused. Each disagreement is a problem naming the values; a writer does not resume a
+  // scan that has any.
+  std::vector<std::string> frame_problems();
+  // PRAGMA integrity_check, frame_problems(), and decoding and checking every blob (`check_blobs`).
   Result<IntegrityReport> integrity_check(bool check_blobs = true);
 
   struct Impl;

@@ -1,0 +1,262 @@
+#!/usr/bin/env python3
+"""kill -9 the fusion daemon at random moments of a 30 Hz scan: how many frames each kill loses.
+
+A synthetic capture publishes at 30 Hz (looping) into depthfuse-fusion recording a scan file. Each
+round starts the daemon on the same file (it resumes from the last checkpoint), waits a random time
+after the scan (re)started, kills it with SIGKILL and runs `depthfuse inspect` on the file. A frame
+is lost when the daemon fused it (published its pose) but the file's last checkpoint does not hold
+it: lost = (first frame of the round + poses published - 1) - last checkpoint frame after the kill.
+Then steady runs without kills (alternating between the modes) give the fused rate and the
+checkpoints' cost (the fusion daemon's heartbeat counters).
+
+Both modes run side by side in one invocation: incremental checkpoints (this build, interval 1 s)
+and the old 30 s interval (--baseline-bin, the binaries of an earlier build; interval 30 s).
+
+  tools/bench/kill9.py [--kills 100] [--bin build/bin] [--baseline-bin DIR] [--steady-s 30]
+                       [--steady-runs 2] [--min-s 0.1] [--max-s 6] [--scene room] [--lcm URL]
+                       [--workdir DIR]
+"""
+import argparse
+import json
+import os
+import random
+import re
+import shutil
+import signal
+import statistics
+import subprocess
+import sys
+import threading
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(os.path.dirname(HERE))
+
+
+class Watcher:
+    """Pose and fusion heartbeat messages, stamped with their arrival (tools/lcm/watch.py)."""
+
+    def __init__(self, url, python_dir):
+        self.lock = threading.Lock()
+        self.poses = []        # arrival times
+        self.heartbeats = []   # (arrival, message)
+        self.proc = subprocess.Popen(
+            [sys.executable, os.path.join(ROOT, "tools", "lcm", "watch.py"), "--lcm", url,
+             "--python-dir", python_dir, "--channel", "DEPTHFUSE_(POSE|HEARTBEAT)"],
+            stdout=subprocess.PIPE, text=True)
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self):
+        for line in self.proc.stdout:
+            now = time.monotonic()
+            try:
+                rec = json.loads(line)
+            except ValueError:
+                continue
+            with self.lock:
+                if rec.get("channel") == "DEPTHFUSE_POSE":
+                    self.poses.append(now)
+                elif rec.get("channel") == "DEPTHFUSE_HEARTBEAT" and rec["message"].get("name") == "fusion":
+                    self.heartbeats.append((now, rec["message"]))
+
+    def poses_between(self, t0, t1):
+        with self.lock:
+            return [t for t in self.poses if t0 <= t <= t1]
+
+    def heartbeats_between(self, t0, t1):
+        with self.lock:
+            return [m for t, m in self.heartbeats if t0 <= t <= t1]
+
+    def stop(self):
+        self.proc.terminate()
+        self.proc.wait()
+
+
+def counter(hb, name):
+    for c in hb.get("counters", []):
+        if c.get("key") == name:
+            return c.get("value")
+    return None
+
+
+def wait_for_line(path, pattern, timeout_s):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        with open(path, errors="replace") as f:
+            m = re.search(pattern, f.read())
+        if m:
+            return m
+        time.sleep(0.02)
+    return None
+
+
+def inspect(cli, db):
+    """(exit code, the last checkpoint's frame, output) of `depthfuse inspect`."""
+    r = subprocess.run([cli, "inspect", db], capture_output=True, text=True)
+    m = re.search(r"checkpoints +\d+, last #\d+ at .*\(\w+, frame (\d+)\)", r.stdout)
+    return r.returncode, int(m.group(1)) if m else 0, r.stdout + r.stderr
+
+
+class Mode:
+    """One way of running the daemon: its binaries (and their CLI) and checkpoint interval."""
+
+    def __init__(self, name, bin_dir, interval_s, args):
+        self.name, self.args = name, args
+        self.work = os.path.join(args.workdir, name.replace(" ", "-"))
+        shutil.rmtree(self.work, ignore_errors=True)
+        os.makedirs(self.work)
+        self.cfg = os.path.join(self.work, "depthfuse.toml")
+        with open(self.cfg, "w") as f:
+            f.write("[fusion_daemon]\ncheckpoint_interval_s = %g\nscan_dir = \"%s\"\n" %
+                    (interval_s, os.path.join(self.work, "scans")))
+        self.db = os.path.join(self.work, "scan.db")
+        self.fusion = os.path.join(bin_dir, "depthfuse-fusion")
+        self.cli = os.path.join(bin_dir, "depthfuse")  # inspect of the schema these binaries write
+        self.rates, self.heartbeats = [], []
+        self.proc = None
+
+    def start(self, log):
+        out = open(log, "w")
+        self.proc = subprocess.Popen([self.fusion, "--config", self.cfg, "--lcm", self.args.lcm,
+                                      "--scan-db", self.db, "--autostart", "k9"],
+                                     stdout=out, stderr=subprocess.STDOUT)
+        return self.proc
+
+    def remove_scan(self):
+        for suffix in ("", "-wal", "-shm"):
+            if os.path.exists(self.db + suffix):
+                os.remove(self.db + suffix)
+
+
+def kill_rounds(mode, args, watcher):
+    name, db, start, cli = mode.name, mode.db, mode.start, mode.cli
+    work = mode.work
+    lost, inspect_ok, rounds, problems = [], 0, 0, []
+    expected_start = 1
+    for i in range(args.kills):
+        log = os.path.join(work, "fusion-%d.log" % i)
+        t_start = time.monotonic()
+        proc = start(log)
+        m = wait_for_line(log, r"scan k9 (started|resumed at frame (\d+))", 60)
+        if not m:
+            proc.kill()
+            proc.wait()
+            problems.append("round %d: the daemon did not start its scan (%s)" % (i, log))
+            continue
+        first = int(m.group(2)) if m.group(2) else 1
+        if first != expected_start:
+            problems.append("round %d: resumed at frame %d, the file's last checkpoint says %d" %
+                            (i, first, expected_start))
+        # The random moment counts from the round's first fused frame: resuming a big map on a
+        # loaded machine takes a while, and a kill before fusion restarts would lose nothing.
+        deadline = time.monotonic() + 60
+        while not watcher.poses_between(t_start, time.monotonic()) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(random.uniform(args.min_s, args.max_s))
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        t_kill = time.monotonic()
+        time.sleep(0.3)  # poses already on the wire
+        fused = len(watcher.poses_between(t_start, t_kill + 0.3))
+        code, last, out = inspect(cli, db)
+        rounds += 1
+        if code == 0:
+            inspect_ok += 1
+        else:
+            problems.append("round %d: inspect exit %d:\n%s" % (i, code, out))
+        last_fused = first + fused - 1
+        lost.append(max(0, last_fused - last))
+        expected_start = last + 1
+        print("%-14s kill %3d: frames %d-%d fused, file at frame %d: %d lost, inspect %s" %
+              (name, i + 1, first, last_fused, last, lost[-1], "ok" if code == 0 else "FAILED"),
+              flush=True)
+
+    return {
+        "mode": name, "kills": rounds, "inspect_ok": inspect_ok,
+        "lost_max": max(lost) if lost else 0, "lost_mean": statistics.mean(lost) if lost else 0,
+        "lost_over_30": sum(1 for x in lost if x > 30), "problems": problems,
+    }
+
+
+def steady(mode, args, watcher, run):
+    """A fresh scan without kills for --steady-s: its fused rate and the heartbeats' figures."""
+    mode.remove_scan()
+    log = os.path.join(mode.work, "fusion-steady-%d.log" % run)
+    proc = mode.start(log)
+    wait_for_line(log, r"scan k9 started", 60)
+    t0 = time.monotonic()
+    time.sleep(args.steady_s)
+    t1 = time.monotonic()
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    mode.rates.append(len(watcher.poses_between(t0, t1)) / (t1 - t0))
+    mode.heartbeats += watcher.heartbeats_between(t0, t1)
+    print("%-14s steady run %d: %.1f frames fused per second" % (mode.name, run + 1, mode.rates[-1]), flush=True)
+
+
+def figures(mode, counter_name):
+    vals = [v for v in (counter(h, counter_name) for h in mode.heartbeats) if v]
+    return (statistics.mean(vals), max(vals)) if vals else (0.0, 0.0)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--kills", type=int, default=100)
+    ap.add_argument("--bin", default=os.path.join(ROOT, "build", "bin"))
+    ap.add_argument("--baseline-bin", default="", help="binaries with the 30 s interval ('' = skip)")
+    ap.add_argument("--python-dir", default=os.path.join(ROOT, "build", "python"))
+    ap.add_argument("--steady-s", type=float, default=30.0)
+    ap.add_argument("--steady-runs", type=int, default=2)
+    ap.add_argument("--min-s", type=float, default=0.1, help="earliest kill after the round's first fused frame")
+    ap.add_argument("--max-s", type=float, default=6.0, help="latest kill after the round's first fused frame")
+    ap.add_argument("--scene", default="room")
+    ap.add_argument("--lcm", default="udpm://239.255.76.67:%d?ttl=0&recv_buf_size=4194304" % (7700 + os.getpid() % 200))
+    ap.add_argument("--workdir", default="/tmp/depthfuse-kill9")
+    ap.add_argument("--seed", type=int, default=1)
+    args = ap.parse_args()
+    random.seed(args.seed)
+
+    watcher = Watcher(args.lcm, args.python_dir)
+    capture = subprocess.Popen(
+        [os.path.join(args.bin, "depthfuse-capture"), "--source", "synthetic:%s?frames=600" % args.scene,
+         "--rate", "30", "--loop", "--lcm", args.lcm, "--color", "none"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    modes = [Mode("incremental 1s", args.bin, 1.0, args)]
+    if args.baseline_bin:
+        modes.append(Mode("baseline 30s", args.baseline_bin, 30.0, args))
+    results = []
+    try:
+        for m in modes:
+            results.append(kill_rounds(m, args, watcher))
+        # Alternating, so that the load of a shared machine weighs on both alike.
+        for run in range(args.steady_runs):
+            for m in modes:
+                steady(m, args, watcher, run)
+    finally:
+        for m in modes:
+            if m.proc and m.proc.poll() is None:
+                m.proc.kill()
+        capture.terminate()
+        capture.wait()
+        watcher.stop()
+
+    print("\n%d kills per mode at random moments %.1f-%.1f s after each round's first fused frame; capture 30 Hz "
+          "synthetic %s" % (args.kills, args.min_s, args.max_s, args.scene))
+    print("| mode | kills | inspect ok | frames lost max | mean | kills losing > 30 | fused rate "
+          "(%d x %.0f s, alternating) | checkpoint on the fusion thread (mean / max) | encode | write |"
+          % (args.steady_runs, args.steady_s))
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for m, r in zip(modes, results):
+        rates = "%.1f fps (%s)" % (statistics.mean(m.rates), ", ".join("%.1f" % x for x in m.rates)) if m.rates else "-"
+        print("| %s | %d | %d | %d | %.1f | %d | %s | %.1f / %.1f ms | %.0f / %.0f ms | %.0f / %.0f ms |" %
+              (r["mode"], r["kills"], r["inspect_ok"], r["lost_max"], r["lost_mean"], r["lost_over_30"], rates,
+               *figures(m, "checkpoint_snapshot_ms"), *figures(m, "checkpoint_encode_ms"),
+               *figures(m, "checkpoint_write_ms")))
+    for r in results:
+        for p in r["problems"]:
+            print("%s: %s" % (r["mode"], p))
+    return 0 if all(not r["problems"] and r["lost_over_30"] == 0 for r in results[:1]) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
