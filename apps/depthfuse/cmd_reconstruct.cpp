@@ -254,7 +254,7 @@ int run(int argc, char** argv) {
                                    : std::string("tracking (--track, or no poses in the input)"),
                             !pose_note.empty(), progress);
     if (!held) return failed(held.status());
-    const std::vector<Frame>& frames = *held;
+    std::vector<Frame>& frames = *held;
     frame_count = frames.size();
     has_color = std::any_of(frames.begin(), frames.end(),
                             [](const Frame& f) { return !f.color.empty(); });
@@ -265,10 +265,18 @@ int run(int argc, char** argv) {
         }))
       pose_note.clear();
     if (pose_note.empty()) {
-      pose_note = "tracked from the first frame";
       auto tracked = track_sequence(frames, rc, progress.fn());
       if (!tracked) return cli::fail(tracked.status().message());
-      initial = std::move(*tracked);
+      // A lost frame's pose is unknown: it is left out of the cloud and the trajectory.
+      std::vector<Frame> kept;
+      for (size_t i = 0; i < frames.size(); ++i) {
+        if (tracked->state[i] == TrackingState::kLost) continue;
+        kept.push_back(std::move(frames[i]));
+        initial.push_back(tracked->T_world_cam[i]);
+      }
+      frames = std::move(kept);
+      pose_note = "tracked from the first frame: " + std::to_string(tracked->uncertain) +
+                  " frames uncertain, " + std::to_string(tracked->lost) + " lost (left out)";
     } else {
       for (size_t i = 0; i < frames.size(); ++i) {
         if (!frames[i].T_world_cam_hint) {

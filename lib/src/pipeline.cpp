@@ -64,26 +64,30 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   t0 = Clock::now();
   if (config_.registration.enabled && map_->point_count() > 0) {
     const bool hint = frame.T_world_cam_hint.has_value();
+    // Without a hint: the tracking of a moving camera, its unconstrained directions held at the
+    // last refined pose.
+    const std::optional<Pose> held = hint ? std::nullopt : last_T_world_cam_;
     const SurfaceView& last = registrar_.model();
     if (may_reuse(config_.registration, frames_since_model_, last, T)) {
       report.registration = hint ? registrar_.refine(scratch_, last, T)
-                                 : registrar_.track(scratch_, last, T);
+                                 : registrar_.track(scratch_, last, T, held);
       ++frames_since_model_;
       report.model_reused = true;
     } else {
       report.registration = hint ? registrar_.refine(scratch_, *map_, T)
-                                 : registrar_.track(scratch_, *map_, T);
+                                 : registrar_.track(scratch_, *map_, T, held);
       frames_since_model_ = 1;
     }
     // A constant-velocity prediction overshoots where the camera stops or turns back; a poor
-    // track from it gets a second start at the last refined pose.
-    const double retry_fitness = config_.registration.tracking_retry_fitness;
-    if (!hint && prediction && last_T_world_cam_ &&
-        (!report.registration.converged || report.registration.fitness < retry_fitness)) {
-      const RegistrationResult second = registrar_.track(scratch_, *map_, *last_T_world_cam_);
+    // track from it gets a second start at the last refined pose. Of two local minima the one with
+    // the lower robust cost over all sampled measurements explains more of the frame, and better:
+    // fitness alone would prefer many loose pairs, the residual alone few tight ones.
+    if (!hint && prediction && last_T_world_cam_ && config_.registration.tracking_retry_fitness > 0 &&
+        classify_tracking(report.registration, config_.registration) != TrackingState::kTracked) {
+      const RegistrationResult second = registrar_.track(scratch_, *map_, *last_T_world_cam_, held);
       frames_since_model_ = 1;
       if (second.converged && (!report.registration.converged ||
-                               second.fitness > report.registration.fitness)) {
+                               second.mean_cost < report.registration.mean_cost)) {
         report.registration = second;
         report.model_reused = false;  // the second track rendered the map
       }
@@ -91,13 +95,24 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
     }
     report.registered = report.registration.converged;
     if (report.registered) T = report.registration.T_world_cam;
+    if (!hint) report.tracking = classify_tracking(report.registration, config_.registration);
+    else if (!report.registered) report.tracking = TrackingState::kUncertain;
   }
   report.registration_ms = ms_since(t0);
+  report.T_world_cam = T;
+  if (report.tracking == TrackingState::kLost) {
+    // The pose is unknown: fusing the frame would put a copy of the scene in the wrong place, and
+    // the next frame starts from the last frame fused. The model rendered for this frame covers
+    // what it saw from the wrong place: the next frame renders its own.
+    frames_since_model_ = 0;
+    ++next_frame_id_;
+    return report;
+  }
 
   t0 = Clock::now();
   report.fusion = fuser_.fuse(scratch_, &frame.color, T, next_frame_id_, map_.get());
   report.fusion_ms = ms_since(t0);
-  report.T_world_cam = T;
+  report.fused = true;
   last_T_world_cam_ = T;
   ++next_frame_id_;
   return report;
@@ -258,32 +273,42 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
   return result;
 }
 
-Result<std::vector<Pose>> track_sequence(const std::vector<Frame>& frames,
-                                         const ReconstructionConfig& config,
-                                         const ProgressFn& progress) {
+Result<TrackedSequence> track_sequence(const std::vector<Frame>& frames,
+                                       const ReconstructionConfig& config,
+                                       const ProgressFn& progress) {
   if (frames.empty()) return invalid_argument("the sequence has no frames");
   ReconstructionConfig c = config.with_method(Method::kFull);
   IncrementalReconstructor rec(c);
-  std::vector<Pose> poses;
-  poses.reserve(frames.size());
-  std::optional<Pose> prediction;
+  TrackedSequence out;
+  out.T_world_cam.reserve(frames.size());
+  out.state.reserve(frames.size());
+  // The last two poses fused, and whether they were consecutive frames (a velocity).
+  std::optional<Pose> before, last;
+  bool consecutive = false;
   for (size_t i = 0; i < frames.size(); ++i) {
     Frame f = frames[i];
     f.T_world_cam_hint.reset();
-    // Constant-velocity prediction from the last two poses.
-    if (poses.size() >= 2) {
-      const Pose& a = poses[poses.size() - 2];
-      const Pose& b = poses.back();
-      prediction = b * (a.inverse() * b);
-    } else if (!poses.empty()) {
-      prediction = poses.back();
-    }
+    // Constant velocity from the last two frames if both were fused; after a loss, the last frame
+    // fused (IncrementalReconstructor's own start).
+    std::optional<Pose> prediction;
+    if (before && last && consecutive) prediction = *last * (before->inverse() * *last);
     Result<FrameReport> r = rec.process(f, prediction);
     if (!r) return r.status().with_context("frame " + std::to_string(i));
-    poses.push_back(r->T_world_cam);
+    out.T_world_cam.push_back(r->T_world_cam);
+    out.state.push_back(r->tracking);
+    if (r->tracking == TrackingState::kUncertain) ++out.uncertain;
+    if (r->fused) {
+      consecutive = last.has_value() && out.state.size() >= 2 &&
+                    out.state[out.state.size() - 2] != TrackingState::kLost;
+      before = last;
+      last = r->T_world_cam;
+    } else {
+      ++out.lost;
+      consecutive = false;
+    }
     if (progress) progress("tracking", i + 1, frames.size());
   }
-  return poses;
+  return out;
 }
 
 }  // namespace depthfuse

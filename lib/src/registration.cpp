@@ -27,6 +27,12 @@ inline Pose twist_to_pose(const Eigen::Matrix<double, 6, 1>& xi) {
   return T;
 }
 
+// The Huber loss of a residual r with scale delta (the loss ICP's weights minimise).
+inline float huber_cost(float r, float delta) {
+  const float a = std::abs(r);
+  return a <= delta ? 0.5f * a * a : delta * (a - 0.5f * delta);
+}
+
 // One point-to-plane term: residual n.(p - q) with Jacobian [ (p - c) x n, n ] for a twist about
 // the centre c, the camera's position (conditioning: rotations about the camera, not the world
 // origin).
@@ -34,10 +40,12 @@ struct NormalEquations {
   Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
   Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
   double sq_residual = 0;
+  double cost = 0;         // sum of the pairs' Huber costs
   double sq_lever_m2 = 0;  // sum of |p - c|^2: the rotations' lever arm
   size_t inliers = 0;
 
-  inline void add(const Eigen::Vector3f& p_rel, const Eigen::Vector3f& n, float r, float w) {
+  inline void add(const Eigen::Vector3f& p_rel, const Eigen::Vector3f& n, float r, float w,
+                  float rho) {
     sq_lever_m2 += static_cast<double>(p_rel.squaredNorm());
     const Eigen::Vector3f c = p_rel.cross(n);
     const float J[6] = {c.x(), c.y(), c.z(), n.x(), n.y(), n.z()};
@@ -47,6 +55,7 @@ struct NormalEquations {
       b(a) += wa * r;
     }
     sq_residual += static_cast<double>(r) * r;
+    cost += rho;
     ++inliers;
   }
 
@@ -54,18 +63,36 @@ struct NormalEquations {
     H += o.H;
     b += o.b;
     sq_residual += o.sq_residual;
+    cost += o.cost;
     sq_lever_m2 += o.sq_lever_m2;
     inliers += o.inliers;
   }
 };
+
+// The pose change that turns `T` into `A` as a twist about the centre c (the inverse of the update
+// T' = Tc * twist_to_pose(xi) * Tc^-1 * T in run()).
+inline Eigen::Matrix<double, 6, 1> twist_between(const Pose& T, const Pose& A, const Eigen::Vector3d& c) {
+  Pose Tc = Pose::Identity();
+  Tc.translation() = c;
+  const Pose M = Tc.inverse() * A * T.inverse() * Tc;
+  const Eigen::AngleAxisd aa(M.linear());
+  Eigen::Matrix<double, 6, 1> xi;
+  xi.head<3>() = aa.angle() * aa.axis();
+  xi.tail<3>() = M.translation();
+  return xi;
+}
 
 // The Gauss-Newton step of the normal equations, in the directions the pairs constrain. A view of
 // one wall constrains three of the six directions, a wall and a floor five: in a direction with
 // (almost) no information the solution follows the noise and the pose slides. The step is solved in
 // the eigenbasis of H with the rotations scaled by the pairs' RMS lever arm (so that both halves
 // are in metres of point motion), and directions whose eigenvalue is below `degenerate_ratio`
-// times the largest keep their current value (0: solve in all six).
-inline Eigen::Matrix<double, 6, 1> solve_step(const NormalEquations& eq, double degenerate_ratio) {
+// times the largest take the value of `to_anchor`, the step to the pose they are held at (0: the
+// current value; degenerate_ratio 0: solve in all six). *conditioning: the smallest eigenvalue
+// over the largest.
+inline Eigen::Matrix<double, 6, 1> solve_step(const NormalEquations& eq, double degenerate_ratio,
+                                              const Eigen::Matrix<double, 6, 1>& to_anchor,
+                                              double* conditioning) {
   const Eigen::Matrix<double, 6, 6> H = eq.H.selfadjointView<Eigen::Upper>();
   const double lever_m = std::sqrt(eq.sq_lever_m2 / std::max<size_t>(1, eq.inliers));
   Eigen::Matrix<double, 6, 1> scale;  // twist = scale .* (twist in metres)
@@ -75,9 +102,13 @@ inline Eigen::Matrix<double, 6, 1> solve_step(const NormalEquations& eq, double 
   const Eigen::Matrix<double, 6, 1> bs = scale.asDiagonal() * eq.b;
   const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> es(Hs);
   const Eigen::Matrix<double, 6, 1>& lambda = es.eigenvalues();  // ascending
+  *conditioning = lambda(5) > 0 ? std::max(0.0, lambda(0)) / lambda(5) : 0.0;
   const double floor = std::max(degenerate_ratio * lambda(5), 1e-12 * lambda(5) + 1e-30);
-  Eigen::Matrix<double, 6, 1> coeff = es.eigenvectors().transpose() * (-bs);
-  for (int k = 0; k < 6; ++k) coeff(k) = lambda(k) > floor ? coeff(k) / lambda(k) : 0.0;
+  const Eigen::Matrix<double, 6, 1> coeff_data = es.eigenvectors().transpose() * (-bs);
+  const Eigen::Matrix<double, 6, 1> coeff_anchor =
+      es.eigenvectors().transpose() * scale.cwiseInverse().asDiagonal() * to_anchor;
+  Eigen::Matrix<double, 6, 1> coeff;
+  for (int k = 0; k < 6; ++k) coeff(k) = lambda(k) > floor ? coeff_data(k) / lambda(k) : coeff_anchor(k);
   return scale.asDiagonal() * (es.eigenvectors() * coeff);
 }
 
@@ -116,8 +147,8 @@ void Registrar::render_model(const MeasurementImage& m, const PointMap& map, con
 }
 
 RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& model,
-                                  const Pose& initial, int subsample, int iterations,
-                                  double max_corr_m, size_t min_pairs) {
+                                  const Pose& initial, const Hold& hold, int subsample,
+                                  int iterations, double max_corr_m, size_t min_pairs) {
   RegistrationResult result;
   result.T_world_cam = initial;
   const CameraIntrinsics& MK = model.K;
@@ -173,7 +204,7 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
           if (n_p.dot(n_q) < cos_max) continue;
           const float r = n_q.dot(d);
           const float w = std::abs(r) <= huber ? 1.0f : huber / std::abs(r);
-          out->add(p_w - centre, n_q, r, w);
+          out->add(p_w - centre, n_q, r, w, huber_cost(r, huber));
         }
       }
     };
@@ -187,7 +218,11 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
     sampled += second_sampled;
     result.iterations = it + 1;
     if (eq.inliers < min_pairs) break;
-    const Eigen::Matrix<double, 6, 1> xi = solve_step(eq, config_.degenerate_ratio);
+    const Eigen::Matrix<double, 6, 1> to_anchor =
+        hold.anchor ? twist_between(T, *hold.anchor, centre.cast<double>())
+                    : Eigen::Matrix<double, 6, 1>::Zero();
+    const Eigen::Matrix<double, 6, 1> xi =
+        solve_step(eq, hold.degenerate_ratio, to_anchor, &result.conditioning);
     if (!xi.allFinite()) break;
     // The twist is about `centre`: T' = Tc * exp(xi) * Tc^-1 * T.
     Pose Tc = Pose::Identity();
@@ -199,6 +234,9 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
 
   result.correspondences = eq.inliers;
   result.fitness = sampled ? static_cast<double>(eq.inliers) / sampled : 0.0;
+  // A sample without a pair costs what a pair at the gate would.
+  const double unpaired = huber_cost(max_d, huber) * static_cast<double>(sampled - eq.inliers);
+  result.mean_cost = sampled ? (eq.cost + unpaired) / sampled : 0.0;
   result.rmse_m = eq.inliers ? std::sqrt(eq.sq_residual / eq.inliers) : 0.0;
   result.converged = eq.inliers >= min_pairs;
   if (result.converged) result.T_world_cam = T;
@@ -221,27 +259,34 @@ RegistrationResult Registrar::refine(const MeasurementImage& m, const PointMap& 
 
 RegistrationResult Registrar::refine(const MeasurementImage& m, const SurfaceView& model,
                                      const Pose& T_world_cam_initial) {
-  return run(m, model, T_world_cam_initial, config_.subsample_px, config_.iterations,
-             config_.max_correspondence_m, min_pairs(0));
+  return run(m, model, T_world_cam_initial, hold_for(std::nullopt), config_.subsample_px,
+             config_.iterations, config_.max_correspondence_m, min_pairs(0));
+}
+
+Registrar::Hold Registrar::hold_for(const std::optional<Pose>& T_world_cam_held) const {
+  if (T_world_cam_held) return {&*T_world_cam_held, config_.tracking_degenerate_ratio};
+  return {nullptr, config_.degenerate_ratio};
 }
 
 RegistrationResult Registrar::track(const MeasurementImage& m, const PointMap& map,
-                                    const Pose& T_world_cam_initial) {
+                                    const Pose& T_world_cam_initial,
+                                    const std::optional<Pose>& T_world_cam_held) {
   // One rendering of the model, at the initial pose and wide enough for the coarsest gate, serves
   // every level: associations go through the rendered camera whatever the current estimate.
   const int levels = std::max(1, config_.tracking_levels);
   render_model(m, map, T_world_cam_initial, config_.tracking_model_band_m,
                config_.max_correspondence_m * (1 << (levels - 1)));
-  return coarse_to_fine(m, view_, T_world_cam_initial);
+  return coarse_to_fine(m, view_, T_world_cam_initial, hold_for(T_world_cam_held));
 }
 
 RegistrationResult Registrar::track(const MeasurementImage& m, const SurfaceView& model,
-                                    const Pose& T_world_cam_initial) {
-  return coarse_to_fine(m, model, T_world_cam_initial);
+                                    const Pose& T_world_cam_initial,
+                                    const std::optional<Pose>& T_world_cam_held) {
+  return coarse_to_fine(m, model, T_world_cam_initial, hold_for(T_world_cam_held));
 }
 
 RegistrationResult Registrar::coarse_to_fine(const MeasurementImage& m, const SurfaceView& model,
-                                             const Pose& T_world_cam_initial) {
+                                             const Pose& T_world_cam_initial, const Hold& hold) {
   const int levels = std::max(1, config_.tracking_levels);
   RegistrationResult r;
   r.T_world_cam = T_world_cam_initial;
@@ -249,11 +294,29 @@ RegistrationResult Registrar::coarse_to_fine(const MeasurementImage& m, const Su
   for (int level = levels - 1; level >= 0; --level) {
     const int step = std::max(1, config_.subsample_px) << level;
     const double gate = config_.max_correspondence_m * (1 << level);
-    r = run(m, model, T, step, config_.tracking_iterations_per_level, gate, min_pairs(level));
+    r = run(m, model, T, hold, step, config_.tracking_iterations_per_level, gate, min_pairs(level));
     if (r.converged) T = r.T_world_cam;
   }
   r.T_world_cam = T;
   return r;
+}
+
+
+const char* to_string(TrackingState s) {
+  switch (s) {
+    case TrackingState::kTracked: return "tracked";
+    case TrackingState::kUncertain: return "uncertain";
+    case TrackingState::kLost: return "lost";
+  }
+  return "?";
+}
+
+TrackingState classify_tracking(const RegistrationResult& r, const RegistrationConfig& c) {
+  if (!r.converged || r.fitness < c.tracking_lost_fitness || r.rmse_m > c.tracking_lost_rmse_m)
+    return TrackingState::kLost;
+  if (r.fitness < c.tracking_retry_fitness || r.conditioning < c.tracking_degenerate_ratio)
+    return TrackingState::kUncertain;
+  return TrackingState::kTracked;
 }
 
 }  // namespace depthfuse

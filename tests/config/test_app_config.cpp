@@ -60,6 +60,9 @@ void expect_config_eq(const AppConfig& a, const AppConfig& b) {
   EXPECT_EQ(ra.registration.tracking_model_band_m, rb.registration.tracking_model_band_m);
   EXPECT_EQ(ra.registration.tracking_levels, rb.registration.tracking_levels);
   EXPECT_EQ(ra.registration.tracking_retry_fitness, rb.registration.tracking_retry_fitness);
+  EXPECT_EQ(ra.registration.tracking_degenerate_ratio, rb.registration.tracking_degenerate_ratio);
+  EXPECT_EQ(ra.registration.tracking_lost_fitness, rb.registration.tracking_lost_fitness);
+  EXPECT_EQ(ra.registration.tracking_lost_rmse_m, rb.registration.tracking_lost_rmse_m);
   EXPECT_EQ(ra.registration.tracking_iterations_per_level,
             rb.registration.tracking_iterations_per_level);
   EXPECT_EQ(ra.pipeline.method, rb.pipeline.method);
@@ -157,6 +160,9 @@ tracking_model_band_m = 0.2
 tracking_levels = 2
 tracking_iterations_per_level = 5
 tracking_retry_fitness = 0.25
+tracking_degenerate_ratio = 0.002
+tracking_lost_fitness = 0.2
+tracking_lost_rmse_m = 0.03
 
 [pipeline]
 method = "ylimaki17"
@@ -229,6 +235,9 @@ publish_rate_hz = 0.5
   EXPECT_EQ(g.tracking_levels, 2);
   EXPECT_EQ(g.tracking_iterations_per_level, 5);
   EXPECT_EQ(g.tracking_retry_fitness, 0.25);
+  EXPECT_EQ(g.tracking_degenerate_ratio, 0.002);
+  EXPECT_EQ(g.tracking_lost_fitness, 0.2);
+  EXPECT_EQ(g.tracking_lost_rmse_m, 0.03);
   const PipelineConfig& pl = c.reconstruction.pipeline;
   EXPECT_EQ(pl.method, Method::kYlimaki17);
   EXPECT_EQ(pl.outer_iterations, 3);

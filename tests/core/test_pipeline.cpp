@@ -134,12 +134,14 @@ TEST(Incremental, ReusesTheModelOnlyForNearbyFramesAndNotTwiceInARow) {
 
 TEST(Incremental, APoorTrackFromThePredictionStartsAgainFromTheLastPose) {
   // The camera stops, but the prediction (as a constant-velocity model would give after a fast
-  // move) is 20 cm and 20 degrees on. Tracking from there does not find the corner; with the
-  // retry it starts again from the last refined pose, which is right.
+  // move) is 50 cm and 45 degrees on. From there the model is rendered where the camera is not:
+  // it covers a quarter of the frame, and the track scores as lost (the directions it cannot
+  // determine are held at the last pose, which is right here, so the pose itself is). With the
+  // retry it starts again from the last refined pose, against a model that covers the frame.
   const Pose stop = test::look_at({2.4 * std::cos(0.6), 2.4 * std::sin(0.6), 1.4}, {0.3, 0.3, 0.3});
   Pose overshoot = stop;
-  overshoot.linear() = Eigen::AngleAxisd(20.0 * M_PI / 180.0, Eigen::Vector3d::UnitZ()) * stop.linear();
-  overshoot.translation() += Eigen::Vector3d(0.2, -0.1, 0.05).normalized() * 0.2;
+  overshoot.linear() = Eigen::AngleAxisd(45.0 * M_PI / 180.0, Eigen::Vector3d::UnitZ()) * stop.linear();
+  overshoot.translation() += Eigen::Vector3d(0.2, -0.1, 0.05).normalized() * 0.5;
   for (const double retry : {0.0, 0.5}) {
     SCOPED_TRACE("tracking_retry_fitness " + std::to_string(retry));
     ReconstructionConfig c;
@@ -155,9 +157,68 @@ TEST(Incremental, APoorTrackFromThePredictionStartsAgainFromTheLastPose) {
       EXPECT_TRUE(r->tracking_retried);
       EXPECT_LT(error_m, 1e-3);
       EXPECT_GT(r->registration.fitness, 0.9);
+      EXPECT_EQ(r->tracking, TrackingState::kTracked);
     } else {
       EXPECT_FALSE(r->tracking_retried);
-      EXPECT_GT(error_m, 0.05);  // lost: the reason for the retry
+      EXPECT_LT(r->registration.fitness, 0.3);
+      EXPECT_EQ(r->tracking, TrackingState::kLost);
+      EXPECT_FALSE(r->fused);
     }
+  }
+}
+
+namespace {
+
+// A view of a plane 1 m in front of a camera at T, where the corner's map has nothing: as if the
+// camera had been carried elsewhere.
+Frame elsewhere(const Pose& T) {
+  const Eigen::Vector3d n = T.linear().col(2);
+  return test::render_plane(T, -n, -n.dot(T.translation() + n));
+}
+
+}  // namespace
+
+TEST(Incremental, ALostFrameIsReportedAndNotFusedAndTrackingResumesWhenTheViewReturns) {
+  const Pose stop = test::look_at({2.4 * std::cos(0.6), 2.4 * std::sin(0.6), 1.4}, {0.3, 0.3, 0.3});
+  IncrementalReconstructor rec{ReconstructionConfig{}};
+  auto first = rec.process(test::render_corner(stop), stop);
+  ASSERT_TRUE(first.is_ok());
+  EXPECT_EQ(first->tracking, TrackingState::kTracked);
+  EXPECT_TRUE(first->fused);
+  const size_t points = rec.map().point_count();
+
+  auto lost = rec.process(elsewhere(stop), stop);
+  ASSERT_TRUE(lost.is_ok()) << lost.status().to_string();
+  EXPECT_EQ(lost->tracking, TrackingState::kLost);
+  EXPECT_FALSE(lost->fused);
+  EXPECT_EQ(rec.map().point_count(), points);
+  ASSERT_TRUE(rec.last_pose().has_value());
+  EXPECT_TRUE(rec.last_pose()->isApprox(stop));
+
+  auto back = rec.process(test::render_corner(stop));
+  ASSERT_TRUE(back.is_ok());
+  EXPECT_EQ(back->tracking, TrackingState::kTracked);
+  EXPECT_TRUE(back->fused);
+  EXPECT_LT((back->T_world_cam.translation() - stop.translation()).norm(), 1e-3);
+}
+
+TEST(Sequence, CountsTheLostFramesAndPredictsOnlyFromFusedOnes) {
+  std::vector<Frame> frames;
+  std::vector<Pose> truth;
+  for (int i = 0; i < 6; ++i) {
+    const double a = 0.6 + i * 0.01;
+    truth.push_back(test::look_at({2.4 * std::cos(a), 2.4 * std::sin(a), 1.4}, {0.3, 0.3, 0.3}));
+    frames.push_back(i == 3 ? elsewhere(truth[i]) : test::render_corner(truth[i]));
+  }
+  // track_sequence starts at the identity: express the truth in the first camera's frame.
+  const Pose T_0_world = truth[0].inverse();
+  auto r = track_sequence(frames, ReconstructionConfig{});
+  ASSERT_TRUE(r.is_ok()) << r.status().to_string();
+  EXPECT_EQ(r->lost, 1u);
+  EXPECT_EQ(r->state[3], TrackingState::kLost);
+  for (size_t i : {1u, 2u, 4u, 5u}) {
+    EXPECT_EQ(r->state[i], TrackingState::kTracked) << "frame " << i;
+    EXPECT_LT((r->T_world_cam[i].translation() - (T_0_world * truth[i]).translation()).norm(), 3e-3)
+        << "frame " << i;
   }
 }

@@ -157,6 +157,38 @@ TEST(Registration, AViewOfOneWallMovesThePoseOnlyWhereTheWallConstrainsIt) {
   }
 }
 
+TEST(Registration, TrackingHoldsWhatAWallDoesNotConstrainAtTheLastPoseNotThePrediction) {
+  // The camera stands still before a wall, but the constant-velocity prediction (from the motion
+  // before) is 3 cm along the wall and 1 degree about its normal on. The wall corrects the distance
+  // and the tilts only; the prediction's slide would stay, and the next prediction would slide on.
+  // Tracking a moving camera holds those directions at the last refined pose instead.
+  SensorModelConfig sensor;
+  FusionConfig fusion;
+  PointMap map(0.5);
+  Fuser fuser(sensor, fusion);
+  MeasurementImage m;
+  for (uint32_t id = 1; id <= 3; ++id) {
+    ASSERT_TRUE(backproject(test::render_plane(Pose::Identity(), Eigen::Vector3d::UnitZ(), 2.0),
+                            sensor, fusion, &m).is_ok());
+    fuser.fuse(m, nullptr, Pose::Identity(), id, &map);
+  }
+  const Pose last = Pose::Identity();
+  const Pose predicted = perturb(last, {0.03, 0.0, 0.01}, {0, 0, 1}, 1.0);
+  RegistrationConfig config;
+  const RegistrationResult carried = Registrar(config).track(m, map, predicted);
+  const RegistrationResult held = Registrar(config).track(m, map, predicted, last);
+  for (const RegistrationResult* r : {&carried, &held}) {
+    ASSERT_TRUE(r->converged);
+    EXPECT_LT(std::abs(r->T_world_cam.translation().z()), 1e-3);  // the distance: corrected
+    EXPECT_LT(r->conditioning, config.tracking_degenerate_ratio);
+  }
+  EXPECT_NEAR(carried.T_world_cam.translation().x(), 0.03, 1e-3);
+  EXPECT_LT(held.T_world_cam.translation().head<2>().norm(), 1e-4);
+  EXPECT_LT(rotation_deg(held.T_world_cam, last), 0.01);
+  // Where ICP could not tell, the frame is no more than uncertain.
+  EXPECT_EQ(classify_tracking(held, config), TrackingState::kUncertain);
+}
+
 TEST(Registration, EmptyMapKeepsThePose) {
   PointMap empty(0.5);
   const Pose truth = test::look_at({1.8, 1.9, 1.5}, {0.3, 0.3, 0.3});

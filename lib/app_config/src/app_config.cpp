@@ -123,6 +123,9 @@ void read_registration(TableReader& r, RegistrationConfig* g) {
   r.read("tracking_levels", &g->tracking_levels, closed(1, 8));  // pixel steps grow as 2^level
   r.read("tracking_iterations_per_level", &g->tracking_iterations_per_level, non_negative());
   r.read("tracking_retry_fitness", &g->tracking_retry_fitness, closed(0.0, 1.0));
+  r.read("tracking_degenerate_ratio", &g->tracking_degenerate_ratio, closed(0.0, 1.0));
+  r.read("tracking_lost_fitness", &g->tracking_lost_fitness, closed(0.0, 1.0));
+  r.read("tracking_lost_rmse_m", &g->tracking_lost_rmse_m, positive());
   r.read("live_model_reuse_frames", &g->live_model_reuse_frames, closed(1, 30));
   r.read("live_model_reuse_max_m", &g->live_model_reuse_max_m, non_negative());
   r.read("live_model_reuse_max_deg", &g->live_model_reuse_max_deg, closed(0.0, 180.0));

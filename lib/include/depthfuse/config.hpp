@@ -77,6 +77,15 @@ struct RegistrationConfig {
   // Tracking from a prediction whose result has an ICP fitness below this (or fails) starts again
   // from the last refined pose; 0 = never.
   double tracking_retry_fitness = 0.5;
+  // Tracking a moving camera from a prediction (IncrementalReconstructor without a pose hint):
+  // directions below this fraction of the best-constrained one's keep the last refined pose's
+  // value (see Registrar::track).
+  double tracking_degenerate_ratio = 1e-3;
+  // A tracked frame is lost (not fused) when its fitness is below this or its residual above that;
+  // uncertain when its fitness is below tracking_retry_fitness or its conditioning below
+  // tracking_degenerate_ratio (classify_tracking()).
+  double tracking_lost_fitness = 0.3;
+  double tracking_lost_rmse_m = 0.02;
   // Frame-by-frame registration (IncrementalReconstructor, the fusion daemon) may align a frame
   // to the model rendered for the frame before, instead of rendering the map again: for at most
   // live_model_reuse_frames frames in a row (1: never), and only while the initial pose is within

@@ -25,6 +25,10 @@ struct FrameReport {
   bool registered = false;               // ICP ran and converged
   bool model_reused = false;             // ICP aligned to the previous frame's model (no render)
   bool tracking_retried = false;         // a poor track from the prediction started again
+  // Without a pose hint, how far the tracked pose can be trusted (classify_tracking()); with one,
+  // tracked if its ICP converged, else uncertain (the hint is fused). A lost frame is not fused.
+  TrackingState tracking = TrackingState::kTracked;
+  bool fused = false;
   RegistrationResult registration;
   FusionStats fusion;
   size_t prefiltered = 0;                // measurements the pre-filter removed
@@ -46,8 +50,10 @@ class IncrementalReconstructor {
   // not empty); fusion. With a hint, ICP refines it; without one, coarse-to-fine tracking runs.
   // The model is the map rendered at the initial pose, for every frame or, with
   // registration.live_model_reuse_frames = n, for every n-th (the first after a reset renders).
-  // A track from a prediction whose fitness is below registration.tracking_retry_fitness starts
-  // again from the last refined pose, and the better of the two (by fitness) is kept.
+  // Without a hint, directions of the pose the view hardly constrains keep the last refined pose's
+  // value (Registrar::track). A track from a prediction that is not kTracked starts again from the
+  // last refined pose, and the start whose ICP ends with the lower mean cost is kept. A frame whose
+  // track is lost is not fused, and the last refined pose stays that of the last frame fused.
   Result<FrameReport> process(const Frame& frame,
                               const std::optional<Pose>& T_world_cam_prediction = std::nullopt);
 
@@ -136,9 +142,17 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
                                       const ReconstructionConfig& config,
                                       const ProgressFn& progress = nullptr);
 
-// Poses for a sequence without any: frame-to-model tracking from the first frame (at identity).
-Result<std::vector<Pose>> track_sequence(const std::vector<Frame>& frames,
-                                         const ReconstructionConfig& config,
-                                         const ProgressFn& progress = nullptr);
+struct TrackedSequence {
+  std::vector<Pose> T_world_cam;       // one per frame; a lost frame's is ICP's best guess
+  std::vector<TrackingState> state;    // one per frame
+  size_t uncertain = 0, lost = 0;      // frames in those states
+};
+
+// Poses for a sequence without any: frame-to-model tracking from the first frame (at identity),
+// each frame from a constant-velocity prediction (the last two frames fused), or from the last
+// frame fused after a loss.
+Result<TrackedSequence> track_sequence(const std::vector<Frame>& frames,
+                                       const ReconstructionConfig& config,
+                                       const ProgressFn& progress = nullptr);
 
 }  // namespace depthfuse

@@ -2,6 +2,7 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 
 #include "depthfuse/config.hpp"
 #include "depthfuse/measurement.hpp"
@@ -15,8 +16,23 @@ struct RegistrationResult {
   size_t correspondences = 0;
   double fitness = 0.0;                 // inlier correspondences / valid measurements used
   double rmse_m = 0.0;                  // point-to-plane residual of the inliers
+  // The robust (Huber) cost per sampled measurement, a measurement without a pair counted as one
+  // at the correspondence gate: lower is better. Compares two starts of one frame.
+  double mean_cost = 0.0;
+  // The smallest eigenvalue of the normal equations over the largest (rotations in metres at the
+  // pairs' lever arm), at the last iteration: near 0, some direction of the pose is unconstrained.
+  double conditioning = 0.0;
   int iterations = 0;
 };
+
+// How far a frame's tracked pose can be trusted (registration.tracking_* in config/depthfuse.toml).
+enum class TrackingState {
+  kTracked,    // ICP converged with a good fitness and residual, every direction constrained
+  kUncertain,  // converged, but with a poor fitness or a direction the view hardly constrains
+  kLost,       // no convergence, too few pairs or too large a residual: the pose is unknown
+};
+const char* to_string(TrackingState s);
+TrackingState classify_tracking(const RegistrationResult& r, const RegistrationConfig& c);
 
 // The fused surface as one camera sees it: per pixel a world point and unit normal, or nothing
 // (w = 0). ICP aligns a depth map to this.
@@ -47,16 +63,23 @@ class Registrar {
   // rendered at the initial pose.
   RegistrationResult refine(const MeasurementImage& m, const PointMap& map,
                             const Pose& T_world_cam_initial);
-  // Coarse-to-fine for larger motions (tracking without a pose hint).
+  // Coarse-to-fine for larger motions (tracking without a pose hint). Directions the view hardly
+  // constrains keep a value ICP cannot supply: without `T_world_cam_held`, the initial pose's
+  // (below registration.degenerate_ratio); with it, the tracking of a moving camera from a
+  // prediction, that pose's (the last refined one: zero motion) below
+  // registration.tracking_degenerate_ratio. A prediction is an extrapolation: where the data does
+  // not correct it, it would carry the camera on at its last speed.
   RegistrationResult track(const MeasurementImage& m, const PointMap& map,
-                           const Pose& T_world_cam_initial);
+                           const Pose& T_world_cam_initial,
+                           const std::optional<Pose>& T_world_cam_held = std::nullopt);
 
   // The same against a view of the map made before, e.g. model() for the next frame.
   // Associations go through the view's camera, whatever the current estimate.
   RegistrationResult refine(const MeasurementImage& m, const SurfaceView& model,
                             const Pose& T_world_cam_initial);
   RegistrationResult track(const MeasurementImage& m, const SurfaceView& model,
-                           const Pose& T_world_cam_initial);
+                           const Pose& T_world_cam_initial,
+                           const std::optional<Pose>& T_world_cam_held = std::nullopt);
 
   // The model the last refine() or track() against the map rendered (empty before any).
   const SurfaceView& model() const { return view_; }
@@ -66,16 +89,24 @@ class Registrar {
   // consensus surface of the points within band_m behind the front-most, for pairs up to max_corr_m.
   void render_model(const MeasurementImage& m, const PointMap& map, const Pose& T_world_cam,
                     double band_m, double max_corr_m);
+  // Where the directions ICP cannot determine are held: at `anchor` (nullptr: their current
+  // value), below `degenerate_ratio` (see solve_step() in registration.cpp).
+  struct Hold {
+    const Pose* anchor;
+    double degenerate_ratio;
+  };
+  Hold hold_for(const std::optional<Pose>& T_world_cam_held) const;
   // ICP against `model`, from `initial`, on every `subsample`-th pixel. Fewer than `min_pairs`
   // (at least 6) inlier pairs: not converged, the initial pose stays.
   RegistrationResult run(const MeasurementImage& m, const SurfaceView& model, const Pose& initial,
-                         int subsample, int iterations, double max_corr_m, size_t min_pairs);
+                         const Hold& hold, int subsample, int iterations, double max_corr_m,
+                         size_t min_pairs);
   // Inlier pairs a level of coarse-to-fine needs (level 0: refine() and the finest level).
   size_t min_pairs(int level) const;
   // Coarse to fine: every level halves the pixel step and the correspondence gate and needs four
   // times the pairs (registration.min_correspondences at the finest).
   RegistrationResult coarse_to_fine(const MeasurementImage& m, const SurfaceView& model,
-                                    const Pose& T_world_cam_initial);
+                                    const Pose& T_world_cam_initial, const Hold& hold);
   RegistrationConfig config_;
   std::unique_ptr<ModelProjection> projection_;
   SurfaceView view_;  // the last rendered model
