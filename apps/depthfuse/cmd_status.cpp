@@ -50,6 +50,12 @@ void print_table(const depthfuse::status_t& st) {
       std::snprintf(queue, sizeof(queue), "-");
     std::string tail = h.scan_id.empty() ? "" : "scan " + h.scan_id;
     if (!h.last_error.empty()) tail += (tail.empty() ? "" : "; ") + std::string("last error: ") + h.last_error;
+    // The fusion daemon's tracking (registration.hpp's TrackingState), when it is not good.
+    if (const double tracking = daemon::counter_value(h, "tracking_state"); tracking > 0)
+      tail += (tail.empty() ? "" : "; ") + std::string("tracking ") +
+              (tracking >= 2 ? "LOST" : "uncertain") + " (" +
+              std::to_string(static_cast<int64_t>(daemon::counter_value(h, "frames_lost_tracking"))) +
+              " frames lost so far)";
     if (const std::string refused = daemon::auth_refusals(h); !refused.empty())
       tail += (tail.empty() ? "" : "; ") + std::string("refused unsigned: ") + refused;
     char alive[16];

@@ -424,6 +424,11 @@ void FusionDaemon::fuse(QueuedFrame& item) {
     return;
   }
   const FrameReport& rep = *report;
+  count_tracking(rep.tracking);
+  preview_.frame_tracked(static_cast<int8_t>(rep.tracking));
+  // A lost frame's pose is unknown: it was not fused, and it has no place in the trajectory, the
+  // pose channel or the scan file. The next frame is tracked from the last frame fused.
+  if (!rep.fused) return;
   trajectory_.push_back({item.frame.utime * 1e-6, rep.T_world_cam});
   const int64_t points = static_cast<int64_t>(reconstructor_->map().point_count());
   point_count_ = points;
@@ -469,6 +474,24 @@ void FusionDaemon::fuse(QueuedFrame& item) {
   }
   if (auto st = sink_->frame_fused(item.frame, rep, *reconstructor_); !st.is_ok())
     set_error("checkpoint store: " + st.to_string());
+}
+
+void FusionDaemon::count_tracking(TrackingState state) {
+  tracking_state_ = static_cast<int>(state);
+  switch (state) {
+    case TrackingState::kTracked: ++frames_tracked_; break;
+    case TrackingState::kUncertain: ++frames_uncertain_; break;
+    case TrackingState::kLost: ++frames_lost_tracking_; break;
+  }
+  // Said once per loss, not per frame: the heartbeat counts the frames.
+  if (state == TrackingState::kLost) {
+    if (frames_lost_in_a_row_++ == 0)
+      DF_LOG(Fusion, Warning) << "tracking lost: frames are not fused until the camera sees the "
+                                 "map again";
+  } else if (frames_lost_in_a_row_ > 0) {
+    DF_LOG(Fusion, Info) << "tracking regained after " << frames_lost_in_a_row_ << " lost frames";
+    frames_lost_in_a_row_ = 0;
+  }
 }
 
 void FusionDaemon::worker_loop() {
@@ -567,6 +590,11 @@ void FusionDaemon::publish_heartbeat() {
     daemon::add_counter(&hb, "fusion_ms_mean", mean_fusion_ms_);
     daemon::add_counter(&hb, "icp_fitness_mean", mean_fitness_);
     daemon::add_counter(&hb, "icp_rmse_mm_mean", mean_rmse_m_ * 1e3);
+    // TrackingState of the last frame processed (0 tracked, 1 uncertain, 2 lost), and frames by it.
+    daemon::add_counter(&hb, "tracking_state", tracking_state_.load());
+    daemon::add_counter(&hb, "frames_tracked", static_cast<double>(frames_tracked_.load()));
+    daemon::add_counter(&hb, "frames_uncertain", static_cast<double>(frames_uncertain_.load()));
+    daemon::add_counter(&hb, "frames_lost_tracking", static_cast<double>(frames_lost_tracking_.load()));
     for (const auto& [counter, value] : sink_counters_) daemon::add_counter(&hb, counter, value);
     daemon::add_receive_counters(*lcm_, &hb);
   }

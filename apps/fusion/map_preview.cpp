@@ -90,6 +90,7 @@ void MapPreview::restart(const std::string& scan_id, const IncrementalReconstruc
   snapshot_left_.clear();
   has_pose_ = false;
   registered_ = false;
+  tracking_ = 0;
   frame_sequence_ = 0;
 }
 
@@ -178,6 +179,7 @@ depthfuse::map_delta_t MapPreview::header(int8_t state, const std::string& scan_
   msg.state = state;
   msg.has_pose = has_pose_;
   msg.registered = registered_;
+  msg.tracking = tracking_;
   msg.frame_sequence = frame_sequence_;
   lcm::pose_to_arrays(T_world_cam_, msg.position_m, msg.orientation_wxyz);
   msg.map_points = 0;

@@ -37,6 +37,8 @@ class MapPreview {
 
   // Worker thread, after a frame was fused.
   void frame_fused(int64_t sequence, const Pose& T_world_cam, bool registered);
+  // Every frame processed, fused or not: its TrackingState as map_delta_t::TRACKING_*.
+  void frame_tracked(int8_t tracking) { tracking_ = tracking; }
   // Worker thread, once per loop: publishes when a delta is due. `reconstructor` is null when no
   // scan is open; the map is read here, on the thread that writes it.
   void tick(int8_t state, const std::string& scan_id, const IncrementalReconstructor* reconstructor);
@@ -75,6 +77,7 @@ class MapPreview {
   int64_t snapshot_id_ = 0;             // the request being answered, 0 when none
   std::unordered_set<ChunkKey, KeyHash> snapshot_left_;  // its chunks not sent yet
   bool has_pose_ = false, registered_ = false;
+  int8_t tracking_ = 0;
   int64_t frame_sequence_ = 0;
   Pose T_world_cam_ = Pose::Identity();
   int64_t sequence_ = 0;

@@ -132,6 +132,7 @@ std::string MapStore::pose_json() const {
                   ", \"scan_id\": " + json_string(m.scan_id) + ", \"state\": " +
                   std::to_string(m.state) + ", \"has_pose\": " + (m.has_pose ? "true" : "false") +
                   ", \"registered\": " + (m.registered ? "true" : "false") +
+                  ", \"tracking\": " + std::to_string(static_cast<int>(m.tracking)) +
                   ", \"frame_sequence\": " + std::to_string(m.frame_sequence) + ", \"position_m\": [";
   for (int k = 0; k < 3; ++k) j += (k ? ", " : "") + json_number(m.position_m[k]);
   j += "], \"orientation_wxyz\": [";

@@ -749,6 +749,53 @@ TEST_F(LiveAppliance, WithARigKeyOnlySignedMessagesAreHeard) {
   EXPECT_TRUE(fusion->running()) << fusion->log();
 }
 
+// Without pose hints the daemon tracks, and a frame it cannot place is not fused: the heartbeat
+// says the camera is lost and counts the frame, the trajectory and the map do not take it, and
+// the next frame that matches the map is fused again (issue 19).
+TEST_F(LiveAppliance, ALostFrameIsCountedAndNotFused) {
+  auto fusion = start_fusion({"--autostart", "lost", "--queue", "64"});
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.scan_id == "lost"; },
+                                        seconds(10)));
+  // A wall in front of a 320x240 camera, without a pose hint, as from a Kinect.
+  auto wall = [](int64_t sequence, float depth_m) {
+    Frame f;
+    f.sequence = static_cast<uint32_t>(sequence);
+    f.utime = sequence * 33333;
+    f.intrinsics = {320, 240, 300.0, 300.0, 159.5, 119.5};
+    f.depth = DepthImage(320, 240);
+    for (int v = 0; v < 240; ++v)
+      for (int u = 0; u < 320; ++u)  // a ridge, so that ICP has more than a plane to hold on to
+        f.depth.depth_m[v * 320 + u] = depth_m + 0.2f * std::abs(u - 160) / 160.0f;
+    depthfuse::depth_frame_t msg;
+    EXPECT_TRUE(lcm::encode_depth_frame(f, {}, &msg).is_ok());
+    return msg;
+  };
+  auto send = [&](int64_t sequence, float depth_m) {
+    ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kDepthChannel, wall(sequence, depth_m)).is_ok());
+    ASSERT_TRUE(observer_->wait_heartbeat("fusion", [&](auto& hb) {
+      return hb.frames_in >= sequence;
+    }, seconds(10)));
+  };
+  send(1, 1.5f);
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.frames_out == 1; },
+                                        seconds(20))) << fusion->log();
+  send(2, 3.5f);  // two metres away at once: nothing of the map where the camera could be
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) {
+    return daemon::counter_value(hb, "frames_lost_tracking") == 1;
+  }, seconds(20))) << fusion->log();
+  auto hb = *observer_->heartbeat("fusion");
+  EXPECT_EQ(daemon::counter_value(hb, "tracking_state"), 2);
+  EXPECT_EQ(hb.frames_out, 1);
+  send(3, 1.5f);  // back where the map is
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.frames_out == 2; },
+                                        seconds(20))) << fusion->log();
+  hb = *observer_->heartbeat("fusion");
+  EXPECT_LT(daemon::counter_value(hb, "tracking_state"), 2);
+  EXPECT_EQ(daemon::counter_value(hb, "frames_lost_tracking"), 1);
+  EXPECT_EQ(observer_->poses().size(), 2u);  // no pose for the lost frame
+  EXPECT_NE(fusion->log().find("tracking lost"), std::string::npos) << fusion->log();
+}
+
 TEST_F(LiveAppliance, RecordedSessionReplaysAtItsPace) {
   const std::string log_path = dir_ + "/session.lcmlog";
   auto logger = start("logger", {"/usr/bin/lcm-logger", "--lcm-url=" + url_, "--quiet", log_path});

@@ -159,12 +159,13 @@ function onPose(m) {
     const [w, x, y, z] = m.orientation_wxyz;
     frustum.position.set(...m.position_m);
     frustum.quaternion.set(x, y, z, w);
-    frustum.material.color.set(m.registered ? 0x44aaff : 0xff4444);
+    // map_delta_t.TRACKING_*: tracked, uncertain, lost.
+    frustum.material.color.set([0x44aaff, 0xffaa00, 0xff4444][m.tracking] ?? 0xff4444);
   }
   document.getElementById('map-figures').textContent =
       `${m.map_points} points in the map, ${state.points} shown in ${state.chunks} chunks ` +
       `(one per ${(1000 * m.cell_size_m).toFixed(0)} mm); ${m.chunks_pending} chunks waiting ` +
-      `(bandwidth cap); tracking ${m.has_pose ? (m.registered ? 'ok' : 'LOST') : '-'}`;
+      `(bandwidth cap); tracking ${m.has_pose ? (['ok', 'uncertain', 'LOST'][m.tracking] ?? '?') : '-'}`;
 }
 
 function showCoverageFigures() {
