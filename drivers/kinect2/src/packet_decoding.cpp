@@ -33,12 +33,13 @@ Status PacketDecoding::decode(const libfreenect2::Frame& raw, libfreenect2::Fram
   if (raw.format != libfreenect2::Frame::Raw)
     return invalid_argument("depthfuse depth pipeline: expected a raw depth packet, got frame format " +
                             std::to_string(static_cast<int>(raw.format)));
-  const size_t size = raw.width * raw.height * raw.bytes_per_pixel;
-  DF_RETURN_IF_ERROR(decoder_->decode(RawDepthPacket{raw.sequence, raw.timestamp, raw.data, size},
-                                      &depth_, &ir_));
   if (depth_mm->width != kRawWidth || depth_mm->height != kRawHeight ||
       depth_mm->bytes_per_pixel != sizeof(float))
     return invalid_argument("depthfuse depth pipeline: the output frame must be 512x424x4");
+  const size_t size = raw.width * raw.height * raw.bytes_per_pixel;
+  // The capture publishes depth only: the decoder skips the IR image.
+  DF_RETURN_IF_ERROR(decoder_->decode(RawDepthPacket{raw.sequence, raw.timestamp, raw.data, size},
+                                      &depth_, nullptr));
   depth_mm->format = libfreenect2::Frame::Float;
   depth_mm->sequence = raw.sequence;
   depth_mm->timestamp = raw.timestamp;

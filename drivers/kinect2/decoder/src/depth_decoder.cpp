@@ -154,12 +154,14 @@ class DepthDecoder::Impl {
     depth->width = kRawWidth;
     depth->height = kRawHeight;
     depth->depth_m.resize(kRawPixels);
-    ir->width = kRawWidth;
-    ir->height = kRawHeight;
-    ir->amplitude.resize(kRawPixels);
+    if (ir) {
+      ir->width = kRawWidth;
+      ir->height = kRawHeight;
+      ir->amplitude.resize(kRawPixels);
+    }
     packet_ = packet.bytes;
     depth_out_ = depth->depth_m.data();
-    ir_out_ = ir->amplitude.data();
+    ir_out_ = ir ? ir->amplitude.data() : nullptr;
 
     run([this](Scratch& s, int first, int last) { correlate_and_unwrap(s, first, last); });
     if (helper_) {
@@ -174,7 +176,6 @@ class DepthDecoder::Impl {
   }
 
   void restart_sequence() { have_sequence_ = false; }
-  const DepthDecoderOptions& options() const { return options_; }
 
  private:
   template <typename Rows>
@@ -222,8 +223,9 @@ class DepthDecoder::Impl {
           kernels::PhasorRow{a_[f].data() + row, b_[f].data() + row, unit_a_[f].data() + row,
                              unit_b_[f].data() + row, s.amplitude[f].data()});
     }
-    kernels::ir_row(s.amplitude[0].data(), s.amplitude[1].data(), s.amplitude[2].data(),
-                    constants_.ab_output_multiplier, ir_out_ + row_start(kRawHeight - 1 - y));
+    if (ir_out_)
+      kernels::ir_row(s.amplitude[0].data(), s.amplitude[1].data(), s.amplitude[2].data(),
+                      constants_.ab_output_multiplier, ir_out_ + row_start(kRawHeight - 1 - y));
   }
 
   kernels::PhasorRows phasor_rows(int f, int y) const {
@@ -362,6 +364,5 @@ Status DepthDecoder::decode(const RawDepthPacket& packet, DepthImage* depth, IrI
 
 void DepthDecoder::restart_sequence() { impl_->restart_sequence(); }
 
-const DepthDecoderOptions& DepthDecoder::options() const { return impl_->options(); }
 
 }  // namespace depthfuse::kinect2

@@ -55,7 +55,7 @@ void put_code(uint8_t* row, int x, int code) {
 class PacketEncoder::Impl {
  public:
   Impl(const P0Tables& p0, const IrCalibration& calibration)
-      : rays_(make_ray_tables(calibration)), phases_(make_phase_tables(p0, DecodeConstants{})) {}
+      : rays_(make_ray_tables(calibration)), phases_(make_phase_tables(p0, constants_)) {}
 
   Status encode(const DepthImage& depth, const IrImage& ir, std::vector<uint8_t>* packet) const {
     if (depth.width != kRawWidth || depth.height != kRawHeight ||
@@ -66,8 +66,7 @@ class PacketEncoder::Impl {
       return invalid_argument("packet encoder: IR image must be 512x424, got " +
                               std::to_string(ir.width) + "x" + std::to_string(ir.height));
     packet->assign(kRawPacketBytes, 0);
-    const DecodeConstants constants;
-    const double unambiguous = constants.unambiguous_distance_mm;
+    const double unambiguous = constants_.unambiguous_distance_mm;
     for (int y = 0; y < kRawHeight; ++y) {
       const size_t storage = static_cast<size_t>(packet_storage_row(y)) * kRawRowBytes;
       const size_t image_row = static_cast<size_t>(kRawHeight - 1 - y) * kRawWidth;
@@ -80,7 +79,7 @@ class PacketEncoder::Impl {
           std::fill(codes, codes + 9, kSaturatedCode);
         } else if (depth_m > 0.0f && intensity > 0.0f && rays_.z_mm_per_phase[i] > 0.0f) {
           const std::optional<double> units = range_units(depth_m * 1000.0, i, unambiguous);
-          if (units) fill_codes(*units, intensity / constants.ab_output_multiplier, i, codes);
+          if (units) fill_codes(*units, intensity / constants_.ab_output_multiplier, i, codes);
         }
         for (int s = 0; s < 9; ++s)
           put_code(packet->data() + s * kRawSubImageBytes + storage, x, codes[s]);
@@ -105,11 +104,10 @@ class PacketEncoder::Impl {
 
   // Amplitude A_f per frequency such that the decoder's amplitude is `amplitude` for each.
   void fill_codes(double units, double amplitude, size_t i, int codes[9]) const {
-    const DecodeConstants constants;
     for (int f = 0; f < 3; ++f) {
       const double cycles = units / kWraps[f];
       const double phase = 2.0 * M_PI * (cycles - std::floor(cycles));
-      const double a = amplitude / constants.ab_multiplier_per_frequency[f];
+      const double a = amplitude / constants_.ab_multiplier_per_frequency[f];
       const double cos_phase = std::cos(phase), sin_phase = std::sin(phase);
       for (int k = 0; k < 3; ++k) {
         // cos(alpha + phase), alpha = P0 + step k, from the decoder's tables.
@@ -120,6 +118,7 @@ class PacketEncoder::Impl {
     }
   }
 
+  const DecodeConstants constants_;  // before phases_, which are made from it
   const RayTables rays_;
   const PhaseTables phases_;
   const CodeBook codebook_;

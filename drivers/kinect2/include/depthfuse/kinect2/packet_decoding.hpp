@@ -33,14 +33,10 @@ class PacketDecoding {
   // `depth_mm` is then left as it was.
   Status decode(const libfreenect2::Frame& raw, libfreenect2::Frame* depth_mm);
 
-  // A new stream (the device was reopened): its sequence numbers start again.
-  void restart() { decoder_->restart_sequence(); }
-
  private:
   explicit PacketDecoding(std::unique_ptr<DepthDecoder> decoder) : decoder_(std::move(decoder)) {}
   std::unique_ptr<DepthDecoder> decoder_;
   DepthImage depth_;  // reused every frame
-  IrImage ir_;
 };
 
 }  // namespace depthfuse::kinect2

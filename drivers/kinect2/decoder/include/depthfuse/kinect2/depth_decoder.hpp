@@ -46,15 +46,14 @@ class DepthDecoder {
   DepthDecoder(const DepthDecoder&) = delete;
   DepthDecoder& operator=(const DepthDecoder&) = delete;
 
-  // Decodes one packet into `depth` and `ir` (resized on first use, then reused). kInvalidArgument
+  // Decodes one packet into `depth` and, unless it is null, `ir` (resized on first use, then
+  // reused). kInvalidArgument
   // for a packet of the wrong size or without data, and for a sequence number not after the
   // previous packet's; the outputs are then left as they were.
   Status decode(const RawDepthPacket& packet, DepthImage* depth, IrImage* ir);
 
   // After the device restarted its frame counter (reopen): any next sequence number is accepted.
   void restart_sequence();
-
-  const DepthDecoderOptions& options() const;
 
   class Impl;
 
