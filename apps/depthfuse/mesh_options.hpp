@@ -9,9 +9,6 @@
 
 namespace depthfuse::cli {
 
-inline constexpr const char* kMeshUsage =
-    "[--mesh-depth N] [--mesh-trim F] [--mesh-memory-mb N]";
-
 // The option names, for Args::unknown().
 inline const std::vector<std::string>& mesh_option_names() {
   static const std::vector<std::string> names = {"mesh-depth", "mesh-trim", "mesh-memory-mb"};

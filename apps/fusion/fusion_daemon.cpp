@@ -428,7 +428,7 @@ void FusionDaemon::fuse(QueuedFrame& item) {
   preview_.frame_tracked(static_cast<int8_t>(rep.tracking));
   // A lost frame's pose is unknown: it was not fused, and it has no place in the trajectory, the
   // pose channel or the scan file. The next frame is tracked from the last frame fused.
-  if (!rep.fused) return;
+  if (!rep.fused()) return;
   trajectory_.push_back({item.frame.utime * 1e-6, rep.T_world_cam});
   const int64_t points = static_cast<int64_t>(reconstructor_->map().point_count());
   point_count_ = points;

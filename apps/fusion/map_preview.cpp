@@ -250,7 +250,9 @@ void MapPreview::tick(int8_t state, const std::string& scan_id,
 
     const float chunk_size_m = static_cast<float>(map.chunk_size_m());
     size_t points_read = 0, msg_bytes = 0;
-    while (!pending_.empty() && tokens_bytes_ > 0 &&
+    // The bytes gathered but not yet published still count against the bucket; publish() takes
+    // each message's exact size from it.
+    while (!pending_.empty() && tokens_bytes_ > static_cast<double>(msg_bytes) &&
            points_read < static_cast<size_t>(config_.max_points_per_delta)) {
       const ChunkKey key = pending_.front();
       pending_.pop_front();
@@ -263,15 +265,12 @@ void MapPreview::tick(int8_t state, const std::string& scan_id,
       msg.chunks.emplace_back();
       points_read += decimate(key, *chunk, chunk_size_m, &msg.chunks.back());
       msg_bytes += chunk_wire_bytes(msg.chunks.back());
-      tokens_bytes_ -= static_cast<double>(chunk_wire_bytes(msg.chunks.back()));
       if (msg_bytes >= kMessageBytes) {
-        tokens_bytes_ += static_cast<double>(msg_bytes);  // publish() takes the exact size
         publish(&msg);
         msg.chunks.clear();
         msg_bytes = 0;
       }
     }
-    tokens_bytes_ += static_cast<double>(msg_bytes);
   } else {
     pending_.clear();
     queued_.clear();

@@ -48,9 +48,6 @@ class MapPreview {
 
  private:
   using Clock = std::chrono::steady_clock;
-  struct KeyHash {
-    size_t operator()(const ChunkKey& k) const { return ChunkKeyHash()(k); }
-  };
 
   void restart(const std::string& scan_id, const IncrementalReconstructor* reconstructor);
   void queue(const ChunkKey& key);
@@ -73,9 +70,9 @@ class MapPreview {
   const IncrementalReconstructor* reconstructor_ = nullptr;
   uint32_t scanned_through_frame_ = 0;  // chunks touched by later frames are due
   std::deque<ChunkKey> pending_;
-  std::unordered_set<ChunkKey, KeyHash> queued_;
+  std::unordered_set<ChunkKey, ChunkKeyHash> queued_;
   int64_t snapshot_id_ = 0;             // the request being answered, 0 when none
-  std::unordered_set<ChunkKey, KeyHash> snapshot_left_;  // its chunks not sent yet
+  std::unordered_set<ChunkKey, ChunkKeyHash> snapshot_left_;  // its chunks not sent yet
   bool has_pose_ = false, registered_ = false;
   int8_t tracking_ = 0;
   int64_t frame_sequence_ = 0;

@@ -35,7 +35,7 @@ bool well_formed(const depthfuse::map_chunk_t& c) {
 std::vector<uint8_t> pack(const depthfuse::map_chunk_t& c, const depthfuse::map_delta_t& msg) {
   std::vector<uint8_t> out;
   const size_t n = static_cast<size_t>(c.num_points);
-  out.reserve(40 + n * 16 + 4);
+  out.reserve(40 + n * 16 + (c.num_rgb > 0 ? (3 * n + 3) / 4 * 4 : 0));
   const float s = msg.chunk_size_m;
   const float centre[3] = {(c.key[0] + 0.5f) * s, (c.key[1] + 0.5f) * s, (c.key[2] + 0.5f) * s};
   put(&out, kChunkMagic);
@@ -73,7 +73,7 @@ MapStore::Accepted MapStore::apply(const depthfuse::map_delta_t& msg, bool* want
     trajectory_.clear();
     bytes_ = points_ = 0;
     *want_snapshot = !msg.scan_id.empty();
-  } else if (msg.sequence != last_sequence_ + 1 && !msg.scan_id.empty() && msg.scan_id == scan_id_) {
+  } else if (msg.sequence != last_sequence_ + 1 && !msg.scan_id.empty()) {
     *want_snapshot = true;  // missed deltas (or the fusion daemon restarted)
   }
   last_sequence_ = msg.sequence;

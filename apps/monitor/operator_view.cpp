@@ -43,13 +43,14 @@ Result<std::unique_ptr<OperatorView>> OperatorView::start(const WebServerOptions
 void OperatorView::on_map(const uint8_t* data, size_t size) {
   depthfuse::map_delta_t msg;
   const auto r = lcm::decode_message(data, size, &msg);
-  map_counters_.count(r);
-  if (r != lcm::DecodeResult::kOk) return;
-  bool want = false;
-  if (store_.apply(msg, &want) != MapStore::Accepted::kOk) {
-    --map_counters_.received;
-    ++map_counters_.malformed;
+  if (r != lcm::DecodeResult::kOk) {
+    map_counters_.count(r);
+    return;
   }
+  bool want = false;
+  map_counters_.count(store_.apply(msg, &want) == MapStore::Accepted::kOk
+                          ? lcm::DecodeResult::kOk
+                          : lcm::DecodeResult::kMalformed);
   want_snapshot_ = want_snapshot_ || want;
 }
 

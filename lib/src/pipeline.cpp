@@ -112,7 +112,6 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   t0 = Clock::now();
   report.fusion = fuser_.fuse(scratch_, &frame.color, T, next_frame_id_, map_.get());
   report.fusion_ms = ms_since(t0);
-  report.fused = true;
   last_T_world_cam_ = T;
   ++next_frame_id_;
   return report;
@@ -282,30 +281,24 @@ Result<TrackedSequence> track_sequence(const std::vector<Frame>& frames,
   TrackedSequence out;
   out.T_world_cam.reserve(frames.size());
   out.state.reserve(frames.size());
-  // The last two poses fused, and whether they were consecutive frames (a velocity).
-  std::optional<Pose> before, last;
-  bool consecutive = false;
   for (size_t i = 0; i < frames.size(); ++i) {
     Frame f = frames[i];
     f.T_world_cam_hint.reset();
     // Constant velocity from the last two frames if both were fused; after a loss, the last frame
     // fused (IncrementalReconstructor's own start).
     std::optional<Pose> prediction;
-    if (before && last && consecutive) prediction = *last * (before->inverse() * *last);
+    if (i >= 2 && out.state[i - 1] != TrackingState::kLost &&
+        out.state[i - 2] != TrackingState::kLost) {
+      const Pose& before = out.T_world_cam[i - 2];
+      const Pose& last = out.T_world_cam[i - 1];
+      prediction = last * (before.inverse() * last);
+    }
     Result<FrameReport> r = rec.process(f, prediction);
     if (!r) return r.status().with_context("frame " + std::to_string(i));
     out.T_world_cam.push_back(r->T_world_cam);
     out.state.push_back(r->tracking);
     if (r->tracking == TrackingState::kUncertain) ++out.uncertain;
-    if (r->fused) {
-      consecutive = last.has_value() && out.state.size() >= 2 &&
-                    out.state[out.state.size() - 2] != TrackingState::kLost;
-      before = last;
-      last = r->T_world_cam;
-    } else {
-      ++out.lost;
-      consecutive = false;
-    }
+    if (!r->fused()) ++out.lost;
     if (progress) progress("tracking", i + 1, frames.size());
   }
   return out;

@@ -162,7 +162,7 @@ TEST(Incremental, APoorTrackFromThePredictionStartsAgainFromTheLastPose) {
       EXPECT_FALSE(r->tracking_retried);
       EXPECT_LT(r->registration.fitness, 0.3);
       EXPECT_EQ(r->tracking, TrackingState::kLost);
-      EXPECT_FALSE(r->fused);
+      EXPECT_FALSE(r->fused());
     }
   }
 }
@@ -184,13 +184,13 @@ TEST(Incremental, ALostFrameIsReportedAndNotFusedAndTrackingResumesWhenTheViewRe
   auto first = rec.process(test::render_corner(stop), stop);
   ASSERT_TRUE(first.is_ok());
   EXPECT_EQ(first->tracking, TrackingState::kTracked);
-  EXPECT_TRUE(first->fused);
+  EXPECT_TRUE(first->fused());
   const size_t points = rec.map().point_count();
 
   auto lost = rec.process(elsewhere(stop), stop);
   ASSERT_TRUE(lost.is_ok()) << lost.status().to_string();
   EXPECT_EQ(lost->tracking, TrackingState::kLost);
-  EXPECT_FALSE(lost->fused);
+  EXPECT_FALSE(lost->fused());
   EXPECT_EQ(rec.map().point_count(), points);
   ASSERT_TRUE(rec.last_pose().has_value());
   EXPECT_TRUE(rec.last_pose()->isApprox(stop));
@@ -198,7 +198,7 @@ TEST(Incremental, ALostFrameIsReportedAndNotFusedAndTrackingResumesWhenTheViewRe
   auto back = rec.process(test::render_corner(stop));
   ASSERT_TRUE(back.is_ok());
   EXPECT_EQ(back->tracking, TrackingState::kTracked);
-  EXPECT_TRUE(back->fused);
+  EXPECT_TRUE(back->fused());
   EXPECT_LT((back->T_world_cam.translation() - stop.translation()).norm(), 1e-3);
 }
 

@@ -192,7 +192,6 @@ document.getElementById('show-coverage').addEventListener('change', (e) => {
 });
 
 // ------------------------------------------------------------------ status
-const stateNames = ['starting', 'idle', 'running', 'paused', 'stopping', 'error', 'finished'];
 function cell(row, text, cls) {
   const td = row.insertCell();
   td.textContent = text;

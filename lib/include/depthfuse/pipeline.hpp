@@ -28,7 +28,7 @@ struct FrameReport {
   // Without a pose hint, how far the tracked pose can be trusted (classify_tracking()); with one,
   // tracked if its ICP converged, else uncertain (the hint is fused). A lost frame is not fused.
   TrackingState tracking = TrackingState::kTracked;
-  bool fused = false;
+  bool fused() const { return tracking != TrackingState::kLost; }
   RegistrationResult registration;
   FusionStats fusion;
   size_t prefiltered = 0;                // measurements the pre-filter removed

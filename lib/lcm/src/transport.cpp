@@ -223,18 +223,23 @@ LcmTransport::~LcmTransport() {
 }
 
 Status LcmTransport::publish(const std::string& channel, const void* data, size_t size) {
-  if (size > static_cast<size_t>(INT32_MAX) - kSignatureBytes)
+  // A raw payload (tests, tools) is copied once, beside room for its signature.
+  std::vector<uint8_t> buffer(size + kSignatureBytes);
+  if (size > 0) std::memcpy(buffer.data(), data, size);
+  return publish_encoded(channel, &buffer, size);
+}
+
+Status LcmTransport::publish_encoded(const std::string& channel, std::vector<uint8_t>* buffer,
+                                     size_t payload_size) {
+  if (payload_size > static_cast<size_t>(INT32_MAX) - kSignatureBytes)
     return invalid_argument("message too large for LCM");
-  std::lock_guard<std::mutex> lock(publish_mutex_);
+  size_t size = payload_size;
   if (auth_) {
-    const auto* bytes = static_cast<const uint8_t*>(data);
-    signed_buffer_.assign(bytes, bytes + size);
-    signed_buffer_.resize(size + kSignatureBytes);
-    auth_->sign(channel, bytes, size, now_utime(), signed_buffer_.data() + size);
-    data = signed_buffer_.data();
-    size = signed_buffer_.size();
+    auth_->sign(channel, buffer->data(), payload_size, now_utime(), buffer->data() + payload_size);
+    size += kSignatureBytes;
   }
-  if (lcm_publish(lcm_, channel.c_str(), data, static_cast<unsigned int>(size)) != 0)
+  std::lock_guard<std::mutex> lock(publish_mutex_);
+  if (lcm_publish(lcm_, channel.c_str(), buffer->data(), static_cast<unsigned int>(size)) != 0)
     return io_error("LCM publish on " + channel + " failed (" + std::to_string(size) +
                     " bytes): " + std::strerror(errno));
   return Status::ok();
@@ -267,24 +272,25 @@ void LcmTransport::subscribe(const std::string& channel_regex, Handler handler) 
 
 void LcmTransport::deliver(std::string_view channel_view, const uint8_t* data, size_t size,
                            int64_t recv_utime) {
-  size_t payload_size = unsigned_payload_size(data, size);
+  MessageAuth::Verdict verdict;
   if (auth_) {
-    const auto verdict = auth_->verify(channel_view, data, size, now_utime());
-    if (!verdict.ok) {
-      // The first refusal of each kind is said; the rest are counted (heartbeats carry them).
-      if (auth_->counters().dropped[static_cast<size_t>(verdict.reason)] == 1)
-        DF_LOG(Lcm, Warning) << "dropped a message on " << channel_view << ": "
-                             << to_string(verdict.reason)
-                             << " (not signed with this rig's key; further ones are counted)";
-      update_counters();
-      return;
-    }
-    payload_size = verdict.payload_size;
+    verdict = auth_->verify(channel_view, data, size, recv_utime);
+  } else {
+    verdict.ok = true;
+    verdict.payload_size = unsigned_payload_size(data, size);
   }
-  if (auth_) update_counters();
+  update_counters();
+  if (!verdict.ok) {
+    // The first refusal of each kind is said; the rest are counted (heartbeats carry them).
+    if (auth_->counters().dropped[static_cast<size_t>(verdict.reason)] == 1)
+      DF_LOG(Lcm, Warning) << "dropped a message on " << channel_view << ": "
+                           << to_string(verdict.reason)
+                           << " (not signed with this rig's key; further ones are counted)";
+    return;
+  }
   const std::string channel(channel_view);
   for (const auto& sub : subscriptions_) {
-    if (sub->matches(channel.c_str())) sub->handler(channel, data, payload_size, recv_utime);
+    if (sub->matches(channel.c_str())) sub->handler(channel, data, verdict.payload_size, recv_utime);
   }
 }
 
@@ -304,11 +310,11 @@ Result<bool> LcmTransport::handle_udpm(int timeout_ms) {
     const auto& d = **datagram;
     const int64_t recv_utime = now_utime();
     const auto message = reassembler_.feed(d.data, d.size, d.sender);
-    update_counters();
     if (message) {
-      deliver(message->channel, message->data, message->size, recv_utime);
+      deliver(message->channel, message->data, message->size, recv_utime);  // counts it
       return true;
     }
+    update_counters();
     if (steady_ns() >= deadline_ns) return false;
   }
 }

@@ -92,10 +92,11 @@ class LcmTransport {
     std::lock_guard<std::mutex> lock(encode_mutex_);
     const int size = msg.getEncodedSize();
     if (size < 0) return internal_error("cannot size a message for " + channel);
-    encode_buffer_.resize(static_cast<size_t>(size));
+    // Room for the signature after the message, so that it is signed where it was encoded.
+    encode_buffer_.resize(static_cast<size_t>(size) + kSignatureBytes);
     if (msg.encode(encode_buffer_.data(), 0, size) != size)
       return internal_error("cannot encode a message for " + channel);
-    return publish(channel, encode_buffer_.data(), encode_buffer_.size());
+    return publish_encoded(channel, &encode_buffer_, static_cast<size_t>(size));
   }
 
   // channel_regex as in lcm_subscribe ("DEPTHFUSE_.*": the whole channel name must match). Call
@@ -121,6 +122,10 @@ class LcmTransport {
   struct Subscription;
 
   LcmTransport(lcm_t* lcm, std::string url, std::unique_ptr<UdpmSocket> udpm);
+  // Publishes (*buffer)[0, payload_size), with a key signed in place in the kSignatureBytes
+  // after it, which the buffer holds.
+  Status publish_encoded(const std::string& channel, std::vector<uint8_t>* buffer,
+                         size_t payload_size);
   Result<bool> handle_udpm(int timeout_ms);
   // Every received message, from either receiver: verified, then handed to the subscriptions
   // whose expression matches its channel.
@@ -132,7 +137,6 @@ class LcmTransport {
   std::mutex publish_mutex_;
   std::mutex encode_mutex_;
   std::vector<uint8_t> encode_buffer_;
-  std::vector<uint8_t> signed_buffer_;  // a payload and its signature; under publish_mutex_
   std::vector<std::unique_ptr<Subscription>> subscriptions_;
   bool lcm_subscribed_ = false;  // other providers: one catch-all liblcm subscription
   std::unique_ptr<MessageAuth> auth_;
