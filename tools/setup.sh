@@ -39,7 +39,8 @@ PACKAGES=(
   liblcm-dev liblcm-bin liblcm-java libglib2.0-dev default-jdk-headless
   libgtest-dev libgmock-dev libbenchmark-dev
   libtomlplusplus-dev libzstd-dev libturbojpeg0-dev libsodium-dev
-  libcivetweb-dev libjs-three  # the operator's page: HTTP + WebSocket server, three.js
+  libcivetweb-dev libjs-three node-tweetnacl  # the operator's page: HTTP + WebSocket server,
+                                              # three.js, SHA-512 for its command signatures
   chromium                     # the page's test in a real (headless) browser
   python3-open3d python3-numpy
   iproute2 procps dpkg-dev file udev

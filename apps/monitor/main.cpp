@@ -17,7 +17,9 @@ constexpr const char* kUsage =
     "                   (default: the config's monitor.stale_after_s)\n"
     "  --rate HZ        status messages per second (default: monitor.publish_rate_hz)\n"
     "  --http ADDR:PORT serve the operator's page there (default: monitor.http; empty = off);\n"
-    "                   loopback only unless monitor.http_allow_remote; PORT 0 takes a free one\n"
+    "                   loopback only unless monitor.http_allow_remote (which needs the rig key);\n"
+    "                   with a rig key, the page's commands must be signed with it; PORT 0 takes\n"
+    "                   a free one\n"
     "  --web-root DIR   the page's files (default: monitor.web_root, else the installed ones)\n";
 
 }  // namespace
@@ -46,6 +48,14 @@ int main(int argc, char** argv) {
     page.allow_remote = mc.http_allow_remote;
     page.web_root = startup.args().get("web-root", mc.web_root.empty() ? dd::installed_data_dir("web") : mc.web_root);
     if (!page.listen.empty()) {
+      // The key that signs the monitor's LCM messages also checks the page's commands.
+      auto key = startup.rig_key();
+      if (!key) {
+        DF_LOG(MonitorMain, Error) << key.status().to_string();
+        return 1;
+      }
+      page.key = *key;
+      page.max_skew_us = static_cast<int64_t>(startup.config().lcm.max_clock_skew_s * 1e6);
       if (auto st = daemon.serve_page(page); !st.is_ok()) {
         DF_LOG(MonitorMain, Error) << st.to_string();
         return 1;

@@ -126,6 +126,16 @@ void OperatorView::add_counters(depthfuse::heartbeat_t* hb) const {
   daemon::add_counter(hb, "map_preview_points", static_cast<double>(store_.point_count()));
   daemon::add_counter(hb, "page_commands_sent", static_cast<double>(commands_sent_));
   daemon::add_counter(hb, "page_commands_unacknowledged", static_cast<double>(commands_unacknowledged_));
+  const PageCommandAuth* auth = server_->command_auth();
+  daemon::add_counter(hb, "page_commands_need_key", auth ? 1 : 0);
+  if (!auth) return;
+  const lcm::AuthCounters counters = auth->counters();
+  daemon::add_counter(hb, "page_commands_verified", static_cast<double>(counters.verified));
+  for (size_t i = 0; i < counters.dropped.size(); ++i)
+    daemon::add_counter(hb, std::string("page_commands_refused_") + lcm::to_string(static_cast<lcm::AuthDrop>(i)),
+                        static_cast<double>(counters.dropped[i]));
+  // The status names the last refusal (the page shows a daemon's last error).
+  if (hb->last_error.empty()) hb->last_error = auth->last_refusal();
 }
 
 }  // namespace depthfuse::monitor

@@ -31,6 +31,8 @@ class OperatorView {
   void on_heartbeat(const depthfuse::heartbeat_t& hb);  // acknowledgements
   void on_status(const depthfuse::status_t& st);
   void poll();  // resends unacknowledged commands, asks for snapshots
+  // Its counters (map deltas, the page's commands sent and refused) and, as the last error, the
+  // page's last refused command.
   void add_counters(depthfuse::heartbeat_t* hb) const;
 
   const std::string& url() const { return server_->url(); }

@@ -7,6 +7,7 @@
 #include <cstring>
 #include <filesystem>
 
+#include "depthfuse/base/clock.hpp"
 #include "depthfuse/base/log.hpp"
 #include "depthfuse/daemon/status_json.hpp"
 
@@ -55,6 +56,12 @@ Result<std::unique_ptr<WebServer>> WebServer::start(const WebServerOptions& opti
     return invalid_argument("monitor.http: '" + options.listen +
                             "' is not a loopback address; the page commands the scan: set "
                             "monitor.http_allow_remote = true to serve it to the network");
+  // On loopback, only users of this host reach the page; beyond it, anyone on the network would
+  // command the rig unless commands need the key.
+  if (!loopback_host(host) && !options.key)
+    return invalid_argument("monitor.http: serving the page on '" + options.listen +
+                            "' needs the rig key (lcm.key_file): without it, anyone who reaches "
+                            "the page can command the rig");
   std::error_code ec;
   if (!std::filesystem::is_regular_file(std::filesystem::path(options.web_root) / "index.html", ec))
     return not_found("the operator's page is not in '" + options.web_root +
@@ -74,6 +81,7 @@ Result<std::unique_ptr<WebServer>> WebServer::start(const WebServerOptions& opti
                               "max_request_size", "16384",
                               nullptr};
   std::unique_ptr<WebServer> server(new WebServer(store, std::move(command)));
+  if (options.key) server->auth_ = std::make_unique<PageCommandAuth>(*options.key, options.max_skew_us);
   mg_callbacks callbacks{};
   char error_text[256] = "";
   mg_init_data init{};
@@ -95,6 +103,9 @@ Result<std::unique_ptr<WebServer>> WebServer::start(const WebServerOptions& opti
 
   mg_set_request_handler(server->ctx_, "/api/status$",
                          [](mg_connection* c, void* d) { return server_of(d)->handle_status(c); },
+                         server.get());
+  mg_set_request_handler(server->ctx_, "/api/auth$",
+                         [](mg_connection* c, void* d) { return server_of(d)->handle_auth(c); },
                          server.get());
   mg_set_request_handler(server->ctx_, "/api/command$",
                          [](mg_connection* c, void* d) { return server_of(d)->handle_command(c); },
@@ -135,6 +146,19 @@ int WebServer::handle_status(mg_connection* conn) {
   return reply(conn, 200, "application/json", body);
 }
 
+int WebServer::handle_auth(mg_connection* conn) {
+  const mg_request_info* req = mg_get_request_info(conn);
+  if (std::strcmp(req->request_method, "GET") != 0) return json_error(conn, 405, "GET only");
+  // The monitor's clock, so that the page signs with the time the monitor checks against even
+  // when the browser's computer keeps another.
+  const double skew_s = auth_ ? static_cast<double>(auth_->max_skew_us()) * 1e-6 : 0.0;
+  return reply(conn, 200, "application/json",
+               std::string("{\"commands_need_key\": ") + (auth_ ? "true" : "false") +
+                   ", \"channel\": " + daemon::json_string(kPageCommandChannel) +
+                   ", \"max_clock_skew_s\": " + daemon::json_number(skew_s) + ", \"utime\": " +
+                   std::to_string(now_utime()) + "}");
+}
+
 int WebServer::handle_command(mg_connection* conn) {
   const mg_request_info* req = mg_get_request_info(conn);
   if (std::strcmp(req->request_method, "POST") != 0) return json_error(conn, 405, "POST only");
@@ -150,6 +174,18 @@ int WebServer::handle_command(mg_connection* conn) {
     const int r = mg_read(conn, body.data() + got, body.size() - got);
     if (r <= 0) return json_error(conn, 400, "the request body ended early");
     got += static_cast<size_t>(r);
+  }
+  if (auth_) {
+    const auto verdict = auth_->verify(body, mg_get_header(conn, "X-Depthfuse-Signature"), now_utime());
+    if (!verdict.ok) {
+      const std::string why = refusal_text(verdict.reason, auth_->max_skew_us());
+      // The first refusal of each kind is logged; all are counted in the monitor's heartbeat.
+      if (auth_->counters().dropped[static_cast<size_t>(verdict.reason)] == 1)
+        DF_LOG(Web, Warning) << why << " (from " << req->remote_addr << "; further ones are only counted)";
+      return reply(conn, 401, "application/json",
+                   "{\"error\": " + daemon::json_string(why) + ", \"refused\": " +
+                       daemon::json_string(lcm::to_string(verdict.reason)) + "}");
+    }
   }
   char action[32] = "", argument[128] = "";
   if (mg_get_var(body.data(), body.size(), "action", action, sizeof(action)) < 0)

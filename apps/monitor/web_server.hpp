@@ -1,7 +1,8 @@
 // The operator's page over HTTP and WebSocket (civetweb, Debian's libcivetweb): the page's files
 // from web_root, `GET /api/status` (the JSON of `depthfuse status --json`), `POST /api/command`
-// (action=start|stop|pause|resume[&argument=NAME]: the same command_t as `depthfuse scan`) and
-// the WebSocket /ws, which pushes the status and the map preview (MapStore) to every page.
+// (action=start|stop|pause|resume[&argument=NAME]: the same command_t as `depthfuse scan`; with a
+// rig key only when the page signed it, page_auth.hpp), `GET /api/auth` (whether commands need
+// the key, and the monitor's clock for the page's signatures) and the WebSocket /ws, which pushes the status and the map preview (MapStore) to every page.
 // Requests run on civetweb's threads and pushes on a thread of this server's: neither ever waits
 // on the monitor's LCM loop, and a slow page delays only the pushes.
 #pragma once
@@ -12,11 +13,14 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 
+#include "depthfuse/lcm/message_auth.hpp"
 #include "depthfuse/status.hpp"
 #include "map_store.hpp"
+#include "page_auth.hpp"
 
 struct mg_context;
 struct mg_connection;
@@ -25,8 +29,12 @@ namespace depthfuse::monitor {
 
 struct WebServerOptions {
   std::string listen;          // "ADDR:PORT"; PORT 0 takes a free one
-  bool allow_remote = false;   // else ADDR must be loopback
+  bool allow_remote = false;   // else ADDR must be loopback; another ADDR needs `key` too
   std::string web_root;        // index.html and the scripts
+  // With a rig key, a command is carried out only when the page signed it with the key, signed
+  // within max_skew_us of this host's clock; without one, every command from the page is.
+  std::optional<lcm::RigKey> key;
+  int64_t max_skew_us = 2000000;
 };
 
 class WebServer {
@@ -46,7 +54,11 @@ class WebServer {
   // The LCM thread: the newest status, as JSON.
   void set_status(std::string json);
 
+  // Null without a rig key. Any thread.
+  const PageCommandAuth* command_auth() const { return auth_.get(); }
+
   int handle_status(mg_connection* conn);
+  int handle_auth(mg_connection* conn);
   int handle_command(mg_connection* conn);
   void ws_ready(mg_connection* conn);
   void ws_closed(const mg_connection* conn);
@@ -63,6 +75,7 @@ class WebServer {
 
   const MapStore* store_;
   CommandFn command_;
+  std::unique_ptr<PageCommandAuth> auth_;
   mg_context* ctx_ = nullptr;
   std::string url_;
 

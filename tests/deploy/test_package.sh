@@ -70,10 +70,11 @@ expect_file /usr/lib/sysusers.d/depthfuse.conf
 expect_file /usr/lib/tmpfiles.d/depthfuse.conf
 expect_file /etc/depthfuse/depthfuse.toml
 expect_file /usr/share/doc/depthfuse/deployment.md
-# The operator's page and three.js (copied from libjs-three at build time): it works offline.
+# The operator's page, three.js and TweetNaCl (copied from Debian's packages at build time): it
+# works offline.
 for arg in "$@"; do
   if [ "$arg" = depthfuse-monitor=1 ]; then
-    for f in index.html app.js style.css three.min.js OrbitControls.js; do
+    for f in index.html app.js command_auth.js style.css three.min.js OrbitControls.js nacl.min.js; do
       expect_file "/usr/share/depthfuse/web/$f"
     done
   fi

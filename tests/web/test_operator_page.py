@@ -2,13 +2,18 @@
 """The operator's page end to end, in a real browser.
 
 Starts depthfuse-capture (synthetic corner), depthfuse-fusion and depthfuse-monitor --http as real
-processes on a per-test LCM port, then:
+processes on a per-test LCM port, all with a rig key of the test's, then:
   1. the HTTP server: bad paths, a command without the page's header, a 10 MB request and a client
      that never finishes its request are refused, and the status keeps coming (the LCM loop runs);
-  2. headless chromium (driven over the DevTools protocol on a pipe) loads the page; a click on
-     Start must start a scan, observed in the fusion daemon's own heartbeat on LCM
+     a monitor without a key refuses to serve the page beyond loopback;
+  2. the operator token: a command signed with the key (HMAC-SHA-512-256 by Python's hmac, the
+     same as libsodium's and the page's) reaches the fusion daemon; unsigned, replayed, altered,
+     wrongly keyed, stale and future ones are refused, and the monitor's status counts each kind;
+  3. headless chromium (driven over the DevTools protocol on a pipe) loads the page, which asks
+     for the key; with a wrong key, Start is refused (and counted), and the page asks again; with
+     the right key, Start must start a scan, observed in the fusion daemon's own heartbeat on LCM
      (tools/lcm/watch.py); the cloud must then have points; a click on Pause must pause;
-  3. a screenshot goes to <out>/operator-page.png; a click on Stop ends the scan, and its map
+  4. a screenshot goes to <out>/operator-page.png; a click on Stop ends the scan, and its map
      stays on the page.
 Exit 0 pass, 1 fail, 77 skipped (no chromium).
 
@@ -16,11 +21,14 @@ Exit 0 pass, 1 fail, 77 skipped (no chromium).
 """
 import argparse
 import base64
+import hashlib
+import hmac
 import json
 import os
 import re
 import shutil
 import socket
+import struct
 import subprocess
 import sys
 import tempfile
@@ -202,6 +210,28 @@ def http(base, path, method="GET", body=None, headers=None):
         return e.code, e.read()
 
 
+def sign(key, channel, body, utime):
+    """The X-Depthfuse-Signature of a page command (apps/monitor/page_auth.hpp): "DFS1" | utime |
+    HMAC-SHA-512-256(key, channel | NUL | body | "DFS1" | utime), in hex."""
+    header = b"DFS1" + struct.pack(">q", utime)
+    tag = hmac.new(key, channel.encode() + b"\0" + body + header, hashlib.sha512).digest()[:32]
+    return (header + tag).hex()
+
+
+def post_command(base, body, signature=None):
+    headers = {"X-Depthfuse": "1"}
+    if signature is not None:
+        headers["X-Depthfuse-Signature"] = signature
+    code, reply = http(base, "api/command", "POST", body, headers)
+    return code, json.loads(reply or b"{}")
+
+
+def monitor_counters(base):
+    st = json.loads(http(base, "api/status")[1])
+    me = [d for d in st.get("daemons", []) if d["name"] == "monitor"]
+    return (me[0]["counters"], me[0]["last_error"]) if me else ({}, "")
+
+
 def status_utime(base):
     code, body = http(base, "api/status")
     check(code == 200, "GET /api/status answered %d" % code)
@@ -219,8 +249,6 @@ def test_server(base, port):
         check(code == 404, "GET /%s answered %d, not 404" % (path, code))
     code, body = http(base, "api/command", "POST", b"action=start")
     check(code == 403, "a command without X-Depthfuse answered %d, not 403" % code)
-    code, body = http(base, "api/command", "POST", b"action=explode", {"X-Depthfuse": "1"})
-    check(code == 400 and b"unknown action" in body, "an unknown action answered %d %s" % (code, body))
 
     # A client that sends half a request and waits, and one that announces 10 MB.
     slow = socket.create_connection(("127.0.0.1", port))
@@ -242,32 +270,102 @@ def test_server(base, port):
     slow.close()
 
 
+def test_signed_commands(base, key, heartbeats):
+    """Commands over HTTP: only those signed with the rig key, fresh and new, are carried out."""
+    code, body = http(base, "api/auth")
+    auth = json.loads(body)
+    check(code == 200 and auth.get("commands_need_key") is True,
+          "GET /api/auth with a rig key: %d %s" % (code, body))
+    channel = auth["channel"]
+    now = lambda: int(time.time() * 1e6)
+    body = b"action=checkpoint"
+    expect = {"unsigned": 0, "bad_signature": 0, "stale": 0, "replayed": 0}
+
+    def refused(what, reason, code_reply):
+        code, reply = code_reply
+        check(code == 401 and reply.get("refused") == reason,
+              "%s: answered %d %s, not 401 refused %s" % (what, code, reply, reason))
+        expect[reason] += 1
+
+    refused("an unsigned command", "unsigned", post_command(base, body))
+    refused("a signature that is not hex", "unsigned", post_command(base, body, "zz" * 44))
+    good = sign(key, channel, body, now())
+    code, reply = post_command(base, body, good)
+    check(code == 202 and reply.get("command_id"), "a signed command: %d %s" % (code, reply))
+    # It reached the fusion daemon, signed by the monitor: idle, it answers that no scan runs.
+    eventually(lambda: heartbeats.get("fusion")["last_command_id"] == reply["command_id"] and
+               "no scan" in heartbeats.get("fusion")["last_command_message"], 10,
+               "the signed command never reached the fusion daemon: %s" % heartbeats.get("fusion"))
+    refused("the same request again", "replayed", post_command(base, body, good))
+    refused("another body under that signature", "bad_signature", post_command(base, b"action=stop", good))
+    refused("a command signed with another key", "bad_signature",
+            post_command(base, body, sign(os.urandom(32), channel, body, now())))
+    refused("a command signed on another channel", "bad_signature",
+            post_command(base, body, sign(key, "DEPTHFUSE_COMMAND", body, now())))
+    refused("a command signed 10 s ago", "stale", post_command(base, body, sign(key, channel, body, now() - 10**7)))
+    refused("a command signed 10 s ahead", "stale", post_command(base, body, sign(key, channel, body, now() + 10**7)))
+    code, reply = post_command(base, b"action=explode", sign(key, channel, b"action=explode", now()))
+    check(code == 400 and "unknown action" in reply.get("error", ""),
+          "a signed unknown action answered %d %s" % (code, reply))
+
+    def counted():
+        counters, last_error = monitor_counters(base)
+        return all(counters.get("page_commands_refused_" + k) == v for k, v in expect.items()) and \
+            counters.get("page_commands_verified") == 2 and \
+            "page command refused (stale)" in last_error
+    eventually(counted, 5, "the monitor's status does not count the refusals %s and 2 verified: %s" %
+               (expect, monitor_counters(base)))
+    return expect
+
+
+def test_remote_needs_key(args, url, work):
+    """A monitor without a rig key refuses to serve the page beyond loopback."""
+    config = os.path.join(work, "remote.toml")
+    with open(config, "w") as f:
+        f.write("[monitor]\nhttp_allow_remote = true\n")
+    r = subprocess.run([os.path.join(args.bin, "depthfuse-monitor"), "--lcm", url, "--config", config,
+                        "--key-file", "", "--http", "0.0.0.0:0"],
+                       capture_output=True, text=True, timeout=20)
+    check(r.returncode != 0 and "needs the rig key" in r.stderr,
+          "a monitor without a key served the page beyond loopback: exit %d, %s" % (r.returncode, r.stderr))
+
+
 def run(args, work):
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     if not chromium:
         print("SKIP: chromium is not installed (apt-get install chromium; tools/setup.sh)")
         return 77
     url = "udpm://239.255.76.67:%d?ttl=0&recv_buf_size=4194304" % (20000 + os.getpid() % 40000)
+    # The rig key, as the package makes it: 64 hex digits, not readable by every user.
+    key = os.urandom(32)
+    key_file = os.path.join(work, "rig.key")
+    with open(os.open(key_file, os.O_WRONLY | os.O_CREAT, 0o600), "w") as f:
+        f.write(key.hex() + "\n")
+    keyed = ["--lcm", url, "--key-file", key_file]
     daemons = Daemons(work)
     heartbeats = Heartbeats(args.watch, args.python_dir, url)
     browser = None
     try:
-        daemons.start("monitor", [os.path.join(args.bin, "depthfuse-monitor"), "--lcm", url,
-                                  "--http", "127.0.0.1:0"])
+        test_remote_needs_key(args, url, work)
+        daemons.start("monitor", [os.path.join(args.bin, "depthfuse-monitor")] + keyed +
+                      ["--http", "127.0.0.1:0"])
         found = eventually(lambda: re.search(r"http://127\.0\.0\.1:(\d+)/", daemons.log("monitor")), 10,
                            "the monitor never said where its page is:\n" + daemons.log("monitor"))
         port = int(found.group(1))
         base = "http://127.0.0.1:%d/" % port
-        daemons.start("fusion", [os.path.join(args.bin, "depthfuse-fusion"), "--lcm", url,
-                                 "--scan-dir", os.path.join(work, "scans")])
-        daemons.start("capture", [os.path.join(args.bin, "depthfuse-capture"), "--lcm", url,
-                                  "--source", "synthetic:corner", "--rate", "15", "--loop"])
+        daemons.start("fusion", [os.path.join(args.bin, "depthfuse-fusion")] + keyed +
+                      ["--scan-dir", os.path.join(work, "scans")])
+        daemons.start("capture", [os.path.join(args.bin, "depthfuse-capture")] + keyed +
+                      ["--source", "synthetic:corner", "--rate", "15", "--loop"])
         eventually(lambda: heartbeats.get("fusion"), 15, "no fusion heartbeat on LCM")
         eventually(lambda: any(d["name"] == "fusion" for d in
                                json.loads(http(base, "api/status")[1]).get("daemons", [])),
                    10, "the monitor's status never listed the fusion daemon")
         test_server(base, port)
-        print("HTTP server: bad paths, missing header, 10 MB request, slow client: ok")
+        print("HTTP server: bad paths, missing header, 10 MB request, slow client, "
+              "no remote page without a key: ok")
+        refusals = test_signed_commands(base, key, heartbeats)
+        print("signed commands: the right key's reaches fusion; refused and counted: %s" % refusals)
 
         browser = Browser(chromium, os.path.join(work, "profile"), os.path.join(work, "chromium.log"))
         browser.call("Target.setDiscoverTargets", {"discover": False}, session=False)
@@ -278,6 +376,34 @@ def run(args, work):
             "the page never connected and showed the fusion daemon")
         check(heartbeats.get("fusion")["state"] != HEARTBEAT_RUNNING, "a scan runs before Start")
         check(browser.evaluate("dfState.points") == 0, "the page shows points before any scan")
+
+        # The page asks for the key; a wrong one is refused by the monitor, counted, and asked again.
+        eventually(lambda: browser.evaluate("dfState.needKey === true && "
+                                            "!document.getElementById('key-form').hidden"), 10,
+                   "the page did not ask for the rig key")
+        browser.click("btn-start")
+        eventually(lambda: browser.evaluate("dfState.commands.length") == 1, 10, "Start did nothing")
+        check(browser.evaluate("dfState.commands[0].error") == "no key",
+              "Start without a key: %s" % browser.evaluate("JSON.stringify(dfState.commands)"))
+
+        def enter_key(hex_key):
+            browser.evaluate("document.getElementById('rig-key').value = %s" % json.dumps(hex_key))
+            browser.click("btn-key")
+            eventually(lambda: browser.evaluate("document.getElementById('key-form').hidden"), 5,
+                       "the page did not take the key")
+        enter_key(os.urandom(32).hex())
+        browser.click("btn-start")
+        eventually(lambda: browser.evaluate("dfState.commands.length") == 2, 10, "Start did nothing")
+        check(browser.evaluate("dfState.commands[1].status") == 401 and
+              browser.evaluate("dfState.commands[1].reply.refused") == "bad_signature",
+              "Start with a wrong key: %s" % browser.evaluate("JSON.stringify(dfState.commands[1])"))
+        eventually(lambda: monitor_counters(base)[0].get("page_commands_refused_bad_signature") ==
+                   refusals["bad_signature"] + 1, 5, "the wrong key's refusal was not counted")
+        eventually(lambda: browser.evaluate("!document.getElementById('key-form').hidden"), 5,
+                   "the page kept a key the monitor refused")
+        check(heartbeats.get("fusion")["state"] != HEARTBEAT_RUNNING, "Start with a wrong key started a scan")
+        print("page: Start without a key asks for it; with a wrong key refused (bad_signature), counted")
+        enter_key(key.hex())
         browser.click("btn-start")
         eventually(lambda: heartbeats.get("fusion")["state"] == HEARTBEAT_RUNNING and
                    heartbeats.get("fusion")["scan_id"], 15,

@@ -6,6 +6,7 @@
 
 const state = window.dfState = {
   connected: false, points: 0, chunks: 0, status: null, pose: null, commands: [], errors: [],
+  needKey: null,
 };
 
 // ------------------------------------------------------------------ the 3-D view
@@ -253,18 +254,78 @@ function connect() {
 }
 connect();
 
+// ------------------------------------------------------------------ the rig key
+// With a rig key on the monitor (GET /api/auth says so), commands are signed with it
+// (command_auth.js). The operator enters it once per tab: it stays in sessionStorage, is never
+// sent, and is forgotten when the monitor says it is not the rig's.
+const kKeyItem = 'depthfuse.rigKey';
+let auth = {commands_need_key: false, channel: '', offset_us: 0};
+
+// The monitor's settings and clock: offset_us turns this computer's time into the monitor's,
+// to within half the request's round trip.
+async function loadAuth() {
+  const sent = Date.now();
+  const a = await (await fetch('/api/auth', {cache: 'no-store'})).json();
+  a.offset_us = a.utime - 1000 * (sent + Date.now()) / 2;
+  auth = a;
+  state.needKey = a.commands_need_key;
+  showKeyForm();
+  return a;
+}
+
+function showKeyForm() {
+  const have = !!sessionStorage.getItem(kKeyItem);
+  document.getElementById('key-form').hidden = !auth.commands_need_key || have;
+  document.getElementById('btn-forget-key').hidden = !auth.commands_need_key || !have;
+}
+
+document.getElementById('btn-key').addEventListener('click', () => {
+  const input = document.getElementById('rig-key');
+  const key = dfCommandAuth.parseKey(input.value);
+  input.value = '';
+  if (!key) {
+    document.getElementById('command').textContent =
+        'the rig key is 64 hexadecimal digits (the content of /etc/depthfuse/rig.key)';
+    return;
+  }
+  sessionStorage.setItem(kKeyItem, dfCommandAuth.hex(key));
+  showKeyForm();
+});
+document.getElementById('btn-forget-key').addEventListener('click', () => {
+  sessionStorage.removeItem(kKeyItem);
+  showKeyForm();
+});
+loadAuth().catch((err) => state.errors.push(`GET /api/auth: ${err}`));
+
 // ------------------------------------------------------------------ the buttons
 async function command(action) {
-  const body = new URLSearchParams({action});
+  const params = new URLSearchParams({action});
   const name = document.getElementById('scan-name').value.trim();
-  if (action === 'start' && name) body.set('argument', name);
+  if (action === 'start' && name) params.set('argument', name);
+  // Sent as this very string, so that the bytes signed are the bytes the monitor receives.
+  const body = params.toString();
+  const headers = {'X-Depthfuse': '1', 'Content-Type': 'application/x-www-form-urlencoded'};
   const shown = document.getElementById('command');
   try {
-    const r = await fetch('/api/command', {
-      method: 'POST', body, headers: {'X-Depthfuse': '1'},
-    });
+    const a = await loadAuth();
+    if (a.commands_need_key) {
+      const key = sessionStorage.getItem(kKeyItem);
+      if (!key) {
+        state.commands.push({action, error: 'no key'});
+        shown.textContent = `${action}: enter the rig key first`;
+        document.getElementById('rig-key').focus();
+        return;
+      }
+      const utime = Math.round(1000 * Date.now() + a.offset_us);
+      headers['X-Depthfuse-Signature'] = dfCommandAuth.sign(dfCommandAuth.parseKey(key), a.channel, body, utime);
+    }
+    const r = await fetch('/api/command', {method: 'POST', body, headers});
     const reply = await r.json();
     state.commands.push({action, status: r.status, reply});
+    if (reply.refused === 'bad_signature') {
+      sessionStorage.removeItem(kKeyItem);  // not the rig's key: ask again
+      showKeyForm();
+    }
     shown.textContent = r.ok ? `${action}: sent, waiting for the fusion daemon` : `${action}: ${reply.error}`;
   } catch (err) {
     state.commands.push({action, error: String(err)});

@@ -85,19 +85,23 @@ int Startup::usage_error(const std::string& problem) const {
   return 2;
 }
 
+Result<std::optional<lcm::RigKey>> Startup::rig_key() const {
+  const std::string& path = config_.lcm.key_file;
+  if (path.empty()) return std::optional<lcm::RigKey>();
+  auto loaded = lcm::RigKey::load(path);
+  if (loaded) return std::optional<lcm::RigKey>(*loaded);
+  if (loaded.status().code() == StatusCode::kNotFound) return std::optional<lcm::RigKey>();
+  return loaded.status();
+}
+
 std::unique_ptr<lcm::LcmTransport> Startup::open_lcm() const {
   const LcmConfig& config = config_.lcm;
-  std::optional<lcm::RigKey> key;
-  if (!config.key_file.empty()) {
-    auto loaded = lcm::RigKey::load(config.key_file);
-    if (loaded) {
-      key = *loaded;
-    } else if (loaded.status().code() != StatusCode::kNotFound) {
-      // A key that is there but unusable is a broken rig, not an open one.
-      DF_LOG(Startup, Error) << loaded.status().to_string();
-      return nullptr;
-    }
+  auto loaded = rig_key();
+  if (!loaded) {
+    DF_LOG(Startup, Error) << loaded.status().to_string();
+    return nullptr;
   }
+  const std::optional<lcm::RigKey>& key = *loaded;
   std::string url = config.url;
   if (!key) {
     const std::string why = config.key_file.empty() ? "lcm.key_file is empty"
