@@ -121,6 +121,8 @@ MapStore::Accepted MapStore::apply(const depthfuse::map_delta_t& msg, bool* want
   last_.chunks.clear();
   last_.num_chunks = 0;
   have_last_ = true;
+  pose_json_ = pose_json();  // once per delta, for every page and push
+  ++pose_version_;
   return result;
 }
 
@@ -154,7 +156,10 @@ void MapStore::changes(Cursor* cursor, size_t max_bytes, std::vector<std::string
     text->push_back("{\"type\": \"reset\", \"scan_id\": " + daemon::json_string(scan_id_) + "}");
     *cursor = Cursor{epoch_, 0, 0};
   }
-  if (have_last_) text->push_back(pose_json());
+  if (have_last_ && cursor->pose_version != pose_version_) {
+    text->push_back(pose_json_);
+    cursor->pose_version = pose_version_;
+  }
   if (cursor->trajectory < trajectory_.size()) {
     std::string j = "{\"type\": \"trajectory\", \"from\": " + std::to_string(cursor->trajectory / 3) +
                     ", \"xyz\": [";

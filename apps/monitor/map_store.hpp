@@ -28,12 +28,13 @@ class MapStore {
   // sees a new sender or scan: it should ask for a snapshot.
   Accepted apply(const depthfuse::map_delta_t& msg, bool* want_snapshot);
 
-  // What a page has seen: the map's epoch (a new scan or sender starts another) and the newest
-  // chunk version and trajectory length it has.
+  // What a page has seen: the map's epoch (a new scan or sender starts another), the newest
+  // chunk version, trajectory length and pose it has.
   struct Cursor {
     int64_t epoch = -1;
     int64_t version = 0;
     size_t trajectory = 0;
+    int64_t pose_version = 0;
   };
   // Fills `out` with what the page behind `cursor` lacks, at most about max_bytes of chunks:
   // text messages (JSON: reset, pose, trajectory) in *text, packed chunks in *chunks (binary frame
@@ -66,6 +67,8 @@ class MapStore {
   std::vector<float> trajectory_;      // x y z per pose, in the order received
   depthfuse::map_delta_t last_;        // its header (chunks dropped): pose, state, figures
   bool have_last_ = false;
+  std::string pose_json_;              // last_ as the page's pose message
+  int64_t pose_version_ = 0;           // counts the deltas, so that a page gets each pose once
 };
 
 }  // namespace depthfuse::monitor

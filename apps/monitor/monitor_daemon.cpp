@@ -98,6 +98,7 @@ heartbeat_t MonitorDaemon::own_heartbeat() const {
   hb.messages_foreign = counters_.foreign.load();
   hb.input_rate_hz = 0;
   daemon::add_counter(&hb, "daemons", static_cast<double>(daemons_.size()));
+  daemon::add_counter(&hb, "status_publish_failures", static_cast<double>(publish_failures_));
   daemon::add_receive_counters(*lcm_, &hb);
   if (page_) page_->add_counters(&hb);
   return hb;
@@ -136,8 +137,18 @@ void MonitorDaemon::publish_status(Clock::time_point now) {
   st.daemons.push_back(std::move(me));
   st.num_daemons = static_cast<int32_t>(st.daemons.size());
   if (page_) page_->on_status(st);
-  (void)lcm_->publish_message(lcm::kStatusChannel, st);
-  (void)lcm_->publish_message(lcm::kHeartbeatChannel, own_heartbeat());
+  Status sent = lcm_->publish_message(lcm::kStatusChannel, st);
+  if (sent.is_ok()) sent = lcm_->publish_message(lcm::kHeartbeatChannel, own_heartbeat());
+  if (!sent.is_ok()) {
+    // Said once when sending starts failing, then counted until it works again.
+    if (publish_failing_ == 0)
+      DF_LOG(Monitor, Warning) << "status not sent (further failures are only counted): "
+                               << sent.to_string();
+    ++publish_failing_;
+    ++publish_failures_;
+    return;
+  }
+  publish_failing_ = 0;
   ++statuses_published_;
 }
 

@@ -56,6 +56,8 @@ class MonitorDaemon {
   lcm::ReceiveCounters counters_;
   std::map<std::string, Entry> daemons_;
   int64_t statuses_published_ = 0;
+  int64_t publish_failures_ = 0;  // status or heartbeat not sent, in all
+  int64_t publish_failing_ = 0;   // in a row, up to now
   std::unique_ptr<OperatorView> page_;  // null unless serve_page() was called
 };
 

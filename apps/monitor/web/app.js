@@ -31,6 +31,9 @@ let target = 0.002;         // target uncertainty of the coverage, m (from the p
 let colourMode = 'uncertainty';
 let showCoverage = true;
 let framed = false;
+// The points shown and those of them below the target, over all chunks: kept as chunks come and
+// go, so that a chunk costs the same however many are shown; the text is redrawn once a frame.
+let coveragePoints = 0, coveredPoints = 0, coverageShown = false;
 
 function resize() {
   const w = view.clientWidth, h = view.clientHeight;
@@ -74,7 +77,7 @@ function onChunk(buffer) {
   const n = head.getUint32(32, true), flags = head.getUint32(36, true);
   if (buffer.byteLength < 40 + 16 * n + ((flags & 1) ? 3 * n : 0)) return;
   const c = {
-    n, coverage, centre,
+    n, coverage, centre, covered: Math.round(coverage * n),
     xyz: new Float32Array(buffer, 40, 3 * n),
     uncertainty: new Float32Array(buffer, 40 + 12 * n, n),
     rgb: (flags & 1) ? new Uint8Array(buffer, 40 + 16 * n, 3 * n) : null,
@@ -82,6 +85,8 @@ function onChunk(buffer) {
   const old = chunks.get(key);
   if (old) {
     state.points -= old.n;
+    coveragePoints -= old.n;
+    coveredPoints -= old.covered;
     world.remove(old.points);
     world.remove(old.box);
     old.points.geometry.dispose();
@@ -98,13 +103,16 @@ function onChunk(buffer) {
   chunks.set(key, c);
   state.points += n;
   state.chunks = chunks.size;
+  coveragePoints += n;
+  coveredPoints += c.covered;
+  state.coverage = coveragePoints ? coveredPoints / coveragePoints : 0;
+  coverageShown = false;
   if (!framed) {
     framed = true;
     const p = new THREE.Vector3(...centre).applyMatrix4(world.matrixWorld);
     controls.target.copy(p);
     camera3d.position.set(p.x + 1.5, p.y + 2.0, p.z + 3.5);
   }
-  showCoverageFigures();
 }
 
 let chunkSize = 0.5;
@@ -124,6 +132,9 @@ function clearMap() {
   chunks.clear();
   state.points = 0;
   state.chunks = 0;
+  coveragePoints = coveredPoints = 0;
+  state.coverage = 0;
+  coverageShown = false;
   trajectory.length = 0;
   framed = false;
   updateTrajectory();
@@ -153,6 +164,7 @@ function updateTrajectory() {
 
 function onPose(m) {
   state.pose = m;
+  if (m.target_uncertainty_m && m.target_uncertainty_m !== target) coverageShown = false;
   target = m.target_uncertainty_m || target;
   chunkSize = m.chunk_size_m || chunkSize;
   frustum.visible = m.has_pose;
@@ -170,15 +182,9 @@ function onPose(m) {
 }
 
 function showCoverageFigures() {
-  let n = 0, covered = 0;
-  for (const c of chunks.values()) {
-    n += c.n;
-    covered += c.coverage * c.n;
-  }
-  const share = n ? covered / n : 0;
-  state.coverage = share;
+  coverageShown = true;
   document.getElementById('coverage').textContent =
-      `coverage: ${(100 * share).toFixed(1)} % of the points below ${(1000 * target).toFixed(1)} mm ` +
+      `coverage: ${(100 * state.coverage).toFixed(1)} % of the points below ${(1000 * target).toFixed(1)} mm ` +
       `(boxes: per chunk, red 0 % to green 100 %)`;
 }
 
@@ -337,6 +343,7 @@ for (const b of document.querySelectorAll('button[data-action]'))
 
 function frame() {
   requestAnimationFrame(frame);
+  if (!coverageShown) showCoverageFigures();
   controls.update();
   renderer.render(scene, camera3d);
 }
