@@ -2,10 +2,9 @@
 
 #include <unistd.h>
 
-#include <fstream>
-#include <limits>
 
 #include "depthfuse/base/log.hpp"
+#include "depthfuse/base/meminfo.hpp"
 #include "depthfuse/daemon/startup.hpp"
 
 DF_LOG_CATEGORY(Cli)
@@ -61,18 +60,6 @@ std::string describe_iteration(const BatchIterationReport& it, size_t frames) {
 }
 
 namespace {
-
-// Memory this machine has for a run now (MemAvailable), 0 when unknown.
-uint64_t available_memory_bytes() {
-  std::ifstream meminfo("/proc/meminfo");
-  std::string key;
-  uint64_t kib = 0;
-  while (meminfo >> key >> kib) {
-    if (key == "MemAvailable:") return kib * 1024;
-    meminfo.ignore(std::numeric_limits<std::streamsize>::max(), '\n');
-  }
-  return 0;
-}
 
 std::string mib(uint64_t bytes) {
   char text[32];

@@ -3,6 +3,8 @@
 
 #include <cstdio>
 
+#include "depthfuse/base/meminfo.hpp"
+
 namespace depthfuse::mesh {
 
 Result<TriangleMesh> mesh_scan(store::ScanStore& scan, const store::ExportOptions& filters,
@@ -37,11 +39,7 @@ Result<TriangleMesh> mesh_scan(store::ScanStore& scan, const store::ExportOption
   std::vector<uint8_t> keep;
   DF_RETURN_IF_ERROR(scan.for_each_chunk(
       [&](const store::ChunkInfo&, PointArrays& a) {
-        keep.assign(a.size(), 1);
-        for (size_t i = 0; i < a.size(); ++i)
-          keep[i] = a.state[i].merges >= filters.min_merges &&
-                    (!filters.bbox_m || filters.bbox_m->contains(a.position(i)));
-        a.compact(keep);
+        if (store::select_points(a, filters, &keep) < a.size()) a.compact(keep);
         cloud.append(a);
         return Status::ok();
       },

@@ -9,8 +9,9 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <fstream>
 #include <string>
+
+#include "depthfuse/base/meminfo.hpp"
 
 namespace depthfuse::mesh {
 
@@ -91,16 +92,6 @@ MemoryEstimate estimate_memory(const PointArrays& points, int depth) {
   e.bytes = static_cast<size_t>(kBytesPerPoint * static_cast<double>(n) +
                                 kBytesPerCell * static_cast<double>(cells_all_levels));
   return e;
-}
-
-size_t available_memory_bytes() {
-  std::ifstream in("/proc/meminfo");
-  std::string key;
-  size_t kib = 0;
-  std::string unit;
-  while (in >> key >> kib >> unit)
-    if (key == "MemAvailable:") return kib * 1024;
-  return 0;
 }
 
 Result<TriangleMesh> mesh_points(const PointArrays& points, const MeshOptions& options,

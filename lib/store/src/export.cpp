@@ -22,9 +22,6 @@ Result<CloudFormat> cloud_format_for(const std::string& path) {
   return invalid_argument("output '" + path + "' must end in .ply or .pcd");
 }
 
-namespace {
-
-// Marks the points that pass the filters; returns how many.
 size_t select_points(const PointArrays& a, const ExportOptions& o, std::vector<uint8_t>* keep) {
   keep->assign(a.size(), 1);
   if (o.min_merges == 0 && !o.bbox_m) return a.size();
@@ -37,8 +34,6 @@ size_t select_points(const PointArrays& a, const ExportOptions& o, std::vector<u
   }
   return n;
 }
-
-}  // namespace
 
 Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
                                   const ExportOptions& options) {

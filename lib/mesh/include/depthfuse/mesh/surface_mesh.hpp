@@ -40,9 +40,6 @@ struct MemoryEstimate {
 // every level (one sort of the finest cells' Morton keys).
 MemoryEstimate estimate_memory(const PointArrays& points, int depth);
 
-// The memory the kernel reports as available now (MemAvailable), 0 when unknown.
-size_t available_memory_bytes();
-
 struct MeshReport {
   size_t input_points = 0;
   MemoryEstimate estimate;

@@ -27,6 +27,10 @@ struct ExportOptions {
   bool skip_damaged = false;                 // salvage: leave out chunks that fail their checks
 };
 
+// Marks in *keep the points of `a` that pass the filters (min_merges, bbox_m); returns how many.
+// The export and the mesh (lib/mesh) choose their points with it.
+size_t select_points(const PointArrays& a, const ExportOptions& o, std::vector<uint8_t>* keep);
+
 struct ExportReport {
   uint64_t points_written = 0;
   uint64_t points_filtered = 0;              // in the chunks read, removed by the filters
