@@ -11,6 +11,7 @@
 #include "depthfuse/base/clock.hpp"
 #include "depthfuse/base/log.hpp"
 #include "depthfuse/color_frame_t.hpp"
+#include "depthfuse/daemon/moving_average.hpp"
 #include "depthfuse/daemon/process_info.hpp"
 #include "depthfuse/daemon/systemd_notify.hpp"
 #include "depthfuse/depth_frame_t.hpp"
@@ -32,9 +33,7 @@ using Clock = std::chrono::steady_clock;
 
 constexpr size_t kMaxPublishers = 16;
 constexpr size_t kRecentCommands = 64;
-constexpr double kMeanWeight = 0.1;  // exponential moving averages over ~10 frames
-
-void ewma(double* mean, double value) { *mean += kMeanWeight * (value - *mean); }
+using daemon::ewma;  // the heartbeat's moving averages, over ~10 frames
 
 // Saving a very large scan may take a while; a frame takes well under a second.
 constexpr double kStuckWorkerS = 60.0;

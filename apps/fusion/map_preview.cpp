@@ -4,10 +4,10 @@
 
 #include <algorithm>
 #include <cmath>
-#include <limits>
 
 #include "depthfuse/base/clock.hpp"
 #include "depthfuse/base/log.hpp"
+#include "depthfuse/daemon/moving_average.hpp"
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/frame_codec.hpp"
 #include "depthfuse/map_request_t.hpp"
@@ -25,22 +25,9 @@ constexpr size_t kMessageBytes = 256 * 1024;
 // 0.5 m chunks, and int16 covers the chunk whatever its size.
 constexpr float kPositionSteps = 60000.0f;
 constexpr float kUncertaintyUnitM = 1e-5f;  // 10 µm; int16 saturates at 0.33 m
-constexpr double kMeanWeight = 0.1;
 // Cells per chunk edge at most (finer cells are taken as this): the per-cell scratch stays at
 // 64^3 entries.
 constexpr int kMaxCellsPerAxis = 64;
-
-// uncertainty_m() of one point, from the information matrix's cofactors: the covariance's trace is
-// their diagonal sum over the determinant, without forming the inverse.
-float point_uncertainty_m(const PointState& s) {
-  const float c_xx = s.info_yy * s.info_zz - s.info_yz * s.info_yz;
-  const float c_yy = s.info_xx * s.info_zz - s.info_xz * s.info_xz;
-  const float c_zz = s.info_xx * s.info_yy - s.info_xy * s.info_xy;
-  const float det = s.info_xx * c_xx - s.info_xy * (s.info_xy * s.info_zz - s.info_yz * s.info_xz) +
-                    s.info_xz * (s.info_xy * s.info_yz - s.info_yy * s.info_xz);
-  if (!(det > 0.0f)) return std::numeric_limits<float>::infinity();
-  return std::sqrt(std::max(0.0f, (c_xx + c_yy + c_zz) / (3.0f * det)));
-}
 
 size_t chunk_wire_bytes(const depthfuse::map_chunk_t& c) {
   return 4 * 3 + 4 + 4 + 4 + 4 + c.position.size() * 2 + c.normal.size() + c.uncertainty.size() * 2 +
@@ -49,11 +36,6 @@ size_t chunk_wire_bytes(const depthfuse::map_chunk_t& c) {
 
 int16_t saturate16(float v) {
   return static_cast<int16_t>(std::lround(std::clamp(v, -32767.0f, 32767.0f)));
-}
-
-void atomic_ewma(std::atomic<double>* mean, double value) {
-  const double m = mean->load();
-  mean->store(m + kMeanWeight * (value - m));
 }
 
 }  // namespace
@@ -120,7 +102,7 @@ size_t MapPreview::decimate(const ChunkKey& key, const Chunk& chunk, float chunk
     int c[3];
     for (int k = 0; k < 3; ++k) c[k] = std::clamp(static_cast<int>(local[k]), 0, cells - 1);
     const uint32_t id = static_cast<uint32_t>((c[0] * cells + c[1]) * cells + c[2]);
-    const float u = point_uncertainty_m(a.state[i]);
+    const float u = uncertainty_m(a, i);
     covered += u < target;
     Cell& cell = cells_[id];
     if (cell.generation != generation_) {
@@ -284,9 +266,9 @@ void MapPreview::tick(int8_t state, const std::string& scan_id,
   publish(&msg);
 
   chunks_pending_ = static_cast<int64_t>(pending_.size());
-  atomic_ewma(&bytes_per_s_, static_cast<double>(bytes_sent_.load() - bytes_before) * config_.rate_hz);
+  daemon::ewma(&bytes_per_s_, static_cast<double>(bytes_sent_.load() - bytes_before) * config_.rate_hz);
   const double ms = (steady_ns() - started_ns) * 1e-6;
-  atomic_ewma(&tick_ms_mean_, ms);
+  daemon::ewma(&tick_ms_mean_, ms);
   tick_ms_max_ = std::max(tick_ms_max_.load(), ms);
   tick_ms_total_ = tick_ms_total_.load() + ms;
 }
