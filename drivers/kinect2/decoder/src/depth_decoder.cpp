@@ -137,6 +137,26 @@ class DepthDecoder::Impl {
   }
 
   Status decode(const RawDepthPacket& packet, DepthImage* depth, IrImage* ir) {
+    DF_RETURN_IF_ERROR(accept(packet));
+    depth->width = kRawWidth;
+    depth->height = kRawHeight;
+    depth->depth_m.resize(kRawPixels);
+    decode_accepted(packet, depth->depth_m.data(), 0.001f, ir);
+    return Status::ok();
+  }
+
+  Status decode_millimetres(const RawDepthPacket& packet, float* depth_mm, IrImage* ir) {
+    if (depth_mm == nullptr) return invalid_argument("depth decoder: no output for the depth");
+    DF_RETURN_IF_ERROR(accept(packet));
+    decode_accepted(packet, depth_mm, 1.0f, ir);
+    return Status::ok();
+  }
+
+  void restart_sequence() { have_sequence_ = false; }
+
+ private:
+  // The packet's checks; when it passes, its sequence number is the last one seen.
+  Status accept(const RawDepthPacket& packet) {
     if (packet.bytes == nullptr)
       return invalid_argument("depth packet " + std::to_string(packet.sequence) + " has no data");
     if (packet.size != kRawPacketBytes)
@@ -150,17 +170,19 @@ class DepthDecoder::Impl {
                               " (repeated or out of order)");
     have_sequence_ = true;
     last_sequence_ = packet.sequence;
+    return Status::ok();
+  }
 
-    depth->width = kRawWidth;
-    depth->height = kRawHeight;
-    depth->depth_m.resize(kRawPixels);
+  // Depth goes out in units of which `per_mm` make a millimetre, straight from the kernels.
+  void decode_accepted(const RawDepthPacket& packet, float* depth_out, float per_mm, IrImage* ir) {
     if (ir) {
       ir->width = kRawWidth;
       ir->height = kRawHeight;
       ir->amplitude.resize(kRawPixels);
     }
     packet_ = packet.bytes;
-    depth_out_ = depth->depth_m.data();
+    depth_out_ = depth_out;
+    per_mm_ = per_mm;
     ir_out_ = ir ? ir->amplitude.data() : nullptr;
 
     run([this](Scratch& s, int first, int last) { correlate_and_unwrap(s, first, last); });
@@ -172,12 +194,8 @@ class DepthDecoder::Impl {
     run([this](Scratch&, int first, int last) {
       for (int y = first; y < last; ++y) finish(y);
     });
-    return Status::ok();
   }
 
-  void restart_sequence() { have_sequence_ = false; }
-
- private:
   template <typename Rows>
   void run(Rows rows) {
     if (!helper_) {
@@ -218,14 +236,14 @@ class DepthDecoder::Impl {
       kernels::correlate_row(
           s.values[k].data(), s.values[k + 1].data(), s.values[k + 2].data(),
           phases_.cos_p0[f].data() + row, phases_.sin_p0[f].data() + row,
-          rays_.z_mm_per_phase.data() + row, steps_, constants_.ab_multiplier_per_frequency[f],
-          constants_.ab_multiplier,
+          rays_.z_mm_per_phase.data() + row, steps_, constants_.firmware.ab_multiplier_per_frequency[f],
+          constants_.firmware.ab_multiplier,
           kernels::PhasorRow{a_[f].data() + row, b_[f].data() + row, unit_a_[f].data() + row,
                              unit_b_[f].data() + row, s.amplitude[f].data()});
     }
     if (ir_out_)
       kernels::ir_row(s.amplitude[0].data(), s.amplitude[1].data(), s.amplitude[2].data(),
-                      constants_.ab_output_multiplier, ir_out_ + row_start(kRawHeight - 1 - y));
+                      constants_.firmware.ab_output_multiplier, ir_out_ + row_start(kRawHeight - 1 - y));
   }
 
   kernels::PhasorRows phasor_rows(int f, int y) const {
@@ -316,16 +334,17 @@ class DepthDecoder::Impl {
     return {depth_mm_.data() + row, edge_depth_mm_.data() + row, ir_sum_.data() + row};
   }
 
-  // Stage 3: the edge-aware filter (inner rows) and the output in metres, flipped upright.
+  // Stage 3: the edge-aware filter (inner rows) and the output in its unit, flipped upright.
   void finish(int y) {
     float* out = depth_out_ + row_start(kRawHeight - 1 - y);
     const float* raw = depth_mm_.data() + row_start(y);
     if (!options_.edge_aware_filter)
-      kernels::depth_row(raw, /*range_check=*/false, constants_, out);
+      kernels::depth_row(raw, /*range_check=*/false, constants_, per_mm_, out);
     else if (y == 0 || y == kRawHeight - 1)
-      kernels::depth_row(raw, /*range_check=*/true, constants_, out);
+      kernels::depth_row(raw, /*range_check=*/true, constants_, per_mm_, out);
     else
-      kernels::edge_filter_row(edge_rows(y - 1), edge_rows(y), edge_rows(y + 1), constants_, out);
+      kernels::edge_filter_row(edge_rows(y - 1), edge_rows(y), edge_rows(y + 1), constants_,
+                               per_mm_, out);
   }
 
   const DepthDecoderOptions options_;
@@ -340,6 +359,7 @@ class DepthDecoder::Impl {
   std::unique_ptr<HelperThread> helper_;
   const uint8_t* packet_ = nullptr;
   float* depth_out_ = nullptr;
+  float per_mm_ = 0.001f;
   float* ir_out_ = nullptr;
   bool have_sequence_ = false;
   uint32_t last_sequence_ = 0;
@@ -360,6 +380,11 @@ DepthDecoder::~DepthDecoder() = default;
 
 Status DepthDecoder::decode(const RawDepthPacket& packet, DepthImage* depth, IrImage* ir) {
   return impl_->decode(packet, depth, ir);
+}
+
+Status DepthDecoder::decode_millimetres(const RawDepthPacket& packet, float* depth_mm,
+                                        IrImage* ir) {
+  return impl_->decode_millimetres(packet, depth_mm, ir);
 }
 
 void DepthDecoder::restart_sequence() { impl_->restart_sequence(); }

@@ -36,7 +36,6 @@ class PacketDecoding {
  private:
   explicit PacketDecoding(std::unique_ptr<DepthDecoder> decoder) : decoder_(std::move(decoder)) {}
   std::unique_ptr<DepthDecoder> decoder_;
-  DepthImage depth_;  // reused every frame
 };
 
 }  // namespace depthfuse::kinect2
