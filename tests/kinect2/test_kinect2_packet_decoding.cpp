@@ -13,7 +13,7 @@ namespace depthfuse::kinect2 {
 namespace {
 
 libfreenect2::Freenect2Device::IrCameraParams scene_ir_params() {
-  const IrCalibration c = test::scene_calibration();
+  const IrCalibration c = simulated_ir_calibration();
   libfreenect2::Freenect2Device::IrCameraParams ir{};
   ir.fx = c.fx;
   ir.fy = c.fy;
@@ -39,14 +39,14 @@ struct RawFrame {
 
 std::vector<uint8_t> scene_packet() {
   const test::SceneImages scene = test::scene_images();
-  auto encoder = PacketEncoder::create(test::scene_p0_tables(), test::scene_calibration());
+  auto encoder = PacketEncoder::create(simulated_p0_tables(), simulated_ir_calibration());
   std::vector<uint8_t> packet;
   EXPECT_TRUE(encoder.value()->encode(scene.depth, scene.ir, &packet).is_ok());
   return packet;
 }
 
 TEST(Kinect2PacketDecoding, RawPacketBecomesTheDecodersDepthInMillimetres) {
-  const std::vector<uint8_t> response = p0_response(test::scene_p0_tables());
+  const std::vector<uint8_t> response = p0_response(simulated_p0_tables());
   auto decoding = PacketDecoding::create(response.data(), response.size(), scene_ir_params(), {});
   ASSERT_TRUE(decoding.is_ok()) << decoding.status().to_string();
   RawFrame raw(scene_packet(), 5);
@@ -55,7 +55,7 @@ TEST(Kinect2PacketDecoding, RawPacketBecomesTheDecodersDepthInMillimetres) {
   EXPECT_EQ(depth_mm.format, libfreenect2::Frame::Float);
   EXPECT_EQ(depth_mm.sequence, 5u);
 
-  auto decoder = DepthDecoder::create(test::scene_p0_tables(), test::scene_calibration(), {});
+  auto decoder = DepthDecoder::create(simulated_p0_tables(), simulated_ir_calibration(), {});
   DepthImage depth;
   IrImage ir;
   ASSERT_TRUE(decoder.value()
@@ -72,7 +72,7 @@ TEST(Kinect2PacketDecoding, RawPacketBecomesTheDecodersDepthInMillimetres) {
 }
 
 TEST(Kinect2PacketDecoding, BadPacketsAreRefusedWithTheirReason) {
-  const std::vector<uint8_t> response = p0_response(test::scene_p0_tables());
+  const std::vector<uint8_t> response = p0_response(simulated_p0_tables());
   auto decoding = PacketDecoding::create(response.data(), response.size(), scene_ir_params(), {});
   ASSERT_TRUE(decoding.is_ok());
   libfreenect2::Frame depth_mm(512, 424, 4);
