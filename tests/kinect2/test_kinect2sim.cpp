@@ -139,9 +139,32 @@ TEST(Kinect2Sim, FramesAreTheScenesDepthThroughTheKinectV2Path) {
   EXPECT_GT(counter("kinect2sim_decode_ms_mean"), 0);
 }
 
+TEST(Kinect2Sim, CachedPacketsAreReusedWhenTheSequenceLoops) {
+  // Room for six packets, of which the sequence has three.
+  auto source = open_frame_source("kinect2sim:corner?frames=3&cache_mb=18&seed=3", AppConfig{});
+  ASSERT_TRUE(source.is_ok()) << source.status().to_string();
+  std::vector<std::vector<float>> first, second;
+  for (auto* loop : {&first, &second}) {
+    for (auto frame = source.value()->next(); frame.is_ok(); frame = source.value()->next())
+      loop->push_back(frame->depth.depth_m);
+    ASSERT_TRUE(source.value()->rewind().is_ok());
+  }
+  ASSERT_EQ(first.size(), 3u);
+  EXPECT_EQ(second, first);
+  const auto status = source.value()->device_status();
+  ASSERT_TRUE(status.has_value());
+  const auto& counters = status->counters;
+  const auto cached = std::find_if(counters.begin(), counters.end(), [](const auto& kv) {
+    return kv.first == "kinect2sim_cached_packets";
+  });
+  ASSERT_NE(cached, counters.end());
+  EXPECT_EQ(cached->second, 3);
+}
+
 TEST(Kinect2Sim, BadSpecsAreRefusedNamingTheProblem) {
   for (const char* spec : {"kinect2sim:attic", "kinect2sim:corner?frames=0",
-                           "kinect2sim:corner?colour=1"}) {
+                           "kinect2sim:corner?colour=1", "kinect2sim:corner?cache_mb=-1",
+                           "kinect2sim:corner?frames=3&cache_mb=lots"}) {
     auto source = open_frame_source(spec, AppConfig{});
     ASSERT_FALSE(source.is_ok()) << spec;
     EXPECT_EQ(source.status().code(), StatusCode::kInvalidArgument) << spec;

@@ -29,13 +29,13 @@ FrameAssembly::FrameAssembly(const libfreenect2::Freenect2Device::IrCameraParams
 
 Result<Frame> FrameAssembly::assemble(const libfreenect2::Frame& depth_in,
                                       const libfreenect2::Frame* color) {
-  const int64_t start_ns = steady_ns();
+  const int64_t start_ns = thread_cpu_ns();
   const libfreenect2::Frame* depth = &depth_in;
   double decode_ms = 0;
   if (decoding_) {
     DF_RETURN_IF_ERROR(decoding_->decode(*depth, &decoded_));
     depth = &decoded_;
-    decode_ms = (steady_ns() - start_ns) * 1e-6;
+    decode_ms = (thread_cpu_ns() - start_ns) * 1e-6;
   }
   if (depth->width != static_cast<size_t>(kDepthWidth) ||
       depth->height != static_cast<size_t>(kDepthHeight) || depth->bytes_per_pixel != 4)
@@ -61,7 +61,7 @@ Result<Frame> FrameAssembly::assemble(const libfreenect2::Frame& depth_in,
     DF_RETURN_IF_ERROR(convert_registered_color(registered_, color->format, &frame.color));
   ++times_.frames;
   times_.decode_ms += decode_ms;
-  times_.assemble_ms += (steady_ns() - start_ns) * 1e-6;
+  times_.assemble_ms += (thread_cpu_ns() - start_ns) * 1e-6;
   return frame;
 }
 

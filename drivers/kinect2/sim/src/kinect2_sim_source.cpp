@@ -1,6 +1,8 @@
 #include "depthfuse/kinect2/kinect2_sim_source.hpp"
 
+#include <algorithm>
 #include <array>
+#include <cstdlib>
 #include <condition_variable>
 #include <cstdio>
 #include <deque>
@@ -56,21 +58,57 @@ libfreenect2::Freenect2Device::ColorCameraParams color_params() {
   return color;
 }
 
-// One packet made ahead: frame `index` of the sequence.
-struct Slot {
-  size_t index = 0;
-  std::vector<uint8_t> packet;
+// A frame's packet with the pose it was rendered from.
+struct Packet {
+  std::vector<uint8_t> bytes;
   Pose T_world_cam_hint = Pose::Identity();
 };
+
+// One packet made ahead: its own, or one of the cache.
+struct Slot {
+  Packet own;
+  Packet* packet = nullptr;
+};
+
+// Takes kinect2sim's own option, cache_mb=N, out of the spec's query (the rest are the synthetic
+// source's); 0 when absent.
+Result<size_t> take_cache_mb(std::string* arg) {
+  const size_t q = arg->find('?');
+  if (q == std::string::npos) return size_t{0};
+  size_t cache_mb = 0;
+  std::string kept;
+  size_t start = q + 1;
+  while (start <= arg->size()) {
+    const size_t amp = std::min(arg->find('&', start), arg->size());
+    const std::string item = arg->substr(start, amp - start);
+    start = amp + 1;
+    if (item.rfind("cache_mb=", 0) != 0) {
+      if (!item.empty()) kept += (kept.empty() ? "" : "&") + item;
+      continue;
+    }
+    const std::string value = item.substr(9);
+    char* end = nullptr;
+    const unsigned long long mb = std::strtoull(value.c_str(), &end, 10);
+    if (value.empty() || *end != '\0' || value[0] == '-' || mb > (1ull << 20))
+      return invalid_argument("kinect2sim '" + *arg + "': bad value '" + value +
+                              "' for 'cache_mb' (expected an integer from 0 to 1048576)");
+    cache_mb = static_cast<size_t>(mb);
+  }
+  *arg = arg->substr(0, q) + (kept.empty() ? "" : "?" + kept);
+  return cache_mb;
+}
 
 class Kinect2SimSource final : public FrameSource {
  public:
   Kinect2SimSource(synthetic::SyntheticSequence sequence, std::unique_ptr<PacketEncoder> encoder,
-                   std::unique_ptr<FrameAssembly> assembly, const sim::SimCamera& camera)
+                   std::unique_ptr<FrameAssembly> assembly, const sim::SimCamera& camera,
+                   size_t cache_bytes)
       : sequence_(std::move(sequence)),
         encoder_(std::move(encoder)),
         assembly_(std::move(assembly)),
-        camera_(camera) {
+        camera_(camera),
+        cache_(sequence_.size()),
+        cache_capacity_(cache_bytes / kRawPacketBytes) {
     for (Slot& slot : slots_) free_.push_back(&slot);
     producer_ = std::thread([this] { produce(); });
   }
@@ -95,12 +133,13 @@ class Kinect2SimSource final : public FrameSource {
         ready_.pop_front();
       }
       // What libfreenect2's DumpPacketPipeline hands over: the packet as one Frame::Raw.
-      libfreenect2::Frame raw(1, 1, slot->packet.size(), slot->packet.data());
+      std::vector<uint8_t>& bytes = slot->packet->bytes;  // only read from here on
+      libfreenect2::Frame raw(1, 1, bytes.size(), bytes.data());
       raw.format = libfreenect2::Frame::Raw;
       raw.sequence = ++device_sequence_;
       raw.timestamp = raw.sequence * 333;  // the device's clock: 0.1 ms units, 30 Hz
       Result<Frame> frame = assembly_->assemble(raw, nullptr);
-      if (frame.is_ok()) frame->T_world_cam_hint = slot->T_world_cam_hint;
+      if (frame.is_ok()) frame->T_world_cam_hint = slot->packet->T_world_cam_hint;
       {
         std::lock_guard<std::mutex> lock(mutex_);
         free_.push_back(slot);
@@ -151,11 +190,13 @@ class Kinect2SimSource final : public FrameSource {
     const double made = static_cast<double>(std::max<uint64_t>(packets_made_, 1));
     char line[256];
     std::snprintf(line, sizeof line,
-                  "streaming: simulated Kinect V2 (%llu frames, %llu dropped packets; per frame "
-                  "%.1f ms decoding, %.1f ms in the driver, %.1f ms rendering, %.1f ms encoding)",
+                  "streaming: simulated Kinect V2 (%llu frames, %llu dropped packets; CPU per "
+                  "frame %.1f ms decoding, %.1f ms in the driver, %.1f ms rendering, %.1f ms "
+                  "encoding; %llu packets cached)",
                   static_cast<unsigned long long>(frames_),
                   static_cast<unsigned long long>(dropped_packets_), decode_ms_ / frames,
-                  assemble_ms_ / frames, render_ms_ / made, encode_ms_ / made);
+                  assemble_ms_ / frames, render_ms_ / made, encode_ms_ / made,
+                  static_cast<unsigned long long>(cached_));
     status.summary = line;
     if (!last_error_.empty()) status.summary += "; last bad packet: " + last_error_;
     status.counters = {{"kinect2sim_frames", static_cast<double>(frames_)},
@@ -163,12 +204,15 @@ class Kinect2SimSource final : public FrameSource {
                        {"kinect2sim_decode_ms_mean", decode_ms_ / frames},
                        {"kinect2sim_driver_ms_mean", assemble_ms_ / frames},
                        {"kinect2sim_render_ms_mean", render_ms_ / made},
-                       {"kinect2sim_encode_ms_mean", encode_ms_ / made}};
+                       {"kinect2sim_encode_ms_mean", encode_ms_ / made},
+                       {"kinect2sim_cached_packets", static_cast<double>(cached_)}};
     return status;
   }
 
  private:
-  // The producer thread: renders and encodes the frames in order into free slots.
+  // The producer thread: renders and encodes the frames in order into free slots, or takes them
+  // from the cache. Only this thread touches the cache; its packets are never changed or freed
+  // while the source lives, so a slot may point into it.
   void produce() {
     Frame rendered;
     DepthImage depth;
@@ -185,20 +229,37 @@ class Kinect2SimSource final : public FrameSource {
       const uint64_t generation = generation_;
       lock.unlock();
 
-      const int64_t start_ns = steady_ns();
-      sequence_.render_into(index, /*with_noise=*/true, &rendered, /*with_color=*/false);
-      camera_.measure(rendered.depth, &depth, &ir);
-      const int64_t rendered_ns = steady_ns();
-      // The images are the right size by construction: encode() cannot refuse them.
-      (void)encoder_->encode(depth, ir, &slot->packet);
-      const int64_t encoded_ns = steady_ns();
-      slot->index = index;
-      slot->T_world_cam_hint = *rendered.T_world_cam_hint;
+      bool made = false;
+      double render_ms = 0, encode_ms = 0;
+      if (cache_[index]) {
+        slot->packet = cache_[index].get();
+      } else {
+        Packet* packet = &slot->own;
+        if (cached_count_ < cache_capacity_) {
+          cache_[index] = std::make_unique<Packet>();
+          packet = cache_[index].get();
+          ++cached_count_;
+        }
+        const int64_t start_ns = thread_cpu_ns();
+        sequence_.render_into(index, /*with_noise=*/true, &rendered, /*with_color=*/false);
+        camera_.measure(rendered.depth, &depth, &ir);
+        const int64_t rendered_ns = thread_cpu_ns();
+        // The images are the right size by construction: encode() cannot refuse them.
+        (void)encoder_->encode(depth, ir, &packet->bytes);
+        packet->T_world_cam_hint = *rendered.T_world_cam_hint;
+        render_ms = (rendered_ns - start_ns) * 1e-6;
+        encode_ms = (thread_cpu_ns() - rendered_ns) * 1e-6;
+        slot->packet = packet;
+        made = true;
+      }
 
       lock.lock();
-      render_ms_ += (rendered_ns - start_ns) * 1e-6;
-      encode_ms_ += (encoded_ns - rendered_ns) * 1e-6;
-      ++packets_made_;
+      if (made) {
+        render_ms_ += render_ms;
+        encode_ms_ += encode_ms;
+        ++packets_made_;
+      }
+      cached_ = cached_count_;
       if (generation == generation_)
         ready_.push_back(slot);
       else
@@ -211,6 +272,10 @@ class Kinect2SimSource final : public FrameSource {
   const std::unique_ptr<PacketEncoder> encoder_;
   const std::unique_ptr<FrameAssembly> assembly_;  // the consumer's (next()) only
   const sim::SimCamera camera_;
+  // The producer's: packets kept by frame index, at most cache_capacity_ of them.
+  std::vector<std::unique_ptr<Packet>> cache_;
+  const size_t cache_capacity_;
+  size_t cached_count_ = 0;
   size_t next_index_ = 0;         // the consumer's
   uint32_t device_sequence_ = 0;  // the consumer's: the device's frame counter never restarts
 
@@ -221,7 +286,7 @@ class Kinect2SimSource final : public FrameSource {
   size_t produce_index_ = 0;
   uint64_t generation_ = 0;  // increases at every rewind
   bool stopping_ = false;
-  uint64_t frames_ = 0, dropped_packets_ = 0, packets_made_ = 0;
+  uint64_t frames_ = 0, dropped_packets_ = 0, packets_made_ = 0, cached_ = 0;
   double decode_ms_ = 0, assemble_ms_ = 0, render_ms_ = 0, encode_ms_ = 0;
   std::string last_error_;
   std::thread producer_;  // last: starts after everything it uses
@@ -237,13 +302,16 @@ Result<std::unique_ptr<FrameSource>> open_kinect2sim_source(const std::string& a
   const P0Tables p0 = simulated_p0_tables();
   const sim::SimCamera camera(calibration);
 
+  std::string spec = arg;
+  auto cache_mb = take_cache_mb(&spec);
+  if (!cache_mb.is_ok()) return cache_mb.status();
   synthetic::SyntheticConfig base;
   base.intrinsics = camera.pinhole();
   base.noise.enabled = false;
   // The renderer keeps everything the sensor could see; the decoder applies the configured range.
   base.min_depth_m = 0.05;
   base.max_depth_m = 17.0;
-  auto parsed = synthetic::parse_synthetic_spec(arg, base);
+  auto parsed = synthetic::parse_synthetic_spec(spec, base);
   if (!parsed.is_ok()) return parsed.status().with_context("kinect2sim");
   auto sequence = synthetic::SyntheticSequence::create(parsed.value());
   if (!sequence.is_ok()) return sequence.status().with_context("kinect2sim");
@@ -265,7 +333,8 @@ Result<std::unique_ptr<FrameSource>> open_kinect2sim_source(const std::string& a
   if (!assembly.is_ok()) return assembly.status().with_context("kinect2sim");
   return std::unique_ptr<FrameSource>(
       new Kinect2SimSource(std::move(sequence).value(), std::move(encoder).value(),
-                           std::move(assembly).value(), camera));
+                           std::move(assembly).value(), camera,
+                           cache_mb.value() * size_t{1024} * 1024));
 }
 
 }  // namespace depthfuse::kinect2

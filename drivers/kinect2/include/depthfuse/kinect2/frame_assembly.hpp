@@ -19,7 +19,8 @@
 
 namespace depthfuse::kinect2 {
 
-// Time spent per frame, for the status (milliseconds, totals since the assembly was made).
+// CPU time of the calling thread spent on frames, for the status (milliseconds, totals since the
+// assembly was made).
 struct AssemblyTimes {
   uint64_t frames = 0;
   double decode_ms = 0;    // the depthfuse decoder (0 for libfreenect2's pipelines)
