@@ -27,8 +27,15 @@ FrameAssembly::FrameAssembly(const libfreenect2::Freenect2Device::IrCameraParams
       undistorted_(kDepthWidth, kDepthHeight, 4),
       registered_(kDepthWidth, kDepthHeight, 4) {}
 
-Result<Frame> FrameAssembly::assemble(const libfreenect2::Frame& depth_in,
+Result<Frame> FrameAssembly::assemble(const libfreenect2::Frame& depth,
                                       const libfreenect2::Frame* color) {
+  Result<Frame> frame = assemble_counted(depth, color);
+  if (!frame.is_ok()) ++stats_.dropped;
+  return frame;
+}
+
+Result<Frame> FrameAssembly::assemble_counted(const libfreenect2::Frame& depth_in,
+                                              const libfreenect2::Frame* color) {
   const int64_t start_ns = thread_cpu_ns();
   const libfreenect2::Frame* depth = &depth_in;
   double decode_ms = 0;
@@ -59,9 +66,9 @@ Result<Frame> FrameAssembly::assemble(const libfreenect2::Frame& depth_in,
   DF_RETURN_IF_ERROR(convert_depth_frame(undistorted_, &frame.depth));
   if (have_color)
     DF_RETURN_IF_ERROR(convert_registered_color(registered_, color->format, &frame.color));
-  ++times_.frames;
-  times_.decode_ms += decode_ms;
-  times_.assemble_ms += (thread_cpu_ns() - start_ns) * 1e-6;
+  ++stats_.frames;
+  stats_.decode_ms += decode_ms;
+  stats_.assemble_ms += (thread_cpu_ns() - start_ns) * 1e-6;
   return frame;
 }
 

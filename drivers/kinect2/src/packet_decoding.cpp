@@ -19,6 +19,20 @@ IrCalibration ir_calibration(const libfreenect2::Freenect2Device::IrCameraParams
   return c;
 }
 
+libfreenect2::Freenect2Device::IrCameraParams ir_camera_params(const IrCalibration& c) {
+  libfreenect2::Freenect2Device::IrCameraParams ir{};
+  ir.fx = c.fx;
+  ir.fy = c.fy;
+  ir.cx = c.cx;
+  ir.cy = c.cy;
+  ir.k1 = c.k1;
+  ir.k2 = c.k2;
+  ir.k3 = c.k3;
+  ir.p1 = c.p1;
+  ir.p2 = c.p2;
+  return ir;
+}
+
 Result<std::unique_ptr<PacketDecoding>> PacketDecoding::create(
     const uint8_t* p0_response, size_t p0_size,
     const libfreenect2::Freenect2Device::IrCameraParams& ir, const DepthDecoderOptions& options) {

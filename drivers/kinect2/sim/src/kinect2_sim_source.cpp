@@ -31,20 +31,6 @@ constexpr const char* kSerial = "kinect2sim";
 // that the memory stays small (3 MB each).
 constexpr size_t kSlots = 3;
 
-libfreenect2::Freenect2Device::IrCameraParams ir_params(const IrCalibration& c) {
-  libfreenect2::Freenect2Device::IrCameraParams ir{};
-  ir.fx = c.fx;
-  ir.fy = c.fy;
-  ir.cx = c.cx;
-  ir.cy = c.cy;
-  ir.k1 = c.k1;
-  ir.k2 = c.k2;
-  ir.k3 = c.k3;
-  ir.p1 = c.p1;
-  ir.p2 = c.p2;
-  return ir;
-}
-
 // The colour camera is not simulated; Registration still wants its parameters (a Kinect V2's
 // typical pinhole, no depth-to-colour mapping terms).
 libfreenect2::Freenect2Device::ColorCameraParams color_params() {
@@ -143,14 +129,8 @@ class Kinect2SimSource final : public FrameSource {
       {
         std::lock_guard<std::mutex> lock(mutex_);
         free_.push_back(slot);
-        if (frame.is_ok()) {
-          ++frames_;
-          decode_ms_ = assembly_->times().decode_ms;
-          assemble_ms_ = assembly_->times().assemble_ms;
-        } else {
-          ++dropped_packets_;
-          last_error_ = frame.status().message();
-        }
+        stats_ = assembly_->stats();
+        if (!frame.is_ok()) last_error_ = frame.status().message();
       }
       changed_.notify_all();
       ++next_index_;
@@ -186,23 +166,23 @@ class Kinect2SimSource final : public FrameSource {
     std::lock_guard<std::mutex> lock(mutex_);
     DeviceStatus status;
     status.reading = DeviceStatus::Reading::kStreaming;
-    const double frames = static_cast<double>(std::max<uint64_t>(frames_, 1));
+    const double frames = static_cast<double>(std::max<uint64_t>(stats_.frames, 1));
     const double made = static_cast<double>(std::max<uint64_t>(packets_made_, 1));
     char line[256];
     std::snprintf(line, sizeof line,
                   "streaming: simulated Kinect V2 (%llu frames, %llu dropped packets; CPU per "
                   "frame %.1f ms decoding, %.1f ms in the driver, %.1f ms rendering, %.1f ms "
                   "encoding; %llu packets cached)",
-                  static_cast<unsigned long long>(frames_),
-                  static_cast<unsigned long long>(dropped_packets_), decode_ms_ / frames,
-                  assemble_ms_ / frames, render_ms_ / made, encode_ms_ / made,
+                  static_cast<unsigned long long>(stats_.frames),
+                  static_cast<unsigned long long>(stats_.dropped), stats_.decode_ms / frames,
+                  stats_.assemble_ms / frames, render_ms_ / made, encode_ms_ / made,
                   static_cast<unsigned long long>(cached_));
     status.summary = line;
     if (!last_error_.empty()) status.summary += "; last bad packet: " + last_error_;
-    status.counters = {{"kinect2sim_frames", static_cast<double>(frames_)},
-                       {"kinect2sim_dropped_packets", static_cast<double>(dropped_packets_)},
-                       {"kinect2sim_decode_ms_mean", decode_ms_ / frames},
-                       {"kinect2sim_driver_ms_mean", assemble_ms_ / frames},
+    status.counters = {{"kinect2sim_frames", static_cast<double>(stats_.frames)},
+                       {"kinect2sim_dropped_packets", static_cast<double>(stats_.dropped)},
+                       {"kinect2sim_decode_ms_mean", stats_.decode_ms / frames},
+                       {"kinect2sim_driver_ms_mean", stats_.assemble_ms / frames},
                        {"kinect2sim_render_ms_mean", render_ms_ / made},
                        {"kinect2sim_encode_ms_mean", encode_ms_ / made},
                        {"kinect2sim_cached_packets", static_cast<double>(cached_)}};
@@ -286,8 +266,9 @@ class Kinect2SimSource final : public FrameSource {
   size_t produce_index_ = 0;
   uint64_t generation_ = 0;  // increases at every rewind
   bool stopping_ = false;
-  uint64_t frames_ = 0, dropped_packets_ = 0, packets_made_ = 0, cached_ = 0;
-  double decode_ms_ = 0, assemble_ms_ = 0, render_ms_ = 0, encode_ms_ = 0;
+  AssemblyStats stats_;  // a copy of the assembly's, for device_status() on another thread
+  uint64_t packets_made_ = 0, cached_ = 0;
+  double render_ms_ = 0, encode_ms_ = 0;
   std::string last_error_;
   std::thread producer_;  // last: starts after everything it uses
 };
@@ -325,10 +306,10 @@ Result<std::unique_ptr<FrameSource>> open_kinect2sim_source(const std::string& a
   decoder.edge_aware_filter = options->edge_aware_filter;
   decoder.threads = options->decoder_threads;
   const std::vector<uint8_t> p0_bytes = p0_response(p0);
-  auto decoding = PacketDecoding::create(p0_bytes.data(), p0_bytes.size(), ir_params(calibration),
+  auto decoding = PacketDecoding::create(p0_bytes.data(), p0_bytes.size(), ir_camera_params(calibration),
                                          decoder);
   if (!decoding.is_ok()) return decoding.status().with_context("kinect2sim");
-  auto assembly = FrameAssembly::create(ir_params(calibration), color_params(), kSerial,
+  auto assembly = FrameAssembly::create(ir_camera_params(calibration), color_params(), kSerial,
                                         std::move(decoding).value());
   if (!assembly.is_ok()) return assembly.status().with_context("kinect2sim");
   return std::unique_ptr<FrameSource>(

@@ -19,10 +19,11 @@
 
 namespace depthfuse::kinect2 {
 
-// CPU time of the calling thread spent on frames, for the status (milliseconds, totals since the
-// assembly was made).
-struct AssemblyTimes {
+// What assemble() did, for the status: frames made and refused, and the CPU time of the calling
+// thread it spent on the frames it made (milliseconds, totals since the assembly was made).
+struct AssemblyStats {
   uint64_t frames = 0;
+  uint64_t dropped = 0;    // refused (a bad packet, a malformed frame): each returned its error
   double decode_ms = 0;    // the depthfuse decoder (0 for libfreenect2's pipelines)
   double assemble_ms = 0;  // everything in assemble(), the decoder included
 };
@@ -39,12 +40,15 @@ class FrameAssembly {
   // The frame of a depth frame (float mm, or a raw packet for the depthfuse pipeline) and, when
   // it is not null and a 1920x1080 BGRX/RGBX image, the colour registered to it. The frame's
   // sequence is the device's (depth->sequence); utime is the host clock now. kCorrupt for a depth
-  // frame of the wrong shape, kInvalidArgument for a packet the decoder refuses.
+  // frame of the wrong shape, kInvalidArgument for a packet the decoder refuses; either is counted
+  // as dropped and the next frame is assembled as if it had not come.
   Result<Frame> assemble(const libfreenect2::Frame& depth, const libfreenect2::Frame* color);
 
-  const AssemblyTimes& times() const { return times_; }
+  const AssemblyStats& stats() const { return stats_; }
 
  private:
+  Result<Frame> assemble_counted(const libfreenect2::Frame& depth, const libfreenect2::Frame* color);
+
   FrameAssembly(const libfreenect2::Freenect2Device::IrCameraParams& ir,
                 const libfreenect2::Freenect2Device::ColorCameraParams& color,
                 CameraIntrinsics intrinsics, std::string serial,
@@ -57,7 +61,7 @@ class FrameAssembly {
   libfreenect2::Frame decoded_;      // float mm from the depthfuse decoder, reused every frame
   libfreenect2::Frame undistorted_;  // float mm, reused every frame
   libfreenect2::Frame registered_;   // 4-byte colour, reused every frame
-  AssemblyTimes times_;
+  AssemblyStats stats_;
 };
 
 }  // namespace depthfuse::kinect2

@@ -15,8 +15,9 @@
 
 namespace depthfuse::kinect2 {
 
-// libfreenect2's IR camera parameters as the decoder's calibration.
+// libfreenect2's IR camera parameters as the decoder's calibration, and back.
 IrCalibration ir_calibration(const libfreenect2::Freenect2Device::IrCameraParams& ir);
+libfreenect2::Freenect2Device::IrCameraParams ir_camera_params(const IrCalibration& calibration);
 
 class PacketDecoding {
  public:
