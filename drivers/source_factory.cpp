@@ -9,6 +9,9 @@
 #if DEPTHFUSE_HAVE_KINECT2
 #include "depthfuse/kinect2/kinect2_source.hpp"
 #endif
+#if DEPTHFUSE_HAVE_KINECT2_SIM
+#include "depthfuse/kinect2/kinect2_sim_source.hpp"
+#endif
 #if DEPTHFUSE_HAVE_LCMLOG
 #include "depthfuse/lcmlog/lcmlog_source.hpp"
 #endif
@@ -56,6 +59,15 @@ Result<std::unique_ptr<FrameSource>> open_frame_source(const std::string& spec,
         "'make install'), then re-run tools/setup.sh or cmake so that the driver is compiled");
 #endif
   }
+  if (kind == "kinect2sim") {
+#if DEPTHFUSE_HAVE_KINECT2_SIM
+    return kinect2::open_kinect2sim_source(arg, config);
+#else
+    return unsupported(
+        "the kinect2sim source is not built in: it runs the kinect2 driver's path, which needs "
+        "libfreenect2 (see docs/kinect2.md)");
+#endif
+  }
   if (kind == "lcmlog") {
 #if DEPTHFUSE_HAVE_LCMLOG
     return lcmlog::open_lcmlog_source(arg, config);
@@ -65,7 +77,7 @@ Result<std::unique_ptr<FrameSource>> open_frame_source(const std::string& spec,
   }
   return invalid_argument("unknown frame source '" + spec +
                           "': expected tum:<folder>, synthetic:<corner|room|rooms>, "
-                          "kinect2[:serial] or lcmlog:<file>");
+                          "kinect2[:serial], kinect2sim:<corner|room|rooms> or lcmlog:<file>");
 }
 
 std::optional<DeviceStatus> device_status_before_open(const std::string& spec,

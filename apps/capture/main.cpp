@@ -16,7 +16,8 @@ constexpr const char* kUsage =
     R"(                         [--config FILE] [--name NAME] [--color zstd|raw|jpeg|none]
                          [--depth-encoding zstd|raw] [--depth-unit M] [--linger]
   --source SPEC   tum:<folder> | synthetic:<corner|room>[?frames=N&...] | kinect2[:serial]
-                  | lcmlog:<file>   (default: the config's capture.source)
+                  | kinect2sim:<corner|room>[?frames=N&...] | lcmlog:<file>
+                  (default: the config's capture.source)
   --rate          frames per second; 'max' as fast as possible; 'recorded' the pace of the
                   frame timestamps (default for lcmlog). Default: the source's own rate,
                   else the config's capture.rate_hz

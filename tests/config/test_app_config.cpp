@@ -78,6 +78,7 @@ void expect_config_eq(const AppConfig& a, const AppConfig& b) {
   EXPECT_EQ(a.capture.kinect2_max_depth_m, b.capture.kinect2_max_depth_m);
   EXPECT_EQ(a.capture.kinect2_bilateral_filter, b.capture.kinect2_bilateral_filter);
   EXPECT_EQ(a.capture.kinect2_edge_aware_filter, b.capture.kinect2_edge_aware_filter);
+  EXPECT_EQ(a.capture.kinect2_decoder_threads, b.capture.kinect2_decoder_threads);
   EXPECT_EQ(a.capture.kinect2_stall_timeout_s, b.capture.kinect2_stall_timeout_s);
   EXPECT_EQ(a.fusion.queue_capacity_frames, b.fusion.queue_capacity_frames);
   EXPECT_EQ(a.fusion.scan_dir, b.fusion.scan_dir);
@@ -182,6 +183,7 @@ kinect2_min_depth_m = 0.7
 kinect2_max_depth_m = 3.5
 kinect2_bilateral_filter = false
 kinect2_edge_aware_filter = false
+kinect2_decoder_threads = 2
 kinect2_stall_timeout_s = 5.0
 
 [fusion_daemon]
@@ -252,6 +254,7 @@ publish_rate_hz = 0.5
   EXPECT_EQ(c.capture.kinect2_max_depth_m, 3.5);
   EXPECT_FALSE(c.capture.kinect2_bilateral_filter);
   EXPECT_FALSE(c.capture.kinect2_edge_aware_filter);
+  EXPECT_EQ(c.capture.kinect2_decoder_threads, 2);
   EXPECT_EQ(c.capture.kinect2_stall_timeout_s, 5.0);
   EXPECT_EQ(c.fusion.queue_capacity_frames, 8);
   EXPECT_EQ(c.fusion.scan_dir, "/srv/scans");
@@ -360,6 +363,7 @@ TEST(AppConfig, OutOfRangeValuesAreErrors) {
       {"sensor", "alpha0_m", "nan", "must be a finite number, got nan"},
       {"sensor", "alpha1", "inf", "must be a finite number, got inf"},
       {"prefilter", "gamma", "0", "must be > 0, got 0"},
+      {"capture", "kinect2_decoder_threads", "3", "must be in [1, 2], got 3"},
       {"prefilter", "neighbour_rank", "0", "must be >= 1, got 0"},
       {"prefilter", "window_radius_px", "0", "must be >= 1, got 0"},
       {"fusion", "chunk_size_m", "0", "must be > 0, got 0"},

@@ -23,7 +23,7 @@ const std::vector<uint8_t>& scene_packet() {
   static const std::vector<uint8_t> packet = [] {
     std::vector<uint8_t> bytes;
     const test::SceneImages scene = test::scene_images();
-    auto encoder = PacketEncoder::create(test::scene_p0_tables(), test::scene_calibration());
+    auto encoder = PacketEncoder::create(simulated_p0_tables(), simulated_ir_calibration());
     if (!encoder.is_ok() || !encoder.value()->encode(scene.depth, scene.ir, &bytes).is_ok())
       std::abort();
     return bytes;
@@ -36,7 +36,7 @@ void decode_depthfuse(benchmark::State& state, int threads, bool filters) {
   options.threads = threads;
   options.bilateral_filter = filters;
   options.edge_aware_filter = filters;
-  auto decoder = DepthDecoder::create(test::scene_p0_tables(), test::scene_calibration(), options);
+  auto decoder = DepthDecoder::create(simulated_p0_tables(), simulated_ir_calibration(), options);
   if (!decoder.is_ok()) {
     state.SkipWithError(decoder.status().to_string().c_str());
     return;
@@ -55,7 +55,7 @@ void decode_depthfuse(benchmark::State& state, int threads, bool filters) {
 
 void encode(benchmark::State& state) {
   const test::SceneImages scene = test::scene_images();
-  auto encoder = PacketEncoder::create(test::scene_p0_tables(), test::scene_calibration());
+  auto encoder = PacketEncoder::create(simulated_p0_tables(), simulated_ir_calibration());
   std::vector<uint8_t> packet;
   for (auto _ : state) {
     const Status s = encoder.value()->encode(scene.depth, scene.ir, &packet);
@@ -65,7 +65,7 @@ void encode(benchmark::State& state) {
 
 #ifdef DF_HAVE_FREENECT2_REFERENCE
 void decode_libfreenect2(benchmark::State& state, bool filters) {
-  test::Freenect2CpuDecoder decoder(test::scene_p0_tables(), test::scene_calibration(), 0.5f, 4.5f,
+  test::Freenect2CpuDecoder decoder(simulated_p0_tables(), simulated_ir_calibration(), 0.5f, 4.5f,
                                     filters, filters);
   std::vector<uint8_t> packet = scene_packet();
   std::vector<float> depth_mm, ir;

@@ -1,17 +1,14 @@
-// Test input for the depth decoder: a plausible device (smooth P0 tables, a Kinect V2's typical
-// IR calibration) and a synthetic scene with what the decoder must handle: planes and a sphere at
-// several depths, sharp depth edges (flying pixels), weak and saturated pixels, and depths outside
-// [0.5, 4.5] m.
+// Test input for the depth decoder: a plausible device (simulated_device.hpp) and a synthetic
+// scene with what the decoder must handle: planes and a sphere at several depths, sharp depth
+// edges (flying pixels), weak and saturated pixels, and depths outside [0.5, 4.5] m.
 #pragma once
 
 #include "depthfuse/kinect2/depth_decoder.hpp"
 #include "depthfuse/kinect2/raw_depth.hpp"
+#include "depthfuse/kinect2/simulated_device.hpp"
 #include "depthfuse/types.hpp"
 
 namespace depthfuse::kinect2::test {
-
-P0Tables scene_p0_tables();
-IrCalibration scene_calibration();
 
 struct SceneImages {
   DepthImage depth;  // metres, libfreenect2's orientation, 0 = no return

@@ -13,9 +13,7 @@
 namespace depthfuse::kinect2 {
 namespace {
 
-using test::scene_calibration;
 using test::scene_images;
-using test::scene_p0_tables;
 
 struct Decoded {
   DepthImage depth;
@@ -23,7 +21,7 @@ struct Decoded {
 };
 
 std::vector<uint8_t> encode_scene(const test::SceneImages& scene) {
-  auto encoder = PacketEncoder::create(scene_p0_tables(), scene_calibration());
+  auto encoder = PacketEncoder::create(simulated_p0_tables(), simulated_ir_calibration());
   EXPECT_TRUE(encoder.is_ok()) << encoder.status().to_string();
   std::vector<uint8_t> packet;
   const Status encoded = encoder.value()->encode(scene.depth, scene.ir, &packet);
@@ -32,7 +30,7 @@ std::vector<uint8_t> encode_scene(const test::SceneImages& scene) {
 }
 
 Decoded decode(const std::vector<uint8_t>& packet, const DepthDecoderOptions& options) {
-  auto decoder = DepthDecoder::create(scene_p0_tables(), scene_calibration(), options);
+  auto decoder = DepthDecoder::create(simulated_p0_tables(), simulated_ir_calibration(), options);
   EXPECT_TRUE(decoder.is_ok()) << decoder.status().to_string();
   Decoded out;
   const Status decoded =
@@ -125,7 +123,7 @@ TEST(Kinect2Decoder, TwoThreadsGiveTheSameBytesAsOne) {
 }
 
 TEST(Kinect2Decoder, P0ResponseRoundTrip) {
-  const P0Tables tables = scene_p0_tables();
+  const P0Tables tables = simulated_p0_tables();
   const std::vector<uint8_t> bytes = p0_response(tables);
   ASSERT_EQ(bytes.size(), kP0ResponseBytes);
   auto parsed = parse_p0_response(bytes.data(), bytes.size());
@@ -135,7 +133,7 @@ TEST(Kinect2Decoder, P0ResponseRoundTrip) {
 
 TEST(Kinect2Decoder, BadInputGivesClearErrors) {
   const std::vector<uint8_t> packet = encode_scene(scene_images());
-  auto created = DepthDecoder::create(scene_p0_tables(), scene_calibration(), {});
+  auto created = DepthDecoder::create(simulated_p0_tables(), simulated_ir_calibration(), {});
   ASSERT_TRUE(created.is_ok());
   DepthDecoder& decoder = *created.value();
   DepthImage depth;
@@ -158,34 +156,34 @@ TEST(Kinect2Decoder, BadInputGivesClearErrors) {
   decoder.restart_sequence();
   EXPECT_TRUE(decoder.decode(RawDepthPacket{1, 0, packet.data(), packet.size()}, &depth, &ir).is_ok());
 
-  IrCalibration nan_calibration = scene_calibration();
+  IrCalibration nan_calibration = simulated_ir_calibration();
   nan_calibration.k2 = std::numeric_limits<float>::quiet_NaN();
-  auto bad = DepthDecoder::create(scene_p0_tables(), nan_calibration, {});
+  auto bad = DepthDecoder::create(simulated_p0_tables(), nan_calibration, {});
   EXPECT_EQ(bad.status().code(), StatusCode::kInvalidArgument);
   EXPECT_NE(bad.status().message().find("must be finite"), std::string::npos);
 
-  bad = DepthDecoder::create(P0Tables{}, scene_calibration(), {});
+  bad = DepthDecoder::create(P0Tables{}, simulated_ir_calibration(), {});
   EXPECT_EQ(bad.status().code(), StatusCode::kInvalidArgument);
   EXPECT_NE(bad.status().message().find("missing P0 tables"), std::string::npos);
-  P0Tables short_tables = scene_p0_tables();
+  P0Tables short_tables = simulated_p0_tables();
   short_tables.table[2].resize(100);
-  bad = DepthDecoder::create(short_tables, scene_calibration(), {});
+  bad = DepthDecoder::create(short_tables, simulated_ir_calibration(), {});
   EXPECT_NE(bad.status().message().find("P0 table 2 has 100 entries"), std::string::npos);
-  const std::vector<uint8_t> response = p0_response(scene_p0_tables());
+  const std::vector<uint8_t> response = p0_response(simulated_p0_tables());
   EXPECT_EQ(parse_p0_response(response.data(), 1000).status().code(),
             StatusCode::kInvalidArgument);
 
   DepthDecoderOptions options;
   options.threads = 3;
-  EXPECT_NE(DepthDecoder::create(scene_p0_tables(), scene_calibration(), options)
+  EXPECT_NE(DepthDecoder::create(simulated_p0_tables(), simulated_ir_calibration(), options)
                 .status().message().find("threads must be 1 or 2"),
             std::string::npos);
   options = {};
   options.max_depth_m = 0.1f;
-  EXPECT_EQ(DepthDecoder::create(scene_p0_tables(), scene_calibration(), options).status().code(),
+  EXPECT_EQ(DepthDecoder::create(simulated_p0_tables(), simulated_ir_calibration(), options).status().code(),
             StatusCode::kInvalidArgument);
 
-  auto encoder = PacketEncoder::create(scene_p0_tables(), scene_calibration());
+  auto encoder = PacketEncoder::create(simulated_p0_tables(), simulated_ir_calibration());
   ASSERT_TRUE(encoder.is_ok());
   std::vector<uint8_t> out;
   EXPECT_EQ(encoder.value()->encode(DepthImage(10, 10), IrImage{}, &out).code(),

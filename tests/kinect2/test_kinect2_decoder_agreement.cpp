@@ -26,8 +26,8 @@ class DecoderAgreement : public ::testing::TestWithParam<Filters> {};
 
 TEST_P(DecoderAgreement, SameDepthAndInvalidPixelsAsLibfreenect2) {
   const Filters filters = GetParam();
-  const P0Tables p0 = test::scene_p0_tables();
-  const IrCalibration calibration = test::scene_calibration();
+  const P0Tables p0 = simulated_p0_tables();
+  const IrCalibration calibration = simulated_ir_calibration();
   DepthDecoderOptions options;
   options.bilateral_filter = filters.bilateral;
   options.edge_aware_filter = filters.edge_aware;

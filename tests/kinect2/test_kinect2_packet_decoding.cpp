@@ -6,6 +6,7 @@
 #include <cstring>
 
 #include "decoder_scene.hpp"
+#include "depthfuse/kinect2/frame_assembly.hpp"
 #include "depthfuse/kinect2/packet_decoding.hpp"
 #include "depthfuse/kinect2/packet_encoder.hpp"
 
@@ -13,18 +14,7 @@ namespace depthfuse::kinect2 {
 namespace {
 
 libfreenect2::Freenect2Device::IrCameraParams scene_ir_params() {
-  const IrCalibration c = test::scene_calibration();
-  libfreenect2::Freenect2Device::IrCameraParams ir{};
-  ir.fx = c.fx;
-  ir.fy = c.fy;
-  ir.cx = c.cx;
-  ir.cy = c.cy;
-  ir.k1 = c.k1;
-  ir.k2 = c.k2;
-  ir.k3 = c.k3;
-  ir.p1 = c.p1;
-  ir.p2 = c.p2;
-  return ir;
+  return ir_camera_params(simulated_ir_calibration());
 }
 
 struct RawFrame {
@@ -39,14 +29,14 @@ struct RawFrame {
 
 std::vector<uint8_t> scene_packet() {
   const test::SceneImages scene = test::scene_images();
-  auto encoder = PacketEncoder::create(test::scene_p0_tables(), test::scene_calibration());
+  auto encoder = PacketEncoder::create(simulated_p0_tables(), simulated_ir_calibration());
   std::vector<uint8_t> packet;
   EXPECT_TRUE(encoder.value()->encode(scene.depth, scene.ir, &packet).is_ok());
   return packet;
 }
 
 TEST(Kinect2PacketDecoding, RawPacketBecomesTheDecodersDepthInMillimetres) {
-  const std::vector<uint8_t> response = p0_response(test::scene_p0_tables());
+  const std::vector<uint8_t> response = p0_response(simulated_p0_tables());
   auto decoding = PacketDecoding::create(response.data(), response.size(), scene_ir_params(), {});
   ASSERT_TRUE(decoding.is_ok()) << decoding.status().to_string();
   RawFrame raw(scene_packet(), 5);
@@ -55,7 +45,7 @@ TEST(Kinect2PacketDecoding, RawPacketBecomesTheDecodersDepthInMillimetres) {
   EXPECT_EQ(depth_mm.format, libfreenect2::Frame::Float);
   EXPECT_EQ(depth_mm.sequence, 5u);
 
-  auto decoder = DepthDecoder::create(test::scene_p0_tables(), test::scene_calibration(), {});
+  auto decoder = DepthDecoder::create(simulated_p0_tables(), simulated_ir_calibration(), {});
   DepthImage depth;
   IrImage ir;
   ASSERT_TRUE(decoder.value()
@@ -72,7 +62,7 @@ TEST(Kinect2PacketDecoding, RawPacketBecomesTheDecodersDepthInMillimetres) {
 }
 
 TEST(Kinect2PacketDecoding, BadPacketsAreRefusedWithTheirReason) {
-  const std::vector<uint8_t> response = p0_response(test::scene_p0_tables());
+  const std::vector<uint8_t> response = p0_response(simulated_p0_tables());
   auto decoding = PacketDecoding::create(response.data(), response.size(), scene_ir_params(), {});
   ASSERT_TRUE(decoding.is_ok());
   libfreenect2::Frame depth_mm(512, 424, 4);
@@ -102,6 +92,50 @@ TEST(Kinect2PacketDecoding, BadPacketsAreRefusedWithTheirReason) {
   nan_ir.fx = std::nanf("");
   auto bad_ir = PacketDecoding::create(response.data(), response.size(), nan_ir, {});
   EXPECT_NE(bad_ir.status().message().find("must be finite"), std::string::npos);
+}
+
+// The driver's path for a frame set (FrameAssembly, shared by the Kinect V2 source and kinect2sim):
+// each bad packet is refused with its reason and counted, and the next good one is a frame.
+TEST(Kinect2FrameAssembly, BadPacketsAreCountedDropsAndTheNextGoodOneIsAFrame) {
+  const std::vector<uint8_t> response = p0_response(simulated_p0_tables());
+  auto decoding = PacketDecoding::create(response.data(), response.size(), scene_ir_params(), {});
+  ASSERT_TRUE(decoding.is_ok()) << decoding.status().to_string();
+  auto assembly = FrameAssembly::create(scene_ir_params(), {}, "test",
+                                        std::move(decoding).value());
+  ASSERT_TRUE(assembly.is_ok()) << assembly.status().to_string();
+  FrameAssembly& a = *assembly.value();
+
+  RawFrame first(scene_packet(), 7);
+  auto frame = a.assemble(first.frame, nullptr);
+  ASSERT_TRUE(frame.is_ok()) << frame.status().to_string();
+  EXPECT_EQ(frame->sequence, 7u);
+  EXPECT_EQ(frame->sensor_serial, "test");
+  EXPECT_EQ(frame->depth.width, 512);
+  size_t measured = 0;
+  for (float d : frame->depth.depth_m) measured += d > 0.0f;
+  EXPECT_GT(measured, kRawPixels / 2);
+
+  std::vector<uint8_t> short_packet = scene_packet();
+  short_packet.resize(2984256);
+  RawFrame truncated(short_packet, 8);
+  RawFrame repeated(scene_packet(), 7);
+  const std::pair<const RawFrame*, const char*> bad[] = {
+      {&truncated, "2984256 bytes, expected 2984960"}, {&repeated, "does not follow 7"}};
+  for (const auto& [raw, reason] : bad) {
+    auto refused = a.assemble(raw->frame, nullptr);
+    ASSERT_FALSE(refused.is_ok());
+    EXPECT_EQ(refused.status().code(), StatusCode::kInvalidArgument);
+    EXPECT_NE(refused.status().message().find(reason), std::string::npos)
+        << refused.status().message();
+  }
+  EXPECT_EQ(a.stats().dropped, 2u);
+
+  RawFrame next(scene_packet(), 9);
+  frame = a.assemble(next.frame, nullptr);
+  ASSERT_TRUE(frame.is_ok()) << frame.status().to_string();
+  EXPECT_EQ(frame->sequence, 9u);
+  EXPECT_EQ(a.stats().frames, 2u);
+  EXPECT_EQ(a.stats().dropped, 2u);
 }
 
 }  // namespace

@@ -8,9 +8,9 @@
 
 #include <libfreenect2/frame_listener_impl.h>
 #include <libfreenect2/libfreenect2.hpp>
-#include <libfreenect2/registration.h>
 
 #include "depthfuse/kinect2/conversion.hpp"
+#include "depthfuse/kinect2/frame_assembly.hpp"
 #include "depthfuse/kinect2/packet_decoding.hpp"
 #include "depthfuse/kinect2/packet_pipeline.hpp"
 #include "depthfuse/kinect2/usb_hotplug.hpp"
@@ -27,12 +27,6 @@ using Clock = std::chrono::steady_clock;
 
 Clock::duration seconds(double s) {
   return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(s));
-}
-
-int64_t wall_clock_utime() {
-  return std::chrono::duration_cast<std::chrono::microseconds>(
-             std::chrono::system_clock::now().time_since_epoch())
-      .count();
 }
 
 std::string joined(const std::vector<std::string>& items) {
@@ -64,6 +58,9 @@ Status validate(const Kinect2Options& o) {
                             "capture.kinect2_min_depth_m (" +
                             std::to_string(o.min_depth_m) + "), got " +
                             std::to_string(o.max_depth_m));
+  if (o.decoder_threads != 1 && o.decoder_threads != 2)
+    return invalid_argument("capture.kinect2_decoder_threads must be 1 or 2, got " +
+                            std::to_string(o.decoder_threads));
   DF_RETURN_IF_ERROR(check_positive(o.stall_timeout_s, "capture.kinect2_stall_timeout_s"));
   DF_RETURN_IF_ERROR(check_positive(o.first_frame_timeout_s, "kinect2 first_frame_timeout_s"));
   DF_RETURN_IF_ERROR(check_positive(o.open_retry_interval_s, "kinect2 open_retry_interval_s"));
@@ -78,10 +75,7 @@ class Kinect2SourceImpl final : public Kinect2Source {
   Kinect2SourceImpl(Kinect2Options options, std::unique_ptr<kinect2::UsbHotplugMonitor> monitor)
       : options_(std::move(options)),
         monitor_(std::move(monitor)),
-        link_(link_config(options_)),
-        undistorted_(kinect2::kDepthWidth, kinect2::kDepthHeight, 4),
-        decoded_(kinect2::kDepthWidth, kinect2::kDepthHeight, 4),
-        registered_(kinect2::kDepthWidth, kinect2::kDepthHeight, 4) {
+        link_(link_config(options_)) {
     publish_status();
   }
 
@@ -253,6 +247,7 @@ class Kinect2SourceImpl final : public Kinect2Source {
       decoder.max_depth_m = static_cast<float>(options_.max_depth_m);
       decoder.bilateral_filter = options_.bilateral_filter;
       decoder.edge_aware_filter = options_.edge_aware_filter;
+      decoder.threads = options_.decoder_threads;
       // The factory parameters, from which libfreenect2's pipelines build their tables too.
       auto decoding = kinect2::PacketDecoding::create(p0, p0 == nullptr ? 0 : p0_size, ir, decoder);
       if (!decoding.is_ok())
@@ -262,16 +257,14 @@ class Kinect2SourceImpl final : public Kinect2Source {
     for (const DeviceCalibration& calibration : options_.calibrations)
       if (calibration.serial == device_serial)
         ir = kinect2::with_calibrated_pinhole(ir, calibration.intrinsics);
-    Result<CameraIntrinsics> intrinsics = kinect2::intrinsics_from_ir_params(ir);
-    if (!intrinsics.is_ok())
-      return discard(intrinsics.status().with_context("Kinect V2 " + device_serial));
+    auto assembly = kinect2::FrameAssembly::create(ir, device->getColorCameraParams(),
+                                                   device_serial, std::move(packet_decoding));
+    if (!assembly.is_ok())
+      return discard(assembly.status().with_context("Kinect V2 " + device_serial));
 
-    registration_ =
-        std::make_unique<libfreenect2::Registration>(ir, device->getColorCameraParams());
     device_ = device;
     listener_ = std::move(listener);
-    packet_decoding_ = std::move(packet_decoding);
-    intrinsics_ = intrinsics.value();
+    assembly_ = std::move(assembly).value();
     device_serial_ = device_serial;
     session_started_ = false;
     return Status::ok();
@@ -285,8 +278,7 @@ class Kinect2SourceImpl final : public Kinect2Source {
       device_ = nullptr;
     }
     listener_.reset();
-    registration_.reset();
-    packet_decoding_.reset();
+    assembly_.reset();
   }
 
   Status reset_device() {
@@ -317,39 +309,13 @@ class Kinect2SourceImpl final : public Kinect2Source {
   }
 
   Result<Frame> convert(const libfreenect2::FrameMap& frames) {
-    const auto depth_it = frames.find(libfreenect2::Frame::Depth);
-    if (depth_it == frames.end() || depth_it->second == nullptr)
+    const auto depth = frames.find(libfreenect2::Frame::Depth);
+    if (depth == frames.end() || depth->second == nullptr)
       return corrupt("libfreenect2 delivered a frame set without depth");
-    const libfreenect2::Frame* depth = depth_it->second;
-    if (packet_decoding_) {
-      DF_RETURN_IF_ERROR(packet_decoding_->decode(*depth, &decoded_));
-      depth = &decoded_;
-    }
-    if (depth->width != static_cast<size_t>(kinect2::kDepthWidth) ||
-        depth->height != static_cast<size_t>(kinect2::kDepthHeight) || depth->bytes_per_pixel != 4)
-      return corrupt("libfreenect2 delivered a depth frame of " + std::to_string(depth->width) +
-                     "x" + std::to_string(depth->height) + "x" +
-                     std::to_string(depth->bytes_per_pixel) + " bytes, expected 512x424x4");
-    const auto color_it = frames.find(libfreenect2::Frame::Color);
-    const libfreenect2::Frame* color = color_it == frames.end() ? nullptr : color_it->second;
-    const bool have_color =
-        color != nullptr && color->width == static_cast<size_t>(kinect2::kColorWidth) &&
-        color->height == static_cast<size_t>(kinect2::kColorHeight) &&
-        color->bytes_per_pixel == 4 &&
-        (color->format == libfreenect2::Frame::BGRX || color->format == libfreenect2::Frame::RGBX);
-
-    Frame frame;
-    frame.utime = wall_clock_utime();
-    frame.sequence = sequence_for(depth->sequence);
-    frame.sensor_serial = device_serial_;
-    frame.intrinsics = intrinsics_;
-    if (have_color)
-      registration_->apply(color, depth, &undistorted_, &registered_, /*enable_filter=*/true);
-    else
-      registration_->undistortDepth(depth, &undistorted_);
-    DF_RETURN_IF_ERROR(kinect2::convert_depth_frame(undistorted_, &frame.depth));
-    if (have_color)
-      DF_RETURN_IF_ERROR(kinect2::convert_registered_color(registered_, color->format, &frame.color));
+    const auto color = frames.find(libfreenect2::Frame::Color);
+    Result<Frame> frame =
+        assembly_->assemble(*depth->second, color == frames.end() ? nullptr : color->second);
+    if (frame.is_ok()) frame->sequence = sequence_for(frame->sequence);
     return frame;
   }
 
@@ -395,12 +361,7 @@ class Kinect2SourceImpl final : public Kinect2Source {
   std::unique_ptr<libfreenect2::Freenect2> context_;  // created on the first open
   libfreenect2::Freenect2Device* device_ = nullptr;   // owned; deleted in close_device()
   std::unique_ptr<libfreenect2::SyncMultiFrameListener> listener_;
-  std::unique_ptr<libfreenect2::Registration> registration_;
-  std::unique_ptr<kinect2::PacketDecoding> packet_decoding_;  // the depthfuse pipeline only
-  libfreenect2::Frame undistorted_;  // float mm, reused every frame
-  libfreenect2::Frame decoded_;      // float mm from the depthfuse decoder, reused every frame
-  libfreenect2::Frame registered_;   // 4-byte colour, reused every frame
-  CameraIntrinsics intrinsics_;
+  std::unique_ptr<kinect2::FrameAssembly> assembly_;  // while a device is open
   std::string device_serial_;
   uint64_t wrong_device_generation_ = UINT64_MAX;
   bool session_started_ = false;
@@ -436,6 +397,7 @@ Result<Kinect2Options> kinect2_options_from_config(const std::string& serial_or_
   options.max_depth_m = config.capture.kinect2_max_depth_m;
   options.bilateral_filter = config.capture.kinect2_bilateral_filter;
   options.edge_aware_filter = config.capture.kinect2_edge_aware_filter;
+  options.decoder_threads = config.capture.kinect2_decoder_threads;
   options.stall_timeout_s = config.capture.kinect2_stall_timeout_s;
   // The first frame needs the firmware handshake and the decoder's tables: allow more.
   options.first_frame_timeout_s = std::max(10.0, 2.0 * options.stall_timeout_s);

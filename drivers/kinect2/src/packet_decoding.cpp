@@ -1,6 +1,6 @@
 #include "depthfuse/kinect2/packet_decoding.hpp"
 
-#include <cstring>
+#include <cstdint>
 #include <string>
 
 namespace depthfuse::kinect2 {
@@ -17,6 +17,20 @@ IrCalibration ir_calibration(const libfreenect2::Freenect2Device::IrCameraParams
   c.p1 = ir.p1;
   c.p2 = ir.p2;
   return c;
+}
+
+libfreenect2::Freenect2Device::IrCameraParams ir_camera_params(const IrCalibration& c) {
+  libfreenect2::Freenect2Device::IrCameraParams ir{};
+  ir.fx = c.fx;
+  ir.fy = c.fy;
+  ir.cx = c.cx;
+  ir.cy = c.cy;
+  ir.k1 = c.k1;
+  ir.k2 = c.k2;
+  ir.k3 = c.k3;
+  ir.p1 = c.p1;
+  ir.p2 = c.p2;
+  return ir;
 }
 
 Result<std::unique_ptr<PacketDecoding>> PacketDecoding::create(
@@ -36,17 +50,18 @@ Status PacketDecoding::decode(const libfreenect2::Frame& raw, libfreenect2::Fram
   if (depth_mm->width != kRawWidth || depth_mm->height != kRawHeight ||
       depth_mm->bytes_per_pixel != sizeof(float))
     return invalid_argument("depthfuse depth pipeline: the output frame must be 512x424x4");
+  if (reinterpret_cast<uintptr_t>(depth_mm->data) % alignof(float) != 0)
+    return invalid_argument("depthfuse depth pipeline: the output frame's data is not aligned for "
+                            "floats");
   const size_t size = raw.width * raw.height * raw.bytes_per_pixel;
-  // The capture publishes depth only: the decoder skips the IR image.
-  DF_RETURN_IF_ERROR(decoder_->decode(RawDepthPacket{raw.sequence, raw.timestamp, raw.data, size},
-                                      &depth_, nullptr));
+  // The capture publishes depth only: the decoder skips the IR image. libfreenect2's frames hold
+  // floats in 64-byte aligned storage (its own pipelines write them as float arrays too).
+  DF_RETURN_IF_ERROR(decoder_->decode_millimetres(
+      RawDepthPacket{raw.sequence, raw.timestamp, raw.data, size},
+      reinterpret_cast<float*>(depth_mm->data), nullptr));
   depth_mm->format = libfreenect2::Frame::Float;
   depth_mm->sequence = raw.sequence;
   depth_mm->timestamp = raw.timestamp;
-  for (size_t i = 0; i < kRawPixels; ++i) {
-    const float mm = depth_.depth_m[i] * 1000.0f;
-    std::memcpy(depth_mm->data + i * sizeof(float), &mm, sizeof mm);
-  }
   return Status::ok();
 }
 

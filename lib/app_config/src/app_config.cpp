@@ -170,11 +170,12 @@ std::optional<std::string> check_source(const std::string& spec) {
   const std::string kind = spec.substr(0, colon);
   const std::string arg = colon == std::string::npos ? "" : spec.substr(colon + 1);
   if (kind == "kinect2") return std::nullopt;  // the serial is optional
-  if (kind == "tum" || kind == "synthetic" || kind == "lcmlog") {
+  if (kind == "tum" || kind == "synthetic" || kind == "kinect2sim" || kind == "lcmlog") {
     if (!arg.empty()) return std::nullopt;
     return "\"" + kind + ":\" needs an argument after the colon, got \"" + spec + "\"";
   }
-  return "must be tum:<folder>, synthetic:<scene>, kinect2[:<serial>] or lcmlog:<file>, got \"" +
+  return "must be tum:<folder>, synthetic:<scene>, kinect2[:<serial>], kinect2sim:<scene> or "
+         "lcmlog:<file>, got \"" +
          spec + "\"";
 }
 
@@ -187,6 +188,7 @@ void read_capture(TableReader& r, CaptureConfig* c) {
   r.read("kinect2_max_depth_m", &c->kinect2_max_depth_m, positive());
   r.read("kinect2_bilateral_filter", &c->kinect2_bilateral_filter);
   r.read("kinect2_edge_aware_filter", &c->kinect2_edge_aware_filter);
+  r.read("kinect2_decoder_threads", &c->kinect2_decoder_threads, closed(1, 2));
   r.read("kinect2_stall_timeout_s", &c->kinect2_stall_timeout_s, positive());
   r.reject_unknown();
   if (!r.clean()) return;

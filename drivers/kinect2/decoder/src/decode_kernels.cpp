@@ -5,11 +5,12 @@
 
 #include "fast_math.hpp"
 
-// The loops are also compiled for AVX2 and the loader picks what the CPU runs, as the core's
-// per-frame loops do (DEPTHFUSE_VECTOR_CLONES).
+// The loops are also compiled for AVX2 and AVX-512 and the loader picks what the CPU runs, as the
+// core's per-frame loops do (DEPTHFUSE_VECTOR_CLONES). AVX-512 too because these loops are most of
+// a packet's time and twice as wide pays for them (the core's loops gain less).
 #if !defined(DF_NO_VECTOR_CLONES) && defined(__GNUC__) && !defined(__clang__) && \
     defined(__x86_64__) && defined(__ELF__)
-#define DF_K2_CLONES __attribute__((target_clones("default", "avx2")))
+#define DF_K2_CLONES __attribute__((target_clones("default", "avx2", "avx512f")))
 #else
 #define DF_K2_CLONES
 #endif
@@ -31,28 +32,9 @@ inline float floor_small(float v) {
 KernelConstants make_kernel_constants(const DecodeConstants& c, float min_depth_m,
                                       float max_depth_m) {
   KernelConstants k{};
-  k.ab_multiplier = c.ab_multiplier;
-  for (int f = 0; f < 3; ++f) k.ab_multiplier_per_frequency[f] = c.ab_multiplier_per_frequency[f];
-  k.ab_output_multiplier = c.ab_output_multiplier;
+  k.firmware = c;
   k.bilateral_threshold = (c.joint_bilateral_ab_threshold * c.joint_bilateral_ab_threshold) /
                           (c.ab_multiplier * c.ab_multiplier);
-  k.bilateral_exp = c.joint_bilateral_exp;
-  k.bilateral_max_edge = c.joint_bilateral_max_edge;
-  for (int j = 0; j < 9; ++j) k.gaussian_kernel[j] = c.gaussian_kernel[j];
-  k.phase_offset = c.phase_offset;
-  k.unambiguous_distance_mm = c.unambiguous_distance_mm;
-  k.individual_ab_threshold = c.individual_ab_threshold;
-  k.ab_threshold = c.ab_threshold;
-  k.ab_confidence_slope = c.ab_confidence_slope;
-  k.ab_confidence_offset = c.ab_confidence_offset;
-  k.min_dealias_confidence = c.min_dealias_confidence;
-  k.max_dealias_confidence = c.max_dealias_confidence;
-  k.edge_ab_avg_min_value = c.edge_ab_avg_min_value;
-  k.edge_ab_std_dev_threshold = c.edge_ab_std_dev_threshold;
-  k.edge_close_delta_threshold_mm = c.edge_close_delta_threshold_mm;
-  k.edge_far_delta_threshold_mm = c.edge_far_delta_threshold_mm;
-  k.edge_max_delta_threshold_mm = c.edge_max_delta_threshold_mm;
-  k.edge_avg_delta_threshold_mm = c.edge_avg_delta_threshold_mm;
   k.min_depth_mm = min_depth_m * 1000.0f;
   k.max_depth_mm = max_depth_m * 1000.0f;
   return k;
@@ -134,7 +116,7 @@ void pair_weights(const float* __restrict unit_a, const float* __restrict unit_b
                   const float* __restrict other_unit_a, const float* __restrict other_unit_b,
                   int count, const KernelConstants& k, float* __restrict distance,
                   float* __restrict weight) {
-  const float exp_factor = -1.442695f * k.bilateral_exp;
+  const float exp_factor = -1.442695f * k.firmware.joint_bilateral_exp;
   for (int i = 0; i < count; ++i) {
     // The firmware's expression, symmetric in the two pixels to the last bit.
     float d = -(other_unit_a[i] * unit_a[i] + other_unit_b[i] * unit_b[i]);
@@ -198,9 +180,9 @@ void bilateral_row(const PhasorRows& above, const PhasorRows& here, const Phasor
   const float* __restrict w_dr = pairs.weight[7];
   // Constants in locals: a load under a condition would keep the loop from vectorising.
   const float threshold = k.bilateral_threshold;
-  const float max_edge = k.bilateral_max_edge;
+  const float max_edge = k.firmware.joint_bilateral_max_edge;
   float g[9];
-  for (int j = 0; j < 9; ++j) g[j] = k.gaussian_kernel[j];
+  for (int j = 0; j < 9; ++j) g[j] = k.firmware.gaussian_kernel[j];
   for (int x = 1; x < kW - 1; ++x) {
     const float ca = a1[x];
     const float cb = b1[x];
@@ -238,16 +220,16 @@ void unwrap_row(const UnwrapInput& in, const float* __restrict edge_ok, const Ke
   const float* __restrict z_table = in.z;
   const float* __restrict x_table = in.x;
   constexpr float kTwoPi = 6.28318548f;
-  const float ab_multiplier = k.ab_multiplier;
-  const float slope = k.ab_confidence_slope;
+  const float ab_multiplier = k.firmware.ab_multiplier;
+  const float slope = k.firmware.ab_confidence_slope;
   const bool slope_positive = 0.0f < slope;
-  const float confidence_offset = k.ab_confidence_offset;
-  const float min_confidence = k.min_dealias_confidence;
-  const float max_confidence = k.max_dealias_confidence;
-  const float individual_threshold = k.individual_ab_threshold;
-  const float sum_threshold = k.ab_threshold;
-  const float phase_offset = k.phase_offset;
-  const float unambiguous_mm = k.unambiguous_distance_mm;
+  const float confidence_offset = k.firmware.ab_confidence_offset;
+  const float min_confidence = k.firmware.min_dealias_confidence;
+  const float max_confidence = k.firmware.max_dealias_confidence;
+  const float individual_threshold = k.firmware.individual_ab_threshold;
+  const float sum_threshold = k.firmware.ab_threshold;
+  const float phase_offset = k.firmware.phase_offset;
+  const float unambiguous_mm = k.firmware.unambiguous_distance_mm;
   // The three phases in units of their own wavelength: the frequencies wrap 3, 15 and 2 times
   // over the unambiguous range. (Loops of their own: one loop for everything is more than GCC
   // turns into straight-line vector code.)
@@ -335,8 +317,9 @@ void unwrap_row(const UnwrapInput& in, const float* __restrict edge_ok, const Ke
 
 namespace {
 
-inline float to_metres(float depth_mm) {
-  return ((depth_mm > 0.0f) & (depth_mm < 3.0e38f)) ? depth_mm * 0.001f : 0.0f;
+// Depth in the output's unit, `per_mm` of it a millimetre (1 for millimetres: unchanged).
+inline float to_output(float depth_mm, float per_mm) {
+  return ((depth_mm > 0.0f) & (depth_mm < 3.0e38f)) ? depth_mm * per_mm : 0.0f;
 }
 
 inline bool in_range(float depth_mm, float min_mm, float max_mm) {
@@ -347,17 +330,17 @@ inline bool in_range(float depth_mm, float min_mm, float max_mm) {
 
 DF_K2_CLONES
 void edge_filter_row(const EdgeRows& above, const EdgeRows& here, const EdgeRows& below,
-                     const KernelConstants& k, float* __restrict depth_m) {
+                     const KernelConstants& k, float per_mm, float* __restrict depth_out) {
   const float* __restrict sum_rows[3] = {above.ir_sum, here.ir_sum, below.ir_sum};
   const float* __restrict edge_rows[3] = {above.edge_depth_mm, here.edge_depth_mm,
                                           below.edge_depth_mm};
   const float min_mm = k.min_depth_mm, max_mm = k.max_depth_mm;
-  const float spread_threshold = k.edge_ab_std_dev_threshold;
-  const float mean_min = k.edge_ab_avg_min_value;
-  const float close_threshold = k.edge_close_delta_threshold_mm;
-  const float far_threshold = k.edge_far_delta_threshold_mm;
-  const float max_threshold = k.edge_max_delta_threshold_mm;
-  const float mean_threshold = k.edge_avg_delta_threshold_mm;
+  const float spread_threshold = k.firmware.edge_ab_std_dev_threshold;
+  const float mean_min = k.firmware.edge_ab_avg_min_value;
+  const float close_threshold = k.firmware.edge_close_delta_threshold_mm;
+  const float far_threshold = k.firmware.edge_far_delta_threshold_mm;
+  const float max_threshold = k.firmware.edge_max_delta_threshold_mm;
+  const float mean_threshold = k.firmware.edge_avg_delta_threshold_mm;
   for (int x = 1; x < kW - 1; ++x) {
     const float raw = here.depth_mm[x];
     const float edge_depth = here.edge_depth_mm[x];
@@ -392,22 +375,22 @@ void edge_filter_row(const EdgeRows& above, const EdgeRows& here, const EdgeRows
                         (close_threshold < to_nearest) & (far_threshold < to_farthest) &
                         (max_threshold < max_difference) & (mean_threshold < mean_difference);
     const float kept = flying ? 0.0f : edge_depth;
-    depth_m[x] = in_range(raw, min_mm, max_mm) ? to_metres(kept) : 0.0f;
+    depth_out[x] = in_range(raw, min_mm, max_mm) ? to_output(kept, per_mm) : 0.0f;
   }
   for (int x : {0, kW - 1}) {
     const float d = here.depth_mm[x];
-    depth_m[x] = in_range(d, min_mm, max_mm) ? to_metres(d) : 0.0f;
+    depth_out[x] = in_range(d, min_mm, max_mm) ? to_output(d, per_mm) : 0.0f;
   }
 }
 
 DF_K2_CLONES
 void depth_row(const float* __restrict depth_mm, bool range_check, const KernelConstants& k,
-               float* __restrict depth_m) {
+               float per_mm, float* __restrict depth_out) {
   const float min_mm = k.min_depth_mm, max_mm = k.max_depth_mm;
   for (int x = 0; x < kW; ++x) {
     const float d = depth_mm[x];
     const bool kept = !range_check | in_range(d, min_mm, max_mm);
-    depth_m[x] = kept ? to_metres(d) : 0.0f;
+    depth_out[x] = kept ? to_output(d, per_mm) : 0.0f;
   }
 }
 

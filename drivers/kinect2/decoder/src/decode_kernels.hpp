@@ -10,29 +10,11 @@
 
 namespace depthfuse::kinect2::kernels {
 
-// Constants of the firmware, in the form the kernels use them (from DecodeConstants).
+// The firmware's constants as DecodeConstants names them, and what the kernels derive from them
+// and from the decoder's options.
 struct KernelConstants {
-  float ab_multiplier;
-  float ab_multiplier_per_frequency[3];
-  float ab_output_multiplier;
-  float bilateral_threshold;     // joint_bilateral_ab_threshold^2 / ab_multiplier^2
-  float bilateral_exp;           // joint_bilateral_exp
-  float bilateral_max_edge;
-  float gaussian_kernel[9];
-  float phase_offset;
-  float unambiguous_distance_mm;
-  float individual_ab_threshold;
-  float ab_threshold;
-  float ab_confidence_slope;
-  float ab_confidence_offset;
-  float min_dealias_confidence;
-  float max_dealias_confidence;
-  float edge_ab_avg_min_value;
-  float edge_ab_std_dev_threshold;
-  float edge_close_delta_threshold_mm;
-  float edge_far_delta_threshold_mm;
-  float edge_max_delta_threshold_mm;
-  float edge_avg_delta_threshold_mm;
+  DecodeConstants firmware;
+  float bilateral_threshold;  // joint_bilateral_ab_threshold^2 / ab_multiplier^2
   float min_depth_mm;
   float max_depth_mm;
 };
@@ -108,18 +90,20 @@ void unwrap_row(const UnwrapInput& in, const float* edge_ok, const KernelConstan
                 float* depth_mm, float* edge_depth_mm, float* ir_sum);
 
 // The edge-aware filter of an inner row, from the rows y-1, y, y+1 of raw depth, depth where the
-// bilateral filter's edge test passed (else 0) and amplitude sums; writes depth in metres, 0 out
-// of [min_depth_mm, max_depth_mm]. Columns 0 and 511 are only range checked.
+// bilateral filter's edge test passed (else 0) and amplitude sums; writes depth in the output's
+// unit (`per_mm` of it a millimetre: 0.001 for metres, 1 for millimetres), 0 out of
+// [min_depth_mm, max_depth_mm]. Columns 0 and 511 are only range checked.
 struct EdgeRows {
   const float* depth_mm;
   const float* edge_depth_mm;
   const float* ir_sum;
 };
 void edge_filter_row(const EdgeRows& above, const EdgeRows& here, const EdgeRows& below,
-                     const KernelConstants& k, float* depth_m);
+                     const KernelConstants& k, float per_mm, float* depth_out);
 
-// Depth in metres of a row without the neighbourhood test: in range or 0 (`range_check`), else
-// as is.
-void depth_row(const float* depth_mm, bool range_check, const KernelConstants& k, float* depth_m);
+// Depth of a row in the output's unit without the neighbourhood test: in range or 0
+// (`range_check`), else as is.
+void depth_row(const float* depth_mm, bool range_check, const KernelConstants& k, float per_mm,
+               float* depth_out);
 
 }  // namespace depthfuse::kinect2::kernels

@@ -15,8 +15,9 @@ void distort(const IrCalibration& c, double x, double y, double* xd, double* yd)
   *yd = y * radial + c.p1 * (r2 + 2 * y2) + 2 * c.p2 * xy;
 }
 
-// The inverse of distort by Newton's method from the distorted point.
-void undistort(const IrCalibration& c, double xd, double yd, double* xu, double* yu) {
+}  // namespace
+
+void undistort_normalised(const IrCalibration& c, double xd, double yd, double* xu, double* yu) {
   double x = xd, y = yd;
   const double eps = std::numeric_limits<double>::epsilon() * 16;
   for (int iteration = 0; iteration < 100; ++iteration) {
@@ -42,8 +43,6 @@ void undistort(const IrCalibration& c, double xd, double yd, double* xu, double*
   *yu = y;
 }
 
-}  // namespace
-
 float p0_phase_rad(uint16_t p0) {
   // The firmware's scale: 0.000031 pi radians per unit (in double, rounded to float).
   return static_cast<float>(-static_cast<double>(static_cast<float>(p0)) * 0.000031 * M_PI);
@@ -58,7 +57,7 @@ RayTables make_ray_tables(const IrCalibration& calibration) {
     const double xd = (static_cast<double>(i % kRawWidth) + 0.5 - calibration.cx) / calibration.fx;
     const double yd = (static_cast<double>(i / kRawWidth) + 0.5 - calibration.cy) / calibration.fy;
     double xu, yu;
-    undistort(calibration, xd, yd, &xu, &yu);
+    undistort_normalised(calibration, xd, yd, &xu, &yu);
     tables.x_scaled[i] = static_cast<float>(8192 * xu);
     tables.z_mm_per_phase[i] = static_cast<float>(unambiguous_mm / std::sqrt(xu * xu + yu * yu + 1));
   }

@@ -82,10 +82,26 @@ struct PairRow {
   }
 };
 
+// The rows a thread works on lie in rings of this many rows (row y in slot y % kRing): stage 2
+// of row y reads the phasors of rows y - 1 .. y + 1 while row y + 1 is the newest, stage 3 the
+// stage-2 rows y - 1 .. y + 1. A few rows stay in cache where whole-frame planes would not.
+constexpr int kRing = 4;
+
+// A ring of kRing rows.
+struct RowRing {
+  Plane rows = Plane(static_cast<size_t>(kRing) * kRawWidth);
+  float* row(int y) { return rows.data() + static_cast<size_t>(y % kRing) * kRawWidth; }
+  const float* row(int y) const {
+    return rows.data() + static_cast<size_t>(y % kRing) * kRawWidth;
+  }
+};
+
 // Row buffers of one thread.
 struct Scratch {
   std::array<Plane, 9> values;      // unpacked correlations of the nine sub-images
   std::array<Plane, 3> amplitude;   // per frequency
+  std::array<RowRing, 3> a, b, unit_a, unit_b;  // phasors per frequency (stage 1)
+  RowRing depth_mm, edge_depth_mm, ir_sum;      // stage 2
   std::array<Plane, 3> filtered_a, filtered_b;
   Plane edge_ok;
   Plane ones;
@@ -130,13 +146,30 @@ class DepthDecoder::Impl {
                {phases_.sin_step[0], phases_.sin_step[1], phases_.sin_step[2]}},
         scratch_(options.threads) {
     for (int code = 0; code < 2048; ++code) code_value_[code] = code_to_correlation()[code];
-    for (auto* group : {&a_, &b_, &unit_a_, &unit_b_})
-      for (Plane& plane : *group) plane.resize(kRawPixels);
-    for (Plane* plane : {&depth_mm_, &edge_depth_mm_, &ir_sum_}) plane->resize(kRawPixels);
     if (options.threads == 2) helper_ = std::make_unique<HelperThread>();
   }
 
   Status decode(const RawDepthPacket& packet, DepthImage* depth, IrImage* ir) {
+    DF_RETURN_IF_ERROR(accept(packet));
+    depth->width = kRawWidth;
+    depth->height = kRawHeight;
+    depth->depth_m.resize(kRawPixels);
+    decode_accepted(packet, depth->depth_m.data(), 0.001f, ir);
+    return Status::ok();
+  }
+
+  Status decode_millimetres(const RawDepthPacket& packet, float* depth_mm, IrImage* ir) {
+    if (depth_mm == nullptr) return invalid_argument("depth decoder: no output for the depth");
+    DF_RETURN_IF_ERROR(accept(packet));
+    decode_accepted(packet, depth_mm, 1.0f, ir);
+    return Status::ok();
+  }
+
+  void restart_sequence() { have_sequence_ = false; }
+
+ private:
+  // The packet's checks; when it passes, its sequence number is the last one seen.
+  Status accept(const RawDepthPacket& packet) {
     if (packet.bytes == nullptr)
       return invalid_argument("depth packet " + std::to_string(packet.sequence) + " has no data");
     if (packet.size != kRawPacketBytes)
@@ -150,34 +183,24 @@ class DepthDecoder::Impl {
                               " (repeated or out of order)");
     have_sequence_ = true;
     last_sequence_ = packet.sequence;
+    return Status::ok();
+  }
 
-    depth->width = kRawWidth;
-    depth->height = kRawHeight;
-    depth->depth_m.resize(kRawPixels);
+  // Depth goes out in units of which `per_mm` make a millimetre, straight from the kernels.
+  void decode_accepted(const RawDepthPacket& packet, float* depth_out, float per_mm, IrImage* ir) {
     if (ir) {
       ir->width = kRawWidth;
       ir->height = kRawHeight;
       ir->amplitude.resize(kRawPixels);
     }
     packet_ = packet.bytes;
-    depth_out_ = depth->depth_m.data();
+    depth_out_ = depth_out;
+    per_mm_ = per_mm;
     ir_out_ = ir ? ir->amplitude.data() : nullptr;
 
-    run([this](Scratch& s, int first, int last) { correlate_and_unwrap(s, first, last); });
-    if (helper_) {
-      // The two rows at the seam need both halves' phasors.
-      scratch_[0].down_above_row = -1;
-      for (int y : {kRawHeight / 2 - 1, kRawHeight / 2}) unwrap(scratch_[0], y);
-    }
-    run([this](Scratch&, int first, int last) {
-      for (int y = first; y < last; ++y) finish(y);
-    });
-    return Status::ok();
+    run([this](Scratch& s, int first, int last) { decode_rows(s, first, last); });
   }
 
-  void restart_sequence() { have_sequence_ = false; }
-
- private:
   template <typename Rows>
   void run(Rows rows) {
     if (!helper_) {
@@ -193,21 +216,31 @@ class DepthDecoder::Impl {
 
   static size_t row_start(int y) { return static_cast<size_t>(y) * kRawWidth; }
 
-  // Stage 1 of rows [first, last), and stage 2 of each row among them whose neighbours are among
-  // them too, as soon as the row below is done: its phasors are still in cache.
-  void correlate_and_unwrap(Scratch& s, int first, int last) {
+  // The output rows [first, last), each stage of a row as soon as the rows it reads are done,
+  // while they are in cache. Stage 3 of a row needs stage 2 of its neighbours, which needs the
+  // phasors of theirs: a thread also does stage 1 of the two rows and stage 2 of the one row
+  // beyond each end of its range (the other thread's; a few rows of 424 done twice).
+  void decode_rows(Scratch& s, int first, int last) {
     s.down_above_row = -1;
-    const int unwrap_first = first == 0 ? 0 : first + 1;
-    const int unwrap_last = last == kRawHeight ? last : last - 1;
-    for (int y = first; y < last; ++y) {
-      correlate(s, y);
-      if (y - 1 >= unwrap_first && y - 1 < unwrap_last) unwrap(s, y - 1);
+    const int correlate_first = std::max(first - 2, 0);
+    const int correlate_last = std::min(last + 2, kRawHeight);
+    const int unwrap_last = std::min(last + 1, kRawHeight);
+    int next_unwrap = std::max(first - 1, 0);
+    int next_finish = first;
+    for (int y = correlate_first; y < correlate_last; ++y) {
+      correlate(s, y, /*ir=*/y >= first && y < last);
+      // Stage 2 of row r reads rows r - 1 .. r + 1; stage 3 of row r their stage 2.
+      const bool all_correlated = y == correlate_last - 1;
+      while (next_unwrap < unwrap_last && (next_unwrap + 1 <= y || all_correlated))
+        unwrap(s, next_unwrap++);
+      while (next_finish < last &&
+             (next_finish + 1 < next_unwrap || (all_correlated && next_unwrap == unwrap_last)))
+        finish(s, next_finish++);
     }
-    if (last == kRawHeight) unwrap(s, kRawHeight - 1);
   }
 
-  // Stage 1: the packet's nine sub-images to phasors; IR output.
-  void correlate(Scratch& s, int y) {
+  // Stage 1: the packet's nine sub-images to phasors; the IR output when `ir`.
+  void correlate(Scratch& s, int y, bool ir) {
     const size_t row = row_start(y);
     const size_t storage = static_cast<size_t>(packet_storage_row(y)) * kRawRowBytes;
     for (int i = 0; i < 9; ++i)
@@ -218,27 +251,26 @@ class DepthDecoder::Impl {
       kernels::correlate_row(
           s.values[k].data(), s.values[k + 1].data(), s.values[k + 2].data(),
           phases_.cos_p0[f].data() + row, phases_.sin_p0[f].data() + row,
-          rays_.z_mm_per_phase.data() + row, steps_, constants_.ab_multiplier_per_frequency[f],
-          constants_.ab_multiplier,
-          kernels::PhasorRow{a_[f].data() + row, b_[f].data() + row, unit_a_[f].data() + row,
-                             unit_b_[f].data() + row, s.amplitude[f].data()});
+          rays_.z_mm_per_phase.data() + row, steps_, constants_.firmware.ab_multiplier_per_frequency[f],
+          constants_.firmware.ab_multiplier,
+          kernels::PhasorRow{s.a[f].row(y), s.b[f].row(y), s.unit_a[f].row(y),
+                             s.unit_b[f].row(y), s.amplitude[f].data()});
     }
-    if (ir_out_)
+    if (ir_out_ && ir)
       kernels::ir_row(s.amplitude[0].data(), s.amplitude[1].data(), s.amplitude[2].data(),
-                      constants_.ab_output_multiplier, ir_out_ + row_start(kRawHeight - 1 - y));
+                      constants_.firmware.ab_output_multiplier, ir_out_ + row_start(kRawHeight - 1 - y));
   }
 
-  kernels::PhasorRows phasor_rows(int f, int y) const {
-    const size_t row = row_start(y);
-    return {a_[f].data() + row, b_[f].data() + row};
+  static kernels::PhasorRows phasor_rows(const Scratch& s, int f, int y) {
+    return {s.a[f].row(y), s.b[f].row(y)};
   }
 
   // The pairs of row r's pixels with those of row r + 1.
-  void down_pairs(int f, int r, PairRow& out) const {
-    const float* ua = unit_a_[f].data() + row_start(r);
-    const float* ub = unit_b_[f].data() + row_start(r);
-    const float* qa = ua + kRawWidth;
-    const float* qb = ub + kRawWidth;
+  void down_pairs(const Scratch& s, int f, int r, PairRow& out) const {
+    const float* ua = s.unit_a[f].row(r);
+    const float* ub = s.unit_b[f].row(r);
+    const float* qa = s.unit_a[f].row(r + 1);
+    const float* qb = s.unit_b[f].row(r + 1);
     kernels::pair_weights(ua + 1, ub + 1, qa, qb, kRawWidth - 1, constants_,
                           out.distance[0].data() + 1, out.weight[0].data() + 1);
     kernels::pair_weights(ua, ub, qa, qb, kRawWidth, constants_, out.distance[1].data(),
@@ -248,9 +280,9 @@ class DepthDecoder::Impl {
   }
 
   // The pairs of row r's pixels with their right neighbours.
-  void right_pairs(int f, int r, PairRow& out) const {
-    const float* ua = unit_a_[f].data() + row_start(r);
-    const float* ub = unit_b_[f].data() + row_start(r);
+  void right_pairs(const Scratch& s, int f, int r, PairRow& out) const {
+    const float* ua = s.unit_a[f].row(r);
+    const float* ub = s.unit_b[f].row(r);
     kernels::pair_weights(ua, ub, ua + 1, ub + 1, kRawWidth - 1, constants_,
                           out.distance[0].data() + 1, out.weight[0].data() + 1);
   }
@@ -281,18 +313,18 @@ class DepthDecoder::Impl {
       std::fill(s.edge_ok.begin(), s.edge_ok.end(), 1.0f);
       // Rows are visited in order, so the pairs of row y - 1 are those row y made last time.
       if (s.down_above_row != y - 1)
-        for (int f = 0; f < 3; ++f) down_pairs(f, y - 1, s.down_above[f]);
+        for (int f = 0; f < 3; ++f) down_pairs(s, f, y - 1, s.down_above[f]);
       for (int f = 0; f < 3; ++f) {
-        down_pairs(f, y, s.down_here[f]);
-        right_pairs(f, y, s.right_here[f]);
+        down_pairs(s, f, y, s.down_here[f]);
+        right_pairs(s, f, y, s.right_here[f]);
         float* fa = s.filtered_a[f].data();
         float* fb = s.filtered_b[f].data();
         for (int x : {0, kRawWidth - 1}) {
-          fa[x] = a_[f][row + x];
-          fb[x] = b_[f][row + x];
+          fa[x] = s.a[f].row(y)[x];
+          fb[x] = s.b[f].row(y)[x];
         }
         kernels::bilateral_row(
-            phasor_rows(f, y - 1), phasor_rows(f, y), phasor_rows(f, y + 1),
+            phasor_rows(s, f, y - 1), phasor_rows(s, f, y), phasor_rows(s, f, y + 1),
             neighbour_pairs(s.down_above[f], s.down_here[f], s.right_here[f]), constants_, fa, fb,
             s.edge_ok.data());
         in.a[f] = fa;
@@ -303,29 +335,29 @@ class DepthDecoder::Impl {
       edge_ok = s.edge_ok.data();
     } else {
       for (int f = 0; f < 3; ++f) {
-        in.a[f] = a_[f].data() + row;
-        in.b[f] = b_[f].data() + row;
+        in.a[f] = s.a[f].row(y);
+        in.b[f] = s.b[f].row(y);
       }
     }
-    kernels::unwrap_row(in, edge_ok, constants_, depth_mm_.data() + row,
-                        edge_depth_mm_.data() + row, ir_sum_.data() + row);
+    kernels::unwrap_row(in, edge_ok, constants_, s.depth_mm.row(y), s.edge_depth_mm.row(y),
+                        s.ir_sum.row(y));
   }
 
-  kernels::EdgeRows edge_rows(int y) const {
-    const size_t row = row_start(y);
-    return {depth_mm_.data() + row, edge_depth_mm_.data() + row, ir_sum_.data() + row};
+  static kernels::EdgeRows edge_rows(const Scratch& s, int y) {
+    return {s.depth_mm.row(y), s.edge_depth_mm.row(y), s.ir_sum.row(y)};
   }
 
-  // Stage 3: the edge-aware filter (inner rows) and the output in metres, flipped upright.
-  void finish(int y) {
+  // Stage 3: the edge-aware filter (inner rows) and the output in its unit, flipped upright.
+  void finish(const Scratch& s, int y) {
     float* out = depth_out_ + row_start(kRawHeight - 1 - y);
-    const float* raw = depth_mm_.data() + row_start(y);
+    const float* raw = s.depth_mm.row(y);
     if (!options_.edge_aware_filter)
-      kernels::depth_row(raw, /*range_check=*/false, constants_, out);
+      kernels::depth_row(raw, /*range_check=*/false, constants_, per_mm_, out);
     else if (y == 0 || y == kRawHeight - 1)
-      kernels::depth_row(raw, /*range_check=*/true, constants_, out);
+      kernels::depth_row(raw, /*range_check=*/true, constants_, per_mm_, out);
     else
-      kernels::edge_filter_row(edge_rows(y - 1), edge_rows(y), edge_rows(y + 1), constants_, out);
+      kernels::edge_filter_row(edge_rows(s, y - 1), edge_rows(s, y), edge_rows(s, y + 1),
+                               constants_, per_mm_, out);
   }
 
   const DepthDecoderOptions options_;
@@ -334,12 +366,11 @@ class DepthDecoder::Impl {
   const PhaseTables phases_;
   const kernels::PhaseSteps steps_;
   std::array<float, 2048> code_value_{};
-  std::array<Plane, 3> a_, b_, unit_a_, unit_b_;  // phasors per frequency, whole frame
-  Plane depth_mm_, edge_depth_mm_, ir_sum_;       // stage 2 output, whole frame
   std::vector<Scratch> scratch_;
   std::unique_ptr<HelperThread> helper_;
   const uint8_t* packet_ = nullptr;
   float* depth_out_ = nullptr;
+  float per_mm_ = 0.001f;
   float* ir_out_ = nullptr;
   bool have_sequence_ = false;
   uint32_t last_sequence_ = 0;
@@ -360,6 +391,11 @@ DepthDecoder::~DepthDecoder() = default;
 
 Status DepthDecoder::decode(const RawDepthPacket& packet, DepthImage* depth, IrImage* ir) {
   return impl_->decode(packet, depth, ir);
+}
+
+Status DepthDecoder::decode_millimetres(const RawDepthPacket& packet, float* depth_mm,
+                                        IrImage* ir) {
+  return impl_->decode_millimetres(packet, depth_mm, ir);
 }
 
 void DepthDecoder::restart_sequence() { impl_->restart_sequence(); }

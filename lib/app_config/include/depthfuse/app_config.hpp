@@ -33,6 +33,7 @@ struct CaptureConfig {
   double kinect2_max_depth_m = 4.5;
   bool kinect2_bilateral_filter = true;
   bool kinect2_edge_aware_filter = true;
+  int kinect2_decoder_threads = 1;           // the depthfuse pipeline's decoder: 1 or 2 threads
   double kinect2_stall_timeout_s = 2.0;     // no frame for this long = stalled: reset and reopen
 };
 

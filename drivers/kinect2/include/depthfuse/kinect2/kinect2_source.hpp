@@ -25,6 +25,7 @@ struct Kinect2Options {
   double max_depth_m = 4.5;            // libfreenect2 Config::MaxDepth
   bool bilateral_filter = true;        // Config::EnableBilateralFilter
   bool edge_aware_filter = true;       // Config::EnableEdgeAwareFilter
+  int decoder_threads = 1;             // the depthfuse pipeline's decoder: 1 or 2
   double stall_timeout_s = 2.0;        // connected and no frame for this long: close, USB reset, reopen
   double first_frame_timeout_s = 10.0; // the same for the first frame after opening
   double open_retry_interval_s = 1.0;  // a present device that failed to open is retried this often

@@ -15,8 +15,9 @@
 
 namespace depthfuse::kinect2 {
 
-// libfreenect2's IR camera parameters as the decoder's calibration.
+// libfreenect2's IR camera parameters as the decoder's calibration, and back.
 IrCalibration ir_calibration(const libfreenect2::Freenect2Device::IrCameraParams& ir);
+libfreenect2::Freenect2Device::IrCameraParams ir_camera_params(const IrCalibration& calibration);
 
 class PacketDecoding {
  public:
@@ -36,7 +37,6 @@ class PacketDecoding {
  private:
   explicit PacketDecoding(std::unique_ptr<DepthDecoder> decoder) : decoder_(std::move(decoder)) {}
   std::unique_ptr<DepthDecoder> decoder_;
-  DepthImage depth_;  // reused every frame
 };
 
 }  // namespace depthfuse::kinect2

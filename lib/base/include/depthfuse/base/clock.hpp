@@ -12,4 +12,8 @@ int64_t now_utime();
 // Nanoseconds of the monotonic clock (CLOCK_MONOTONIC); only differences mean anything.
 int64_t steady_ns();
 
+// Nanoseconds of CPU time the calling thread has used: a cost that a loaded machine does not
+// inflate, unlike the time it took.
+int64_t thread_cpu_ns();
+
 }  // namespace depthfuse

@@ -51,6 +51,9 @@ class DepthDecoder {
   // for a packet of the wrong size or without data, and for a sequence number not after the
   // previous packet's; the outputs are then left as they were.
   Status decode(const RawDepthPacket& packet, DepthImage* depth, IrImage* ir);
+  // The same with depth in millimetres (libfreenect2's unit) into `depth_mm`, 512x424 floats:
+  // what the driver hands to libfreenect2's registration, without a round trip through metres.
+  Status decode_millimetres(const RawDepthPacket& packet, float* depth_mm, IrImage* ir);
 
   // After the device restarted its frame counter (reopen): any next sequence number is accepted.
   void restart_sequence();

@@ -60,6 +60,10 @@ struct IrCalibration {
   float k1 = 0, k2 = 0, k3 = 0, p1 = 0, p2 = 0;
 };
 Status check_ir_calibration(const IrCalibration& calibration);
+// The undistorted normalised coordinates of the distorted normalised point (xd, yd): the inverse
+// of the calibration's distortion, by Newton's method.
+void undistort_normalised(const IrCalibration& calibration, double xd, double yd, double* xu,
+                          double* yu);
 
 // The constants of the decoding, as the device's firmware has them (libfreenect2's
 // DepthPacketProcessor::Parameters); the decoder never needs others, they are named for reading.
