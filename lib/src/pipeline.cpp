@@ -62,6 +62,7 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   else if (last_T_world_cam_) T = *last_T_world_cam_;
 
   t0 = Clock::now();
+  registrar_.set_frame_color(frame.color, scratch_);
   if (config_.registration.enabled && map_->point_count() > 0) {
     const bool hint = frame.T_world_cam_hint.has_value();
     // Without a hint: the tracking of a moving camera, its unconstrained directions held at the
@@ -113,6 +114,7 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   report.fusion = fuser_.fuse(scratch_, &frame.color, T, next_frame_id_, map_.get());
   report.fusion_ms = ms_since(t0);
   last_T_world_cam_ = T;
+  registrar_.keep_frame_as_photometric_reference(scratch_, T);
   ++next_frame_id_;
   return report;
 }
@@ -127,6 +129,7 @@ void IncrementalReconstructor::reset(std::unique_ptr<PointMap> map, uint32_t nex
   frames_since_model_ = 0;
   next_frame_id_ = std::max<uint32_t>(1, next_frame_id);
   last_T_world_cam_ = last_T_world_cam;
+  registrar_.forget_photometric_reference();
 }
 
 SequenceFuser::SequenceFuser(const ReconstructionConfig& config)
