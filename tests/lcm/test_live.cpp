@@ -27,6 +27,7 @@
 #include "depthfuse/lcmlog/lcmlog_source.hpp"
 #include "depthfuse/ply.hpp"
 #include "depthfuse/pipeline.hpp"
+#include "depthfuse/pose2_t.hpp"
 #include "depthfuse/pose_t.hpp"
 #include "depthfuse/status_t.hpp"
 #include "depthfuse/synthetic/synthetic_source.hpp"
@@ -68,6 +69,13 @@ class Observer {
       std::lock_guard<std::mutex> lock(mutex_);
       poses_.push_back(p);
     });
+    listener_.subscribe(lcm::kPose2Channel, [this](const std::string&, const uint8_t* d, size_t n,
+                                                     int64_t) {
+      depthfuse::pose2_t p;
+      if (lcm::decode_message(d, n, &p) != lcm::DecodeResult::kOk) return;
+      std::lock_guard<std::mutex> lock(mutex_);
+      poses2_.push_back(p);
+    });
     listener_.start();
   }
   const std::string& error() const { return listener_.error(); }
@@ -100,6 +108,10 @@ class Observer {
     std::lock_guard<std::mutex> lock(mutex_);
     return poses_;
   }
+  std::vector<depthfuse::pose2_t> poses2() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return poses2_;
+  }
 
  private:
   Listener listener_;
@@ -109,6 +121,7 @@ class Observer {
   std::optional<depthfuse::status_t> status_;
   int64_t status_count_ = 0;
   std::vector<depthfuse::pose_t> poses_;
+  std::vector<depthfuse::pose2_t> poses2_;
 };
 
 // Points in the saved cloud of scan e2e.
@@ -792,8 +805,62 @@ TEST_F(LiveAppliance, ALostFrameIsCountedAndNotFused) {
   hb = *observer_->heartbeat("fusion");
   EXPECT_LT(daemon::counter_value(hb, "tracking_state"), 2);
   EXPECT_EQ(daemon::counter_value(hb, "frames_lost_tracking"), 1);
-  EXPECT_EQ(observer_->poses().size(), 2u);  // no pose for the lost frame
+  EXPECT_EQ(observer_->poses().size(), 2u);  // no pose_t for the lost frame
+  // pose2_t has every frame, the lost one at the last fused pose.
+  ASSERT_TRUE(eventually([&] { return observer_->poses2().size() == 3u; }, seconds(10)));
+  const auto poses2 = observer_->poses2();
+  EXPECT_EQ(poses2[0].tracking, depthfuse::pose2_t::TRACKING_TRACKED);
+  EXPECT_EQ(poses2[1].tracking, depthfuse::pose2_t::TRACKING_LOST);
+  EXPECT_FALSE(poses2[1].fused);
+  EXPECT_EQ(poses2[1].pose.sequence, 2);
+  EXPECT_EQ(poses2[1].pose.merged + poses2[1].pose.added, 0);
+  for (int k = 0; k < 3; ++k)
+    EXPECT_DOUBLE_EQ(poses2[1].pose.position_m[k], poses2[0].pose.position_m[k]);
+  EXPECT_TRUE(poses2[2].fused);
+  EXPECT_NE(poses2[2].tracking, depthfuse::pose2_t::TRACKING_LOST);
   EXPECT_NE(fusion->log().find("tracking lost"), std::string::npos) << fusion->log();
+}
+
+// Bad input from the capture side: a first frame with no depth, then colour of another size than
+// its depth. Each is named in the heartbeat's last error; the daemon keeps running, and the good
+// depth is fused (without the colour).
+TEST_F(LiveAppliance, AnEmptyFrameAndColourOfTheWrongSizeAreReportedNotFatal) {
+  auto fusion = start_fusion({"--autostart", "bad", "--queue", "64"});
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.scan_id == "bad"; },
+                                        seconds(10)));
+  auto frame = [](int64_t sequence, float depth_m) {
+    Frame f;
+    f.sequence = static_cast<uint32_t>(sequence);
+    f.utime = sequence * 33333;
+    f.intrinsics = {320, 240, 300.0, 300.0, 159.5, 119.5};
+    f.depth = DepthImage(320, 240);
+    std::fill(f.depth.depth_m.begin(), f.depth.depth_m.end(), depth_m);
+    return f;
+  };
+  depthfuse::depth_frame_t depth;
+  ASSERT_TRUE(lcm::encode_depth_frame(frame(1, 0.0f), {}, &depth).is_ok());
+  ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kDepthChannel, depth).is_ok());
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) {
+    return hb.last_error.find("no valid depth measurement") != std::string::npos;
+  }, seconds(20))) << fusion->log();
+  EXPECT_EQ(observer_->heartbeat("fusion")->frames_out, 0);
+
+  Frame good = frame(2, 1.5f);
+  good.color.width = 160;
+  good.color.height = 120;
+  good.color.rgb.assign(160 * 120 * 3, 100);
+  depthfuse::color_frame_t color;
+  ASSERT_TRUE(lcm::encode_color_frame(good, {}, &color).is_ok());
+  ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kColorChannel, color).is_ok());
+  ASSERT_TRUE(lcm::encode_depth_frame(good, {}, &depth).is_ok());
+  ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kDepthChannel, depth).is_ok());
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.frames_out == 1; },
+                                        seconds(20))) << fusion->log();
+  const auto hb = *observer_->heartbeat("fusion");
+  EXPECT_EQ(daemon::counter_value(hb, "color_wrong_size"), 1);
+  EXPECT_NE(hb.last_error.find("colour frame 2 is 160x120, its depth frame 320x240"), std::string::npos)
+      << hb.last_error;
+  EXPECT_TRUE(fusion->running()) << fusion->log();
 }
 
 TEST_F(LiveAppliance, RecordedSessionReplaysAtItsPace) {
