@@ -152,7 +152,9 @@ TEST(Photometric, NoTermWithoutUsableColourOrWeight) {
     term.set_frame(color, m);
     EXPECT_FALSE(term.ready());
   }
-  PhotometricTerm off(RegistrationConfig{});
+  RegistrationConfig zero;
+  zero.photometric_weight = 0.0;
+  PhotometricTerm off(zero);
   const ColorImage color = textured(f.depth.width, f.depth.height);
   off.set_frame(color, m);
   off.keep_frame_as_reference(m, T);
