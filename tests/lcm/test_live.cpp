@@ -124,6 +124,21 @@ class Observer {
   std::vector<depthfuse::pose2_t> poses2_;
 };
 
+// A wall depth_m in front of a 320x240 camera, without a pose hint, as from a Kinect; a ridge
+// ridge_m deep down its middle (0: flat; depth_m 0: an empty frame).
+Frame wall_frame(int64_t sequence, float depth_m, float ridge_m) {
+  Frame f;
+  f.sequence = static_cast<uint32_t>(sequence);
+  f.utime = sequence * 33333;
+  f.intrinsics = {320, 240, 300.0, 300.0, 159.5, 119.5};
+  f.depth = DepthImage(320, 240);
+  if (depth_m > 0)
+    for (int v = 0; v < 240; ++v)
+      for (int u = 0; u < 320; ++u)
+        f.depth.depth_m[v * 320 + u] = depth_m + ridge_m * std::abs(u - 160) / 160.0f;
+  return f;
+}
+
 // Points in the saved cloud of scan e2e.
 size_t cloud_points_expected(const std::string& dir) {
   auto cloud = read_ply(dir + "/scans/e2e.ply");
@@ -769,16 +784,9 @@ TEST_F(LiveAppliance, ALostFrameIsCountedAndNotFused) {
   auto fusion = start_fusion({"--autostart", "lost", "--queue", "64"});
   ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.scan_id == "lost"; },
                                         seconds(10)));
-  // A wall in front of a 320x240 camera, without a pose hint, as from a Kinect.
   auto wall = [](int64_t sequence, float depth_m) {
-    Frame f;
-    f.sequence = static_cast<uint32_t>(sequence);
-    f.utime = sequence * 33333;
-    f.intrinsics = {320, 240, 300.0, 300.0, 159.5, 119.5};
-    f.depth = DepthImage(320, 240);
-    for (int v = 0; v < 240; ++v)
-      for (int u = 0; u < 320; ++u)  // a ridge, so that ICP has more than a plane to hold on to
-        f.depth.depth_m[v * 320 + u] = depth_m + 0.2f * std::abs(u - 160) / 160.0f;
+    // A ridge, so that ICP has more than a plane to hold on to.
+    const Frame f = wall_frame(sequence, depth_m, 0.2f);
     depthfuse::depth_frame_t msg;
     EXPECT_TRUE(lcm::encode_depth_frame(f, {}, &msg).is_ok());
     return msg;
@@ -828,24 +836,15 @@ TEST_F(LiveAppliance, AnEmptyFrameAndColourOfTheWrongSizeAreReportedNotFatal) {
   auto fusion = start_fusion({"--autostart", "bad", "--queue", "64"});
   ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.scan_id == "bad"; },
                                         seconds(10)));
-  auto frame = [](int64_t sequence, float depth_m) {
-    Frame f;
-    f.sequence = static_cast<uint32_t>(sequence);
-    f.utime = sequence * 33333;
-    f.intrinsics = {320, 240, 300.0, 300.0, 159.5, 119.5};
-    f.depth = DepthImage(320, 240);
-    std::fill(f.depth.depth_m.begin(), f.depth.depth_m.end(), depth_m);
-    return f;
-  };
   depthfuse::depth_frame_t depth;
-  ASSERT_TRUE(lcm::encode_depth_frame(frame(1, 0.0f), {}, &depth).is_ok());
+  ASSERT_TRUE(lcm::encode_depth_frame(wall_frame(1, 0.0f, 0.0f), {}, &depth).is_ok());
   ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kDepthChannel, depth).is_ok());
   ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) {
     return hb.last_error.find("no valid depth measurement") != std::string::npos;
   }, seconds(20))) << fusion->log();
   EXPECT_EQ(observer_->heartbeat("fusion")->frames_out, 0);
 
-  Frame good = frame(2, 1.5f);
+  Frame good = wall_frame(2, 1.5f, 0.0f);
   good.color.width = 160;
   good.color.height = 120;
   good.color.rgb.assign(160 * 120 * 3, 100);
