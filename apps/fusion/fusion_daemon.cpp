@@ -18,6 +18,7 @@
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/frame_codec.hpp"
 #include "depthfuse/ply.hpp"
+#include "depthfuse/pose2_t.hpp"
 #include "depthfuse/pose_t.hpp"
 #include "depthfuse/trajectory.hpp"
 
@@ -163,8 +164,20 @@ void FusionDaemon::on_depth(const uint8_t* data, size_t size) {
   auto color = pending_color_.find(msg.sequence);
   if (color != pending_color_.end()) {
     if (color->second.width == item.frame.depth.width &&
-        color->second.height == item.frame.depth.height)
+        color->second.height == item.frame.depth.height) {
       item.frame.color = std::move(color->second);
+    } else {
+      // Not registered to the depth pixel for pixel: the depth is fused without it. Said once,
+      // counted always (heartbeat counter color_wrong_size).
+      const std::string e = "colour frame " + std::to_string(msg.sequence) + " is " +
+                            std::to_string(color->second.width) + "x" +
+                            std::to_string(color->second.height) + ", its depth frame " +
+                            std::to_string(item.frame.depth.width) + "x" +
+                            std::to_string(item.frame.depth.height) +
+                            ": colour must be registered to depth pixel for pixel; fused without it";
+      if (color_wrong_size_++ == 0) DF_LOG(Fusion, Warning) << e;
+      set_error(e);
+    }
     pending_color_.erase(pending_color_.begin(), std::next(color));
   }
   item.publish_utime = msg.publish_utime;
@@ -425,9 +438,36 @@ void FusionDaemon::fuse(QueuedFrame& item) {
   const FrameReport& rep = *report;
   count_tracking(rep.tracking);
   preview_.frame_tracked(static_cast<int8_t>(rep.tracking));
+  depthfuse::pose2_t pose2{};
+  pose2.protocol_version = depthfuse::pose2_t::PROTOCOL_VERSION;
+  pose2.tracking = static_cast<int8_t>(rep.tracking);
+  pose2.fused = rep.fused();
+  pose2.icp_conditioning = rep.registration.conditioning;
+  depthfuse::pose_t& pose = pose2.pose;
+  pose.protocol_version = depthfuse::pose_t::PROTOCOL_VERSION;
+  pose.utime = item.frame.utime;
+  pose.sequence = item.frame.sequence;
+  pose.frame_publish_utime = item.publish_utime;
+  pose.scan_id = scan_.scan_id;
+  pose.registered = rep.registered;
+  pose.icp_fitness = rep.registration.fitness;
+  pose.icp_rmse_m = rep.registration.rmse_m;
+  pose.icp_correspondences = static_cast<int32_t>(rep.registration.correspondences);
+  pose.icp_iterations = rep.registration.iterations;
+  pose.prefiltered = static_cast<int32_t>(rep.prefiltered);
+  pose.prefilter_ms = static_cast<float>(rep.prefilter_ms);
+  pose.registration_ms = static_cast<float>(rep.registration_ms);
   // A lost frame's pose is unknown: it was not fused, and it has no place in the trajectory, the
-  // pose channel or the scan file. The next frame is tracked from the last frame fused.
-  if (!rep.fused()) return;
+  // pose channel or the scan file. The next frame is tracked from the last frame fused. Viewers
+  // see the loss on DEPTHFUSE_POSE2, with the last fused pose.
+  if (!rep.fused()) {
+    lcm::pose_to_arrays(reconstructor_->last_pose().value_or(Pose::Identity()), pose.position_m,
+                        pose.orientation_wxyz);
+    pose.map_points = point_count_.load();
+    pose.publish_utime = now_utime();
+    if (auto st = lcm_->publish_message(lcm::kPose2Channel, pose2); !st.is_ok()) set_error(st.message());
+    return;
+  }
   trajectory_.push_back({item.frame.utime * 1e-6, rep.T_world_cam});
   const int64_t points = static_cast<int64_t>(reconstructor_->map().point_count());
   point_count_ = points;
@@ -437,28 +477,15 @@ void FusionDaemon::fuse(QueuedFrame& item) {
   if (rep.registered) ++registered_;
   else if (trajectory_.size() > 1) ++icp_failures_;
 
-  depthfuse::pose_t pose;
-  pose.protocol_version = depthfuse::pose_t::PROTOCOL_VERSION;
-  pose.utime = item.frame.utime;
-  pose.sequence = item.frame.sequence;
-  pose.frame_publish_utime = item.publish_utime;
-  pose.scan_id = scan_.scan_id;
   lcm::pose_to_arrays(rep.T_world_cam, pose.position_m, pose.orientation_wxyz);
-  pose.registered = rep.registered;
-  pose.icp_fitness = rep.registration.fitness;
-  pose.icp_rmse_m = rep.registration.rmse_m;
-  pose.icp_correspondences = static_cast<int32_t>(rep.registration.correspondences);
-  pose.icp_iterations = rep.registration.iterations;
   pose.measurements = static_cast<int32_t>(rep.fusion.measurements);
-  pose.prefiltered = static_cast<int32_t>(rep.prefiltered);
   pose.merged = static_cast<int32_t>(rep.fusion.merged);
   pose.added = static_cast<int32_t>(rep.fusion.added);
   pose.map_points = points;
-  pose.prefilter_ms = static_cast<float>(rep.prefilter_ms);
-  pose.registration_ms = static_cast<float>(rep.registration_ms);
   pose.fusion_ms = static_cast<float>(rep.fusion_ms);
   pose.publish_utime = now_utime();
   if (auto st = lcm_->publish_message(lcm::kPoseChannel, pose); !st.is_ok()) set_error(st.message());
+  if (auto st = lcm_->publish_message(lcm::kPose2Channel, pose2); !st.is_ok()) set_error(st.message());
 
   {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -591,6 +618,7 @@ void FusionDaemon::publish_heartbeat() {
     daemon::add_counter(&hb, "icp_rmse_mm_mean", mean_rmse_m_ * 1e3);
     // TrackingState of the last frame processed (0 tracked, 1 uncertain, 2 lost), and frames by it.
     daemon::add_counter(&hb, "tracking_state", tracking_state_.load());
+    daemon::add_counter(&hb, "color_wrong_size", static_cast<double>(color_wrong_size_.load()));
     daemon::add_counter(&hb, "frames_tracked", static_cast<double>(frames_tracked_.load()));
     daemon::add_counter(&hb, "frames_uncertain", static_cast<double>(frames_uncertain_.load()));
     daemon::add_counter(&hb, "frames_lost_tracking", static_cast<double>(frames_lost_tracking_.load()));

@@ -103,6 +103,7 @@ class FusionDaemon {
   // Frames by the tracking state the worker gave them, and the last one's state.
   std::atomic<int64_t> frames_tracked_{0}, frames_uncertain_{0}, frames_lost_tracking_{0};
   std::atomic<int> tracking_state_{0};
+  std::atomic<int64_t> color_wrong_size_{0};  // colour frames not the size of their depth frame
   int64_t frames_lost_in_a_row_ = 0;  // worker thread only
   std::atomic<int64_t> point_count_{0};
   // When the worker started its current frame or command (steady clock, ns), 0 when waiting: a

@@ -9,7 +9,10 @@
 #include <opencv2/imgcodecs.hpp>
 #include <toml++/toml.h>
 
+#include "depthfuse/base/log.hpp"
 #include "depthfuse/trajectory.hpp"
+
+DF_LOG_CATEGORY(Tum)
 
 namespace fs = std::filesystem;
 
@@ -254,7 +257,14 @@ Result<Frame> TumSource::load(size_t i) const {
     // colour images are not decoded.
     auto rgb_size = png_size(e.rgb_path);
     if (!rgb_size) return rgb_size.status();
-    if (*rgb_size == std::make_pair(img->cols, img->rows)) {
+    if (*rgb_size != std::make_pair(img->cols, img->rows)) {
+      // Depth alone is still good: fused without colour. Said once per sequence.
+      if (!warned_color_size_.exchange(true))
+        DF_LOG(Tum, Warning) << e.rgb_path << " is " << rgb_size->first << "x" << rgb_size->second
+                             << ", its depth " << img->cols << "x" << img->rows
+                             << ": colour must be registered to depth pixel for pixel; frames whose "
+                                "colour is another size are used without it";
+    } else {
       auto rgb = read_png(e.rgb_path, cv::IMREAD_COLOR, img->cols, img->rows);
       if (!rgb) return rgb.status();
       f.color.width = rgb->cols;

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
+#include <string>
 
 namespace depthfuse {
 
@@ -19,6 +21,22 @@ inline double ms_since(Clock::time_point t0) {
 Result<size_t> measure(const Frame& frame, const ReconstructionConfig& c, MeasurementImage* m) {
   DF_RETURN_IF_ERROR(backproject(frame, c.sensor, c.fusion, m));
   return prefilter(c.prefilter, m, c.fusion.threads);
+}
+
+// Why a frame has no valid depth measurement: no depth at all, or none inside the sensor's range.
+Status no_measurement(const DepthImage& depth, const SensorModelConfig& sensor) {
+  size_t zero = 0;
+  for (float z : depth.depth_m) zero += !(z > 0.0f);
+  const size_t n = depth.depth_m.size();
+  char range[64];
+  std::snprintf(range, sizeof(range), "[%g, %g] m", sensor.min_depth_m, sensor.max_depth_m);
+  std::string why = std::to_string(n) + " pixels, ";
+  if (zero == n)
+    why += "all 0 (no measurement)";
+  else
+    why += std::to_string(zero) + " without a measurement and the other " + std::to_string(n - zero) +
+           " outside the sensor's range " + range + " (a wrong depth scale?)";
+  return invalid_argument("no valid depth measurement: " + why);
 }
 
 double rotation_deg(const Pose& a, const Pose& b) {
@@ -53,6 +71,10 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   auto t0 = Clock::now();
   Result<size_t> removed = measure(frame, config_, &scratch_);
   if (!removed) return removed.status();
+  // Nothing to track or fuse: the frame cannot be placed, and tracking from an empty first frame
+  // would anchor the map nowhere. Said with the reason, so that a broken sensor or a wrong depth
+  // scale is recognised.
+  if (scratch_.valid_count() + *removed == 0) return no_measurement(frame.depth, config_.sensor);
   report.prefiltered = *removed;
   report.prefilter_ms = ms_since(t0);
 
@@ -62,6 +84,7 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   else if (last_T_world_cam_) T = *last_T_world_cam_;
 
   t0 = Clock::now();
+  registrar_.set_frame_color(frame.color, scratch_);
   if (config_.registration.enabled && map_->point_count() > 0) {
     const bool hint = frame.T_world_cam_hint.has_value();
     // Without a hint: the tracking of a moving camera, its unconstrained directions held at the
@@ -113,6 +136,7 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   report.fusion = fuser_.fuse(scratch_, &frame.color, T, next_frame_id_, map_.get());
   report.fusion_ms = ms_since(t0);
   last_T_world_cam_ = T;
+  registrar_.keep_frame_as_photometric_reference(scratch_, T);
   ++next_frame_id_;
   return report;
 }
@@ -127,6 +151,7 @@ void IncrementalReconstructor::reset(std::unique_ptr<PointMap> map, uint32_t nex
   frames_since_model_ = 0;
   next_frame_id_ = std::max<uint32_t>(1, next_frame_id);
   last_T_world_cam_ = last_T_world_cam;
+  registrar_.forget_photometric_reference();
 }
 
 SequenceFuser::SequenceFuser(const ReconstructionConfig& config)

@@ -7,11 +7,14 @@
 
 #include "model_projection.hpp"
 #include "parallel.hpp"
+#include "photometric.hpp"
 
 namespace depthfuse {
 
 Registrar::Registrar(const RegistrationConfig& config)
-    : config_(config), projection_(std::make_unique<ModelProjection>()) {}
+    : config_(config),
+      projection_(std::make_unique<ModelProjection>()),
+      photometric_(std::make_unique<PhotometricTerm>(config)) {}
 
 Registrar::~Registrar() = default;
 
@@ -148,7 +151,8 @@ void Registrar::render_model(const MeasurementImage& m, const PointMap& map, con
 
 RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& model,
                                   const Pose& initial, const Hold& hold, int subsample,
-                                  int iterations, double max_corr_m, size_t min_pairs) {
+                                  int iterations, double max_corr_m, size_t min_pairs,
+                                  int photometric_level) {
   RegistrationResult result;
   result.T_world_cam = initial;
   const CameraIntrinsics& MK = model.K;
@@ -218,6 +222,8 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
     sampled += second_sampled;
     result.iterations = it + 1;
     if (eq.inliers < min_pairs) break;
+    if (photometric_level >= 0)
+      photometric_->add_to(m, T, centre, photometric_level, step, max_d, &eq.H, &eq.b);
     const Eigen::Matrix<double, 6, 1> to_anchor =
         hold.anchor ? twist_between(T, *hold.anchor, centre.cast<double>())
                     : Eigen::Matrix<double, 6, 1>::Zero();
@@ -294,13 +300,24 @@ RegistrationResult Registrar::coarse_to_fine(const MeasurementImage& m, const Su
   for (int level = levels - 1; level >= 0; --level) {
     const int step = std::max(1, config_.subsample_px) << level;
     const double gate = config_.max_correspondence_m * (1 << level);
-    r = run(m, model, T, hold, step, config_.tracking_iterations_per_level, gate, min_pairs(level));
+    r = run(m, model, T, hold, step, config_.tracking_iterations_per_level, gate, min_pairs(level),
+            level);
     if (r.converged) T = r.T_world_cam;
   }
   r.T_world_cam = T;
   return r;
 }
 
+void Registrar::set_frame_color(const ColorImage& color, const MeasurementImage& m) {
+  photometric_->set_frame(color, m);
+}
+
+void Registrar::keep_frame_as_photometric_reference(const MeasurementImage& m,
+                                                    const Pose& T_world_cam) {
+  photometric_->keep_frame_as_reference(m, T_world_cam);
+}
+
+void Registrar::forget_photometric_reference() { photometric_->clear(); }
 
 const char* to_string(TrackingState s) {
   switch (s) {

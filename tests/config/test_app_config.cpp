@@ -65,6 +65,7 @@ void expect_config_eq(const AppConfig& a, const AppConfig& b) {
   EXPECT_EQ(ra.registration.tracking_lost_rmse_m, rb.registration.tracking_lost_rmse_m);
   EXPECT_EQ(ra.registration.tracking_iterations_per_level,
             rb.registration.tracking_iterations_per_level);
+  EXPECT_EQ(ra.registration.photometric_weight, rb.registration.photometric_weight);
   EXPECT_EQ(ra.pipeline.method, rb.pipeline.method);
   EXPECT_EQ(ra.pipeline.outer_iterations, rb.pipeline.outer_iterations);
   EXPECT_EQ(ra.pipeline.converged_translation_m, rb.pipeline.converged_translation_m);
@@ -160,6 +161,7 @@ model_band_m = 0.04
 tracking_model_band_m = 0.2
 tracking_levels = 2
 tracking_iterations_per_level = 5
+photometric_weight = 0.5
 tracking_retry_fitness = 0.25
 tracking_degenerate_ratio = 0.002
 tracking_lost_fitness = 0.2
@@ -236,6 +238,7 @@ publish_rate_hz = 0.5
   EXPECT_EQ(g.tracking_model_band_m, 0.2);
   EXPECT_EQ(g.tracking_levels, 2);
   EXPECT_EQ(g.tracking_iterations_per_level, 5);
+  EXPECT_EQ(g.photometric_weight, 0.5);
   EXPECT_EQ(g.tracking_retry_fitness, 0.25);
   EXPECT_EQ(g.tracking_degenerate_ratio, 0.002);
   EXPECT_EQ(g.tracking_lost_fitness, 0.2);
@@ -384,6 +387,7 @@ TEST(AppConfig, OutOfRangeValuesAreErrors) {
       {"registration", "tracking_levels", "0", "must be in [1, 8], got 0"},
       {"registration", "tracking_levels", "9", "must be in [1, 8], got 9"},
       {"registration", "tracking_iterations_per_level", "-2", "must be >= 0, got -2"},
+      {"registration", "photometric_weight", "-0.1", "must be >= 0, got -0.1"},
       {"registration", "tracking_retry_fitness", "1.5", "must be in [0, 1], got 1.5"},
       {"registration", "live_model_reuse_frames", "0", "must be in [1, 30], got 0"},
       {"registration", "live_model_reuse_max_m", "-0.01", "must be >= 0, got -0.01"},

@@ -48,7 +48,7 @@ TEST(Batch, WithoutRoundsIsTheSequenceFusedFrameByFrame) {
 
 TEST(Incremental, FrameWorkStaysWithinItsBound) {
   // The heap that processing frames holds beyond the map, tracked (coarse to fine, the most
-  // scratch) and with hints, against kWorkBytesPerPixel. Near the bound too, so that it stays true
+  // scratch, with colour for the photometric term) and with hints, against kWorkBytesPerPixel. Near the bound too, so that it stays true
   // as a figure for the fusion daemon's budget rather than a loose ceiling.
   ReconstructionConfig c;
   c.fusion.threads = 2;
@@ -60,6 +60,9 @@ TEST(Incremental, FrameWorkStaysWithinItsBound) {
     const double a = 0.6 + i * 0.01;
     const Pose T = test::look_at({2.4 * std::cos(a), 2.4 * std::sin(a), 1.4}, {0.3, 0.3, 0.3});
     Frame f = test::render_corner(T);
+    f.color.width = f.depth.width;
+    f.color.height = f.depth.height;
+    f.color.rgb.assign(f.depth.depth_m.size() * 3, 128);
     if (i % 2 == 0) f.T_world_cam_hint = T;
     pixels = f.depth.depth_m.size();
     const size_t frame_bytes = f.depth.depth_m.size() * sizeof(float) + f.color.rgb.size();
@@ -220,5 +223,47 @@ TEST(Sequence, CountsTheLostFramesAndPredictsOnlyFromFusedOnes) {
     EXPECT_EQ(r->state[i], TrackingState::kTracked) << "frame " << i;
     EXPECT_LT((r->T_world_cam[i].translation() - (T_0_world * truth[i]).translation()).norm(), 3e-3)
         << "frame " << i;
+  }
+}
+
+// A first frame with no depth at all, or none inside the sensor's range, is refused with the reason
+// (the map stays empty, nothing is anchored at it), and the next good frame starts the map.
+TEST(Incremental, AFrameWithoutValidDepthIsRefusedWithTheReason) {
+  const Pose T = test::look_at({2, 2, 1.5}, {0.3, 0.3, 0.3});
+  IncrementalReconstructor rec{ReconstructionConfig{}};
+  Frame empty = test::render_corner(T);
+  std::fill(empty.depth.depth_m.begin(), empty.depth.depth_m.end(), 0.0f);
+  auto r = rec.process(empty);
+  ASSERT_FALSE(r.is_ok());
+  EXPECT_NE(r.status().message().find("no valid depth measurement"), std::string::npos);
+  EXPECT_NE(r.status().message().find("all 0"), std::string::npos) << r.status().to_string();
+
+  Frame far = test::render_corner(T);
+  for (float& z : far.depth.depth_m) z = z > 0 ? z * 10 : z;  // a wrong depth scale
+  r = rec.process(far);
+  ASSERT_FALSE(r.is_ok());
+  EXPECT_NE(r.status().message().find("outside the sensor's range [0.5, 4.5] m"), std::string::npos)
+      << r.status().to_string();
+  EXPECT_EQ(rec.map().point_count(), 0u);
+
+  r = rec.process(test::render_corner(T));
+  ASSERT_TRUE(r.is_ok()) << r.status().to_string();
+  EXPECT_GT(rec.map().point_count(), 0u);
+}
+
+// Colour of another size than the depth is not the frame's colour: fused without it, no crash.
+TEST(Incremental, ColourOfAnotherSizeIsNotUsed) {
+  const Pose T = test::look_at({2, 2, 1.5}, {0.3, 0.3, 0.3});
+  ReconstructionConfig c;
+  c.registration.photometric_weight = 1e-2;
+  IncrementalReconstructor rec{c};
+  for (int i = 0; i < 2; ++i) {
+    Frame f = test::render_corner(T);
+    f.color.width = f.depth.width / 2;
+    f.color.height = f.depth.height / 2;
+    f.color.rgb.assign(static_cast<size_t>(f.color.width) * f.color.height * 3, 200);
+    auto r = rec.process(f);
+    ASSERT_TRUE(r.is_ok()) << r.status().to_string();
+    EXPECT_TRUE(r->fused());
   }
 }

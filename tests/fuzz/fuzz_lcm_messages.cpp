@@ -11,6 +11,7 @@
 #include "depthfuse/lcm/frame_codec.hpp"
 #include "depthfuse/map_delta_t.hpp"
 #include "depthfuse/map_request_t.hpp"
+#include "depthfuse/pose2_t.hpp"
 #include "depthfuse/pose_t.hpp"
 #include "depthfuse/status_t.hpp"
 
@@ -37,6 +38,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   }
   pose_t pose;
   if (decode(data, size, &pose)) (void)lcm::pose_from_arrays(pose.position_m, pose.orientation_wxyz);
+  pose2_t pose2;
+  if (decode(data, size, &pose2))
+    (void)lcm::pose_from_arrays(pose2.pose.position_m, pose2.pose.orientation_wxyz);
   command_t command;
   (void)decode(data, size, &command);
   heartbeat_t heartbeat;

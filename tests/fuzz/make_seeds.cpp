@@ -13,6 +13,7 @@
 #include "depthfuse/lcm/frame_codec.hpp"
 #include "depthfuse/lcm/udpm.hpp"
 #include "depthfuse/ply.hpp"
+#include "depthfuse/pose2_t.hpp"
 #include "depthfuse/pose_t.hpp"
 #include "depthfuse/store/blob_codec.hpp"
 
@@ -119,6 +120,11 @@ int main(int argc, char** argv) {
   pose.protocol_version = pose_t::PROTOCOL_VERSION;
   pose.orientation_wxyz[0] = 1;
   messages.emplace_back("pose", lcm::encode_message(pose));
+  pose2_t pose2{};
+  pose2.protocol_version = pose2_t::PROTOCOL_VERSION;
+  pose2.tracking = pose2_t::TRACKING_LOST;
+  pose2.pose = pose;
+  messages.emplace_back("pose2", lcm::encode_message(pose2));
   command_t command{};
   command.protocol_version = command_t::PROTOCOL_VERSION;
   command.action = command_t::ACTION_START;

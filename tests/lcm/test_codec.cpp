@@ -14,6 +14,7 @@
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/lcm/frame_codec.hpp"
+#include "depthfuse/pose2_t.hpp"
 #include "depthfuse/pose_t.hpp"
 #include "depthfuse/status_t.hpp"
 
@@ -421,6 +422,7 @@ TEST(MessageDecoding, EveryTypeCarriesTheProtocolVersion) {
   EXPECT_EQ(depthfuse::depth_frame_t::PROTOCOL_VERSION, lcm::kProtocolVersion);
   EXPECT_EQ(depthfuse::color_frame_t::PROTOCOL_VERSION, lcm::kProtocolVersion);
   EXPECT_EQ(depthfuse::pose_t::PROTOCOL_VERSION, lcm::kProtocolVersion);
+  EXPECT_EQ(depthfuse::pose2_t::PROTOCOL_VERSION, lcm::kProtocolVersion);
   EXPECT_EQ(depthfuse::heartbeat_t::PROTOCOL_VERSION, lcm::kProtocolVersion);
   EXPECT_EQ(depthfuse::status_t::PROTOCOL_VERSION, lcm::kProtocolVersion);
   EXPECT_EQ(depthfuse::command_t::PROTOCOL_VERSION, lcm::kProtocolVersion);

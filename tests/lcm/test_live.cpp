@@ -27,6 +27,7 @@
 #include "depthfuse/lcmlog/lcmlog_source.hpp"
 #include "depthfuse/ply.hpp"
 #include "depthfuse/pipeline.hpp"
+#include "depthfuse/pose2_t.hpp"
 #include "depthfuse/pose_t.hpp"
 #include "depthfuse/status_t.hpp"
 #include "depthfuse/synthetic/synthetic_source.hpp"
@@ -68,6 +69,13 @@ class Observer {
       std::lock_guard<std::mutex> lock(mutex_);
       poses_.push_back(p);
     });
+    listener_.subscribe(lcm::kPose2Channel, [this](const std::string&, const uint8_t* d, size_t n,
+                                                     int64_t) {
+      depthfuse::pose2_t p;
+      if (lcm::decode_message(d, n, &p) != lcm::DecodeResult::kOk) return;
+      std::lock_guard<std::mutex> lock(mutex_);
+      poses2_.push_back(p);
+    });
     listener_.start();
   }
   const std::string& error() const { return listener_.error(); }
@@ -100,6 +108,10 @@ class Observer {
     std::lock_guard<std::mutex> lock(mutex_);
     return poses_;
   }
+  std::vector<depthfuse::pose2_t> poses2() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return poses2_;
+  }
 
  private:
   Listener listener_;
@@ -109,7 +121,23 @@ class Observer {
   std::optional<depthfuse::status_t> status_;
   int64_t status_count_ = 0;
   std::vector<depthfuse::pose_t> poses_;
+  std::vector<depthfuse::pose2_t> poses2_;
 };
+
+// A wall depth_m in front of a 320x240 camera, without a pose hint, as from a Kinect; a ridge
+// ridge_m deep down its middle (0: flat; depth_m 0: an empty frame).
+Frame wall_frame(int64_t sequence, float depth_m, float ridge_m) {
+  Frame f;
+  f.sequence = static_cast<uint32_t>(sequence);
+  f.utime = sequence * 33333;
+  f.intrinsics = {320, 240, 300.0, 300.0, 159.5, 119.5};
+  f.depth = DepthImage(320, 240);
+  if (depth_m > 0)
+    for (int v = 0; v < 240; ++v)
+      for (int u = 0; u < 320; ++u)
+        f.depth.depth_m[v * 320 + u] = depth_m + ridge_m * std::abs(u - 160) / 160.0f;
+  return f;
+}
 
 // Points in the saved cloud of scan e2e.
 size_t cloud_points_expected(const std::string& dir) {
@@ -756,16 +784,9 @@ TEST_F(LiveAppliance, ALostFrameIsCountedAndNotFused) {
   auto fusion = start_fusion({"--autostart", "lost", "--queue", "64"});
   ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.scan_id == "lost"; },
                                         seconds(10)));
-  // A wall in front of a 320x240 camera, without a pose hint, as from a Kinect.
   auto wall = [](int64_t sequence, float depth_m) {
-    Frame f;
-    f.sequence = static_cast<uint32_t>(sequence);
-    f.utime = sequence * 33333;
-    f.intrinsics = {320, 240, 300.0, 300.0, 159.5, 119.5};
-    f.depth = DepthImage(320, 240);
-    for (int v = 0; v < 240; ++v)
-      for (int u = 0; u < 320; ++u)  // a ridge, so that ICP has more than a plane to hold on to
-        f.depth.depth_m[v * 320 + u] = depth_m + 0.2f * std::abs(u - 160) / 160.0f;
+    // A ridge, so that ICP has more than a plane to hold on to.
+    const Frame f = wall_frame(sequence, depth_m, 0.2f);
     depthfuse::depth_frame_t msg;
     EXPECT_TRUE(lcm::encode_depth_frame(f, {}, &msg).is_ok());
     return msg;
@@ -792,8 +813,53 @@ TEST_F(LiveAppliance, ALostFrameIsCountedAndNotFused) {
   hb = *observer_->heartbeat("fusion");
   EXPECT_LT(daemon::counter_value(hb, "tracking_state"), 2);
   EXPECT_EQ(daemon::counter_value(hb, "frames_lost_tracking"), 1);
-  EXPECT_EQ(observer_->poses().size(), 2u);  // no pose for the lost frame
+  EXPECT_EQ(observer_->poses().size(), 2u);  // no pose_t for the lost frame
+  // pose2_t has every frame, the lost one at the last fused pose.
+  ASSERT_TRUE(eventually([&] { return observer_->poses2().size() == 3u; }, seconds(10)));
+  const auto poses2 = observer_->poses2();
+  EXPECT_EQ(poses2[0].tracking, depthfuse::pose2_t::TRACKING_TRACKED);
+  EXPECT_EQ(poses2[1].tracking, depthfuse::pose2_t::TRACKING_LOST);
+  EXPECT_FALSE(poses2[1].fused);
+  EXPECT_EQ(poses2[1].pose.sequence, 2);
+  EXPECT_EQ(poses2[1].pose.merged + poses2[1].pose.added, 0);
+  for (int k = 0; k < 3; ++k)
+    EXPECT_DOUBLE_EQ(poses2[1].pose.position_m[k], poses2[0].pose.position_m[k]);
+  EXPECT_TRUE(poses2[2].fused);
+  EXPECT_NE(poses2[2].tracking, depthfuse::pose2_t::TRACKING_LOST);
   EXPECT_NE(fusion->log().find("tracking lost"), std::string::npos) << fusion->log();
+}
+
+// Bad input from the capture side: a first frame with no depth, then colour of another size than
+// its depth. Each is named in the heartbeat's last error; the daemon keeps running, and the good
+// depth is fused (without the colour).
+TEST_F(LiveAppliance, AnEmptyFrameAndColourOfTheWrongSizeAreReportedNotFatal) {
+  auto fusion = start_fusion({"--autostart", "bad", "--queue", "64"});
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.scan_id == "bad"; },
+                                        seconds(10)));
+  depthfuse::depth_frame_t depth;
+  ASSERT_TRUE(lcm::encode_depth_frame(wall_frame(1, 0.0f, 0.0f), {}, &depth).is_ok());
+  ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kDepthChannel, depth).is_ok());
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) {
+    return hb.last_error.find("no valid depth measurement") != std::string::npos;
+  }, seconds(20))) << fusion->log();
+  EXPECT_EQ(observer_->heartbeat("fusion")->frames_out, 0);
+
+  Frame good = wall_frame(2, 1.5f, 0.0f);
+  good.color.width = 160;
+  good.color.height = 120;
+  good.color.rgb.assign(160 * 120 * 3, 100);
+  depthfuse::color_frame_t color;
+  ASSERT_TRUE(lcm::encode_color_frame(good, {}, &color).is_ok());
+  ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kColorChannel, color).is_ok());
+  ASSERT_TRUE(lcm::encode_depth_frame(good, {}, &depth).is_ok());
+  ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kDepthChannel, depth).is_ok());
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.frames_out == 1; },
+                                        seconds(20))) << fusion->log();
+  const auto hb = *observer_->heartbeat("fusion");
+  EXPECT_EQ(daemon::counter_value(hb, "color_wrong_size"), 1);
+  EXPECT_NE(hb.last_error.find("colour frame 2 is 160x120, its depth frame 320x240"), std::string::npos)
+      << hb.last_error;
+  EXPECT_TRUE(fusion->running()) << fusion->log();
 }
 
 TEST_F(LiveAppliance, RecordedSessionReplaysAtItsPace) {

@@ -43,6 +43,27 @@ cp -r "$T/c" "$T/empty"; printf '# nothing\n' > "$T/empty/depth.txt"
 check empty-sequence nonzero "empty sequence" "$DF" reconstruct "$T/empty" -o "$T/x.ply"
 cp -r "$T/c" "$T/size"; sed -i 's/^width = 512/width = 640/' "$T/size/camera.toml"
 check wrong-size nonzero "512x424 but the camera is 640x424" "$DF" reconstruct "$T/size" -o "$T/x.ply"
+# A first frame with no depth, or none in the sensor's range, cannot start tracking; colour of
+# another size than the depth is used without (python3's standard library writes the PNGs).
+png() {  # png <file> <width> <height> <bit depth 16: one channel | 8: RGB> <sample value>
+  python3 -c '
+import struct, sys, zlib
+f, w, h, bits, value = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
+row = b"\0" + (struct.pack(">H", value) * w if bits == 16 else bytes([value]) * 3 * w)
+chunk = lambda t, d: struct.pack(">I", len(d)) + t + d + struct.pack(">I", zlib.crc32(t + d))
+ihdr = struct.pack(">IIBBBBB", w, h, bits, 0 if bits == 16 else 2, 0, 0, 0)
+open(f, "wb").write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(row * h)) + chunk(b"IEND", b""))
+' "$@"
+}
+for case in "0 all 0 (no measurement)" "65535 outside the sensor's range"; do
+  cp -r "$T/c" "$T/first"; png "$T/first/depth/$first" 512 424 16 "${case%% *}"
+  check "first-frame-${case%% *}" nonzero "frame 0: no valid depth measurement: 217088 pixels, .*${case#* }" \
+    "$DF" reconstruct "$T/first" --track -o "$T/x.ply"
+  rm -rf "$T/first"
+done
+cp -r "$T/c" "$T/rgb"; png "$T/rgb/rgb/$(ls "$T/rgb/rgb" | head -1)" 120 100 8 90
+check colour-wrong-size 0 "rgb/.* is 120x100, its depth 512x424: colour must be registered" \
+  "$DF" reconstruct "$T/rgb" --track --iterations 0 -o "$T/x.ply"
 check no-such-folder nonzero "no such folder" "$DF" reconstruct "$T/nope" -o "$T/x.ply"
 check bad-method nonzero "--method must be" "$DF" reconstruct "$T/c" --method best -o "$T/x.ply"
 check bad-iterations nonzero "expects an integer" "$DF" reconstruct "$T/c" --iterations many -o "$T/x.ply"

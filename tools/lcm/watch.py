@@ -27,6 +27,7 @@ TYPES = {
     "DEPTHFUSE_DEPTH": "depth_frame_t",
     "DEPTHFUSE_COLOR": "color_frame_t",
     "DEPTHFUSE_POSE": "pose_t",
+    "DEPTHFUSE_POSE2": "pose2_t",
     "DEPTHFUSE_HEARTBEAT": "heartbeat_t",
     "DEPTHFUSE_STATUS": "status_t",
     "DEPTHFUSE_COMMAND": "command_t",

@@ -74,6 +74,9 @@ struct RegistrationConfig {
   // Tracking without a pose hint: coarse-to-fine levels (subsample 4, 2, 1 ...), iterations each.
   int tracking_levels = 3;
   int tracking_iterations_per_level = 10;
+  // Tracking: weight of the photometric term (intensity of the frame against the last fused
+  // frame's, 0..1) per squared point-to-plane metre; 0 = off, and off without colour.
+  double photometric_weight = 0.01;
   // Tracking from a prediction whose result has an ICP fitness below this (or fails) starts again
   // from the last refined pose; 0 = never.
   double tracking_retry_fitness = 0.5;

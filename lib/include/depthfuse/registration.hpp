@@ -51,6 +51,7 @@ struct SurfaceView {
 };
 
 class ModelProjection;
+class PhotometricTerm;
 
 class Registrar {
  public:
@@ -84,6 +85,14 @@ class Registrar {
   // The model the last refine() or track() against the map rendered (empty before any).
   const SurfaceView& model() const { return view_; }
 
+  // The photometric term of track() (registration.photometric_weight): the colour of the frame
+  // about to be tracked, registered to its depth pixel for pixel (absent or of another size: no
+  // term for this frame); once the frame is fused at T_world_cam, it becomes the reference the next
+  // frames' intensities are compared with; forget_photometric_reference() for a new map.
+  void set_frame_color(const ColorImage& color, const MeasurementImage& m);
+  void keep_frame_as_photometric_reference(const MeasurementImage& m, const Pose& T_world_cam);
+  void forget_photometric_reference();
+
  private:
   // Projects the map around the frame's measurements into the camera at T_world_cam: view_, the
   // consensus surface of the points within band_m behind the front-most, for pairs up to max_corr_m.
@@ -100,7 +109,7 @@ class Registrar {
   // (at least 6) inlier pairs: not converged, the initial pose stays.
   RegistrationResult run(const MeasurementImage& m, const SurfaceView& model, const Pose& initial,
                          const Hold& hold, int subsample, int iterations, double max_corr_m,
-                         size_t min_pairs);
+                         size_t min_pairs, int photometric_level = -1);
   // Inlier pairs a level of coarse-to-fine needs (level 0: refine() and the finest level).
   size_t min_pairs(int level) const;
   // Coarse to fine: every level halves the pixel step and the correspondence gate and needs four
@@ -109,6 +118,7 @@ class Registrar {
                                     const Pose& T_world_cam_initial, const Hold& hold);
   RegistrationConfig config_;
   std::unique_ptr<ModelProjection> projection_;
+  std::unique_ptr<PhotometricTerm> photometric_;
   SurfaceView view_;  // the last rendered model
 };
 

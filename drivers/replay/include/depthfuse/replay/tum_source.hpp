@@ -2,6 +2,7 @@
 // pose source, and the camera from camera.toml, the caller, or the image size.
 #pragma once
 
+#include <atomic>
 #include <memory>
 #include <optional>
 #include <string>
@@ -68,6 +69,7 @@ class TumSource : public FrameSource {
   double depth_scale_ = 5000.0;
   bool has_poses_ = false;
   size_t next_ = 0;
+  mutable std::atomic<bool> warned_color_size_{false};  // load() said colour was another size
 };
 
 // For the source factory: arg is the folder.

@@ -6,6 +6,7 @@ namespace depthfuse::lcm {
 inline constexpr const char* kDepthChannel = "DEPTHFUSE_DEPTH";          // depth_frame_t
 inline constexpr const char* kColorChannel = "DEPTHFUSE_COLOR";          // color_frame_t
 inline constexpr const char* kPoseChannel = "DEPTHFUSE_POSE";            // pose_t
+inline constexpr const char* kPose2Channel = "DEPTHFUSE_POSE2";          // pose2_t
 inline constexpr const char* kHeartbeatChannel = "DEPTHFUSE_HEARTBEAT";  // heartbeat_t
 inline constexpr const char* kStatusChannel = "DEPTHFUSE_STATUS";        // status_t
 inline constexpr const char* kCommandChannel = "DEPTHFUSE_COMMAND";      // command_t
