@@ -136,22 +136,18 @@ Status ScanStore::Impl::write_chunk_row(bool staged, const EncodedChunk& chunk, 
   return st->run();
 }
 
-Status ScanStore::Impl::delete_staged_of_checkpoint(const ChunkKey& key) {
-  auto st = db.prepare(
-      "DELETE FROM chunk_staging WHERE x = ? AND y = ? AND z = ? AND last_touched_frame <= ?;",
-      "deleting staged chunk " + to_string(key));
-  if (!st) return st.status();
-  st->bind(1, key.x).bind(2, key.y).bind(3, key.z).bind(4, static_cast<int64_t>(checkpoint_up_to_frame));
-  return st->run();
-}
-
-Status ScanStore::Impl::delete_chunk_row(bool staged, const ChunkKey& key) {
-  auto st = db.prepare(std::string("DELETE FROM ") + (staged ? "chunk_staging" : "chunks") +
-                           " WHERE x = ? AND y = ? AND z = ?;",
-                       "deleting chunk " + to_string(key));
-  if (!st) return st.status();
-  st->bind(1, key.x).bind(2, key.y).bind(3, key.z);
-  return st->run();
+Status ScanStore::Impl::delete_chunk_rows(const ChunkKey& key, bool committed) {
+  auto run = [&](const std::string& sql, bool up_to_frame) -> Status {
+    auto st = db.prepare(sql, "deleting chunk " + to_string(key));
+    if (!st) return st.status();
+    st->bind(1, key.x).bind(2, key.y).bind(3, key.z);
+    if (up_to_frame) st->bind(4, static_cast<int64_t>(checkpoint_up_to_frame));
+    return st->run();
+  };
+  const std::string where = " WHERE x = ? AND y = ? AND z = ?";
+  DF_RETURN_IF_ERROR(run("DELETE FROM chunk_staging" + where + " AND last_touched_frame <= ?;", true));
+  if (!committed) return Status::ok();
+  return run("DELETE FROM chunks" + where + ";", false);
 }
 
 Status ScanStore::Impl::decode_chunk_row(const sql::Row& row, bool staged, StoredChunk* out) {

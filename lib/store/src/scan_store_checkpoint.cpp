@@ -84,16 +84,16 @@ Status ScanStore::write_chunk(const ChunkKey& key, const Chunk& chunk) {
 Status ScanStore::write_chunk(const EncodedChunk& chunk) {
   Impl& s = *impl_;
   if (!s.in_checkpoint) return invalid_argument(s.path + ": write_chunk outside a checkpoint");
-  DF_RETURN_IF_ERROR(s.delete_staged_of_checkpoint(chunk.key));
-  if (chunk.point_count == 0) return s.delete_chunk_row(/*staged=*/false, chunk.key);
+  // An empty chunk has no row.
+  DF_RETURN_IF_ERROR(s.delete_chunk_rows(chunk.key, /*committed=*/chunk.point_count == 0));
+  if (chunk.point_count == 0) return Status::ok();
   return s.write_chunk_row(/*staged=*/false, chunk, s.checkpoint_id);
 }
 
 Status ScanStore::delete_chunk(const ChunkKey& key) {
   Impl& s = *impl_;
   if (!s.in_checkpoint) return invalid_argument(s.path + ": delete_chunk outside a checkpoint");
-  DF_RETURN_IF_ERROR(s.delete_staged_of_checkpoint(key));
-  return s.delete_chunk_row(/*staged=*/false, key);
+  return s.delete_chunk_rows(key, /*committed=*/true);
 }
 
 Status ScanStore::delete_all_chunks() {

@@ -99,9 +99,9 @@ struct ScanStore::Impl {
   Result<std::optional<std::string>> get_meta(const std::string& key);
   Status write_chunk_row(bool staged, const ChunkKey& key, const Chunk& chunk, int64_t last_column);
   Status write_chunk_row(bool staged, const EncodedChunk& chunk, int64_t last_column);
-  Status delete_chunk_row(bool staged, const ChunkKey& key);
-  // Deletes the staged copy of `key` unless a frame after the open checkpoint's touched it.
-  Status delete_staged_of_checkpoint(const ChunkKey& key);
+  // Inside a checkpoint: deletes the staged copy of `key` unless a frame after the checkpoint's
+  // touched it, and with `committed` the checkpointed row too.
+  Status delete_chunk_rows(const ChunkKey& key, bool committed);
   // Reads a row of select_chunks(staged, "data") and decodes its blob into `out`.
   Status decode_chunk_row(const sql::Row& row, bool staged, StoredChunk* out);
   Result<CheckpointRecord> checkpoint_of(const sql::Row& row);
