@@ -8,6 +8,8 @@
 namespace depthfuse::store {
 
 uint32_t crc32(const void* data, size_t size, uint32_t crc) {
+  // libdeflate, like zlib, returns 0 for a null buffer instead of continuing the sum.
+  if (size == 0) return crc;
   return libdeflate_crc32(crc, data, size);
 }
 
