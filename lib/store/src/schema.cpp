@@ -65,6 +65,11 @@ CREATE TABLE poses (
   rmse_m REAL,
   correspondences INTEGER
 );
+)sql";
+
+// The keyframes table of schema 2, and of schema 4 with the row's checksum before the images.
+std::string keyframes_table(bool with_checksum) {
+  return std::string(R"sql(
 CREATE TABLE keyframes (
   frame_id INTEGER PRIMARY KEY,
   utime INTEGER NOT NULL,
@@ -75,11 +80,12 @@ CREATE TABLE keyframes (
   fy REAL NOT NULL,
   cx REAL NOT NULL,
   cy REAL NOT NULL,
-  T_world_cam BLOB NOT NULL,
+  T_world_cam BLOB NOT NULL,)sql") + (with_checksum ? "\n  checksum INTEGER," : "") + R"sql(
   depth BLOB NOT NULL,
   color BLOB
 );
 )sql";
+}
 
 // Schema 1 -> 2:
 //  - checkpoints get a table of their own (v1 kept only the last one, in meta keys
@@ -139,23 +145,10 @@ PRAGMA user_version = 3;
 // sits before the images (a column after a big blob would be read through its overflow pages).
 // Rows written before keep NULL: unchecked, not guessed at.
 Status migrate_3_to_4(sql::Database& db) {
+  const std::string ctx = "migrating schema 3 to 4";
+  DF_RETURN_IF_ERROR(db.exec("ALTER TABLE keyframes RENAME TO keyframes_v3;", ctx));
+  DF_RETURN_IF_ERROR(db.exec(keyframes_table(/*with_checksum=*/true), ctx));
   return db.exec(R"sql(
-ALTER TABLE keyframes RENAME TO keyframes_v3;
-CREATE TABLE keyframes (
-  frame_id INTEGER PRIMARY KEY,
-  utime INTEGER NOT NULL,
-  sensor_serial TEXT NOT NULL DEFAULT '',
-  width INTEGER NOT NULL,
-  height INTEGER NOT NULL,
-  fx REAL NOT NULL,
-  fy REAL NOT NULL,
-  cx REAL NOT NULL,
-  cy REAL NOT NULL,
-  T_world_cam BLOB NOT NULL,
-  checksum INTEGER,
-  depth BLOB NOT NULL,
-  color BLOB
-);
 INSERT INTO keyframes (frame_id, utime, sensor_serial, width, height, fx, fy, cx, cy, T_world_cam,
                        checksum, depth, color)
 SELECT frame_id, utime, sensor_serial, width, height, fx, fy, cx, cy, T_world_cam, NULL, depth,
@@ -164,7 +157,7 @@ FROM keyframes_v3;
 DROP TABLE keyframes_v3;
 ALTER TABLE checkpoints ADD COLUMN checksum INTEGER;
 PRAGMA user_version = 4;
-)sql", "migrating schema 3 to 4");
+)sql", ctx);
 }
 
 }  // namespace
@@ -172,6 +165,7 @@ PRAGMA user_version = 4;
 Status create_current(sql::Database& db) {
   const std::string ctx = "creating the scan schema";
   DF_RETURN_IF_ERROR(db.exec(kCreateV2, ctx));
+  DF_RETURN_IF_ERROR(db.exec(keyframes_table(/*with_checksum=*/false), ctx));
   DF_RETURN_IF_ERROR(db.exec(chunks_v2(), ctx));
   DF_RETURN_IF_ERROR(db.exec(added_in_v2(), ctx));
   DF_RETURN_IF_ERROR(migrate_2_to_3(db));
