@@ -132,7 +132,8 @@ TEST(LcmTransport, AStringWithANulIsSentUpToIt) {
     if (lcm::decode_message(d, n, &hb) == lcm::DecodeResult::kOk) names.push_back(hb.name);
   });
   listener.start();
-  depthfuse::heartbeat_t hb;
+  depthfuse::heartbeat_t hb{};  // lcm-gen leaves its numbers uninitialised
+  hb.protocol_version = depthfuse::heartbeat_t::PROTOCOL_VERSION;
   hb.name = std::string("fus\0ion", 7);
   hb.host = "h";
   ASSERT_TRUE((*pub)->publish_message(lcm::kHeartbeatChannel, hb).is_ok());
