@@ -38,7 +38,7 @@ PACKAGES=(
   libsqlite3-dev sqlite3 libsystemd-dev systemd
   liblcm-dev liblcm-bin liblcm-java libglib2.0-dev default-jdk-headless
   libgtest-dev libgmock-dev libbenchmark-dev
-  libtomlplusplus-dev libzstd-dev libturbojpeg0-dev libsodium-dev
+  libtomlplusplus-dev libzstd-dev libdeflate-dev libturbojpeg0-dev libsodium-dev
   libcivetweb-dev libjs-three node-tweetnacl  # the operator's page: HTTP + WebSocket server,
                                               # three.js, SHA-512 for its command signatures
   chromium                     # the page's test in a real (headless) browser

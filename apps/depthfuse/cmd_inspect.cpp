@@ -131,6 +131,11 @@ int run(int argc, char** argv) {
       if (integrity->poses_unchecked > 0)
         checked += ", " + std::to_string(integrity->poses_unchecked) +
                    " unchecked (written before schema 3, without a checksum: only decoded)";
+      for (auto [n, what] : {std::pair{integrity->keyframes_unchecked, " keyframe"},
+                             std::pair{integrity->checkpoints_unchecked, " checkpoint"}})
+        if (n > 0)
+          checked += "; " + std::to_string(n) + what +
+                     " poses unchecked (written before schema 4, without a checksum: only decoded)";
     }
     std::printf("integrity      ok (sqlite integrity_check%s)\n", checked.c_str());
     return 0;

@@ -5,6 +5,7 @@
 #include <thread>
 
 #include "depthfuse/depth_frame_t.hpp"
+#include "depthfuse/heartbeat_t.hpp"
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/lcm/frame_codec.hpp"
@@ -111,6 +112,38 @@ TEST(LcmTransport, FullSizeDepthFrameCrossesLoopback) {
   std::lock_guard<std::mutex> lock(m);
   EXPECT_EQ(bad, 0u);
   for (size_t i = 0; i < sequences.size(); ++i) EXPECT_EQ(sequences[i], static_cast<int64_t>(i));
+}
+
+// A string holding a NUL (decoded from a forged heartbeat, which the monitor copies into its
+// status) is sent as LCM means it, up to the NUL: after a flood of such heartbeats the monitor's
+// status was never published, because lcm-gen's encoder wrote fewer bytes than it had sized.
+TEST(LcmTransport, AStringWithANulIsSentUpToIt) {
+  const std::string url = test_url();
+  require_multicast_route(url);
+  auto pub = lcm::LcmTransport::open(url);
+  ASSERT_TRUE(pub.is_ok()) << pub.status().to_string();
+  Listener listener(url);
+  ASSERT_TRUE(listener.error().empty()) << listener.error();
+  std::mutex m;
+  std::vector<std::string> names;
+  listener.subscribe(lcm::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
+    depthfuse::heartbeat_t hb;
+    std::lock_guard<std::mutex> lock(m);
+    if (lcm::decode_message(d, n, &hb) == lcm::DecodeResult::kOk) names.push_back(hb.name);
+  });
+  listener.start();
+  depthfuse::heartbeat_t hb{};  // lcm-gen leaves its numbers uninitialised
+  hb.protocol_version = depthfuse::heartbeat_t::PROTOCOL_VERSION;
+  hb.name = std::string("fus\0ion", 7);
+  hb.host = "h";
+  ASSERT_TRUE((*pub)->publish_message(lcm::kHeartbeatChannel, hb).is_ok());
+  EXPECT_TRUE(eventually([&] {
+    std::lock_guard<std::mutex> lock(m);
+    return !names.empty();
+  }, std::chrono::seconds(5)));
+  std::lock_guard<std::mutex> lock(m);
+  ASSERT_EQ(names.size(), 1u);
+  EXPECT_EQ(names[0], "fus");
 }
 
 // In a network namespace with only loopback (no multicast route), a daemon must say what is wrong

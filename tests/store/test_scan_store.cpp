@@ -486,6 +486,8 @@ TEST(ScanStore, MigratesASchema1File) {
     EXPECT_TRUE(integrity->ok());
     EXPECT_EQ(integrity->poses_checked, 20u);
     EXPECT_EQ(integrity->poses_unchecked, 20u);
+    EXPECT_EQ(integrity->keyframes_unchecked, 1u);
+    EXPECT_EQ(integrity->checkpoints_unchecked, 1u);
   }
   // The same through the CLI: inspect refuses, inspect --upgrade migrates and checks.
   const std::string cli = DEPTHFUSE_CLI;
@@ -534,6 +536,73 @@ TEST(ScanStore, MigratesASchema1File) {
   EXPECT_EQ(rec.point_count, 87u);
 }
 
+// The poses stored with keyframes and checkpoints carry a checksum like pose rows: a pose changed
+// in the file (still a valid pose: x 0.6 -> 1.2 m) is refused where it is read, and inspect finds
+// it. Refining a keyframe's pose writes a new checksum.
+TEST(ScanStore, KeyframeAndCheckpointPosesAreChecksummed) {
+  TempDir dir;
+  const std::string path = dir.file("s.db");
+  {
+    auto s = open_or_die(path, OpenMode::kCreate);
+    ASSERT_TRUE(s);
+    ASSERT_TRUE(s->write_keyframe(some_keyframe(1)));
+    ASSERT_TRUE(s->begin_checkpoint());
+    PoseRecord p;
+    p.frame_id = 1;
+    p.T_world_cam = some_pose(0.6);
+    ASSERT_TRUE(s->write_pose(p));
+    CheckpointInfo info;
+    info.last_frame_id = 1;
+    info.frames_fused = 1;
+    info.T_world_cam = some_pose(0.6);
+    ASSERT_TRUE(s->commit_checkpoint(info));
+    ASSERT_TRUE(s->update_keyframe_pose(1, some_pose(0.7)));
+    auto k = s->read_keyframe(1);
+    ASSERT_TRUE(k) << k.status().to_string();
+    expect_same_pose(k->T_world_cam, some_pose(0.7));
+    auto integrity = s->integrity_check();
+    ASSERT_TRUE(integrity);
+    EXPECT_TRUE(integrity->ok());
+    EXPECT_EQ(integrity->keyframes_unchecked + integrity->checkpoints_unchecked, 0u);
+  }
+  Pose moved = some_pose(0.6);
+  moved.translation().x() += 0.6;
+  const std::vector<uint8_t> blob = encode_pose(moved);
+  for (const char* table : {"keyframes", "checkpoints"}) {
+    SCOPED_TRACE(table);
+    const std::string bad = dir.file(std::string(table) + ".db");
+    std::filesystem::copy_file(path, bad);
+    sqlite3* db = nullptr;
+    ASSERT_EQ(sqlite3_open(bad.c_str(), &db), SQLITE_OK);
+    sqlite3_stmt* st = nullptr;
+    ASSERT_EQ(sqlite3_prepare_v2(db, (std::string("UPDATE ") + table + " SET T_world_cam = ?;").c_str(),
+                                 -1, &st, nullptr),
+              SQLITE_OK);
+    sqlite3_bind_blob(st, 1, blob.data(), static_cast<int>(blob.size()), SQLITE_TRANSIENT);
+    ASSERT_EQ(sqlite3_step(st), SQLITE_DONE);
+    sqlite3_finalize(st);
+    sqlite3_close(db);
+    auto s = open_or_die(bad, OpenMode::kReadOnly);
+    ASSERT_TRUE(s);
+    if (std::string(table) == "keyframes") {
+      auto k = s->read_keyframe(1);
+      ASSERT_FALSE(k);
+      EXPECT_EQ(k.status().code(), StatusCode::kCorrupt);
+      EXPECT_NE(k.status().message().find("keyframe 1: checksum mismatch"), std::string::npos)
+          << k.status().message();
+      EXPECT_FALSE(s->list_keyframes());
+    } else {
+      auto last = s->last_checkpoint();
+      ASSERT_FALSE(last);
+      EXPECT_NE(last.status().message().find("checkpoint 1: checksum mismatch"), std::string::npos)
+          << last.status().message();
+    }
+    auto integrity = s->integrity_check();
+    ASSERT_TRUE(integrity);
+    EXPECT_FALSE(integrity->ok());
+  }
+}
+
 // Stored frame numbers that disagree are problems for inspect, and a writer does not resume them.
 TEST(ScanStore, FrameNumbersThatDisagreeAreNotResumed) {
   TempDir dir;
@@ -557,13 +626,16 @@ TEST(ScanStore, FrameNumbersThatDisagreeAreNotResumed) {
     const char* damage;
     const char* expect;
   };
+  // The rows are changed as a writer without checksums (before schema 4) would have written them:
+  // with its checksum, the changed row is refused as damaged before its numbers are looked at.
   for (const Case& c : {
-           Case{"UPDATE checkpoints SET last_frame_id = 40;", "holds frames up to 40 but the newest pose is of frame 12"},
-           Case{"UPDATE checkpoints SET last_frame_id = 4294967295;", "last frame id 4294967295 is out of range"},
-           Case{"UPDATE checkpoints SET frames_fused = 5;", "counts 5 frames fused but the file holds 12 poses"},
+           Case{"UPDATE checkpoints SET last_frame_id = 40, checksum = NULL;", "holds frames up to 40 but the newest pose is of frame 12"},
+           Case{"UPDATE checkpoints SET last_frame_id = 4294967295, checksum = NULL;", "last frame id 4294967295 is out of range"},
+           Case{"UPDATE checkpoints SET frames_fused = 5, checksum = NULL;", "counts 5 frames fused but the file holds 12 poses"},
            Case{"INSERT INTO checkpoints SELECT 2, utime, reason, 3, frames_fused, point_count, chunk_count, "
-                "T_world_cam FROM checkpoints WHERE id = 1;",
+                "T_world_cam, NULL FROM checkpoints WHERE id = 1;",
                 "checkpoint 2 holds frames up to 3, fewer than checkpoint 1 before it (12)"},
+           Case{"UPDATE checkpoints SET frames_fused = 5;", "checkpoint 1: checksum mismatch"},
        }) {
     SCOPED_TRACE(c.damage);
     const std::string path = dir.file("bad.db");

@@ -91,6 +91,7 @@ class PoseCounter:
 
     def __init__(self, port):
         self.count = 0
+        self.status_sizes = []  # the monitor's status messages: (LC02 or LC03 fragment 0, bytes)
         self.flood_port = None
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
         self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -112,8 +113,14 @@ class PoseCounter:
                 d, (_, sport) = self._sock.recvfrom(70000)
             except socket.timeout:
                 continue
-            if sport != self.flood_port and d[:4] == want and d[8:23] == b"DEPTHFUSE_POSE\0":
+            if sport == self.flood_port:
+                continue
+            if d[:4] == want and d[8:23] == b"DEPTHFUSE_POSE\0":
                 self.count += 1
+            elif d[:4] == want and d[8:25] == b"DEPTHFUSE_STATUS\0":
+                self.status_sizes.append(("LC02", len(d)))
+            elif struct.unpack(">I", d[:4])[0] == FRAGMENT_MAGIC and d[20:37] == b"DEPTHFUSE_STATUS\0":
+                self.status_sizes.append(("LC03", struct.unpack(">I", d[8:12])[0]))
 
     def rate(self, seconds):
         n0, t0 = self.count, time.time()
@@ -239,10 +246,18 @@ def main():
         print("alive after the flood: " + ", ".join("%s %s" % (n, "yes" if v else "NO (exit %s)" %
                                                                 procs[n].returncode)
                                                     for n, v in alive.items()))
+        n_status = len(poses.status_sizes)
         print("fused rate after the flood: %.1f frames/s over %.0f s" % (
             poses.rate(a.quiet_s), a.quiet_s))
+        after = poses.status_sizes[n_status:]
+        print("the monitor's status on the bus after the flood: %d messages%s" % (
+            len(after), " (last: %s, %d bytes)" % after[-1] if after else ""))
         poses.stop()
         final = status(a.bin, url)
+        if not final:
+            for name in ("monitor", "fusion"):
+                with open(os.path.join(work, name + ".log"), errors="replace") as f:
+                    print("%s log, last lines:\n  %s" % (name, "\n  ".join(f.read().splitlines()[-8:])))
         for name in ("fusion", "monitor"):
             d = final.get(name)
             if not d:

@@ -9,10 +9,13 @@ it: lost = (first frame of the round + poses published - 1) - last checkpoint fr
 Then steady runs without kills (alternating between the modes) give the fused rate and the
 checkpoints' cost (the fusion daemon's heartbeat counters).
 
-Both modes run side by side in one invocation: incremental checkpoints (this build, interval 1 s)
-and the old 30 s interval (--baseline-bin, the binaries of an earlier build; interval 30 s).
+The modes run side by side in one invocation: incremental checkpoints (this build, interval 1 s),
+this build with the 30 s interval (steady runs only: the fused rate without incremental
+checkpoints), and --baseline-bin (the binaries of an earlier build, interval --baseline-interval-s,
+--baseline-kills rounds).
 
-  tools/bench/kill9.py [--kills 100] [--bin build/bin] [--baseline-bin DIR] [--steady-s 30]
+  tools/bench/kill9.py [--kills 100] [--bin build/bin] [--baseline-bin DIR]
+                       [--baseline-interval-s 30] [--baseline-kills N] [--steady-s 30]
                        [--steady-runs 2] [--min-s 0.1] [--max-s 6] [--scene room] [--lcm URL]
                        [--workdir DIR]
 """
@@ -100,8 +103,8 @@ def inspect(cli, db):
 class Mode:
     """One way of running the daemon: its binaries (and their CLI) and checkpoint interval."""
 
-    def __init__(self, name, bin_dir, interval_s, args):
-        self.name, self.args = name, args
+    def __init__(self, name, bin_dir, interval_s, args, kills):
+        self.name, self.args, self.kills = name, args, kills
         self.work = os.path.join(args.workdir, name.replace(" ", "-"))
         shutil.rmtree(self.work, ignore_errors=True)
         os.makedirs(self.work)
@@ -133,7 +136,7 @@ def kill_rounds(mode, args, watcher):
     work = mode.work
     lost, inspect_ok, rounds, problems = [], 0, 0, []
     expected_start = 1
-    for i in range(args.kills):
+    for i in range(mode.kills):
         log = os.path.join(work, "fusion-%d.log" % i)
         t_start = time.monotonic()
         proc = start(log)
@@ -203,7 +206,9 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--kills", type=int, default=100)
     ap.add_argument("--bin", default=os.path.join(ROOT, "build", "bin"))
-    ap.add_argument("--baseline-bin", default="", help="binaries with the 30 s interval ('' = skip)")
+    ap.add_argument("--baseline-bin", default="", help="binaries of an earlier build ('' = skip)")
+    ap.add_argument("--baseline-interval-s", type=float, default=30.0)
+    ap.add_argument("--baseline-kills", type=int, default=-1, help="default: --kills")
     ap.add_argument("--python-dir", default=os.path.join(ROOT, "build", "python"))
     ap.add_argument("--steady-s", type=float, default=30.0)
     ap.add_argument("--steady-runs", type=int, default=2)
@@ -221,9 +226,12 @@ def main():
         [os.path.join(args.bin, "depthfuse-capture"), "--source", "synthetic:%s?frames=600" % args.scene,
          "--rate", "30", "--loop", "--lcm", args.lcm, "--color", "none"],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    modes = [Mode("incremental 1s", args.bin, 1.0, args)]
+    modes = [Mode("incremental 1s", args.bin, 1.0, args, args.kills),
+             Mode("this build 30s", args.bin, 30.0, args, 0)]
     if args.baseline_bin:
-        modes.append(Mode("baseline 30s", args.baseline_bin, 30.0, args))
+        modes.append(Mode("baseline %gs" % args.baseline_interval_s, args.baseline_bin,
+                          args.baseline_interval_s, args,
+                          args.kills if args.baseline_kills < 0 else args.baseline_kills))
     results = []
     try:
         for m in modes:
@@ -240,8 +248,8 @@ def main():
         capture.wait()
         watcher.stop()
 
-    print("\n%d kills per mode at random moments %.1f-%.1f s after each round's first fused frame; capture 30 Hz "
-          "synthetic %s" % (args.kills, args.min_s, args.max_s, args.scene))
+    print("\nkills at random moments %.1f-%.1f s after each round's first fused frame; capture 30 Hz "
+          "synthetic %s" % (args.min_s, args.max_s, args.scene))
     print("| mode | kills | inspect ok | frames lost max | mean | kills losing > 30 | fused rate "
           "(%d x %.0f s, alternating) | checkpoint on the fusion thread (mean / max) | encode | write |"
           % (args.steady_runs, args.steady_s))

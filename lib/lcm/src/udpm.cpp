@@ -137,7 +137,7 @@ std::optional<Message> Reassembler::fragment(const uint8_t* d, size_t size, uint
   complete_channel_.swap(partial->channel);
   erase_partial(index, false);
   ++counters_.messages;
-  return Message{complete_channel_, complete_.data(), complete_.size()};
+  return Message{complete_channel_, complete_.data(), payload_bytes};
 }
 
 Reassembler::Partial* Reassembler::start_partial(uint64_t sender, uint32_t sequence,
@@ -157,15 +157,48 @@ Reassembler::Partial* Reassembler::start_partial(uint64_t sender, uint32_t seque
   p.sequence = sequence;
   p.payload_bytes = payload_bytes;
   p.fragments = fragments;
-  p.payload.assign(payload_bytes, 0);
+  take_spare(payload_bytes, &p.payload);
+  // Only a buffer's growth is zeroed: the bytes of a reused one are those of an earlier message
+  // until this one's fragments overwrite them. A message completes only once its fragments'
+  // sizes add up to its own, so honest fragments cover every byte; overlapping forged ones could
+  // leave earlier bus bytes in place, never memory that was not received (and a signed bus
+  // rejects the result).
+  if (p.payload.size() < payload_bytes) p.payload.resize(payload_bytes);
   p.received.assign(fragments, false);
   reassembly_bytes_ += payload_bytes;
   return &p;
 }
 
+void Reassembler::take_spare(size_t bytes, std::vector<uint8_t>* out) {
+  // The smallest that holds the message, unless it is much larger (a message in reassembly holds
+  // at most about twice its size); else the largest smaller one, which grows.
+  const size_t most = 2 * bytes + kMaxDatagramBytes;
+  size_t best = spare_.size();
+  for (size_t i = 0; i < spare_.size(); ++i) {
+    const size_t n = spare_[i].size();
+    if (n > most) continue;
+    if (best == spare_.size()) { best = i; continue; }
+    const size_t b = spare_[best].size();
+    const bool fits = n >= bytes, best_fits = b >= bytes;
+    if ((fits && (!best_fits || n < b)) || (!fits && !best_fits && n > b)) best = i;
+  }
+  if (best == spare_.size()) return;
+  out->swap(spare_[best]);
+  spare_bytes_ -= out->size();
+  spare_[best].swap(spare_.back());
+  spare_.pop_back();
+}
+
 void Reassembler::erase_partial(size_t index, bool evicted) {
   if (evicted) ++counters_.dropped[static_cast<size_t>(Drop::kEvicted)];
   reassembly_bytes_ -= partials_[index].payload_bytes;
+  std::vector<uint8_t>& buffer = partials_[index].payload;
+  // Kept within the same bounds as the messages in reassembly.
+  if (spare_.size() < limits_.max_partial_messages &&
+      spare_bytes_ + buffer.size() <= limits_.max_reassembly_bytes) {
+    spare_bytes_ += buffer.size();
+    spare_.push_back(std::move(buffer));
+  }
   partials_.erase(partials_.begin() + static_cast<std::ptrdiff_t>(index));
 }
 

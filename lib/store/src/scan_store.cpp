@@ -5,8 +5,11 @@
 #include <unistd.h>
 
 #include <cstdio>
+#include <cstring>
 
 #include "depthfuse/store/blob_codec.hpp"
+#include "depthfuse/store/checksum.hpp"
+
 #include "scan_store_internal.hpp"
 
 namespace depthfuse::store {
@@ -136,22 +139,18 @@ Status ScanStore::Impl::write_chunk_row(bool staged, const EncodedChunk& chunk, 
   return st->run();
 }
 
-Status ScanStore::Impl::delete_staged_of_checkpoint(const ChunkKey& key) {
-  auto st = db.prepare(
-      "DELETE FROM chunk_staging WHERE x = ? AND y = ? AND z = ? AND last_touched_frame <= ?;",
-      "deleting staged chunk " + to_string(key));
-  if (!st) return st.status();
-  st->bind(1, key.x).bind(2, key.y).bind(3, key.z).bind(4, static_cast<int64_t>(checkpoint_up_to_frame));
-  return st->run();
-}
-
-Status ScanStore::Impl::delete_chunk_row(bool staged, const ChunkKey& key) {
-  auto st = db.prepare(std::string("DELETE FROM ") + (staged ? "chunk_staging" : "chunks") +
-                           " WHERE x = ? AND y = ? AND z = ?;",
-                       "deleting chunk " + to_string(key));
-  if (!st) return st.status();
-  st->bind(1, key.x).bind(2, key.y).bind(3, key.z);
-  return st->run();
+Status ScanStore::Impl::delete_chunk_rows(const ChunkKey& key, bool committed) {
+  auto run = [&](const std::string& sql, bool up_to_frame) -> Status {
+    auto st = db.prepare(sql, "deleting chunk " + to_string(key));
+    if (!st) return st.status();
+    st->bind(1, key.x).bind(2, key.y).bind(3, key.z);
+    if (up_to_frame) st->bind(4, static_cast<int64_t>(checkpoint_up_to_frame));
+    return st->run();
+  };
+  const std::string where = " WHERE x = ? AND y = ? AND z = ?";
+  DF_RETURN_IF_ERROR(run("DELETE FROM chunk_staging" + where + " AND last_touched_frame <= ?;", true));
+  if (!committed) return Status::ok();
+  return run("DELETE FROM chunks" + where + ";", false);
 }
 
 Status ScanStore::Impl::decode_chunk_row(const sql::Row& row, bool staged, StoredChunk* out) {
@@ -170,6 +169,85 @@ Status ScanStore::Impl::decode_chunk_row(const sql::Row& row, bool staged, Store
   return Status::ok();
 }
 
+namespace {
+
+// Values appended little-endian to a running CRC-32.
+class RowCrc {
+ public:
+  template <typename T>
+  RowCrc& add(T v) {
+    uint8_t b[sizeof(T)];
+    std::memcpy(b, &v, sizeof(T));  // little-endian hosts only (checksum.cpp)
+    return bytes(b, sizeof(T));
+  }
+  RowCrc& bytes(const void* p, size_t n) {
+    crc_ = crc32(p, n, crc_);
+    return *this;
+  }
+  uint32_t value() const { return crc_; }
+
+ private:
+  uint32_t crc_ = 0;
+};
+
+}  // namespace
+
+uint32_t keyframe_row_checksum(uint32_t frame_id, int64_t utime, const CameraIntrinsics& K,
+                               const void* pose_blob, size_t pose_size) {
+  return RowCrc()
+      .add(frame_id).add(utime)
+      .add(static_cast<uint32_t>(K.width)).add(static_cast<uint32_t>(K.height))
+      .add(K.fx).add(K.fy).add(K.cx).add(K.cy)
+      .bytes(pose_blob, pose_size)
+      .value();
+}
+
+uint32_t checkpoint_row_checksum(const CheckpointRecord& r, const void* pose_blob, size_t pose_size) {
+  return RowCrc()
+      .add(r.id).add(r.utime).add(r.last_frame_id)
+      .add(r.frames_fused).add(r.point_count).add(r.chunk_count)
+      .add(static_cast<uint32_t>(r.reason.size())).bytes(r.reason.data(), r.reason.size())
+      .bytes(pose_blob, pose_size)
+      .value();
+}
+
+Status checksum_mismatch(const std::string& what, uint32_t stored, uint32_t computed) {
+  char buf[80];
+  std::snprintf(buf, sizeof(buf), ": checksum mismatch (stored 0x%08x, computed 0x%08x)", stored,
+                computed);
+  return corrupt(what + buf);
+}
+
+Status check_row_checksum(const sql::Row& row, int column, uint32_t computed, const std::string& what,
+                          bool* unchecked) {
+  if (unchecked) *unchecked = row.is_null(column);
+  if (row.is_null(column)) return Status::ok();
+  const auto stored = static_cast<uint32_t>(row.int64(column));
+  if (stored != computed) return checksum_mismatch(what, stored, computed);
+  return Status::ok();
+}
+
+Status ScanStore::Impl::keyframe_head_of(const sql::Row& row, Keyframe* k, bool* unchecked) {
+  const int64_t frame_id = row.int64(0);
+  const std::string what = path + ": keyframe " + std::to_string(frame_id);
+  if (frame_id < 1 || frame_id >= kAllFrames) return corrupt(what + ": the frame id is out of range");
+  k->frame_id = static_cast<uint32_t>(frame_id);
+  k->utime = row.int64(1);
+  k->sensor_serial = row.text(2);
+  k->intrinsics.width = static_cast<int>(row.int64(3));
+  k->intrinsics.height = static_cast<int>(row.int64(4));
+  k->intrinsics.fx = row.real(5);
+  k->intrinsics.fy = row.real(6);
+  k->intrinsics.cx = row.real(7);
+  k->intrinsics.cy = row.real(8);
+  if (!k->intrinsics.valid()) return corrupt(what + ": invalid intrinsics");
+  DF_RETURN_IF_ERROR(check_row_checksum(
+      row, 10,
+      keyframe_row_checksum(k->frame_id, k->utime, k->intrinsics, row.blob(9), row.blob_size(9)),
+      what, unchecked));
+  return decode_pose(row.blob(9), row.blob_size(9), what + " pose", &k->T_world_cam);
+}
+
 Result<CheckpointRecord> ScanStore::Impl::checkpoint_of(const sql::Row& row) {
   CheckpointRecord r;
   r.id = row.int64(0);
@@ -185,6 +263,8 @@ Result<CheckpointRecord> ScanStore::Impl::checkpoint_of(const sql::Row& row) {
   r.frames_fused = static_cast<uint64_t>(row.int64(4));
   r.point_count = static_cast<uint64_t>(row.int64(5));
   r.chunk_count = static_cast<uint64_t>(row.int64(6));
+  DF_RETURN_IF_ERROR(check_row_checksum(
+      row, 8, checkpoint_row_checksum(r, row.blob(7), row.blob_size(7)), what));
   if (!row.is_null(7)) {
     Pose T;
     DF_RETURN_IF_ERROR(decode_pose(row.blob(7), row.blob_size(7),
@@ -217,16 +297,10 @@ Result<PoseRecord> ScanStore::Impl::pose_of(const sql::Row& row, bool* checked) 
   p.fitness = row.real(4);
   p.rmse_m = row.real(5);
   p.correspondences = static_cast<uint32_t>(row.int64(6));
-  if (checked) *checked = !row.is_null(7);
-  if (!row.is_null(7)) {
-    const uint32_t stored = static_cast<uint32_t>(row.int64(7));
-    const uint32_t computed = pose_record_checksum(pose_fields(p), row.blob(2), row.blob_size(2));
-    if (stored != computed) {
-      char buf[80];
-      std::snprintf(buf, sizeof(buf), ": checksum mismatch (stored 0x%08x, computed 0x%08x)", stored, computed);
-      return corrupt(what + buf);
-    }
-  }
+  bool unchecked = false;
+  DF_RETURN_IF_ERROR(check_row_checksum(
+      row, 7, pose_record_checksum(pose_fields(p), row.blob(2), row.blob_size(2)), what, &unchecked));
+  if (checked) *checked = !unchecked;
   DF_RETURN_IF_ERROR(decode_pose(row.blob(2), row.blob_size(2), what, &p.T_world_cam));
   return p;
 }

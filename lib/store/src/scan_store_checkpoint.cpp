@@ -84,16 +84,16 @@ Status ScanStore::write_chunk(const ChunkKey& key, const Chunk& chunk) {
 Status ScanStore::write_chunk(const EncodedChunk& chunk) {
   Impl& s = *impl_;
   if (!s.in_checkpoint) return invalid_argument(s.path + ": write_chunk outside a checkpoint");
-  DF_RETURN_IF_ERROR(s.delete_staged_of_checkpoint(chunk.key));
-  if (chunk.point_count == 0) return s.delete_chunk_row(/*staged=*/false, chunk.key);
+  // An empty chunk has no row.
+  DF_RETURN_IF_ERROR(s.delete_chunk_rows(chunk.key, /*committed=*/chunk.point_count == 0));
+  if (chunk.point_count == 0) return Status::ok();
   return s.write_chunk_row(/*staged=*/false, chunk, s.checkpoint_id);
 }
 
 Status ScanStore::delete_chunk(const ChunkKey& key) {
   Impl& s = *impl_;
   if (!s.in_checkpoint) return invalid_argument(s.path + ": delete_chunk outside a checkpoint");
-  DF_RETURN_IF_ERROR(s.delete_staged_of_checkpoint(key));
-  return s.delete_chunk_row(/*staged=*/false, key);
+  return s.delete_chunk_rows(key, /*committed=*/true);
 }
 
 Status ScanStore::delete_all_chunks() {
@@ -122,16 +122,31 @@ Status ScanStore::write_pose(const PoseRecord& p) {
 
 Status ScanStore::update_keyframe_pose(uint32_t frame_id, const Pose& T_world_cam) {
   DF_RETURN_IF_ERROR(impl_->require_writable("update_keyframe_pose"));
-  return impl_->in_transaction("updating a keyframe pose", [&]() -> Status {
-    auto st = impl_->db.prepare("UPDATE keyframes SET T_world_cam = ? WHERE frame_id = ?;",
-                                "updating the pose of keyframe " + std::to_string(frame_id));
-    if (!st) return st.status();
+  const std::string ctx = "updating the pose of keyframe " + std::to_string(frame_id);
+  return impl_->in_transaction(ctx, [&]() -> Status {
+    // The checksum covers the values the pose is used with: read them back.
+    auto row = impl_->db.prepare(
+        "SELECT utime, width, height, fx, fy, cx, cy FROM keyframes WHERE frame_id = ?;", ctx);
+    if (!row) return row.status();
+    row->bind(1, frame_id);
+    auto found = row->step();
+    if (!found) return found.status();
+    if (!*found) return not_found(impl_->path + ": no keyframe " + std::to_string(frame_id));
+    const sql::Row r = row->row();
+    CameraIntrinsics K;
+    K.width = static_cast<int>(r.int64(1));
+    K.height = static_cast<int>(r.int64(2));
+    K.fx = r.real(3);
+    K.fy = r.real(4);
+    K.cx = r.real(5);
+    K.cy = r.real(6);
     const std::vector<uint8_t> pose = encode_pose(T_world_cam);
-    st->bind_blob(1, pose).bind(2, frame_id);
-    DF_RETURN_IF_ERROR(st->run());
-    if (impl_->db.changes() != 1)
-      return not_found(impl_->path + ": no keyframe " + std::to_string(frame_id));
-    return Status::ok();
+    const uint32_t checksum = keyframe_row_checksum(frame_id, r.int64(0), K, pose.data(), pose.size());
+    auto st = impl_->db.prepare(
+        "UPDATE keyframes SET T_world_cam = ?, checksum = ? WHERE frame_id = ?;", ctx);
+    if (!st) return st.status();
+    st->bind_blob(1, pose).bind(2, checksum).bind(3, frame_id);
+    return st->run();
   });
 }
 
@@ -146,17 +161,19 @@ Status ScanStore::write_keyframe(const Keyframe& k) {
   if (!k.color.empty()) DF_RETURN_IF_ERROR(impl_->codec.encode_color(k.color, &color).with_context(ctx));
   const std::vector<uint8_t> pose = encode_pose(k.T_world_cam);
   return impl_->in_transaction(ctx, [&]() -> Status {
-    auto st = impl_->db.prepare(
-        "INSERT OR REPLACE INTO keyframes (frame_id, utime, sensor_serial, width, height, fx, fy, "
-        "cx, cy, T_world_cam, depth, color) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?);",
-        ctx);
+    auto st = impl_->db.prepare(std::string("INSERT OR REPLACE INTO keyframes (") +
+                                    kKeyframeColumns +
+                                    ", depth, color) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?);",
+                                ctx);
     if (!st) return st.status();
     st->bind(1, k.frame_id).bind(2, k.utime).bind(3, k.sensor_serial);
     st->bind(4, k.intrinsics.width).bind(5, k.intrinsics.height);
     st->bind(6, k.intrinsics.fx).bind(7, k.intrinsics.fy);
     st->bind(8, k.intrinsics.cx).bind(9, k.intrinsics.cy);
-    st->bind_blob(10, pose).bind_blob(11, depth);
-    if (color.empty()) st->bind_null(12); else st->bind_blob(12, color);
+    st->bind_blob(10, pose);
+    st->bind(11, keyframe_row_checksum(k.frame_id, k.utime, k.intrinsics, pose.data(), pose.size()));
+    st->bind_blob(12, depth);
+    if (color.empty()) st->bind_null(13); else st->bind_blob(13, color);
     return st->run();
   });
 }
@@ -194,7 +211,7 @@ Result<CheckpointRecord> ScanStore::commit_checkpoint(const CheckpointInfo& info
     rec.chunk_count = static_cast<uint64_t>(counts->row().int64(0));
     rec.point_count = static_cast<uint64_t>(counts->row().int64(1));
     auto ins = s.db.prepare(std::string("INSERT INTO checkpoints (") + kCheckpointColumns +
-                                ") VALUES (?, ?, ?, ?, ?, ?, ?, ?);",
+                                ") VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?);",
                             ctx);
     if (!ins) return ins.status();
     std::vector<uint8_t> pose;
@@ -203,6 +220,7 @@ Result<CheckpointRecord> ScanStore::commit_checkpoint(const CheckpointInfo& info
     ins->bind(5, static_cast<int64_t>(rec.frames_fused)).bind(6, static_cast<int64_t>(rec.point_count));
     ins->bind(7, static_cast<int64_t>(rec.chunk_count));
     if (pose.empty()) ins->bind_null(8); else ins->bind_blob(8, pose);
+    ins->bind(9, checkpoint_row_checksum(rec, pose.data(), pose.size()));
     DF_RETURN_IF_ERROR(ins->run());
     DF_RETURN_IF_ERROR(s.set_meta({{"frames_received", std::to_string(info.frames_received)},
                                    {"frames_fused", std::to_string(info.frames_fused)},

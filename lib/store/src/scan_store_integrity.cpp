@@ -118,6 +118,15 @@ Result<IntegrityReport> ScanStore::integrity_check(bool check_blobs) {
     auto k = read_keyframe(id);
     if (!k) rep.problems.push_back(k.status().message());
   }
+  // Keyframe and checkpoint rows written before schema 4 have no checksum: read above, counted here.
+  for (auto [table, n] : {std::pair{"keyframes", &rep.keyframes_unchecked},
+                          std::pair{"checkpoints", &rep.checkpoints_unchecked}}) {
+    auto unchecked = s.db.query_int(std::string("SELECT COUNT(*) FROM ") + table +
+                                        " WHERE checksum IS NULL;",
+                                    std::string("counting unchecked ") + table);
+    if (unchecked) *n = static_cast<size_t>(*unchecked);
+    else rep.problems.push_back(unchecked.status().message());
+  }
   // Every pose row: its checksum (schema 3), then its pose. Rows written before have none.
   check_rows(
       s.db, std::string("SELECT ") + kPoseColumns + " FROM poses ORDER BY frame_id;", "reading poses",

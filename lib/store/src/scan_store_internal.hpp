@@ -35,7 +35,11 @@ inline constexpr const char* kChunkColumns =
 inline constexpr const char* kPoseColumns =
     "frame_id, utime, T_world_cam, registered, fitness, rmse_m, correspondences, checksum";
 inline constexpr const char* kCheckpointColumns =
-    "id, utime, reason, last_frame_id, frames_fused, point_count, chunk_count, T_world_cam";
+    "id, utime, reason, last_frame_id, frames_fused, point_count, chunk_count, T_world_cam, "
+    "checksum";
+// Of a keyframe up to its images.
+inline constexpr const char* kKeyframeColumns =
+    "frame_id, utime, sensor_serial, width, height, fx, fy, cx, cy, T_world_cam, checksum";
 
 // The frames the last checkpoint holds, as an SQL condition on a `frame_id` column: every frame up
 // to its last_frame_id (none before the first checkpoint). Readers show only these poses and
@@ -54,6 +58,21 @@ Eigen::AlignedBox3f bounds_of(const PointArrays& a);
 
 // The values of a pose row that its checksum covers besides the pose blob.
 PoseFields pose_fields(const PoseRecord& p);
+
+// CRC-32 of a keyframe row's pose and the values it is used with (keyframes.checksum):
+// frame_id u32, utime i64, width u32, height u32, fx fy cx cy f64, the pose blob's bytes.
+uint32_t keyframe_row_checksum(uint32_t frame_id, int64_t utime, const CameraIntrinsics& K,
+                               const void* pose_blob, size_t pose_size);
+// CRC-32 of a checkpoint row (checkpoints.checksum): id i64, utime i64, last_frame_id u32,
+// frames_fused u64, point_count u64, chunk_count u64, the reason's length u32 and bytes, the pose
+// blob's bytes (none when NULL).
+uint32_t checkpoint_row_checksum(const CheckpointRecord& r, const void* pose_blob, size_t pose_size);
+// "<what>: checksum mismatch (stored 0x…, computed 0x…)"
+Status checksum_mismatch(const std::string& what, uint32_t stored, uint32_t computed);
+// The row's checksum column at `column` against `computed`; NULL (written before the column
+// existed) passes and sets *unchecked.
+Status check_row_checksum(const sql::Row& row, int column, uint32_t computed, const std::string& what,
+                          bool* unchecked = nullptr);
 
 inline bool file_exists(const std::string& path) {
   struct stat st {};
@@ -99,11 +118,16 @@ struct ScanStore::Impl {
   Result<std::optional<std::string>> get_meta(const std::string& key);
   Status write_chunk_row(bool staged, const ChunkKey& key, const Chunk& chunk, int64_t last_column);
   Status write_chunk_row(bool staged, const EncodedChunk& chunk, int64_t last_column);
-  Status delete_chunk_row(bool staged, const ChunkKey& key);
-  // Deletes the staged copy of `key` unless a frame after the open checkpoint's touched it.
-  Status delete_staged_of_checkpoint(const ChunkKey& key);
+  // Inside a checkpoint: deletes the staged copy of `key` unless a frame after the checkpoint's
+  // touched it, and with `committed` the checkpointed row too.
+  Status delete_chunk_rows(const ChunkKey& key, bool committed);
   // Reads a row of select_chunks(staged, "data") and decodes its blob into `out`.
   Status decode_chunk_row(const sql::Row& row, bool staged, StoredChunk* out);
+  // The first columns of a keyframe row (kKeyframeColumns): everything but the images, the
+  // intrinsics valid, the checksum checked (`*unchecked` when the row has none) and the pose
+  // decoded.
+  Status keyframe_head_of(const sql::Row& row, Keyframe* out, bool* unchecked = nullptr);
+  // A row of kCheckpointColumns, its checksum checked.
   Result<CheckpointRecord> checkpoint_of(const sql::Row& row);
   // A row of kPoseColumns: decoded and, when it has one, its checksum checked. `*checked` says
   // whether it had one.

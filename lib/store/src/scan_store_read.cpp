@@ -149,19 +149,19 @@ Result<std::vector<PoseRecord>> ScanStore::read_poses() {
 Result<std::vector<KeyframeInfo>> ScanStore::list_keyframes() {
   Impl& s = *impl_;
   return s.db.collect<KeyframeInfo>(
-      "SELECT frame_id, utime, width, height, T_world_cam, length(depth), "
-      "COALESCE(length(color), 0) FROM keyframes WHERE " + kCommittedFrames + " ORDER BY frame_id;",
+      std::string("SELECT ") + kKeyframeColumns + ", length(depth), COALESCE(length(color), 0) "
+          "FROM keyframes WHERE " + kCommittedFrames + " ORDER BY frame_id;",
       "listing keyframes", [&](const sql::Row& row) -> Result<KeyframeInfo> {
+        Keyframe head;
+        DF_RETURN_IF_ERROR(s.keyframe_head_of(row, &head));
         KeyframeInfo k;
-        k.frame_id = static_cast<uint32_t>(row.int64(0));
-        k.utime = row.int64(1);
-        k.width = static_cast<int>(row.int64(2));
-        k.height = static_cast<int>(row.int64(3));
-        DF_RETURN_IF_ERROR(decode_pose(row.blob(4), row.blob_size(4),
-                                       s.path + ": pose of keyframe " + std::to_string(k.frame_id),
-                                       &k.T_world_cam));
-        k.depth_bytes = static_cast<size_t>(row.int64(5));
-        k.color_bytes = static_cast<size_t>(row.int64(6));
+        k.frame_id = head.frame_id;
+        k.utime = head.utime;
+        k.width = head.intrinsics.width;
+        k.height = head.intrinsics.height;
+        k.T_world_cam = head.T_world_cam;
+        k.depth_bytes = static_cast<size_t>(row.int64(11));
+        k.color_bytes = static_cast<size_t>(row.int64(12));
         return k;
       });
 }
@@ -169,10 +169,9 @@ Result<std::vector<KeyframeInfo>> ScanStore::list_keyframes() {
 Result<Keyframe> ScanStore::read_keyframe(uint32_t frame_id) {
   Impl& s = *impl_;
   const std::string what = s.path + ": keyframe " + std::to_string(frame_id);
-  auto st = s.db.prepare(
-      "SELECT frame_id, utime, sensor_serial, width, height, fx, fy, cx, cy, T_world_cam, depth, "
-      "color FROM keyframes WHERE frame_id = ?;",
-      "reading keyframe " + std::to_string(frame_id));
+  auto st = s.db.prepare(std::string("SELECT ") + kKeyframeColumns +
+                             ", depth, color FROM keyframes WHERE frame_id = ?;",
+                         "reading keyframe " + std::to_string(frame_id));
   if (!st) return st.status();
   st->bind(1, frame_id);
   auto found = st->step();
@@ -180,24 +179,14 @@ Result<Keyframe> ScanStore::read_keyframe(uint32_t frame_id) {
   if (!*found) return not_found(s.path + ": no keyframe " + std::to_string(frame_id));
   const sql::Row row = st->row();
   Keyframe k;
-  k.frame_id = frame_id;
-  k.utime = row.int64(1);
-  k.sensor_serial = row.text(2);
-  k.intrinsics.width = static_cast<int>(row.int64(3));
-  k.intrinsics.height = static_cast<int>(row.int64(4));
-  k.intrinsics.fx = row.real(5);
-  k.intrinsics.fy = row.real(6);
-  k.intrinsics.cx = row.real(7);
-  k.intrinsics.cy = row.real(8);
-  if (!k.intrinsics.valid()) return corrupt(what + ": invalid intrinsics");
-  DF_RETURN_IF_ERROR(decode_pose(row.blob(9), row.blob_size(9), what + " pose", &k.T_world_cam));
-  DF_RETURN_IF_ERROR(s.codec.decode_depth(row.blob(10), row.blob_size(10), what + " depth", &k.depth));
+  DF_RETURN_IF_ERROR(s.keyframe_head_of(row, &k));
+  DF_RETURN_IF_ERROR(s.codec.decode_depth(row.blob(11), row.blob_size(11), what + " depth", &k.depth));
   if (k.depth.width != k.intrinsics.width || k.depth.height != k.intrinsics.height)
     return corrupt(what + ": depth is " + std::to_string(k.depth.width) + "x" +
                    std::to_string(k.depth.height) + ", intrinsics say " +
                    std::to_string(k.intrinsics.width) + "x" + std::to_string(k.intrinsics.height));
-  if (!row.is_null(11)) {
-    DF_RETURN_IF_ERROR(s.codec.decode_color(row.blob(11), row.blob_size(11), what + " colour", &k.color));
+  if (!row.is_null(12)) {
+    DF_RETURN_IF_ERROR(s.codec.decode_color(row.blob(12), row.blob_size(12), what + " colour", &k.color));
     if (k.color.width != k.depth.width || k.color.height != k.depth.height)
       return corrupt(what + ": colour and depth sizes differ");
   }

@@ -13,7 +13,7 @@ const char* const kTables[] = {"meta", "checkpoints", "chunks", "chunk_staging",
 
 namespace {
 
-// Schema 2, and 3 with poses.checksum added by migrate_2_to_3. Blob columns come last in each row: SQLite stores a row's columns in order
+// Schema 2; later versions are built by the migrations from it. Blob columns come last in each row: SQLite stores a row's columns in order
 // and a big blob spills into overflow pages, so the small columns stay cheap to read.
 //
 // The committed chunks and the staged ones share a layout; only the column before the blob
@@ -65,6 +65,11 @@ CREATE TABLE poses (
   rmse_m REAL,
   correspondences INTEGER
 );
+)sql";
+
+// The keyframes table of schema 2, and of schema 4 with the row's checksum before the images.
+std::string keyframes_table(bool with_checksum) {
+  return std::string(R"sql(
 CREATE TABLE keyframes (
   frame_id INTEGER PRIMARY KEY,
   utime INTEGER NOT NULL,
@@ -75,11 +80,12 @@ CREATE TABLE keyframes (
   fy REAL NOT NULL,
   cx REAL NOT NULL,
   cy REAL NOT NULL,
-  T_world_cam BLOB NOT NULL,
+  T_world_cam BLOB NOT NULL,)sql") + (with_checksum ? "\n  checksum INTEGER," : "") + R"sql(
   depth BLOB NOT NULL,
   color BLOB
 );
 )sql";
+}
 
 // Schema 1 -> 2:
 //  - checkpoints get a table of their own (v1 kept only the last one, in meta keys
@@ -134,21 +140,43 @@ PRAGMA user_version = 3;
 )sql", "migrating schema 2 to 3");
 }
 
+// Schema 3 -> 4: the poses stored with keyframes and checkpoints carry a CRC-32 of their row as
+// pose rows do (scan_store_internal.hpp). The keyframes table is rebuilt so that the checksum
+// sits before the images (a column after a big blob would be read through its overflow pages).
+// Rows written before keep NULL: unchecked, not guessed at.
+Status migrate_3_to_4(sql::Database& db) {
+  const std::string ctx = "migrating schema 3 to 4";
+  DF_RETURN_IF_ERROR(db.exec("ALTER TABLE keyframes RENAME TO keyframes_v3;", ctx));
+  DF_RETURN_IF_ERROR(db.exec(keyframes_table(/*with_checksum=*/true), ctx));
+  return db.exec(R"sql(
+INSERT INTO keyframes (frame_id, utime, sensor_serial, width, height, fx, fy, cx, cy, T_world_cam,
+                       checksum, depth, color)
+SELECT frame_id, utime, sensor_serial, width, height, fx, fy, cx, cy, T_world_cam, NULL, depth,
+       color
+FROM keyframes_v3;
+DROP TABLE keyframes_v3;
+ALTER TABLE checkpoints ADD COLUMN checksum INTEGER;
+PRAGMA user_version = 4;
+)sql", ctx);
+}
+
 }  // namespace
 
 Status create_current(sql::Database& db) {
   const std::string ctx = "creating the scan schema";
   DF_RETURN_IF_ERROR(db.exec(kCreateV2, ctx));
+  DF_RETURN_IF_ERROR(db.exec(keyframes_table(/*with_checksum=*/false), ctx));
   DF_RETURN_IF_ERROR(db.exec(chunks_v2(), ctx));
   DF_RETURN_IF_ERROR(db.exec(added_in_v2(), ctx));
   DF_RETURN_IF_ERROR(migrate_2_to_3(db));
+  DF_RETURN_IF_ERROR(migrate_3_to_4(db));
   DF_RETURN_IF_ERROR(db.exec("PRAGMA application_id = " + std::to_string(kApplicationId) + ";", ctx));
   DF_RETURN_IF_ERROR(db.exec("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";", ctx));
   return Status::ok();
 }
 
 Status migrate(sql::Database& db, int from_version) {
-  static_assert(kSchemaVersion == 3, "add the migration step to the new version here");
+  static_assert(kSchemaVersion == 4, "add the migration step to the new version here");
   int v = from_version;
   if (v == 1) {
     DF_RETURN_IF_ERROR(migrate_1_to_2(db));
@@ -157,6 +185,10 @@ Status migrate(sql::Database& db, int from_version) {
   if (v == 2) {
     DF_RETURN_IF_ERROR(migrate_2_to_3(db));
     v = 3;
+  }
+  if (v == 3) {
+    DF_RETURN_IF_ERROR(migrate_3_to_4(db));
+    v = 4;
   }
   if (v != kSchemaVersion)
     return unsupported(db.path() + ": no migration from schema version " +

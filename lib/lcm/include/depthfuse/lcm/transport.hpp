@@ -94,9 +94,13 @@ class LcmTransport {
     if (size < 0) return internal_error("cannot size a message for " + channel);
     // Room for the signature after the message, so that it is signed where it was encoded.
     encode_buffer_.resize(static_cast<size_t>(size) + kSignatureBytes);
-    if (msg.encode(encode_buffer_.data(), 0, size) != size)
+    // lcm-gen sizes a string by its length but encodes it up to its first NUL, as LCM's strings
+    // are C strings: a string holding a NUL (decoded from a forged message, say a heartbeat the
+    // monitor copies into its status) encodes shorter. That is the message LCM means: send it.
+    const int written = msg.encode(encode_buffer_.data(), 0, size);
+    if (written <= 0 || written > size)
       return internal_error("cannot encode a message for " + channel);
-    return publish_encoded(channel, &encode_buffer_, static_cast<size_t>(size));
+    return publish_encoded(channel, &encode_buffer_, static_cast<size_t>(written));
   }
 
   // channel_regex as in lcm_subscribe ("DEPTHFUSE_.*": the whole channel name must match). Call

@@ -81,6 +81,7 @@ class Reassembler {
   const Limits& limits() const { return limits_; }
   size_t partial_messages() const { return partials_.size(); }
   size_t reassembly_bytes() const { return reassembly_bytes_; }
+  size_t spare_bytes() const { return spare_bytes_; }  // buffers kept for reuse
 
  private:
   struct Partial {
@@ -92,8 +93,8 @@ class Reassembler {
     uint64_t bytes_received = 0;
     uint64_t last_feed = 0;  // feed() count when a fragment last arrived: the oldest goes first
     std::string channel;
-    std::vector<uint8_t> payload;
-    std::vector<bool> received;  // by fragment number
+    std::vector<uint8_t> payload;  // at least payload_bytes long (a reused buffer may be longer)
+    std::vector<bool> received;    // by fragment number
   };
 
   std::optional<Message> short_message(const uint8_t* d, size_t size);
@@ -101,6 +102,8 @@ class Reassembler {
   Partial* start_partial(uint64_t sender, uint32_t sequence, uint32_t payload_bytes,
                          uint32_t fragments);
   void erase_partial(size_t index, bool evicted);
+  // Moves a spare buffer fit for a message of `bytes` into `out` (left alone if none is).
+  void take_spare(size_t bytes, std::vector<uint8_t>* out);
   std::nullopt_t drop(Drop reason);
 
   Limits limits_;
@@ -108,8 +111,12 @@ class Reassembler {
   std::vector<Partial> partials_;
   size_t reassembly_bytes_ = 0;
   uint64_t feeds_ = 0;
-  std::vector<uint8_t> complete_;  // the last completed message's payload
+  std::vector<uint8_t> complete_;  // the last completed message's payload (and maybe more)
   std::string complete_channel_;
+  // Buffers of finished partial messages, reused: a flood of first fragments that never complete
+  // must not cost an allocation (and the zeroing of up to a whole message) per datagram.
+  std::vector<std::vector<uint8_t>> spare_;
+  size_t spare_bytes_ = 0;
 };
 
 }  // namespace depthfuse::lcm::udpm

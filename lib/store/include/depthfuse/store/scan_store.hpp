@@ -31,7 +31,7 @@
 
 namespace depthfuse::store {
 
-constexpr int kSchemaVersion = 3;                 // PRAGMA user_version of files written now
+constexpr int kSchemaVersion = 4;                 // PRAGMA user_version of files written now
 constexpr int32_t kApplicationId = 0x44465343;    // PRAGMA application_id: "DFSC"
 
 enum class OpenMode {
@@ -169,6 +169,8 @@ struct IntegrityReport {
   // Of poses_checked: rows written before schema 3, without a checksum. Their pose decodes (96
   // bytes, finite, a rotation) but a changed value cannot be told from a true one.
   size_t poses_unchecked = 0;
+  // Keyframe and checkpoint rows written before schema 4, whose poses have no checksum.
+  size_t keyframes_unchecked = 0, checkpoints_unchecked = 0;
 };
 
 // Chunk iteration options.
