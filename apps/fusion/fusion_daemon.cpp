@@ -492,8 +492,9 @@ void FusionDaemon::count_tracking(const FrameReport& rep) {
                                  "map again";
   } else if (rep.relocalised) {
     // The frame was lost by tracking and found among the keyframes: it counts as tracked.
-    DF_LOG(Fusion, Info) << "relocalised among the keyframes after " << frames_lost_in_a_row_
-                         << " lost frames (search " << rep.relocalisation_ms << " ms)";
+    DF_LOG(Fusion, Info) << "tracking lost, and relocalised among the keyframes after "
+                         << frames_lost_in_a_row_ << " frames lost before this one (search "
+                         << rep.relocalisation_ms << " ms)";
     frames_lost_in_a_row_ = 0;
   } else if (frames_lost_in_a_row_ > 0) {
     DF_LOG(Fusion, Info) << "tracking regained after " << frames_lost_in_a_row_ << " lost frames";
