@@ -135,8 +135,10 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
     return report;
   }
 
-  // Only a frame tracked without a hint is a keyframe: with hints nothing is ever relocalised.
-  if (!frame.T_world_cam_hint && report.tracking == TrackingState::kTracked)
+  // Only a frame tracked without a hint is a keyframe: with hints, or without registration,
+  // nothing is ever relocalised.
+  if (config_.registration.enabled && !frame.T_world_cam_hint &&
+      report.tracking == TrackingState::kTracked)
     relocaliser_->frame_tracked(scratch_, T);
 
   t0 = Clock::now();
