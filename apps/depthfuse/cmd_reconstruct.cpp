@@ -276,7 +276,8 @@ int run(int argc, char** argv) {
       }
       frames = std::move(kept);
       pose_note = "tracked from the first frame: " + std::to_string(tracked->uncertain) +
-                  " frames uncertain, " + std::to_string(tracked->lost) + " lost (left out)";
+                  " frames uncertain, " + std::to_string(tracked->lost) + " lost (left out), " +
+                  std::to_string(tracked->relocalised) + " relocalised";
     } else {
       for (size_t i = 0; i < frames.size(); ++i) {
         if (!frames[i].T_world_cam_hint) {

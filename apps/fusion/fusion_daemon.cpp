@@ -436,7 +436,7 @@ void FusionDaemon::fuse(QueuedFrame& item) {
     return;
   }
   const FrameReport& rep = *report;
-  count_tracking(rep.tracking);
+  count_tracking(rep);
   preview_.frame_tracked(static_cast<int8_t>(rep.tracking));
   depthfuse::pose2_t pose2{};
   pose2.protocol_version = depthfuse::pose2_t::PROTOCOL_VERSION;
@@ -502,8 +502,10 @@ void FusionDaemon::fuse(QueuedFrame& item) {
     set_error("checkpoint store: " + st.to_string());
 }
 
-void FusionDaemon::count_tracking(TrackingState state) {
+void FusionDaemon::count_tracking(const FrameReport& rep) {
+  const TrackingState state = rep.tracking;
   tracking_state_ = static_cast<int>(state);
+  if (rep.relocalised) ++relocalisations_;
   switch (state) {
     case TrackingState::kTracked: ++frames_tracked_; break;
     case TrackingState::kUncertain: ++frames_uncertain_; break;
@@ -514,6 +516,12 @@ void FusionDaemon::count_tracking(TrackingState state) {
     if (frames_lost_in_a_row_++ == 0)
       DF_LOG(Fusion, Warning) << "tracking lost: frames are not fused until the camera sees the "
                                  "map again";
+  } else if (rep.relocalised) {
+    // The frame was lost by tracking and found among the keyframes: it counts as tracked.
+    DF_LOG(Fusion, Info) << "tracking lost, and relocalised among the keyframes after "
+                         << frames_lost_in_a_row_ << " frames lost before this one (search "
+                         << rep.relocalisation_ms << " ms)";
+    frames_lost_in_a_row_ = 0;
   } else if (frames_lost_in_a_row_ > 0) {
     DF_LOG(Fusion, Info) << "tracking regained after " << frames_lost_in_a_row_ << " lost frames";
     frames_lost_in_a_row_ = 0;
@@ -622,6 +630,8 @@ void FusionDaemon::publish_heartbeat() {
     daemon::add_counter(&hb, "frames_tracked", static_cast<double>(frames_tracked_.load()));
     daemon::add_counter(&hb, "frames_uncertain", static_cast<double>(frames_uncertain_.load()));
     daemon::add_counter(&hb, "frames_lost_tracking", static_cast<double>(frames_lost_tracking_.load()));
+    // Frames whose tracking was lost and that were found among the keyframes (counted as tracked).
+    daemon::add_counter(&hb, "relocalisations", static_cast<double>(relocalisations_.load()));
     for (const auto& [counter, value] : sink_counters_) daemon::add_counter(&hb, counter, value);
     daemon::add_receive_counters(*lcm_, &hb);
   }

@@ -74,7 +74,7 @@ class FusionDaemon {
   Status start_scan(const std::string& requested_name, std::string* message);
   Status stop_scan(const std::string& reason, std::string* message);
   void fuse(QueuedFrame& item);
-  void count_tracking(TrackingState state);
+  void count_tracking(const FrameReport& report);
   void publish_heartbeat();
   void refresh_sink_counters();
   void set_error(const std::string& e);
@@ -102,6 +102,7 @@ class FusionDaemon {
   std::atomic<int64_t> process_errors_{0}, icp_failures_{0}, registered_{0};
   // Frames by the tracking state the worker gave them, and the last one's state.
   std::atomic<int64_t> frames_tracked_{0}, frames_uncertain_{0}, frames_lost_tracking_{0};
+  std::atomic<int64_t> relocalisations_{0};
   std::atomic<int> tracking_state_{0};
   std::atomic<int64_t> color_wrong_size_{0};  // colour frames not the size of their depth frame
   int64_t frames_lost_in_a_row_ = 0;  // worker thread only

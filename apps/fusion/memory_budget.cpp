@@ -29,7 +29,10 @@ MemoryBudget MemoryBudget::of(const AppConfig& config) {
   const double messages = 2 * pixels * (kWireDepthBytes + kColorBytes);
   const double decoding = pixels * (2 * kWireDepthBytes + 2 * kColorBytes);
   b.receive_mib = (messages + decoding + frame) / kMiB;
-  b.worker_mib = (frame + pixels * IncrementalReconstructor::kWorkBytesPerPixel) / kMiB;
+  b.worker_mib = (frame + pixels * IncrementalReconstructor::kWorkBytesPerPixel +
+                  static_cast<double>(IncrementalReconstructor::relocalisation_bytes(
+                      config.reconstruction.relocalisation, static_cast<size_t>(pixels)))) /
+                 kMiB;
   return b;
 }
 

@@ -6,6 +6,8 @@
 #include <cstdio>
 #include <string>
 
+#include "relocaliser.hpp"
+
 namespace depthfuse {
 
 namespace {
@@ -60,9 +62,32 @@ IncrementalReconstructor::IncrementalReconstructor(const ReconstructionConfig& c
     : config_(config.with_method(config.pipeline.method)),
       map_(std::make_unique<PointMap>(config.fusion.chunk_size_m)),
       fuser_(config_.sensor, config_.fusion),
-      registrar_(config_.registration) {}
+      registrar_(config_.registration),
+      relocaliser_(std::make_unique<Relocaliser>(config_.relocalisation)) {}
 
 IncrementalReconstructor::~IncrementalReconstructor() = default;
+
+size_t IncrementalReconstructor::relocalisation_bytes(const RelocalisationConfig& config,
+                                                      size_t pixels) {
+  return Relocaliser::memory_bound_bytes(config, pixels);
+}
+
+void IncrementalReconstructor::relocalise(FrameReport* report) {
+  const auto t0 = Clock::now();
+  const auto found = relocaliser_->search(scratch_, [&](const Pose& candidate) {
+    const RegistrationResult r = registrar_.track(scratch_, *map_, candidate);
+    frames_since_model_ = 1;  // the track rendered the map around the candidate
+    if (classify_tracking(r, config_.registration) != TrackingState::kTracked) return false;
+    report->registration = r;
+    return true;
+  });
+  if (found) {
+    report->registered = true;
+    report->tracking = TrackingState::kTracked;
+    report->relocalised = true;
+  }
+  report->relocalisation_ms = ms_since(t0);
+}
 
 Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
                                                       const std::optional<Pose>& prediction) {
@@ -117,9 +142,10 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
       report.tracking_retried = true;
     }
     report.registered = report.registration.converged;
-    if (report.registered) T = report.registration.T_world_cam;
     if (!hint) report.tracking = classify_tracking(report.registration, config_.registration);
     else if (!report.registered) report.tracking = TrackingState::kUncertain;
+    if (report.tracking == TrackingState::kLost && !hint) relocalise(&report);
+    if (report.registered) T = report.registration.T_world_cam;
   }
   report.registration_ms = ms_since(t0);
   report.T_world_cam = T;
@@ -131,6 +157,12 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
     ++next_frame_id_;
     return report;
   }
+
+  // Only a frame tracked without a hint is a keyframe: with hints, or without registration,
+  // nothing is ever relocalised.
+  if (config_.registration.enabled && !frame.T_world_cam_hint &&
+      report.tracking == TrackingState::kTracked)
+    relocaliser_->frame_tracked(scratch_, T);
 
   t0 = Clock::now();
   report.fusion = fuser_.fuse(scratch_, &frame.color, T, next_frame_id_, map_.get());
@@ -149,6 +181,7 @@ void IncrementalReconstructor::reset(std::unique_ptr<PointMap> map, uint32_t nex
                                      const std::optional<Pose>& last_T_world_cam) {
   map_ = map ? std::move(map) : std::make_unique<PointMap>(config_.fusion.chunk_size_m);
   frames_since_model_ = 0;
+  relocaliser_->clear();
   next_frame_id_ = std::max<uint32_t>(1, next_frame_id);
   last_T_world_cam_ = last_T_world_cam;
   registrar_.forget_photometric_reference();
@@ -324,6 +357,7 @@ Result<TrackedSequence> track_sequence(const std::vector<Frame>& frames,
     out.state.push_back(r->tracking);
     if (r->tracking == TrackingState::kUncertain) ++out.uncertain;
     if (!r->fused()) ++out.lost;
+    if (r->relocalised) ++out.relocalised;
     if (progress) progress("tracking", i + 1, frames.size());
   }
   return out;

@@ -171,11 +171,12 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
   min_pairs = std::max<size_t>(6, min_pairs);
 
   Pose T = initial;
-  size_t sampled = 0;
+  size_t sampled = 0, modelled = 0;
   NormalEquations eq;
   for (int it = 0; it < iterations; ++it) {
     eq = NormalEquations();
     sampled = 0;
+    modelled = 0;
     const Eigen::Matrix3f R = T.linear().cast<float>();
     const Eigen::Vector3f t = T.translation().cast<float>();
     // Association in the camera the model was rendered from.
@@ -186,7 +187,8 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
 
     // Pairs from two halves of the rows, on two threads if there are two, summed in the same order
     // either way.
-    auto pairs = [&](int v_begin, int v_end, NormalEquations* out, size_t* out_sampled) {
+    auto pairs = [&](int v_begin, int v_end, NormalEquations* out, size_t* out_sampled,
+                     size_t* out_modelled) {
       for (int v = v_begin; v < v_end; v += step) {
         for (int u = 0; u < m.width; u += step) {
           const size_t i = static_cast<size_t>(v) * m.width + u;
@@ -199,6 +201,7 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
           if (px == kNoPixel) continue;
           const SurfaceView::Pixel& s = surface[px];
           if (!(s.w > 0.0f)) continue;
+          ++*out_modelled;
           const Eigen::Vector3f q(s.x, s.y, s.z);
           const Eigen::Vector3f n_q(s.nx, s.ny, s.nz);
           const Eigen::Vector3f p_w = R * p_c + t;
@@ -214,12 +217,13 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
     };
     const int half_rows = (m.height / 2 + step - 1) / step * step;  // a multiple of the step
     NormalEquations second;
-    size_t second_sampled = 0;
+    size_t second_sampled = 0, second_modelled = 0;
     run_pair(
-        config_.threads, [&] { pairs(0, half_rows, &eq, &sampled); },
-        [&] { pairs(half_rows, m.height, &second, &second_sampled); });
+        config_.threads, [&] { pairs(0, half_rows, &eq, &sampled, &modelled); },
+        [&] { pairs(half_rows, m.height, &second, &second_sampled, &second_modelled); });
     eq.merge(second);
     sampled += second_sampled;
+    modelled += second_modelled;
     result.iterations = it + 1;
     if (eq.inliers < min_pairs) break;
     if (photometric_level >= 0)
@@ -240,6 +244,7 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
 
   result.correspondences = eq.inliers;
   result.fitness = sampled ? static_cast<double>(eq.inliers) / sampled : 0.0;
+  result.model_fitness = modelled ? static_cast<double>(eq.inliers) / modelled : 0.0;
   // A sample without a pair costs what a pair at the gate would.
   const double unpaired = huber_cost(max_d, huber) * static_cast<double>(sampled - eq.inliers);
   result.mean_cost = sampled ? (eq.cost + unpaired) / sampled : 0.0;
@@ -330,6 +335,10 @@ const char* to_string(TrackingState s) {
 
 TrackingState classify_tracking(const RegistrationResult& r, const RegistrationConfig& c) {
   if (!r.converged || r.fitness < c.tracking_lost_fitness || r.rmse_m > c.tracking_lost_rmse_m)
+    return TrackingState::kLost;
+  // A poor fitness is a view into unmapped space only if the frame agrees with the map where the
+  // map has a surface; where it does not, the camera is somewhere else (a loop wrapping back).
+  if (r.fitness < c.tracking_retry_fitness && r.model_fitness < c.tracking_lost_model_fitness)
     return TrackingState::kLost;
   if (r.fitness < c.tracking_retry_fitness || r.conditioning < c.tracking_degenerate_ratio)
     return TrackingState::kUncertain;

@@ -66,6 +66,20 @@ void expect_config_eq(const AppConfig& a, const AppConfig& b) {
   EXPECT_EQ(ra.registration.tracking_iterations_per_level,
             rb.registration.tracking_iterations_per_level);
   EXPECT_EQ(ra.registration.photometric_weight, rb.registration.photometric_weight);
+  EXPECT_EQ(ra.registration.tracking_lost_model_fitness, rb.registration.tracking_lost_model_fitness);
+  const RelocalisationConfig &la = ra.relocalisation, &lb = rb.relocalisation;
+  EXPECT_EQ(la.enabled, lb.enabled);
+  EXPECT_EQ(la.keyframe_spacing_m, lb.keyframe_spacing_m);
+  EXPECT_EQ(la.keyframe_spacing_deg, lb.keyframe_spacing_deg);
+  EXPECT_EQ(la.max_keyframes, lb.max_keyframes);
+  EXPECT_EQ(la.voxel_m, lb.voxel_m);
+  EXPECT_EQ(la.max_points, lb.max_points);
+  EXPECT_EQ(la.feature_radius_m, lb.feature_radius_m);
+  EXPECT_EQ(la.candidates_per_frame, lb.candidates_per_frame);
+  EXPECT_EQ(la.every_n_lost_frames, lb.every_n_lost_frames);
+  EXPECT_EQ(la.sac_iterations, lb.sac_iterations);
+  EXPECT_EQ(la.sac_inlier_m, lb.sac_inlier_m);
+  EXPECT_EQ(la.sac_inlier_fraction, lb.sac_inlier_fraction);
   EXPECT_EQ(ra.pipeline.method, rb.pipeline.method);
   EXPECT_EQ(ra.pipeline.outer_iterations, rb.pipeline.outer_iterations);
   EXPECT_EQ(ra.pipeline.converged_translation_m, rb.pipeline.converged_translation_m);
@@ -166,6 +180,21 @@ tracking_retry_fitness = 0.25
 tracking_degenerate_ratio = 0.002
 tracking_lost_fitness = 0.2
 tracking_lost_rmse_m = 0.03
+tracking_lost_model_fitness = 0.8
+
+[relocalisation]
+enabled = false
+keyframe_spacing_m = 0.5
+keyframe_spacing_deg = 30
+max_keyframes = 8
+voxel_m = 0.04
+max_points = 400
+feature_radius_m = 0.12
+candidates_per_frame = 2
+every_n_lost_frames = 3
+sac_iterations = 100
+sac_inlier_m = 0.02
+sac_inlier_fraction = 0.5
 
 [pipeline]
 method = "ylimaki17"
@@ -243,6 +272,20 @@ publish_rate_hz = 0.5
   EXPECT_EQ(g.tracking_degenerate_ratio, 0.002);
   EXPECT_EQ(g.tracking_lost_fitness, 0.2);
   EXPECT_EQ(g.tracking_lost_rmse_m, 0.03);
+  EXPECT_EQ(g.tracking_lost_model_fitness, 0.8);
+  const RelocalisationConfig& l = c.reconstruction.relocalisation;
+  EXPECT_FALSE(l.enabled);
+  EXPECT_EQ(l.keyframe_spacing_m, 0.5);
+  EXPECT_EQ(l.keyframe_spacing_deg, 30.0);
+  EXPECT_EQ(l.max_keyframes, 8);
+  EXPECT_EQ(l.voxel_m, 0.04);
+  EXPECT_EQ(l.max_points, 400);
+  EXPECT_EQ(l.feature_radius_m, 0.12);
+  EXPECT_EQ(l.candidates_per_frame, 2);
+  EXPECT_EQ(l.every_n_lost_frames, 3);
+  EXPECT_EQ(l.sac_iterations, 100);
+  EXPECT_EQ(l.sac_inlier_m, 0.02);
+  EXPECT_EQ(l.sac_inlier_fraction, 0.5);
   const PipelineConfig& pl = c.reconstruction.pipeline;
   EXPECT_EQ(pl.method, Method::kYlimaki17);
   EXPECT_EQ(pl.outer_iterations, 3);

@@ -29,6 +29,7 @@
 
 #include "depthfuse/base/clock.hpp"
 #include "depthfuse/base/log.hpp"
+#include "depthfuse/daemon/heartbeat.hpp"
 #include "depthfuse/daemon/startup.hpp"
 #include "depthfuse/depth_frame_t.hpp"
 #include "depthfuse/heartbeat_t.hpp"
@@ -368,6 +369,14 @@ int run(int argc, char** argv) {
               mean(prefilter_ms), mean(registration_ms), mean(fusion_ms));
   std::printf("  registered %.1f %% of frames, ICP fitness %.3f, residual %.2f mm (means)\n",
               100.0 * mean(registered), mean(fitness), mean(rmse_mm));
+  // Without hints: how tracking went (the daemon's heartbeat counters; a relocalised frame was lost
+  // by tracking, found among the keyframes, and counts as tracked).
+  auto counter = [&](const char* key) {
+    return static_cast<long long>(depthfuse::daemon::counter_value(last_hb, key));
+  };
+  std::printf("  tracking: %lld tracked, %lld uncertain, %lld lost (not fused), %lld relocalised\n",
+              counter("frames_tracked"), counter("frames_uncertain"),
+              counter("frames_lost_tracking"), counter("relocalisations"));
   std::printf("  daemon CPU %.2f cores, RSS %.0f MiB, %lld points in the map at the end\n",
               (cpu1 - cpu0) / elapsed_s, last_hb.rss_bytes / 1048576.0,
               static_cast<long long>(last_hb.point_count));

@@ -127,9 +127,26 @@ void read_registration(TableReader& r, RegistrationConfig* g) {
   r.read("tracking_degenerate_ratio", &g->tracking_degenerate_ratio, closed(0.0, 1.0));
   r.read("tracking_lost_fitness", &g->tracking_lost_fitness, closed(0.0, 1.0));
   r.read("tracking_lost_rmse_m", &g->tracking_lost_rmse_m, positive());
+  r.read("tracking_lost_model_fitness", &g->tracking_lost_model_fitness, closed(0.0, 1.0));
   r.read("live_model_reuse_frames", &g->live_model_reuse_frames, closed(1, 30));
   r.read("live_model_reuse_max_m", &g->live_model_reuse_max_m, non_negative());
   r.read("live_model_reuse_max_deg", &g->live_model_reuse_max_deg, closed(0.0, 180.0));
+  r.reject_unknown();
+}
+
+void read_relocalisation(TableReader& r, RelocalisationConfig* c) {
+  r.read("enabled", &c->enabled);
+  r.read("keyframe_spacing_m", &c->keyframe_spacing_m, non_negative());
+  r.read("keyframe_spacing_deg", &c->keyframe_spacing_deg, closed(0.0, 180.0));
+  r.read("max_keyframes", &c->max_keyframes, closed(1, 1024));
+  r.read("voxel_m", &c->voxel_m, positive());
+  r.read("max_points", &c->max_points, closed(50, 100000));  // fewer carry no shape to match
+  r.read("feature_radius_m", &c->feature_radius_m, positive());
+  r.read("candidates_per_frame", &c->candidates_per_frame, closed(1, 64));
+  r.read("every_n_lost_frames", &c->every_n_lost_frames, closed(1, 1000));
+  r.read("sac_iterations", &c->sac_iterations, closed(1, 1000000));
+  r.read("sac_inlier_m", &c->sac_inlier_m, positive());
+  r.read("sac_inlier_fraction", &c->sac_inlier_fraction, closed(0.0, 1.0));
   r.reject_unknown();
 }
 
@@ -323,6 +340,7 @@ Result<AppConfig> parse(const std::string& text, const std::string& origin,
   section("fusion", [&](TableReader& r) { read_fusion(r, &rc.fusion); });
   section("postfilter", [&](TableReader& r) { read_postfilter(r, &rc.postfilter); });
   section("registration", [&](TableReader& r) { read_registration(r, &rc.registration); });
+  section("relocalisation", [&](TableReader& r) { read_relocalisation(r, &rc.relocalisation); });
   section("pipeline", [&](TableReader& r) { read_pipeline(r, &rc.pipeline); });
   section("lcm", [&](TableReader& r) { read_lcm(r, &config.lcm); });
   section("capture", [&](TableReader& r) { read_capture(r, &config.capture); });

@@ -89,6 +89,9 @@ struct RegistrationConfig {
   // tracking_degenerate_ratio (classify_tracking()).
   double tracking_lost_fitness = 0.3;
   double tracking_lost_rmse_m = 0.02;
+  // A frame whose fitness is below tracking_retry_fitness is lost, not uncertain, when fewer than
+  // this share of its samples that fall on the model's surface have a pair (model_fitness).
+  double tracking_lost_model_fitness = 0.9;
   // Frame-by-frame registration (IncrementalReconstructor, the fusion daemon) may align a frame
   // to the model rendered for the frame before, instead of rendering the map again: for at most
   // live_model_reuse_frames frames in a row (1: never), and only while the initial pose is within
@@ -96,6 +99,30 @@ struct RegistrationConfig {
   int live_model_reuse_frames = 2;
   double live_model_reuse_max_m = 0.025;
   double live_model_reuse_max_deg = 2.0;
+};
+
+// Relocalisation of a camera whose tracking is lost (frames without pose hints; see Relocaliser in
+// lib/src/relocaliser.hpp and config/depthfuse.toml [relocalisation]).
+struct RelocalisationConfig {
+  bool enabled = true;
+  // A tracked frame becomes a keyframe when no keyframe is within both of these of its camera.
+  double keyframe_spacing_m = 0.3;
+  double keyframe_spacing_deg = 20.0;
+  int max_keyframes = 32;
+  // A keyframe's and a lost frame's points: the valid measurements averaged in cubes of voxel_m,
+  // at most max_points of them; FPFH features over feature_radius_m.
+  double voxel_m = 0.05;
+  int max_points = 800;
+  double feature_radius_m = 0.15;
+  // Cost per lost frame: sample consensus against at most candidates_per_frame keyframes, on
+  // every every_n_lost_frames-th lost frame in a row, sac_iterations draws each.
+  int candidates_per_frame = 1;
+  int every_n_lost_frames = 1;
+  int sac_iterations = 300;
+  // A sample-consensus pose is a candidate when this fraction of the frame's points lies within
+  // sac_inlier_m of the keyframe's.
+  double sac_inlier_m = 0.03;
+  double sac_inlier_fraction = 0.3;
 };
 
 enum class Method { kKyostila13, kYlimaki17, kFull };
@@ -115,6 +142,7 @@ struct ReconstructionConfig {
   FusionConfig fusion;
   PostfilterConfig postfilter;
   RegistrationConfig registration;
+  RelocalisationConfig relocalisation;
   PipelineConfig pipeline;
 
   // The stages the method switch turns on: kyostila13 = fusion only, ylimaki17 = + pre/post

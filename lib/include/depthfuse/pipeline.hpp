@@ -25,6 +25,9 @@ struct FrameReport {
   bool registered = false;               // ICP ran and converged
   bool model_reused = false;             // ICP aligned to the previous frame's model (no render)
   bool tracking_retried = false;         // a poor track from the prediction started again
+  // Tracking was lost and the camera was found among the keyframes (the frame is kTracked and
+  // fused at the pose found).
+  bool relocalised = false;
   // Without a pose hint, how far the tracked pose can be trusted (classify_tracking()); with one,
   // tracked if its ICP converged, else uncertain (the hint is fused). A lost frame is not fused.
   TrackingState tracking = TrackingState::kTracked;
@@ -33,7 +36,10 @@ struct FrameReport {
   FusionStats fusion;
   size_t prefiltered = 0;                // measurements the pre-filter removed
   double prefilter_ms = 0, registration_ms = 0, fusion_ms = 0;
+  double relocalisation_ms = 0;          // the keyframe search, part of registration_ms
 };
+
+class Relocaliser;
 
 class IncrementalReconstructor {
  public:
@@ -42,6 +48,9 @@ class IncrementalReconstructor {
   // scratch, and with colour the photometric term's intensity pyramids (about 26 bytes). A bound
   // for budgets, held by a test (Incremental.FrameWorkStaysWithinItsBound).
   static constexpr size_t kWorkBytesPerPixel = 122;
+
+  // What the relocaliser holds at most, keyframes and the search of one frame of `pixels`.
+  static size_t relocalisation_bytes(const RelocalisationConfig& config, size_t pixels);
 
   explicit IncrementalReconstructor(const ReconstructionConfig& config);
   ~IncrementalReconstructor();
@@ -54,7 +63,10 @@ class IncrementalReconstructor {
   // Without a hint, directions of the pose the view hardly constrains keep the last refined pose's
   // value (Registrar::track). A track from a prediction that is not kTracked starts again from the
   // last refined pose, and the start whose ICP ends with the lower mean cost is kept. A frame whose
-  // track is lost is not fused, and the last refined pose stays that of the last frame fused.
+  // track is lost is searched for among the keyframes (Relocaliser; every frame tracked without a
+  // hint may become one): a candidate pose that tracks against the map as kTracked is the camera's,
+  // and the frame is fused there (relocalised). Otherwise the frame is not fused, and the last
+  // refined pose stays that of the last frame fused.
   Result<FrameReport> process(const Frame& frame,
                               const std::optional<Pose>& T_world_cam_prediction = std::nullopt);
 
@@ -71,10 +83,15 @@ class IncrementalReconstructor {
   const ReconstructionConfig& config() const { return config_; }
 
  private:
+  // The keyframes' candidates for a lost frame, each tracked against the map; the first that
+  // tracks well is the frame's pose.
+  void relocalise(FrameReport* report);
+
   ReconstructionConfig config_;
   std::unique_ptr<PointMap> map_;
   Fuser fuser_;
   Registrar registrar_;
+  std::unique_ptr<Relocaliser> relocaliser_;
   MeasurementImage scratch_;
   int frames_since_model_ = 0;  // frames registered to the Registrar's last rendered model
   std::optional<Pose> last_T_world_cam_;
@@ -147,6 +164,7 @@ struct TrackedSequence {
   std::vector<Pose> T_world_cam;       // one per frame; a lost frame's is ICP's best guess
   std::vector<TrackingState> state;    // one per frame
   size_t uncertain = 0, lost = 0;      // frames in those states
+  size_t relocalised = 0;              // frames found among the keyframes after a loss
 };
 
 // Poses for a sequence without any: frame-to-model tracking from the first frame (at identity),

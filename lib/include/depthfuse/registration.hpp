@@ -15,6 +15,10 @@ struct RegistrationResult {
   bool converged = false;               // enough correspondences at the end
   size_t correspondences = 0;
   double fitness = 0.0;                 // inlier correspondences / valid measurements used
+  // Inlier correspondences / valid measurements used that fall on the model's surface: how much of
+  // the frame agrees with the map where the map has something to say. A view of unmapped space
+  // lowers the fitness but not this; a camera placed where it is not lowers both.
+  double model_fitness = 0.0;
   double rmse_m = 0.0;                  // point-to-plane residual of the inliers
   // The robust (Huber) cost per sampled measurement, a measurement without a pair counted as one
   // at the correspondence gate: lower is better. Compares two starts of one frame.

@@ -1,0 +1,51 @@
+// Relocalisation of a lost camera: keyframes kept in memory while tracking, searched when tracking
+// is lost. PCL's feature and registration headers stay in relocaliser.cpp (about 1 GB and 20 s to
+// compile a translation unit that includes them).
+#pragma once
+
+#include <functional>
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include "depthfuse/config.hpp"
+#include "depthfuse/measurement.hpp"
+#include "depthfuse/types.hpp"
+
+namespace depthfuse {
+
+class Relocaliser {
+ public:
+  explicit Relocaliser(const RelocalisationConfig& config);
+  ~Relocaliser();
+  Relocaliser(const Relocaliser&) = delete;
+  Relocaliser& operator=(const Relocaliser&) = delete;
+
+  // After a frame is tracked and fused at T_world_cam: keeps it as a keyframe (a thumbnail of its
+  // depth and its downsampled points with normals, in its camera frame) when no keyframe is within
+  // keyframe_spacing_m and keyframe_spacing_deg of it. Past max_keyframes the keyframe closest to
+  // another one goes. Also ends a search: the camera is tracked again.
+  void frame_tracked(const MeasurementImage& m, const Pose& T_world_cam);
+
+  // For a lost frame: where the camera is, or nothing. At most candidates_per_frame keyframes are
+  // tried, on every every_n_lost_frames-th lost frame in a row. Keyframes are ranked by how alike
+  // their depth thumbnails are to this frame's; the best is tried on every other attempt, the
+  // others in turn. For a keyframe, two candidate poses go to `verify` (tracking against the map):
+  // the keyframe's own, then the keyframe's pose times the FPFH sample-consensus alignment of the
+  // frame's points to the keyframe's. The first that `verify` accepts is returned.
+  std::optional<Pose> search(const MeasurementImage& m, const std::function<bool(const Pose&)>& verify);
+
+  void clear();
+  size_t keyframe_count() const { return keyframes_.size(); }
+  // What the keyframes hold at most (max_keyframes full ones, features computed), and the search
+  // of a frame of `pixels` (its points before the voxel grid).
+  static size_t memory_bound_bytes(const RelocalisationConfig& config, size_t pixels);
+
+ private:
+  struct Keyframe;
+  RelocalisationConfig config_;
+  std::vector<std::unique_ptr<Keyframe>> keyframes_;
+  int lost_frames_ = 0;  // in a row, since the last tracked frame
+};
+
+}  // namespace depthfuse

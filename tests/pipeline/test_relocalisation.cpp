@@ -1,0 +1,109 @@
+// Relocalisation (issue 19): frames without pose hints, tracked frame by frame as the fusion daemon
+// does, over the synthetic corner. The camera is carried away (teleported to a view of unmapped
+// floor), then brought back near where the scan began, far from the last pose fused: the frames
+// away must be reported lost and not fused, and the camera must be found again among the
+// keyframes instead of being tracked into a second copy of the corner.
+#include <gtest/gtest.h>
+
+#include <cstdio>
+
+#include "depthfuse/pipeline.hpp"
+#include "depthfuse/synthetic/synthetic_sequence.hpp"
+
+using namespace depthfuse;
+
+namespace {
+
+constexpr int kLoopFrames = 300;  // the live benchmark's loop
+constexpr int kStride = 3;        // every 3rd frame: 2.3 cm and 0.9 degree apart
+constexpr int kAway = 3;          // frames while the camera is elsewhere
+constexpr int kReturnAt = 15;     // where it comes back: 12 cm from the first keyframe
+constexpr int kReturnFrames = 10;
+
+struct Outcome {
+  std::vector<FrameReport> away, back;
+  size_t points_before_away = 0, points_after_away = 0, points_end = 0;
+  std::vector<double> back_error_m;  // from the truth, in the first camera's frame
+};
+
+Outcome run(const synthetic::SyntheticSequence& seq, bool relocalise) {
+  ReconstructionConfig c;
+  c.relocalisation.enabled = relocalise;
+  IncrementalReconstructor rec(c);
+  Outcome out;
+  auto process = [&](Frame f) {
+    f.T_world_cam_hint.reset();  // as from a Kinect: the reconstructor tracks
+    auto r = rec.process(f);
+    EXPECT_TRUE(r.is_ok()) << r.status().to_string();
+    return r.is_ok() ? *r : FrameReport{};
+  };
+  for (int i = 0; i < kLoopFrames; i += kStride) {
+    const FrameReport r = process(seq.render(static_cast<size_t>(i)));
+    EXPECT_NE(r.tracking, TrackingState::kLost) << "frame " << i;
+  }
+  out.points_before_away = rec.map().point_count();
+  // Carried off to look down at the floor beyond the corner, where the map has nothing.
+  const Pose away = synthetic::look_at({3.2, 3.2, 1.2}, {4.5, 4.5, 0.0});
+  for (int k = 0; k < kAway; ++k) {
+    Frame f = seq.render(0);
+    seq.renderer().render(away, 1000 + k, true, &f.depth, &f.color);
+    out.away.push_back(process(f));
+  }
+  out.points_after_away = rec.map().point_count();
+  const Pose T_0_world = seq.T_world_cam_true(0).inverse();  // tracking starts at the identity
+  for (int k = 0; k < kReturnFrames; ++k) {
+    const size_t i = static_cast<size_t>(kReturnAt + k * kStride);
+    out.back.push_back(process(seq.render(i)));
+    const Pose truth = T_0_world * seq.T_world_cam_true(i);
+    out.back_error_m.push_back((out.back.back().T_world_cam.translation() - truth.translation()).norm());
+  }
+  out.points_end = rec.map().point_count();
+  return out;
+}
+
+}  // namespace
+
+TEST(Relocalisation, ALostCameraIsReportedAndFoundAgainWhenItComesBack) {
+  synthetic::SyntheticConfig sc;
+  sc.frames = kLoopFrames;
+  auto seq = synthetic::SyntheticSequence::create(sc);
+  ASSERT_TRUE(seq.is_ok()) << seq.status().to_string();
+
+  for (const bool relocalise : {true, false}) {
+    SCOPED_TRACE(relocalise ? "relocalisation on" : "relocalisation off");
+    const Outcome r = run(*seq, relocalise);
+    // Away: lost, not fused, not relocalised (there is nothing to find).
+    for (const FrameReport& f : r.away) {
+      EXPECT_EQ(f.tracking, TrackingState::kLost);
+      EXPECT_FALSE(f.fused());
+      EXPECT_FALSE(f.relocalised);
+    }
+    EXPECT_EQ(r.points_after_away, r.points_before_away);
+
+    int found = -1;
+    for (size_t k = 0; k < r.back.size(); ++k) {
+      const FrameReport& f = r.back[k];
+      std::printf("back %zu: %s%s, fitness %.3f, %.1f mm from the truth, search %.1f ms\n", k,
+                  to_string(f.tracking), f.relocalised ? " (relocalised)" : "",
+                  f.registration.fitness, r.back_error_m[k] * 1e3, f.relocalisation_ms);
+      if (found < 0 && f.relocalised) found = static_cast<int>(k);
+    }
+    std::printf("points: %zu before away, %zu at the end\n", r.points_before_away, r.points_end);
+    if (relocalise) {
+      ASSERT_GE(found, 0) << "not relocalised within " << kReturnFrames << " frames";
+      for (int k = 0; k < found; ++k) EXPECT_FALSE(r.back[k].fused()) << "back " << k;
+      for (size_t k = static_cast<size_t>(found); k < r.back.size(); ++k) {
+        EXPECT_TRUE(r.back[k].fused()) << "back " << k;
+        EXPECT_LT(r.back_error_m[k], 0.005) << "back " << k;
+      }
+      // Back in mapped space: the frames add little, no second copy of the corner.
+      EXPECT_LT(r.points_end, r.points_before_away * 102 / 100);
+    } else {
+      // Without it the camera is not found where it is: every frame back is lost, or fused in
+      // the wrong place.
+      EXPECT_LT(found, 0);
+      for (size_t k = 0; k < r.back.size(); ++k)
+        EXPECT_TRUE(!r.back[k].fused() || r.back_error_m[k] > 0.05) << "back " << k;
+    }
+  }
+}
