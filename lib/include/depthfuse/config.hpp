@@ -74,8 +74,8 @@ struct RegistrationConfig {
   // Tracking without a pose hint: coarse-to-fine levels (subsample 4, 2, 1 ...), iterations each.
   int tracking_levels = 3;
   int tracking_iterations_per_level = 10;
-  // Tracking from a prediction whose result has an ICP fitness below this (or fails) starts again
-  // from the last refined pose; 0 = never.
+  // Tracking from a prediction whose result has an ICP fitness below this (or is lost) starts
+  // again from the last refined pose; 0 = never.
   double tracking_retry_fitness = 0.5;
   // Tracking a moving camera (IncrementalReconstructor without a pose hint): directions below
   // this fraction of the best-constrained one's keep the value of the pose the track starts from
