@@ -112,9 +112,9 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   registrar_.set_frame_color(frame.color, scratch_);
   if (config_.registration.enabled && map_->point_count() > 0) {
     const bool hint = frame.T_world_cam_hint.has_value();
-    // Without a hint: the tracking of a moving camera, its unconstrained directions held at the
-    // last refined pose.
-    const std::optional<Pose> held = hint ? std::nullopt : last_T_world_cam_;
+    // Without a hint: the tracking of a moving camera. The directions the view does not constrain
+    // keep the value the motion model gives them, that of the pose the track starts from.
+    const std::optional<Pose> held = hint ? std::nullopt : std::optional<Pose>(T);
     const SurfaceView& last = registrar_.model();
     if (may_reuse(config_.registration, frames_since_model_, last, T)) {
       report.registration = hint ? registrar_.refine(scratch_, last, T)
@@ -127,12 +127,17 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
       frames_since_model_ = 1;
     }
     // A constant-velocity prediction overshoots where the camera stops or turns back; a poor
-    // track from it gets a second start at the last refined pose. Of two local minima the one with
-    // the lower robust cost over all sampled measurements explains more of the frame, and better:
-    // fitness alone would prefer many loose pairs, the residual alone few tight ones.
+    // track from it (lost, or few pairs) gets a second start at the last refined pose. Of two
+    // local minima the one with the lower robust cost over all sampled measurements explains more
+    // of the frame, and better: fitness alone would prefer many loose pairs, the residual alone
+    // few tight ones. A direction held for want of information is no reason to start again: the
+    // two starts would differ only there, where the cost cannot tell them apart, and the track
+    // would jump between the motion model and a standstill.
     if (!hint && prediction && last_T_world_cam_ && config_.registration.tracking_retry_fitness > 0 &&
-        classify_tracking(report.registration, config_.registration) != TrackingState::kTracked) {
-      const RegistrationResult second = registrar_.track(scratch_, *map_, *last_T_world_cam_, held);
+        (report.registration.fitness < config_.registration.tracking_retry_fitness ||
+         classify_tracking(report.registration, config_.registration) == TrackingState::kLost)) {
+      const RegistrationResult second =
+          registrar_.track(scratch_, *map_, *last_T_world_cam_, *last_T_world_cam_);
       frames_since_model_ = 1;
       if (second.converged && (!report.registration.converged ||
                                second.mean_cost < report.registration.mean_cost)) {

@@ -157,11 +157,11 @@ TEST(Registration, AViewOfOneWallMovesThePoseOnlyWhereTheWallConstrainsIt) {
   }
 }
 
-TEST(Registration, TrackingHoldsWhatAWallDoesNotConstrainAtTheLastPoseNotThePrediction) {
-  // The camera stands still before a wall, but the constant-velocity prediction (from the motion
-  // before) is 3 cm along the wall and 1 degree about its normal on. The wall corrects the distance
-  // and the tilts only; the prediction's slide would stay, and the next prediction would slide on.
-  // Tracking a moving camera holds those directions at the last refined pose instead.
+TEST(Registration, TrackingHoldsWhatAWallDoesNotConstrainAtTheGivenPose) {
+  // The camera stands still before a wall; the track starts 3 cm along the wall and 1 degree about
+  // its normal away. The wall corrects the distance and the tilts only; the directions it does not
+  // constrain keep the start's value, or that of the pose they are held at. (The pipeline holds
+  // them at its start, the motion model's prediction: Sequence.AlongAWall... in test_pipeline.)
   SensorModelConfig sensor;
   FusionConfig fusion;
   PointMap map(0.5);

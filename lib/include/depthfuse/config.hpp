@@ -77,13 +77,13 @@ struct RegistrationConfig {
   // Tracking: weight of the photometric term (intensity of the frame against the last fused
   // frame's, 0..1) per squared point-to-plane metre; 0 = off, and off without colour.
   double photometric_weight = 0.01;
-  // Tracking from a prediction whose result has an ICP fitness below this (or fails) starts again
-  // from the last refined pose; 0 = never.
+  // Tracking from a prediction whose result has an ICP fitness below this (or is lost) starts
+  // again from the last refined pose; 0 = never.
   double tracking_retry_fitness = 0.5;
-  // Tracking a moving camera from a prediction (IncrementalReconstructor without a pose hint):
-  // directions below this fraction of the best-constrained one's keep the last refined pose's
-  // value (see Registrar::track).
-  double tracking_degenerate_ratio = 1e-3;
+  // Tracking a moving camera (IncrementalReconstructor without a pose hint): directions below
+  // this fraction of the best-constrained one's keep the value of the pose the track starts from
+  // (see Registrar::track).
+  double tracking_degenerate_ratio = 3e-3;
   // A tracked frame is lost (not fused) when its fitness is below this or its residual above that;
   // uncertain when its fitness is below tracking_retry_fitness or its conditioning below
   // tracking_degenerate_ratio (classify_tracking()).

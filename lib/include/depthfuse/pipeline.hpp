@@ -60,13 +60,14 @@ class IncrementalReconstructor {
   // not empty); fusion. With a hint, ICP refines it; without one, coarse-to-fine tracking runs.
   // The model is the map rendered at the initial pose, for every frame or, with
   // registration.live_model_reuse_frames = n, for every n-th (the first after a reset renders).
-  // Without a hint, directions of the pose the view hardly constrains keep the last refined pose's
-  // value (Registrar::track). A track from a prediction that is not kTracked starts again from the
-  // last refined pose, and the start whose ICP ends with the lower mean cost is kept. A frame whose
-  // track is lost is searched for among the keyframes (Relocaliser; every frame tracked without a
-  // hint may become one): a candidate pose that tracks against the map as kTracked is the camera's,
-  // and the frame is fused there (relocalised). Otherwise the frame is not fused, and the last
-  // refined pose stays that of the last frame fused.
+  // Without a hint, directions of the pose the view hardly constrains keep the initial pose's
+  // value (Registrar::track): the motion model's. A track from a prediction that is lost or has a
+  // fitness below registration.tracking_retry_fitness starts again from the last refined pose,
+  // and the start whose ICP ends with the lower mean cost is kept. A frame whose track is lost is
+  // searched for among the keyframes (Relocaliser; every frame tracked without a hint may become
+  // one): a candidate pose that tracks against the map as kTracked is the camera's, and the frame
+  // is fused there (relocalised). Otherwise the frame is not fused, and the last refined pose
+  // stays that of the last frame fused.
   Result<FrameReport> process(const Frame& frame,
                               const std::optional<Pose>& T_world_cam_prediction = std::nullopt);
 

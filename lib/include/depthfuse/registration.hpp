@@ -70,10 +70,9 @@ class Registrar {
                             const Pose& T_world_cam_initial);
   // Coarse-to-fine for larger motions (tracking without a pose hint). Directions the view hardly
   // constrains keep a value ICP cannot supply: without `T_world_cam_held`, the initial pose's
-  // (below registration.degenerate_ratio); with it, the tracking of a moving camera from a
-  // prediction, that pose's (the last refined one: zero motion) below
-  // registration.tracking_degenerate_ratio. A prediction is an extrapolation: where the data does
-  // not correct it, it would carry the camera on at its last speed.
+  // below registration.degenerate_ratio (the batch's first round); with it (the tracking of a
+  // moving camera), that pose's below registration.tracking_degenerate_ratio. The pipeline holds
+  // them where the track starts: the motion model's prediction, or the last pose on a retry.
   RegistrationResult track(const MeasurementImage& m, const PointMap& map,
                            const Pose& T_world_cam_initial,
                            const std::optional<Pose>& T_world_cam_held = std::nullopt);
