@@ -99,7 +99,16 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   // Nothing to track or fuse: the frame cannot be placed, and tracking from an empty first frame
   // would anchor the map nowhere. Said with the reason, so that a broken sensor or a wrong depth
   // scale is recognised.
-  if (scratch_.valid_count() + *removed == 0) return no_measurement(frame.depth, config_.sensor);
+  // Once the map has begun, such a frame (the sensor covered for a moment, a dropout) is a gap:
+  // lost, nothing fused, and the next frame starts from the last frame fused.
+  if (scratch_.valid_count() + *removed == 0) {
+    if (map_->point_count() == 0) return no_measurement(frame.depth, config_.sensor);
+    report.tracking = TrackingState::kLost;
+    report.T_world_cam = last_T_world_cam_.value_or(Pose::Identity());
+    frames_since_model_ = 0;
+    ++next_frame_id_;
+    return report;
+  }
   report.prefiltered = *removed;
   report.prefilter_ms = ms_since(t0);
 

@@ -228,6 +228,29 @@ TEST(Sequence, CountsTheLostFramesAndPredictsOnlyFromFusedOnes) {
   }
 }
 
+// A frame without depth in the middle of a sequence (the sensor covered for a moment) is a gap,
+// lost and not fused, not the end of the run; without depth at the start there is nothing to place
+// the scan by, and the reason ends it.
+TEST(Sequence, AFrameWithoutDepthMidSequenceIsLostNotTheEnd) {
+  std::vector<Frame> frames;
+  for (int i = 0; i < 5; ++i) {
+    const double a = 0.6 + i * 0.01;
+    frames.push_back(test::render_corner(test::look_at({2.4 * std::cos(a), 2.4 * std::sin(a), 1.4},
+                                                       {0.3, 0.3, 0.3})));
+  }
+  std::fill(frames[2].depth.depth_m.begin(), frames[2].depth.depth_m.end(), 0.0f);
+  auto r = track_sequence(frames, ReconstructionConfig{});
+  ASSERT_TRUE(r.is_ok()) << r.status().to_string();
+  EXPECT_EQ(r->lost, 1u);
+  EXPECT_EQ(r->state[2], TrackingState::kLost);
+  EXPECT_EQ(r->state[3], TrackingState::kTracked);
+
+  std::swap(frames[0], frames[2]);
+  auto first = track_sequence(frames, ReconstructionConfig{});
+  ASSERT_FALSE(first.is_ok());
+  EXPECT_NE(first.status().message().find("no valid depth measurement"), std::string::npos);
+}
+
 // A first frame with no depth at all, or none inside the sensor's range, is refused with the reason
 // (the map stays empty, nothing is anchored at it), and the next good frame starts the map.
 TEST(Incremental, AFrameWithoutValidDepthIsRefusedWithTheReason) {

@@ -76,7 +76,7 @@ struct RegistrationConfig {
   int tracking_iterations_per_level = 10;
   // Tracking: weight of the photometric term (intensity of the frame against the last fused
   // frame's, 0..1) per squared point-to-plane metre; 0 = off, and off without colour.
-  double photometric_weight = 0.01;
+  double photometric_weight = 0;
   // Tracking from a prediction whose result has an ICP fitness below this (or is lost) starts
   // again from the last refined pose; 0 = never.
   double tracking_retry_fitness = 0.5;
