@@ -10,6 +10,13 @@ values, fragments out of their message, channel names garbled) at --rate packets
 measures the fused rate during the flood. At the end both daemons must still be alive.
 
   tools/bench/bus_flood.py [--bin DIR] [--packets N] [--rate PPS] [--quiet-s S] [--port P]
+                           [--sender-nice N] [--key-file FILE]
+
+On the appliance the attacker's CPU is somebody else's; on one small machine the sender (Python)
+competes with the daemons for the same cores. It therefore runs as its own process at nice
+--sender-nice (19 by default; 0 makes it an equal), and the script prints each daemon's CPU during
+the flood, which is the cost the flood really puts on the rig. With --key-file the daemons verify a
+rig key, so every flood packet is dropped after reassembly, before any decode.
 
 The fused rate is the count of the fusion daemon's refined poses on DEPTHFUSE_POSE over time; the
 daemons' refusal counters come from the monitor's status (depthfuse status --json) after the flood.
@@ -42,13 +49,16 @@ def parse_args():
     p.add_argument("--quiet-s", type=float, default=30.0, help="measurement without the flood")
     p.add_argument("--port", type=int, default=7697)
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--sender-nice", type=int, default=19,
+                   help="nice value of the flood's sender process (0: an equal of the daemons)")
+    p.add_argument("--key-file", default="", help="a rig key for every daemon (default: none)")
     return p.parse_args()
 
 
-def status(bin_dir, url):
+def status(bin_dir, url, key_file):
     """The fusion daemon's and the monitor's entries of one status, by name."""
     run = subprocess.run([os.path.join(bin_dir, "depthfuse"), "status", "--json", "--lcm", url,
-                          "--timeout", "5"], capture_output=True, timeout=30)
+                          "--key-file", key_file, "--timeout", "5"], capture_output=True, timeout=30)
     # Forged heartbeats may name daemons with any bytes: the monitor lists them too.
     problem = "no status line"
     for line in run.stdout.decode("utf-8", errors="replace").splitlines():
@@ -83,6 +93,13 @@ def record(port, seconds):
             seen.append(d)
     s.close()
     return seen
+
+
+def cpu_seconds(pid):
+    """User plus system CPU of a process so far, from /proc."""
+    with open("/proc/%d/stat" % pid) as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 class PoseCounter:
@@ -170,31 +187,44 @@ def mutate(rng, d):
     return bytes(b)
 
 
-def flood(port, seeds, packets, rate, rng, poses=None):
+def flood(port, seeds, packets, rate, rng, nice, poses=None):
+    """Sends the mutations from a child process at the given nice value; returns (sent, send
+    errors, seconds)."""
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
     s.bind(("", 0))
     if poses:
         poses.flood_port = s.getsockname()[1]
     s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 0)
     s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
-    # A pool of mutations made up front, so that Python's speed does not set the rate.
-    pool = [mutate(rng, rng.choice(seeds)) for _ in range(min(packets, 20000))]
-    sent = errors = 0
-    start = time.time()
-    while sent < packets:
-        for d in pool[:min(len(pool), packets - sent)]:
-            try:
-                s.sendto(d, (GROUP, port))
-            except OSError:
-                errors += 1
-            sent += 1
-            if sent % 1000 == 0:
-                ahead = sent / rate - (time.time() - start)
-                if ahead > 0:
-                    time.sleep(ahead)
-        pool = [mutate(rng, rng.choice(seeds)) for _ in range(len(pool))]
+    read_end, write_end = os.pipe()
+    child = os.fork()
+    if child == 0:
+        os.close(read_end)
+        os.nice(nice)
+        sent = errors = 0
+        start = time.time()
+        # A pool of mutations made up front, so that Python's speed does not set the rate.
+        pool = [mutate(rng, rng.choice(seeds)) for _ in range(min(packets, 20000))]
+        while sent < packets:
+            for d in pool[:min(len(pool), packets - sent)]:
+                try:
+                    s.sendto(d, (GROUP, port))
+                except OSError:
+                    errors += 1
+                sent += 1
+                if sent % 1000 == 0:
+                    ahead = sent / rate - (time.time() - start)
+                    if ahead > 0:
+                        time.sleep(ahead)
+            pool = [mutate(rng, rng.choice(seeds)) for _ in range(len(pool))]
+        os.write(write_end, json.dumps([sent, errors, time.time() - start]).encode())
+        os._exit(0)
+    os.close(write_end)
     s.close()
-    return sent, errors, time.time() - start
+    with os.fdopen(read_end) as f:
+        result = f.read()
+    os.waitpid(child, 0)
+    return tuple(json.loads(result)) if result else (0, 0, 1e-9)
 
 
 def main():
@@ -206,7 +236,8 @@ def main():
 
     def start(name, argv):
         log = open(os.path.join(work, name + ".log"), "w")
-        procs[name] = subprocess.Popen([os.path.join(a.bin, argv[0])] + argv[1:] + ["--lcm", url],
+        procs[name] = subprocess.Popen([os.path.join(a.bin, argv[0])] + argv[1:] +
+                                       ["--lcm", url, "--key-file", a.key_file],
                                        stdout=log, stderr=subprocess.STDOUT)
 
     try:
@@ -231,16 +262,19 @@ def main():
         quiet = poses.rate(a.quiet_s)
         print("fused rate without the flood: %.1f frames/s over %.0f s" % (quiet, a.quiet_s))
 
-        sender = {}
         n0, t0 = poses.count, time.time()
-        th = threading.Thread(target=lambda: sender.update(zip(
-            ("sent", "errors", "seconds"), flood(a.port, seeds, a.packets, a.rate, rng, poses))))
-        th.start()
-        th.join()
-        during_rate = (poses.count - n0) / (time.time() - t0)
+        cpu0 = {n: cpu_seconds(p.pid) for n, p in procs.items()}
+        sender = dict(zip(("sent", "errors", "seconds"),
+                          flood(a.port, seeds, a.packets, a.rate, rng, a.sender_nice, poses)))
+        during_s = time.time() - t0
+        during_rate = (poses.count - n0) / during_s
+        cpu = {n: (cpu_seconds(p.pid) - cpu0[n]) / during_s for n, p in procs.items()
+               if p.poll() is None}
         print("flood: %d packets sent (%d send errors) in %.0f s, %.0f packets/s" % (
             sender["sent"], sender["errors"], sender["seconds"], sender["sent"] / sender["seconds"]))
         print("fused rate during the flood: %.1f frames/s" % during_rate)
+        print("CPU during the flood (cores): " + ", ".join(
+            "%s %.2f" % (n, c) for n, c in sorted(cpu.items())))
         time.sleep(2)
         alive = {n: p.poll() is None for n, p in procs.items()}
         print("alive after the flood: " + ", ".join("%s %s" % (n, "yes" if v else "NO (exit %s)" %
@@ -253,7 +287,7 @@ def main():
         print("the monitor's status on the bus after the flood: %d messages%s" % (
             len(after), " (last: %s, %d bytes)" % after[-1] if after else ""))
         poses.stop()
-        final = status(a.bin, url)
+        final = status(a.bin, url, a.key_file)
         if not final:
             for name in ("monitor", "fusion"):
                 with open(os.path.join(work, name + ".log"), errors="replace") as f:
