@@ -23,7 +23,9 @@ lcm::MessageAuth::Verdict PageCommandAuth::verify(std::string_view body, const c
     size += lcm::kSignatureBytes;
   std::lock_guard<std::mutex> lock(mutex_);
   const auto verdict = auth_.verify(kPageCommandChannel, message.data(), size, now_utime);
-  if (!verdict.ok) last_refusal_ = refusal_text(verdict.reason, auth_.max_skew_us());
+  // A command that verifies means the operator has the right key now: the status stops naming the
+  // old refusal (the counters keep the history).
+  last_refusal_ = verdict.ok ? std::string() : refusal_text(verdict.reason, auth_.max_skew_us());
   return verdict;
 }
 

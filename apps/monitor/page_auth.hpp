@@ -32,7 +32,8 @@ class PageCommandAuth {
 
   int64_t max_skew_us() const { return auth_.max_skew_us(); }
   lcm::AuthCounters counters() const;
-  // "page command refused (bad_signature): ..." for the last refusal; empty while none.
+  // "page command refused (bad_signature): ..." while the last command was refused; empty once
+  // one verifies.
   std::string last_refusal() const;
 
  private:
