@@ -300,6 +300,12 @@ def main():
             print("%s: alive %s, messages malformed %d, foreign %d, bad version %d, rss %.0f MiB" % (
                 name, d["alive"], d["messages_malformed"], d["messages_foreign"],
                 d["messages_bad_version"], d["rss_bytes"] / 2**20))
+            # With a rig key most of the flood ends here: dropped after reassembly, before decoding.
+            auth = {k[len("auth_dropped_"):]: int(v) for k, v in d.get("counters", {}).items()
+                    if k.startswith("auth_dropped_") and v}
+            if auth:
+                print("%s: dropped for their signature: %s" % (
+                    name, ", ".join("%s %d" % kv for kv in sorted(auth.items()))))
         return 0 if all(alive.values()) else 1
     finally:
         for p in procs.values():
