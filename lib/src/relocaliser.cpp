@@ -143,6 +143,12 @@ double rotation_deg(const Pose& a, const Pose& b) {
   return Eigen::AngleAxisd(a.linear().transpose() * b.linear()).angle() * 180.0 / M_PI;
 }
 
+// A keyframe already stands for a frame this near it (the keyframe spacing).
+bool within_spacing(const RelocalisationConfig& c, const Pose& a, const Pose& b) {
+  return (a.translation() - b.translation()).norm() < c.keyframe_spacing_m &&
+         rotation_deg(a, b) < c.keyframe_spacing_deg;
+}
+
 // Fewer points than this carry no shape worth matching (a wall, or nothing).
 constexpr size_t kMinPoints = 50;
 
@@ -173,21 +179,36 @@ size_t Relocaliser::memory_bound_bytes(const RelocalisationConfig& c, size_t pix
   return static_cast<size_t>(std::max(0, c.max_keyframes) + 1) * keyframe + search;
 }
 
+std::vector<size_t> Relocaliser::select_by_place(const RelocalisationConfig& c,
+                                                 const std::vector<Pose>& T_world_cam) {
+  std::vector<size_t> chosen;
+  if (!c.enabled || c.max_keyframes <= 0) return chosen;
+  const size_t most = static_cast<size_t>(c.max_keyframes);
+  for (size_t i = T_world_cam.size(); i-- > 0 && chosen.size() < most;) {
+    bool near = false;
+    for (size_t j : chosen) near = near || within_spacing(c, T_world_cam[j], T_world_cam[i]);
+    if (!near) chosen.push_back(i);
+  }
+  std::reverse(chosen.begin(), chosen.end());
+  return chosen;
+}
+
 void Relocaliser::frame_tracked(const MeasurementImage& m, const Pose& T_world_cam) {
   lost_frames_ = 0;
-  if (!config_.enabled || config_.max_keyframes <= 0) return;
-  for (const auto& k : keyframes_) {
-    if ((k->T_world_cam.translation() - T_world_cam.translation()).norm() < config_.keyframe_spacing_m &&
-        rotation_deg(k->T_world_cam, T_world_cam) < config_.keyframe_spacing_deg)
-      return;
-  }
+  (void)add_keyframe(m, T_world_cam);
+}
+
+bool Relocaliser::add_keyframe(const MeasurementImage& m, const Pose& T_world_cam) {
+  if (!config_.enabled || config_.max_keyframes <= 0) return false;
+  for (const auto& k : keyframes_)
+    if (within_spacing(config_, k->T_world_cam, T_world_cam)) return false;
   auto k = std::make_unique<Keyframe>();
   k->T_world_cam = T_world_cam;
   k->thumbnail = make_thumbnail(m);
   k->cloud = downsample(m, config_);
-  if (k->cloud->size() < kMinPoints) return;
+  if (k->cloud->size() < kMinPoints) return false;
   keyframes_.push_back(std::move(k));
-  if (keyframes_.size() <= static_cast<size_t>(config_.max_keyframes)) return;
+  if (keyframes_.size() <= static_cast<size_t>(config_.max_keyframes)) return true;
   // Full: the keyframe nearest to another goes (a metre counted as 45 degrees), so that the ones
   // left spread over where the camera has been, however long the scan.
   auto distance = [](const Keyframe& a, const Keyframe& b) {
@@ -205,6 +226,7 @@ void Relocaliser::frame_tracked(const MeasurementImage& m, const Pose& T_world_c
       }
     }
   keyframes_.erase(keyframes_.begin() + static_cast<std::ptrdiff_t>(drop));
+  return true;
 }
 
 std::optional<Pose> Relocaliser::search(const MeasurementImage& m,

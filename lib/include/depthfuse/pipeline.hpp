@@ -82,6 +82,20 @@ class IncrementalReconstructor {
   void reset(std::unique_ptr<PointMap> map, uint32_t next_frame_id,
              const std::optional<Pose>& last_T_world_cam);
   const std::optional<Pose>& last_pose() const { return last_T_world_cam_; }
+
+  // Relocalisation keyframes for a resumed scan (after reset(), which empties them): frames stored
+  // with the poses they were fused at put back as keyframes, so that a camera that moved while the
+  // scan was down can be found again.
+  //  - keyframes_to_restore: of stored frames at these poses (oldest first), the ones worth
+  //    decoding: the relocaliser's spacing rule from the newest back, at most max_keyframes
+  //    (indices, oldest first). Empty when relocalisation is off or there is no registration.
+  //  - restore_keyframe: measures the frame as process() does (back-projection, normals,
+  //    pre-filter) and makes it a keyframe at T_world_cam by the same rule as a tracked frame.
+  //    False when it is not kept (too few points, or a keyframe already near it); an error only
+  //    when the frame cannot be measured.
+  std::vector<size_t> keyframes_to_restore(const std::vector<Pose>& T_world_cam) const;
+  Result<bool> restore_keyframe(const Frame& frame, const Pose& T_world_cam);
+  size_t keyframe_count() const;
   uint32_t next_frame_id() const { return next_frame_id_; }
   const ReconstructionConfig& config() const { return config_; }
 
@@ -89,6 +103,7 @@ class IncrementalReconstructor {
   // The keyframes' candidates for a lost frame, each tracked against the map; the first that
   // tracks well is the frame's pose.
   void relocalise(FrameReport* report);
+  bool keeps_keyframes() const;
 
   ReconstructionConfig config_;
   std::unique_ptr<PointMap> map_;

@@ -73,6 +73,16 @@ struct ResumePoint {
   OpenReport open_report;                    // what was discarded (work after the checkpoint)
 };
 
+// What ScanRecorder::restore_keyframes() did.
+struct KeyframeRestoreReport {
+  size_t stored = 0;                 // keyframes of the last checkpoint in the file (rows intact)
+  size_t chosen = 0;                 // picked by place from their poses: the only ones decoded
+  size_t restored = 0;               // that became relocalisation keyframes
+  size_t chunks_loaded = 0;          // evicted chunks brought back for their views
+  std::vector<std::string> skipped;  // one per keyframe left out for damage, and why
+  double seconds = 0.0;
+};
+
 class ScanRecorder {
  public:
   // A new scan file (fails if `path` exists). Stores the metadata and the configuration text.
@@ -87,6 +97,17 @@ class ScanRecorder {
                                                       const RecorderConfig& config,
                                                       ResumePoint* resume);
   ~ScanRecorder();
+
+  // After resume() and IncrementalReconstructor::reset() (which empties the relocaliser): puts the
+  // stored keyframes back as relocalisation keyframes, so that a camera that moved while the scan
+  // was down is found again. Only keyframes of the checkpoint resumed from count, with their poses
+  // as stored (refined ones after `depthfuse refine`). The choice looks at the poses only
+  // (IncrementalReconstructor::keyframes_to_restore): at most relocalisation.max_keyframes are
+  // decoded and measured. With bounded memory, the evicted chunks each restored keyframe sees are
+  // loaded while the map is under the pager's low watermark: a candidate pose is verified by
+  // tracking against the map there. A keyframe that fails its checks is skipped and named in the
+  // report; only a failure of the file itself is an error.
+  Result<KeyframeRestoreReport> restore_keyframes(IncrementalReconstructor& reconstructor);
 
   // Before IncrementalReconstructor::process(frame): brings back the evicted chunks the frame can
   // touch (bounded memory only; free otherwise). The pose guess is the frame's hint, else
