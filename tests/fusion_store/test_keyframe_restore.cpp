@@ -25,11 +25,19 @@ using namespace depthfuse::store;
 namespace {
 
 constexpr int kLoopFrames = 300;  // a closed loop round the corner
-constexpr int kStride = 3;        // every 3rd frame: 2.3 cm and 0.9 degree apart
-constexpr int kKillAt = 150;      // half way round: the far side of the loop from its start
+constexpr int kStride = 3;        // every 3rd frame: on the corner 2.3 cm and 0.9 degree apart
 constexpr int kCheckpointEvery = 10;  // recorded frames
-constexpr int kReturnAt = 15;     // where the camera is after the restart: 12 cm from frame 0
 constexpr int kReturnFrames = 10;
+
+// Where the scan is killed, and where the camera is when it comes back (frame indices).
+struct Walk {
+  int kill_at = 150;   // the corner: half way round, the far side of the loop from its start
+  int return_at = 15;  // 12 cm from frame 0
+  // The scan before the kill is fused with the true poses as hints (ICP refines them), as from a
+  // capture with a pose source: its map is then right wherever the tracker alone would drift.
+  // The frames after the resume never have one.
+  bool hints_before_kill = false;
+};
 
 Frame live_frame(const synthetic::SyntheticSequence& seq, size_t i) {
   Frame f = seq.render(i);
@@ -51,7 +59,7 @@ struct Recorded {
 // Frames 0 .. kKillAt round the loop, a checkpoint every kCheckpointEvery frames, then a few more
 // frames that no checkpoint covers (their keyframes must not count), then the "kill".
 Recorded record(const synthetic::SyntheticSequence& seq, const std::string& path,
-                int keyframe_every_n_frames) {
+                int keyframe_every_n_frames, const Walk& walk = {}) {
   Recorded out;
   ScanMetadata meta;
   meta.scan_id = "restore";
@@ -61,7 +69,8 @@ Recorded record(const synthetic::SyntheticSequence& seq, const std::string& path
   IncrementalReconstructor recon{ReconstructionConfig{}};
   int recorded = 0;
   auto step = [&](size_t i) {
-    const Frame f = live_frame(seq, i);
+    Frame f = live_frame(seq, i);
+    if (walk.hints_before_kill) f.T_world_cam_hint = seq.T_world_cam_true(0).inverse() * seq.T_world_cam_true(i);
     EXPECT_TRUE((*rec)->prepare_frame(f, recon).is_ok());
     auto r = recon.process(f);
     ASSERT_TRUE(r.is_ok()) << r.status().to_string();
@@ -69,7 +78,7 @@ Recorded record(const synthetic::SyntheticSequence& seq, const std::string& path
     EXPECT_TRUE((*rec)->record_frame(f, *r, &recon.map()).is_ok());
     ++recorded;
   };
-  for (int i = 0; i <= kKillAt; i += kStride) {
+  for (int i = 0; i <= walk.kill_at; i += kStride) {
     step(static_cast<size_t>(i));
     if (recorded % kCheckpointEvery == 0) {
       auto cp = (*rec)->checkpoint(&recon.map(), "periodic");
@@ -78,7 +87,7 @@ Recorded record(const synthetic::SyntheticSequence& seq, const std::string& path
     }
   }
   // Not covered by a checkpoint: discarded by the resume, keyframes included.
-  for (int k = 1; k <= 4; ++k) step(static_cast<size_t>(kKillAt + k * kStride));
+  for (int k = 1; k <= 4; ++k) step(static_cast<size_t>(walk.kill_at + k * kStride));
   if (keyframe_every_n_frames > 0)
     out.keyframes_covered = (out.checkpoint_frame - 1) / keyframe_every_n_frames + 1;
   return out;
@@ -96,7 +105,7 @@ struct Resumed {
 // A fresh process's view of the file: resume, optionally restore the keyframes, then the frames
 // of the camera where it went while the scan was down.
 Resumed resume_and_return(const synthetic::SyntheticSequence& seq, const std::string& path,
-                          bool restore) {
+                          bool restore, const Walk& walk = {}, bool load_views = true) {
   Resumed out;
   ResumePoint at;
   auto rec = ScanRecorder::resume(path, recorder_config(10), &at);
@@ -106,7 +115,7 @@ Resumed resume_and_return(const synthetic::SyntheticSequence& seq, const std::st
   recon.reset(std::move(at.map), at.next_frame_id, at.last_T_world_cam);
   if (restore) {
     const auto t0 = std::chrono::steady_clock::now();
-    auto r = (*rec)->restore_keyframes(recon);
+    auto r = (*rec)->restore_keyframes(recon, load_views);
     out.restore_ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     EXPECT_TRUE(r.is_ok()) << r.status().to_string();
@@ -116,7 +125,7 @@ Resumed resume_and_return(const synthetic::SyntheticSequence& seq, const std::st
   out.points_at_resume = (*rec)->store().summary()->point_count;
   const Pose T_0_world = seq.T_world_cam_true(0).inverse();  // tracking started at the identity
   for (int k = 0; k < kReturnFrames; ++k) {
-    const size_t i = static_cast<size_t>(kReturnAt + k * kStride);
+    const size_t i = static_cast<size_t>(walk.return_at + k * kStride);
     const Frame f = live_frame(seq, i);
     EXPECT_TRUE((*rec)->prepare_frame(f, recon).is_ok());
     auto r = recon.process(f);
@@ -217,8 +226,9 @@ TEST_F(KeyframeRestore, AResumedScanFindsACameraThatMovedWhileItWasDown) {
   const Recorded recorded = record(*seq_, path, 10);
   ASSERT_GT(recorded.checkpoint_frame, 0u);
   // The return place is far from the last pose fused: tracking from there cannot reach it.
-  const double apart_m = (seq_->T_world_cam_true(kKillAt).translation() -
-                          seq_->T_world_cam_true(kReturnAt).translation()).norm();
+  const Walk walk;
+  const double apart_m = (seq_->T_world_cam_true(walk.kill_at).translation() -
+                          seq_->T_world_cam_true(walk.return_at).translation()).norm();
   std::printf("the camera returns %.2f m from the last pose fused\n", apart_m);
   ASSERT_GT(apart_m, 1.0);
 
@@ -279,6 +289,50 @@ TEST_F(KeyframeRestore, AKeyframeThatFailsItsChecksumIsSkipped) {
   EXPECT_GT(r.report->restored, 1u);
   // The others still find the camera.
   expect_found(r);
+}
+
+// The rooms: the scan is killed two rooms on from where it began, far beyond the map a resume
+// loads round the last pose (evict_distance_m). The camera is back at the start: a candidate pose
+// there is verified against the map there, so the chunks the restored keyframes see must be
+// loaded with them. Without them the keyframes alone do not find it.
+TEST(KeyframeRestoreRooms, TheMapARestoredKeyframeSeesIsLoadedWithIt) {
+  synthetic::SyntheticConfig sc;
+  sc.scene = synthetic::SceneKind::kRooms;
+  Walk walk;
+  walk.kill_at = 450;  // 15 s at 0.5 m/s along the tour
+  walk.return_at = 15;
+  walk.hints_before_kill = true;  // the tracker alone slides along the rooms' walls
+  sc.frames = walk.kill_at + 5 * kStride + 1;
+  auto seq = synthetic::SyntheticSequence::create(sc);
+  ASSERT_TRUE(seq.is_ok()) << seq.status().to_string();
+  test::TempDir dir("kfrestore");
+  const std::string path = dir.file("rooms.dfscan");
+  const Recorded recorded = record(*seq, path, 10, walk);
+  ASSERT_GT(recorded.checkpoint_frame, 0u);
+  const double apart_m = (seq->T_world_cam_true(walk.kill_at).translation() -
+                          seq->T_world_cam_true(walk.return_at).translation()).norm();
+  std::printf("the camera returns %.2f m from the last pose fused\n", apart_m);
+  ASSERT_GT(apart_m, 2 * RecorderConfig{}.pager.evict_distance_m);
+
+  const std::string without = dir.file("without-views.dfscan");
+  std::filesystem::copy_file(path, without);
+  {
+    SCOPED_TRACE("keyframes and their map");
+    const Resumed r = resume_and_return(*seq, path, true, walk);
+    print(r);
+    ASSERT_TRUE(r.report.has_value());
+    EXPECT_GT(r.report->chunks_loaded, 0u);
+    expect_found(r);
+  }
+  {
+    SCOPED_TRACE("keyframes without their map");
+    const Resumed r = resume_and_return(*seq, without, true, walk, /*load_views=*/false);
+    print(r);
+    ASSERT_TRUE(r.report.has_value());
+    EXPECT_EQ(r.report->chunks_loaded, 0u);
+    EXPECT_EQ(r.keyframes, r.report->restored);
+    expect_lost(r);
+  }
 }
 
 }  // namespace

@@ -10,7 +10,8 @@
 
 namespace depthfuse::store {
 
-Result<KeyframeRestoreReport> ScanRecorder::restore_keyframes(IncrementalReconstructor& reconstructor) {
+Result<KeyframeRestoreReport> ScanRecorder::restore_keyframes(IncrementalReconstructor& reconstructor,
+                                                              bool load_views) {
   const int64_t t0_ns = steady_ns();
   KeyframeRestoreReport report;
   // The store is only used under the mutex (a background checkpoint may share it); the pager takes
@@ -65,7 +66,7 @@ Result<KeyframeRestoreReport> ScanRecorder::restore_keyframes(IncrementalReconst
     // What the keyframe saw, as prepare_frame() would load it for a frame there: verifying a
     // candidate pose tracks against that part of the map. Only under the budget's low watermark,
     // as a scan that never stopped would have it resident only while it fits.
-    if (pager_ && static_cast<double>(map.memory_bytes()) < load_below_bytes) {
+    if (load_views && pager_ && static_cast<double>(map.memory_bytes()) < load_below_bytes) {
       Status st = pager_->prepare(&map, frame, k->T_world_cam, next);
       status_.pager = pager_->stats();
       if (!st) return note(st).with_context("loading the map a restored keyframe sees");

@@ -105,9 +105,11 @@ class ScanRecorder {
   // (IncrementalReconstructor::keyframes_to_restore): at most relocalisation.max_keyframes are
   // decoded and measured. With bounded memory, the evicted chunks each restored keyframe sees are
   // loaded while the map is under the pager's low watermark: a candidate pose is verified by
-  // tracking against the map there. A keyframe that fails its checks is skipped and named in the
-  // report; only a failure of the file itself is an error.
-  Result<KeyframeRestoreReport> restore_keyframes(IncrementalReconstructor& reconstructor);
+  // tracking against the map there (`load_views` false leaves that out: tests compare). A keyframe
+  // that fails its checks is skipped and named in the report; only a failure of the file itself is
+  // an error.
+  Result<KeyframeRestoreReport> restore_keyframes(IncrementalReconstructor& reconstructor,
+                                                  bool load_views = true);
 
   // Before IncrementalReconstructor::process(frame): brings back the evicted chunks the frame can
   // touch (bounded memory only; free otherwise). The pose guess is the frame's hint, else
