@@ -203,6 +203,17 @@ void damage_depth(const std::string& path, uint32_t frame_id) {
   sqlite3_close(db);
 }
 
+// Changes a keyframe row's capture time: the row's checksum no longer matches.
+void damage_row(const std::string& path, uint32_t frame_id) {
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+  const std::string sql =
+      "UPDATE keyframes SET utime = utime + 1 WHERE frame_id = " + std::to_string(frame_id) + ";";
+  ASSERT_EQ(sqlite3_exec(db, sql.c_str(), nullptr, nullptr, nullptr), SQLITE_OK) << sqlite3_errmsg(db);
+  ASSERT_EQ(sqlite3_changes(db), 1);
+  sqlite3_close(db);
+}
+
 class KeyframeRestore : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -274,17 +285,24 @@ TEST_F(KeyframeRestore, AKeyframeThatFailsItsChecksumIsSkipped) {
   const std::string path = dir_.file("scan.dfscan");
   const Recorded recorded = record(*seq_, path, 10);
   ASSERT_GT(recorded.checkpoint_frame, 0u);
-  // The newest keyframe the checkpoint covers: always among those chosen.
+  // The newest keyframe the checkpoint covers: always among those chosen, so decoded.
   const uint32_t newest = (recorded.checkpoint_frame - 1) / 10 * 10 + 1;
   damage_depth(path, newest);
+  // And the row before it (its time changed, so its checksum fails): left out of the listing.
+  const uint32_t before = newest - 10;
+  damage_row(path, before);
   const Resumed r = resume_and_return(*seq_, path, /*restore=*/true);
   print(r);
   ASSERT_TRUE(r.report.has_value());
-  ASSERT_EQ(r.report->skipped.size(), 1u);
-  const std::string& why = r.report->skipped[0];
-  std::printf("skipped: %s\n", why.c_str());
-  EXPECT_NE(why.find("keyframe " + std::to_string(newest)), std::string::npos) << why;
-  EXPECT_NE(why.find("checksum"), std::string::npos) << why;
+  ASSERT_EQ(r.report->skipped.size(), 2u);
+  EXPECT_EQ(r.report->stored, recorded.keyframes_covered - 1);
+  for (const std::string& why : r.report->skipped) std::printf("skipped: %s\n", why.c_str());
+  // The listing comes first.
+  EXPECT_NE(r.report->skipped[0].find("keyframe " + std::to_string(before) + ": checksum mismatch"),
+            std::string::npos) << r.report->skipped[0];
+  EXPECT_NE(r.report->skipped[1].find("keyframe " + std::to_string(newest) +
+                                      " depth: blob header checksum mismatch"),
+            std::string::npos) << r.report->skipped[1];
   EXPECT_EQ(r.report->restored, r.keyframes);
   EXPECT_GT(r.report->restored, 1u);
   // The others still find the camera.
