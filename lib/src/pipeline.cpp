@@ -207,19 +207,17 @@ bool IncrementalReconstructor::keeps_keyframes() const {
   return config_.registration.enabled && config_.relocalisation.enabled;
 }
 
-std::vector<size_t> IncrementalReconstructor::keyframes_to_restore(
-    const std::vector<Pose>& T_world_cam) const {
-  if (!keeps_keyframes()) return {};
-  return Relocaliser::select_by_place(config_.relocalisation, T_world_cam);
+bool IncrementalReconstructor::keyframe_wanted(const Pose& T_world_cam) const {
+  return keeps_keyframes() && relocaliser_->wants(T_world_cam);
 }
 
 Result<bool> IncrementalReconstructor::restore_keyframe(const Frame& frame, const Pose& T_world_cam) {
-  if (!keeps_keyframes()) return false;
+  if (!keyframe_wanted(T_world_cam)) return false;
   // The same measurement a live frame gets: the keyframe's thumbnail and points are what they
   // would have been had this process tracked the frame. scratch_ is the next frame's anyway.
   Result<size_t> removed = measure(frame, config_, &scratch_);
   if (!removed) return removed.status();
-  return relocaliser_->add_keyframe(scratch_, T_world_cam);
+  return relocaliser_->add_older_keyframe(scratch_, T_world_cam);
 }
 
 size_t IncrementalReconstructor::keyframe_count() const { return relocaliser_->keyframe_count(); }

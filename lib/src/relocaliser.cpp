@@ -179,36 +179,42 @@ size_t Relocaliser::memory_bound_bytes(const RelocalisationConfig& c, size_t pix
   return static_cast<size_t>(std::max(0, c.max_keyframes) + 1) * keyframe + search;
 }
 
-std::vector<size_t> Relocaliser::select_by_place(const RelocalisationConfig& c,
-                                                 const std::vector<Pose>& T_world_cam) {
-  std::vector<size_t> chosen;
-  if (!c.enabled || c.max_keyframes <= 0) return chosen;
-  const size_t most = static_cast<size_t>(c.max_keyframes);
-  for (size_t i = T_world_cam.size(); i-- > 0 && chosen.size() < most;) {
-    bool near = false;
-    for (size_t j : chosen) near = near || within_spacing(c, T_world_cam[j], T_world_cam[i]);
-    if (!near) chosen.push_back(i);
-  }
-  std::reverse(chosen.begin(), chosen.end());
-  return chosen;
-}
-
-void Relocaliser::frame_tracked(const MeasurementImage& m, const Pose& T_world_cam) {
-  lost_frames_ = 0;
-  (void)add_keyframe(m, T_world_cam);
-}
-
-bool Relocaliser::add_keyframe(const MeasurementImage& m, const Pose& T_world_cam) {
-  if (!config_.enabled || config_.max_keyframes <= 0) return false;
+bool Relocaliser::wants(const Pose& T_world_cam) const {
+  if (!config_.enabled || keyframes_.size() >= static_cast<size_t>(std::max(0, config_.max_keyframes)))
+    return false;
   for (const auto& k : keyframes_)
     if (within_spacing(config_, k->T_world_cam, T_world_cam)) return false;
+  return true;
+}
+
+// A keyframe of the frame, or nothing when its points carry too little shape.
+std::unique_ptr<Relocaliser::Keyframe> Relocaliser::make_keyframe(const MeasurementImage& m,
+                                                                  const Pose& T_world_cam) const {
   auto k = std::make_unique<Keyframe>();
   k->T_world_cam = T_world_cam;
   k->thumbnail = make_thumbnail(m);
   k->cloud = downsample(m, config_);
-  if (k->cloud->size() < kMinPoints) return false;
+  if (k->cloud->size() < kMinPoints) return nullptr;
+  return k;
+}
+
+bool Relocaliser::add_older_keyframe(const MeasurementImage& m, const Pose& T_world_cam) {
+  if (!wants(T_world_cam)) return false;
+  std::unique_ptr<Keyframe> k = make_keyframe(m, T_world_cam);
+  if (!k) return false;
+  keyframes_.insert(keyframes_.begin(), std::move(k));
+  return true;
+}
+
+void Relocaliser::frame_tracked(const MeasurementImage& m, const Pose& T_world_cam) {
+  lost_frames_ = 0;
+  if (!config_.enabled || config_.max_keyframes <= 0) return;
+  for (const auto& k : keyframes_)
+    if (within_spacing(config_, k->T_world_cam, T_world_cam)) return;
+  std::unique_ptr<Keyframe> k = make_keyframe(m, T_world_cam);
+  if (!k) return;
   keyframes_.push_back(std::move(k));
-  if (keyframes_.size() <= static_cast<size_t>(config_.max_keyframes)) return true;
+  if (keyframes_.size() <= static_cast<size_t>(config_.max_keyframes)) return;
   // Full: the keyframe nearest to another goes (a metre counted as 45 degrees), so that the ones
   // left spread over where the camera has been, however long the scan.
   auto distance = [](const Keyframe& a, const Keyframe& b) {
@@ -226,7 +232,6 @@ bool Relocaliser::add_keyframe(const MeasurementImage& m, const Pose& T_world_ca
       }
     }
   keyframes_.erase(keyframes_.begin() + static_cast<std::ptrdiff_t>(drop));
-  return true;
 }
 
 std::optional<Pose> Relocaliser::search(const MeasurementImage& m,

@@ -256,7 +256,10 @@ TEST_F(KeyframeRestore, AResumedScanFindsACameraThatMovedWhileItWasDown) {
     EXPECT_TRUE(r.report->skipped.empty());
     EXPECT_GT(r.report->restored, 1u);
     EXPECT_LE(r.report->chosen, static_cast<size_t>(RelocalisationConfig{}.max_keyframes));
-    EXPECT_LT(r.report->chosen, r.report->stored);  // by place: not every stored one is decoded
+    // By place, newest first: keyframes are every 10 frames from frame 1, 23 cm apart, so every
+    // other one is within the 0.3 m spacing of one kept; only those kept are decoded.
+    EXPECT_EQ(r.report->restored_frames, (std::vector<uint32_t>{41, 21, 1}));
+    EXPECT_EQ(r.report->chosen, 3u);
     EXPECT_EQ(r.keyframes, r.report->restored);
     expect_found(r);
   }
@@ -285,12 +288,14 @@ TEST_F(KeyframeRestore, AKeyframeThatFailsItsChecksumIsSkipped) {
   const std::string path = dir_.file("scan.dfscan");
   const Recorded recorded = record(*seq_, path, 10);
   ASSERT_GT(recorded.checkpoint_frame, 0u);
-  // The newest keyframe the checkpoint covers: always among those chosen, so decoded.
+  // Keyframes every 10 frames from frame 1, 23 cm apart on the loop: two apart are beyond the
+  // 0.3 m spacing, neighbours within it.
   const uint32_t newest = (recorded.checkpoint_frame - 1) / 10 * 10 + 1;
+  ASSERT_EQ(newest, 41u);
+  // The newest keyframe the checkpoint covers, the first one tried: its depth fails.
   damage_depth(path, newest);
-  // And the row before it (its time changed, so its checksum fails): left out of the listing.
-  const uint32_t before = newest - 10;
-  damage_row(path, before);
+  // An older row (its time changed, so its checksum fails): left out of the listing.
+  damage_row(path, 11);
   const Resumed r = resume_and_return(*seq_, path, /*restore=*/true);
   print(r);
   ASSERT_TRUE(r.report.has_value());
@@ -298,11 +303,14 @@ TEST_F(KeyframeRestore, AKeyframeThatFailsItsChecksumIsSkipped) {
   EXPECT_EQ(r.report->stored, recorded.keyframes_covered - 1);
   for (const std::string& why : r.report->skipped) std::printf("skipped: %s\n", why.c_str());
   // The listing comes first.
-  EXPECT_NE(r.report->skipped[0].find("keyframe " + std::to_string(before) + ": checksum mismatch"),
-            std::string::npos) << r.report->skipped[0];
-  EXPECT_NE(r.report->skipped[1].find("keyframe " + std::to_string(newest) +
-                                      " depth: blob header checksum mismatch"),
+  EXPECT_NE(r.report->skipped[0].find("keyframe 11: checksum mismatch"), std::string::npos)
+      << r.report->skipped[0];
+  EXPECT_NE(r.report->skipped[1].find("keyframe 41 depth: blob header checksum mismatch"),
             std::string::npos) << r.report->skipped[1];
+  // 41's neighbour takes its place (it would not have been wanted beside 41), then 1; 21 is within
+  // the spacing of 31.
+  EXPECT_EQ(r.report->restored_frames, (std::vector<uint32_t>{31, 1}));
+  EXPECT_EQ(r.report->chosen, 3u);
   EXPECT_EQ(r.report->restored, r.keyframes);
   EXPECT_GT(r.report->restored, 1u);
   // The others still find the camera.

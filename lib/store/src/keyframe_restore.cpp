@@ -32,18 +32,19 @@ Result<KeyframeRestoreReport> ScanRecorder::restore_keyframes(IncrementalReconst
                stored.end());
   report.stored = stored.size();
 
-  std::vector<Pose> poses;
-  poses.reserve(stored.size());
-  for (const KeyframeInfo& k : stored) poses.push_back(k.T_world_cam);
-  const std::vector<size_t> chosen = reconstructor.keyframes_to_restore(poses);
-  report.chosen = chosen.size();
-
+  // Newest first, each one decoded only when the relocaliser wants a keyframe at its pose: a
+  // keyframe that fails its checks leaves room for its neighbours. At most max_keyframes are kept,
+  // and the decodes are bounded too, should many fail.
+  const int max_keyframes = std::max(0, reconstructor.config().relocalisation.max_keyframes);
+  const size_t max_decodes = 2 * static_cast<size_t>(max_keyframes);
   PointMap& map = reconstructor.map();
   const uint64_t loaded_before = pager_ ? pager_->stats().total_loaded : 0;
   const double load_below_bytes = pager_ ? config_.pager.memory_budget_mib * 1024.0 * 1024.0 *
                                                config_.pager.low_watermark_fraction
                                          : 0.0;
-  for (size_t i : chosen) {
+  for (size_t i = stored.size(); i-- > 0 && report.chosen < max_decodes;) {
+    if (!reconstructor.keyframe_wanted(stored[i].T_world_cam)) continue;
+    ++report.chosen;
     Result<Keyframe> k = [&] {
       std::lock_guard<std::mutex> lock(mutex_);
       return store_->read_keyframe(stored[i].frame_id);
@@ -63,6 +64,7 @@ Result<KeyframeRestoreReport> ScanRecorder::restore_keyframes(IncrementalReconst
     }
     if (!*kept) continue;
     ++report.restored;
+    report.restored_frames.push_back(k->frame_id);
     // What the keyframe saw, as prepare_frame() would load it for a frame there: verifying a
     // candidate pose tracks against that part of the map. Only under the budget's low watermark,
     // as a scan that never stopped would have it resident only while it fits.

@@ -76,8 +76,9 @@ struct ResumePoint {
 // What ScanRecorder::restore_keyframes() did.
 struct KeyframeRestoreReport {
   size_t stored = 0;                 // keyframes of the last checkpoint in the file (rows intact)
-  size_t chosen = 0;                 // picked by place from their poses: the only ones decoded
+  size_t chosen = 0;                 // wanted by place from their poses: the only ones decoded
   size_t restored = 0;               // that became relocalisation keyframes
+  std::vector<uint32_t> restored_frames;  // their frame ids, newest first
   size_t chunks_loaded = 0;          // evicted chunks brought back for their views
   std::vector<std::string> skipped;  // one per keyframe left out for damage, and why
   double seconds = 0.0;
@@ -101,9 +102,10 @@ class ScanRecorder {
   // After resume() and IncrementalReconstructor::reset() (which empties the relocaliser): puts the
   // stored keyframes back as relocalisation keyframes, so that a camera that moved while the scan
   // was down is found again. Only keyframes of the checkpoint resumed from count, with their poses
-  // as stored (refined ones after `depthfuse refine`). The choice looks at the poses only
-  // (IncrementalReconstructor::keyframes_to_restore): at most relocalisation.max_keyframes are
-  // decoded and measured. With bounded memory, the evicted chunks each restored keyframe sees are
+  // as stored (refined ones after `depthfuse refine`). Newest first, a keyframe is decoded and
+  // measured only when its pose is wanted (IncrementalReconstructor::keyframe_wanted: the spacing
+  // rule, at most relocalisation.max_keyframes kept; at most twice that many decoded, should many
+  // fail their checks). With bounded memory, the evicted chunks each restored keyframe sees are
   // loaded while the map is under the pager's low watermark: a candidate pose is verified by
   // tracking against the map there (`load_views` false leaves that out: tests compare). A keyframe
   // that fails its checks is skipped and named in the report; only a failure of the file itself is
