@@ -100,6 +100,7 @@ Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, Sc
   std::unique_ptr<PointMap> map = std::move(at->map);
   if (!map) map = std::make_unique<PointMap>(config_.reconstruction.fusion.chunk_size_m);
   reconstructor.reset(std::move(map), at->next_frame_id, at->last_T_world_cam);
+  restore_keyframes(reconstructor);
   if (trajectory) {
     trajectory->clear();
     auto poses = recorder_->store().read_poses();
@@ -114,6 +115,26 @@ Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, Sc
                        << " poses, " << r.discarded_keyframes << " keyframes, "
                        << r.discarded_staged_chunks << " staged chunks";
   return Status::ok();
+}
+
+// A resumed scan without relocalisation keyframes could not find a camera that moved while it was
+// down; one without some of them finds it in fewer places. Neither stops the scan: what went wrong
+// is logged and fusion goes on.
+void SqliteCheckpointSink::restore_keyframes(IncrementalReconstructor& reconstructor) {
+  auto restored = recorder_->restore_keyframes(reconstructor);
+  if (!restored) {
+    DF_LOG(Fusion, Warning) << "resumed scan without relocalisation keyframes: "
+                            << restored.status().to_string();
+    return;
+  }
+  for (const std::string& why : restored->skipped)
+    DF_LOG(Fusion, Warning) << "relocalisation keyframe skipped: " << why;
+  DF_LOG(Fusion, Info) << "restored " << restored->restored << " relocalisation keyframes from "
+                       << restored->stored << " stored (" << restored->chosen
+                       << " chosen by place and decoded, " << restored->skipped.size()
+                       << " skipped as damaged, " << restored->chunks_loaded
+                       << " map chunks loaded for their views) in "
+                       << static_cast<int>(restored->seconds * 1e3 + 0.5) << " ms";
 }
 
 Status SqliteCheckpointSink::prepare_frame(const Frame& frame, IncrementalReconstructor& reconstructor) {

@@ -46,6 +46,8 @@ class SqliteCheckpointSink : public CheckpointSink {
  private:
   store::RecorderConfig recorder_config() const;
   store::FrameCounters counters_of(const FusionProgress& progress) const;
+  // restore(): the stored keyframes back into the relocaliser, logged; never fails the resume.
+  void restore_keyframes(IncrementalReconstructor& reconstructor);
 
   AppConfig config_;
   SqliteSinkOptions options_;

@@ -201,6 +201,27 @@ void IncrementalReconstructor::reset(std::unique_ptr<PointMap> map, uint32_t nex
   registrar_.forget_photometric_reference();
 }
 
+bool IncrementalReconstructor::keeps_keyframes() const {
+  // As in process(): only frames tracked without a hint become keyframes, so without registration
+  // there are none.
+  return config_.registration.enabled && config_.relocalisation.enabled;
+}
+
+bool IncrementalReconstructor::keyframe_wanted(const Pose& T_world_cam) const {
+  return keeps_keyframes() && relocaliser_->wants(T_world_cam);
+}
+
+Result<bool> IncrementalReconstructor::restore_keyframe(const Frame& frame, const Pose& T_world_cam) {
+  if (!keyframe_wanted(T_world_cam)) return false;
+  // The same measurement a live frame gets: the keyframe's thumbnail and points are what they
+  // would have been had this process tracked the frame. scratch_ is the next frame's anyway.
+  Result<size_t> removed = measure(frame, config_, &scratch_);
+  if (!removed) return removed.status();
+  return relocaliser_->add_older_keyframe(scratch_, T_world_cam);
+}
+
+size_t IncrementalReconstructor::keyframe_count() const { return relocaliser_->keyframe_count(); }
+
 SequenceFuser::SequenceFuser(const ReconstructionConfig& config)
     : config_(config.with_method(config.pipeline.method)),
       map_(std::make_unique<PointMap>(config.fusion.chunk_size_m)),

@@ -143,6 +143,12 @@ double rotation_deg(const Pose& a, const Pose& b) {
   return Eigen::AngleAxisd(a.linear().transpose() * b.linear()).angle() * 180.0 / M_PI;
 }
 
+// A keyframe already stands for a frame this near it (the keyframe spacing).
+bool within_spacing(const RelocalisationConfig& c, const Pose& a, const Pose& b) {
+  return (a.translation() - b.translation()).norm() < c.keyframe_spacing_m &&
+         rotation_deg(a, b) < c.keyframe_spacing_deg;
+}
+
 // Fewer points than this carry no shape worth matching (a wall, or nothing).
 constexpr size_t kMinPoints = 50;
 
@@ -173,19 +179,40 @@ size_t Relocaliser::memory_bound_bytes(const RelocalisationConfig& c, size_t pix
   return static_cast<size_t>(std::max(0, c.max_keyframes) + 1) * keyframe + search;
 }
 
-void Relocaliser::frame_tracked(const MeasurementImage& m, const Pose& T_world_cam) {
-  lost_frames_ = 0;
-  if (!config_.enabled || config_.max_keyframes <= 0) return;
-  for (const auto& k : keyframes_) {
-    if ((k->T_world_cam.translation() - T_world_cam.translation()).norm() < config_.keyframe_spacing_m &&
-        rotation_deg(k->T_world_cam, T_world_cam) < config_.keyframe_spacing_deg)
-      return;
-  }
+bool Relocaliser::wants(const Pose& T_world_cam) const {
+  if (!config_.enabled || keyframes_.size() >= static_cast<size_t>(std::max(0, config_.max_keyframes)))
+    return false;
+  for (const auto& k : keyframes_)
+    if (within_spacing(config_, k->T_world_cam, T_world_cam)) return false;
+  return true;
+}
+
+// A keyframe of the frame, or nothing when its points carry too little shape.
+std::unique_ptr<Relocaliser::Keyframe> Relocaliser::make_keyframe(const MeasurementImage& m,
+                                                                  const Pose& T_world_cam) const {
   auto k = std::make_unique<Keyframe>();
   k->T_world_cam = T_world_cam;
   k->thumbnail = make_thumbnail(m);
   k->cloud = downsample(m, config_);
-  if (k->cloud->size() < kMinPoints) return;
+  if (k->cloud->size() < kMinPoints) return nullptr;
+  return k;
+}
+
+bool Relocaliser::add_older_keyframe(const MeasurementImage& m, const Pose& T_world_cam) {
+  if (!wants(T_world_cam)) return false;
+  std::unique_ptr<Keyframe> k = make_keyframe(m, T_world_cam);
+  if (!k) return false;
+  keyframes_.insert(keyframes_.begin(), std::move(k));
+  return true;
+}
+
+void Relocaliser::frame_tracked(const MeasurementImage& m, const Pose& T_world_cam) {
+  lost_frames_ = 0;
+  if (!config_.enabled || config_.max_keyframes <= 0) return;
+  for (const auto& k : keyframes_)
+    if (within_spacing(config_, k->T_world_cam, T_world_cam)) return;
+  std::unique_ptr<Keyframe> k = make_keyframe(m, T_world_cam);
+  if (!k) return;
   keyframes_.push_back(std::move(k));
   if (keyframes_.size() <= static_cast<size_t>(config_.max_keyframes)) return;
   // Full: the keyframe nearest to another goes (a metre counted as 45 degrees), so that the ones

@@ -27,6 +27,15 @@ class Relocaliser {
   // another one goes. Also ends a search: the camera is tracked again.
   void frame_tracked(const MeasurementImage& m, const Pose& T_world_cam);
 
+  // Keyframes from stored frames (a resumed scan), walking back from the newest stored one:
+  //  - wants: whether a frame at T_world_cam would become a keyframe by frame_tracked()'s spacing
+  //    rule and there is room (checked on the pose alone, before the frame is decoded);
+  //  - add_older_keyframe: makes it one, ahead of every keyframe held (it is older than they are,
+  //    and the rule that drops a keyframe when full drops the older of the two nearest). True
+  //    when kept (false: too few points, near one held, or full).
+  bool wants(const Pose& T_world_cam) const;
+  bool add_older_keyframe(const MeasurementImage& m, const Pose& T_world_cam);
+
   // For a lost frame: where the camera is, or nothing. At most candidates_per_frame keyframes are
   // tried, on every every_n_lost_frames-th lost frame in a row. Keyframes are ranked by how alike
   // their depth thumbnails are to this frame's; the best is tried on every other attempt, the
@@ -43,6 +52,7 @@ class Relocaliser {
 
  private:
   struct Keyframe;
+  std::unique_ptr<Keyframe> make_keyframe(const MeasurementImage& m, const Pose& T_world_cam) const;
   RelocalisationConfig config_;
   std::vector<std::unique_ptr<Keyframe>> keyframes_;
   int lost_frames_ = 0;  // in a row, since the last tracked frame

@@ -172,6 +172,11 @@ TEST_F(FusionStore, KilledTwentyTimesResumesFromTheLastCheckpoint) {
                            seconds(20)))
         << "round " << round << ": expected '" << expected << "':\n" << fusion->log();
     if (checkpoint_frame > 0) ++resumes_with_frames;
+    // A resume refills the relocaliser from the file's keyframes before its first frame, and says so.
+    if (checkpoint_frame > 0) {
+      EXPECT_NE(fusion->log().find("relocalisation keyframes from"), std::string::npos)
+          << "round " << round << ":\n" << fusion->log();
+    }
     if (round == kKills) {
       // The last round ends cleanly: a final checkpoint.
       std::this_thread::sleep_for(seconds(2));

@@ -82,6 +82,21 @@ class IncrementalReconstructor {
   void reset(std::unique_ptr<PointMap> map, uint32_t next_frame_id,
              const std::optional<Pose>& last_T_world_cam);
   const std::optional<Pose>& last_pose() const { return last_T_world_cam_; }
+
+  // Relocalisation keyframes for a resumed scan (after reset(), which empties them): frames stored
+  // with the poses they were fused at put back as keyframes, so that a camera that moved while the
+  // scan was down can be found again. Stored frames are offered newest first (where the camera
+  // was last is likeliest to be where it is), each older than the keyframes already held:
+  //  - keyframe_wanted: whether a frame at T_world_cam would be kept, by the spacing rule of a
+  //    tracked frame and while there is room (max_keyframes), from the pose alone: only the frames
+  //    wanted need decoding. False when relocalisation is off or there is no registration.
+  //  - restore_keyframe: measures the frame as process() does (back-projection, normals,
+  //    pre-filter) and makes it a keyframe at T_world_cam by the same code as a tracked frame.
+  //    False when it is not kept (not wanted, or too few points); an error only when the frame
+  //    cannot be measured.
+  bool keyframe_wanted(const Pose& T_world_cam) const;
+  Result<bool> restore_keyframe(const Frame& frame, const Pose& T_world_cam);
+  size_t keyframe_count() const;
   uint32_t next_frame_id() const { return next_frame_id_; }
   const ReconstructionConfig& config() const { return config_; }
 
@@ -89,6 +104,7 @@ class IncrementalReconstructor {
   // The keyframes' candidates for a lost frame, each tracked against the map; the first that
   // tracks well is the frame's pose.
   void relocalise(FrameReport* report);
+  bool keeps_keyframes() const;
 
   ReconstructionConfig config_;
   std::unique_ptr<PointMap> map_;

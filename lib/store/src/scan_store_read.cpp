@@ -146,24 +146,35 @@ Result<std::vector<PoseRecord>> ScanStore::read_poses() {
       "reading poses", [&](const sql::Row& row) { return s.pose_of(row); });
 }
 
-Result<std::vector<KeyframeInfo>> ScanStore::list_keyframes() {
+Result<std::vector<KeyframeInfo>> ScanStore::list_keyframes(
+    const std::function<void(const Status&)>& on_damaged) {
   Impl& s = *impl_;
-  return s.db.collect<KeyframeInfo>(
-      std::string("SELECT ") + kKeyframeColumns + ", length(depth), COALESCE(length(color), 0) "
-          "FROM keyframes WHERE " + kCommittedFrames + " ORDER BY frame_id;",
-      "listing keyframes", [&](const sql::Row& row) -> Result<KeyframeInfo> {
-        Keyframe head;
-        DF_RETURN_IF_ERROR(s.keyframe_head_of(row, &head));
-        KeyframeInfo k;
-        k.frame_id = head.frame_id;
-        k.utime = head.utime;
-        k.width = head.intrinsics.width;
-        k.height = head.intrinsics.height;
-        k.T_world_cam = head.T_world_cam;
-        k.depth_bytes = static_cast<size_t>(row.int64(11));
-        k.color_bytes = static_cast<size_t>(row.int64(12));
-        return k;
-      });
+  auto st = s.db.prepare(std::string("SELECT ") + kKeyframeColumns +
+                             ", length(depth), COALESCE(length(color), 0) FROM keyframes WHERE " +
+                             kCommittedFrames + " ORDER BY frame_id;",
+                         "listing keyframes");
+  if (!st) return st.status();
+  std::vector<KeyframeInfo> out;
+  for (const sql::Row& row : st->rows()) {
+    Keyframe head;
+    Status checked = s.keyframe_head_of(row, &head);
+    if (!checked) {
+      if (!on_damaged) return checked;
+      on_damaged(checked);
+      continue;
+    }
+    KeyframeInfo k;
+    k.frame_id = head.frame_id;
+    k.utime = head.utime;
+    k.width = head.intrinsics.width;
+    k.height = head.intrinsics.height;
+    k.T_world_cam = head.T_world_cam;
+    k.depth_bytes = static_cast<size_t>(row.int64(11));
+    k.color_bytes = static_cast<size_t>(row.int64(12));
+    out.push_back(std::move(k));
+  }
+  DF_RETURN_IF_ERROR(st->status());
+  return out;
 }
 
 Result<Keyframe> ScanStore::read_keyframe(uint32_t frame_id) {

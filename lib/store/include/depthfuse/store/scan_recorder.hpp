@@ -73,6 +73,17 @@ struct ResumePoint {
   OpenReport open_report;                    // what was discarded (work after the checkpoint)
 };
 
+// What ScanRecorder::restore_keyframes() did.
+struct KeyframeRestoreReport {
+  size_t stored = 0;                 // keyframes of the last checkpoint in the file (rows intact)
+  size_t chosen = 0;                 // wanted by place from their poses: the only ones decoded
+  size_t restored = 0;               // that became relocalisation keyframes
+  std::vector<uint32_t> restored_frames;  // their frame ids, newest first
+  size_t chunks_loaded = 0;          // evicted chunks brought back for their views
+  std::vector<std::string> skipped;  // one per keyframe left out for damage, and why
+  double seconds = 0.0;
+};
+
 class ScanRecorder {
  public:
   // A new scan file (fails if `path` exists). Stores the metadata and the configuration text.
@@ -87,6 +98,20 @@ class ScanRecorder {
                                                       const RecorderConfig& config,
                                                       ResumePoint* resume);
   ~ScanRecorder();
+
+  // After resume() and IncrementalReconstructor::reset() (which empties the relocaliser): puts the
+  // stored keyframes back as relocalisation keyframes, so that a camera that moved while the scan
+  // was down is found again. Only keyframes of the checkpoint resumed from count, with their poses
+  // as stored (refined ones after `depthfuse refine`). Newest first, a keyframe is decoded and
+  // measured only when its pose is wanted (IncrementalReconstructor::keyframe_wanted: the spacing
+  // rule, at most relocalisation.max_keyframes kept; at most twice that many decoded, should many
+  // fail their checks). With bounded memory, the evicted chunks each restored keyframe sees are
+  // loaded while the map is under the pager's low watermark: a candidate pose is verified by
+  // tracking against the map there (`load_views` false leaves that out: tests compare). A keyframe
+  // that fails its checks is skipped and named in the report; only a failure of the file itself is
+  // an error.
+  Result<KeyframeRestoreReport> restore_keyframes(IncrementalReconstructor& reconstructor,
+                                                  bool load_views = true);
 
   // Before IncrementalReconstructor::process(frame): brings back the evicted chunks the frame can
   // touch (bounded memory only; free otherwise). The pose guess is the frame's hint, else

@@ -243,7 +243,10 @@ class ScanStore {
   // Each row's checksum is checked (kCorrupt naming the frame); rows written before schema 3 have
   // none and are taken as they are.
   Result<std::vector<PoseRecord>> read_poses();
-  Result<std::vector<KeyframeInfo>> list_keyframes();
+  // Each row's checksum is checked; with `on_damaged` a row that fails is reported there and left
+  // out (a resume restoring relocalisation keyframes), otherwise the listing fails with it.
+  Result<std::vector<KeyframeInfo>> list_keyframes(
+      const std::function<void(const Status&)>& on_damaged = nullptr);
   Result<Keyframe> read_keyframe(uint32_t frame_id);
   Result<std::optional<CheckpointRecord>> last_checkpoint();
   Result<std::vector<CheckpointRecord>> checkpoints();
