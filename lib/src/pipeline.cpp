@@ -6,7 +6,10 @@
 #include <cstdio>
 #include <string>
 
+#include "depthfuse/base/log.hpp"
 #include "relocaliser.hpp"
+
+DF_LOG_CATEGORY(Tracking)
 
 namespace depthfuse {
 
@@ -77,7 +80,7 @@ void IncrementalReconstructor::relocalise(FrameReport* report) {
   const auto found = relocaliser_->search(scratch_, [&](const Pose& candidate) {
     const RegistrationResult r = registrar_.track(scratch_, *map_, candidate);
     frames_since_model_ = 1;  // the track rendered the map around the candidate
-    if (classify_tracking(r, config_.registration) != TrackingState::kTracked) return false;
+    if (!relocalisation_verified(r, config_.registration, model_fitness_reference())) return false;
     report->registration = r;
     return true;
   });
@@ -142,9 +145,11 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
     // few tight ones. A direction held for want of information is no reason to start again: the
     // two starts would differ only there, where the cost cannot tell them apart, and the track
     // would jump between the motion model and a standstill.
+    const double reference = model_fitness_reference();
     if (!hint && prediction && last_T_world_cam_ && config_.registration.tracking_retry_fitness > 0 &&
         (report.registration.fitness < config_.registration.tracking_retry_fitness ||
-         classify_tracking(report.registration, config_.registration) == TrackingState::kLost)) {
+         classify_tracking(report.registration, config_.registration, reference) ==
+             TrackingState::kLost)) {
       const RegistrationResult second =
           registrar_.track(scratch_, *map_, *last_T_world_cam_, *last_T_world_cam_);
       frames_since_model_ = 1;
@@ -156,7 +161,7 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
       report.tracking_retried = true;
     }
     report.registered = report.registration.converged;
-    if (!hint) report.tracking = classify_tracking(report.registration, config_.registration);
+    if (!hint) report.tracking = classify_tracking(report.registration, config_.registration, reference);
     else if (!report.registered) report.tracking = TrackingState::kUncertain;
     if (report.tracking == TrackingState::kLost && !hint) relocalise(&report);
     if (report.registered) T = report.registration.T_world_cam;
@@ -175,8 +180,13 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   // Only a frame tracked without a hint is a keyframe: with hints, or without registration,
   // nothing is ever relocalised.
   if (config_.registration.enabled && !frame.T_world_cam_hint &&
-      report.tracking == TrackingState::kTracked)
+      report.tracking == TrackingState::kTracked) {
     relocaliser_->frame_tracked(scratch_, T);
+    // The first frame, on an empty map, has nothing to agree with.
+    if (report.registered)
+      recent_model_fitness_[recent_model_fitness_count_++ % recent_model_fitness_.size()] =
+          static_cast<float>(report.registration.model_fitness);
+  }
 
   t0 = Clock::now();
   report.fusion = fuser_.fuse(scratch_, &frame.color, T, next_frame_id_, map_.get());
@@ -185,6 +195,14 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   registrar_.keep_frame_as_photometric_reference(scratch_, T);
   ++next_frame_id_;
   return report;
+}
+
+double IncrementalReconstructor::model_fitness_reference() const {
+  const size_t n = std::min(recent_model_fitness_count_, recent_model_fitness_.size());
+  if (n == 0) return 1.0;
+  double sum = 0;
+  for (size_t k = 0; k < n; ++k) sum += recent_model_fitness_[k];
+  return sum / n;
 }
 
 size_t IncrementalReconstructor::finish() {
@@ -196,6 +214,7 @@ void IncrementalReconstructor::reset(std::unique_ptr<PointMap> map, uint32_t nex
   map_ = map ? std::move(map) : std::make_unique<PointMap>(config_.fusion.chunk_size_m);
   frames_since_model_ = 0;
   relocaliser_->clear();
+  recent_model_fitness_count_ = 0;
   next_frame_id_ = std::max<uint32_t>(1, next_frame_id);
   last_T_world_cam_ = last_T_world_cam;
   registrar_.forget_photometric_reference();
@@ -388,6 +407,17 @@ Result<TrackedSequence> track_sequence(const std::vector<Frame>& frames,
     }
     Result<FrameReport> r = rec.process(f, prediction);
     if (!r) return r.status().with_context("frame " + std::to_string(i));
+    // One line a frame (DEPTHFUSE_LOG=Tracking=debug): what decided the frame's state, to be read
+    // against a ground truth when a track goes wrong.
+    DF_LOG(Tracking, Debug) << "frame " << i << " " << to_string(r->tracking)
+                            << (r->tracking_retried ? " retried" : "")
+                            << (r->relocalised ? " relocalised" : "")
+                            << " fitness " << r->registration.fitness << " model_fitness "
+                            << r->registration.model_fitness << " rmse_mm "
+                            << r->registration.rmse_m * 1e3 << " conditioning "
+                            << r->registration.conditioning << " reference "
+                            << rec.model_fitness_reference() << " t "
+                            << r->T_world_cam.translation().transpose();
     out.T_world_cam.push_back(r->T_world_cam);
     out.state.push_back(r->tracking);
     if (r->tracking == TrackingState::kUncertain) ++out.uncertain;

@@ -4,6 +4,7 @@
 #include <malloc.h>
 
 #include <algorithm>
+#include <cstdio>
 
 #include "core_test_util.hpp"
 #include "depthfuse/pipeline.hpp"
@@ -332,4 +333,68 @@ TEST(Sequence, AlongAWallTheMotionModelCarriesWhatTheWallDoesNotConstrain) {
   for (size_t i = 0; i < frames.size(); ++i)
     EXPECT_LT((r->T_world_cam[i].translation() - (T_0_world * truth[i]).translation()).norm(), 1e-2)
         << "frame " << i << ": " << to_string(r->state[i]);
+}
+
+namespace {
+
+// A ripple on the depth along the image's rows, fixed to the image as a real sensor's systematic
+// error is: each frame's normals tilt with it, the fused model's (averaged over frames seen from
+// elsewhere in the image) less, so some of a correctly placed frame's samples on the model fail
+// the normal test, as a real Kinect's do (issue 19: TUM fr1/xyz's tracked frames pair 84 % of their
+// samples on the model, synthetic ones 99.7 %).
+Frame rippled(Frame f, double amplitude_m, double period_px) {
+  for (int v = 0; v < f.depth.height; ++v)
+    for (int u = 0; u < f.depth.width; ++u) {
+      float& z = f.depth.at(u, v);
+      if (z > 0) z += static_cast<float>(amplitude_m * std::sin(2 * M_PI * (u + 0.37 * v) / period_px));
+    }
+  return f;
+}
+
+// The left half of the image only: the right half of the view stays unmapped.
+Frame left_half(Frame f) {
+  for (int v = 0; v < f.depth.height; ++v)
+    for (int u = f.depth.width / 2; u < f.depth.width; ++u) f.depth.at(u, v) = 0.0f;
+  return f;
+}
+
+}  // namespace
+
+// Issue 19, every 3rd frame of fr1/xyz: frames that looked past the mapped desk, placed right but
+// with a fitness under tracking_retry_fitness, were called lost because their model fitness (0.87)
+// was under the absolute 0.9 that synthetic data had set, and a wrong relocalisation followed.
+// Here a sensor whose frames agree with the map as a real one's do maps half its view, then sees
+// the whole: the frame is uncertain and fused where it is, not lost.
+TEST(Sequence, AFrameLookingPastTheMapIsJudgedByWhatThisSensorsTrackedFramesScore) {
+  std::vector<Pose> truth;
+  for (int i = 0; i < 8; ++i) {
+    const double a = 0.6 + i * 0.01;
+    truth.push_back(test::look_at({2.4 * std::cos(a), 2.4 * std::sin(a), 1.4}, {0.3, 0.3, 0.3}));
+  }
+  std::vector<Frame> frames;
+  for (size_t i = 0; i < truth.size(); ++i) {
+    Frame f = rippled(test::render_corner(truth[i]), 0.004, 7.0);
+    frames.push_back(i + 1 < truth.size() ? left_half(f) : f);
+  }
+  const ReconstructionConfig c;
+  IncrementalReconstructor rec(c);
+  FrameReport last;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    auto r = rec.process(frames[i], i == 0 ? std::optional<Pose>(truth[0]) : std::nullopt);
+    ASSERT_TRUE(r.is_ok()) << r.status().to_string();
+    std::printf("frame %zu: %s, fitness %.3f, model fitness %.3f, reference %.3f, %.1f mm off\n", i,
+                to_string(r->tracking), r->registration.fitness, r->registration.model_fitness,
+                rec.model_fitness_reference(),
+                (r->T_world_cam.translation() - truth[i].translation()).norm() * 1e3);
+    if (i > 0 && i + 1 < frames.size()) EXPECT_EQ(r->tracking, TrackingState::kTracked) << "frame " << i;
+    last = *r;
+  }
+  // The case: a poor fitness, and a model fitness under the absolute threshold but as good as this
+  // sensor's tracked frames score.
+  ASSERT_LT(last.registration.fitness, c.registration.tracking_retry_fitness);
+  ASSERT_LT(last.registration.model_fitness, c.registration.tracking_lost_model_fitness);
+  ASSERT_LT(rec.model_fitness_reference(), 0.97);
+  EXPECT_EQ(last.tracking, TrackingState::kUncertain);
+  EXPECT_TRUE(last.fused());
+  EXPECT_LT((last.T_world_cam.translation() - truth.back().translation()).norm(), 0.02);
 }

@@ -266,3 +266,41 @@ TEST(Registration, TrackingCoarseLevelsRunOnAFrameWithHoles) {
     EXPECT_LT(rotation_deg(r.T_world_cam, truth), 0.1) << deg << " degrees";
   }
 }
+
+// Issue 19, every 3rd frame of TUM fr1/xyz (docs/results.md): correctly placed frames of a real
+// Kinect agree with the map on ~84 % of their samples that land on it (5 % of them under 73 %),
+// synthetic ones on 99.7 %. Under the absolute rule (0.9) seven frames in a row that looked into
+// unmapped space (fitness 0.41, model fitness 0.87) were lost although tracked, and the relocaliser
+// took a candidate 12 cm off (fitness 0.53, model fitness 0.63, residual 10 mm) as "tracked".
+TEST(Registration, ModelFitnessIsJudgedAgainstWhatTrackedFramesScore) {
+  RegistrationConfig c;
+  RegistrationResult exploring;
+  exploring.converged = true;
+  exploring.fitness = 0.41;
+  exploring.model_fitness = 0.87;
+  exploring.rmse_m = 0.003;
+  exploring.conditioning = 0.013;
+  const double real = 0.84, synthetic = 0.997;
+  EXPECT_EQ(classify_tracking(exploring, c, real), TrackingState::kUncertain);
+  EXPECT_EQ(classify_tracking(exploring, c, synthetic), TrackingState::kLost);
+  EXPECT_EQ(classify_tracking(exploring, c), TrackingState::kLost);  // no tracked frame yet
+
+  // The wrong relocalisation: enough pairs to pass as tracked, but where the map has a surface the
+  // frame disagrees with it more than any tracked frame does.
+  RegistrationResult wrong;
+  wrong.converged = true;
+  wrong.fitness = 0.53;
+  wrong.model_fitness = 0.63;
+  wrong.rmse_m = 0.010;
+  wrong.conditioning = 0.0031;
+  EXPECT_EQ(classify_tracking(wrong, c, real), TrackingState::kTracked);
+  EXPECT_FALSE(relocalisation_verified(wrong, c, real));
+  // The synthetic loop's wrap, found again from a keyframe: taken.
+  RegistrationResult found = exploring;
+  found.fitness = 0.9;
+  found.model_fitness = 0.995;
+  EXPECT_TRUE(relocalisation_verified(found, c, synthetic));
+  // A real frame relocalised where it is scores as tracked frames do.
+  found.model_fitness = 0.85;
+  EXPECT_TRUE(relocalisation_verified(found, c, real));
+}

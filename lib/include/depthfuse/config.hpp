@@ -90,7 +90,9 @@ struct RegistrationConfig {
   double tracking_lost_fitness = 0.3;
   double tracking_lost_rmse_m = 0.02;
   // A frame whose fitness is below tracking_retry_fitness is lost, not uncertain, when fewer than
-  // this share of its samples that fall on the model's surface have a pair (model_fitness).
+  // this share of its samples that fall on the model's surface have a pair (model_fitness), as a
+  // fraction of what the last tracked frames scored (IncrementalReconstructor::
+  // model_fitness_reference()). A relocalisation candidate must reach it whatever its fitness.
   double tracking_lost_model_fitness = 0.9;
   // Frame-by-frame registration (IncrementalReconstructor, the fusion daemon) may align a frame
   // to the model rendered for the frame before, instead of rendering the map again: for at most

@@ -3,6 +3,7 @@
 //  - reconstruct_batch: the outer loop over a whole sequence (fuse, re-register, fuse again).
 #pragma once
 
+#include <array>
 #include <chrono>
 #include <functional>
 #include <memory>
@@ -67,7 +68,8 @@ class IncrementalReconstructor {
   // fitness below registration.tracking_retry_fitness starts again from the last refined pose,
   // and the start whose ICP ends with the lower mean cost is kept. A frame whose track is lost is
   // searched for among the keyframes (Relocaliser; every frame tracked without a hint may become
-  // one): a candidate pose that tracks against the map as kTracked is the camera's, and the frame
+  // one): a candidate pose that tracks against the map as kTracked, with a model fitness as good as
+  // the lost rule asks of a poor track (relocalisation_verified()), is the camera's, and the frame
   // is fused there (relocalised). Otherwise the frame is not fused, and the last refined pose
   // stays that of the last frame fused.
   Result<FrameReport> process(const Frame& frame,
@@ -99,6 +101,10 @@ class IncrementalReconstructor {
   size_t keyframe_count() const;
   uint32_t next_frame_id() const { return next_frame_id_; }
   const ReconstructionConfig& config() const { return config_; }
+  // The mean model fitness (RegistrationResult::model_fitness) of the last frames tracked without a
+  // hint, 1 before any: what a correctly placed frame of this sensor and scene scores, the scale of
+  // the lost rule's and the relocalisation's model-fitness threshold (classify_tracking()).
+  double model_fitness_reference() const;
 
  private:
   // The keyframes' candidates for a lost frame, each tracked against the map; the first that
@@ -115,6 +121,9 @@ class IncrementalReconstructor {
   int frames_since_model_ = 0;  // frames registered to the Registrar's last rendered model
   std::optional<Pose> last_T_world_cam_;
   uint32_t next_frame_id_ = 1;
+  // The model fitness of the last tracked frames (a ring; model_fitness_reference()).
+  std::array<float, 8> recent_model_fitness_{};
+  size_t recent_model_fitness_count_ = 0;
 };
 
 // Progress of a long run: stage name, done, total.

@@ -36,7 +36,18 @@ enum class TrackingState {
   kLost,       // no convergence, too few pairs or too large a residual: the pose is unknown
 };
 const char* to_string(TrackingState s);
-TrackingState classify_tracking(const RegistrationResult& r, const RegistrationConfig& c);
+// model_fitness_reference: the model fitness this camera's frames have shown lately when tracked
+// (IncrementalReconstructor keeps it; 1 before any): the lost rule's threshold is
+// c.tracking_lost_model_fitness times it, since how well a correctly placed frame agrees with the
+// map depends on the sensor's noise and the scene (synthetic frames 0.997, TUM fr1/xyz 0.84).
+TrackingState classify_tracking(const RegistrationResult& r, const RegistrationConfig& c,
+                                double model_fitness_reference = 1.0);
+// Whether a relocalisation candidate's track may be taken: tracked, and agreeing with the map where
+// the map has a surface as well as tracked frames have lately, whatever its fitness. A candidate
+// comes from a search, not from the last pose: a wrong one can slide a dominant plane (a desk) over
+// itself and pair half the frame.
+bool relocalisation_verified(const RegistrationResult& r, const RegistrationConfig& c,
+                             double model_fitness_reference = 1.0);
 
 // The fused surface as one camera sees it: per pixel a world point and unit normal, or nothing
 // (w = 0). ICP aligns a depth map to this.
