@@ -553,9 +553,11 @@ void FusionDaemon::worker_loop() {
 
     preview_.tick(state_.load(), reconstructor_ ? scan_.scan_id : "", reconstructor_.get());
     refresh_sink_counters();
-    // A crash loses the frames since the last committed checkpoint's snapshot: the next snapshot
-    // comes early by the time the last one took to commit, so that this stays within the
-    // interval. One still being written delays the next rather than queueing it.
+    // Full checkpoints. With the frame log (fusion_daemon.frame_log_interval_s) a crash loses only
+    // the frames since its last commit, and these bound what a resume replays; without it, a crash
+    // loses the frames since the last committed checkpoint's snapshot, so the next snapshot comes
+    // early by the time the last one took to commit. One still being written delays the next
+    // rather than queueing it.
     if (reconstructor_ && sink_->durable() && state_.load() == heartbeat_t::STATE_RUNNING &&
         Clock::now() - last_checkpoint_ >
             std::chrono::duration<double>(config_.fusion.checkpoint_interval_s -
