@@ -145,9 +145,7 @@ int run(int argc, char** argv) {
       const size_t poses_summed = integrity->poses_checked - integrity->poses_unchecked;
       checked = "; " + std::to_string(integrity->chunks_checked) + " chunk and " +
                 std::to_string(integrity->keyframes_checked) + " keyframe records decoded and "
-                "checksummed; " + std::to_string(poses_summed) + " pose records checksummed; " +
-                std::to_string(integrity->log_records_checked) +
-                " frame log records decoded and checksummed";
+                "checksummed; " + std::to_string(poses_summed) + " pose records checksummed";
       if (integrity->poses_unchecked > 0)
         checked += ", " + std::to_string(integrity->poses_unchecked) +
                    " unchecked (written before schema 3, without a checksum: only decoded)";
@@ -156,6 +154,8 @@ int run(int argc, char** argv) {
         if (n > 0)
           checked += "; " + std::to_string(n) + what +
                      " poses unchecked (written before schema 4, without a checksum: only decoded)";
+      checked += "; " + std::to_string(integrity->log_records_checked) +
+                 " frame log records decoded and checksummed";
     }
     std::printf("integrity      ok (sqlite integrity_check%s)\n", checked.c_str());
     return 0;

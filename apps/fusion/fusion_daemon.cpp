@@ -650,6 +650,7 @@ void FusionDaemon::publish_heartbeat() {
   daemon::add_counter(&hb, "budget_queue_mib", budget_.queue_mib);
   daemon::add_counter(&hb, "budget_receive_mib", budget_.receive_mib);
   daemon::add_counter(&hb, "budget_fusing_mib", budget_.worker_mib);
+  daemon::add_counter(&hb, "budget_frame_log_mib", budget_.frame_log_mib);
   daemon::add_counter(&hb, "budget_map_mib", budget_.map_mib());
   if (auto st = lcm_->publish_message(lcm::kHeartbeatChannel, hb); !st.is_ok())
     set_error(st.message());

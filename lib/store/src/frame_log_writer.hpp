@@ -28,8 +28,8 @@ namespace depthfuse::store {
 
 struct FrameLogWriterConfig {
   double commit_interval_s = 1.0;
-  size_t queue_frames = 4;
-  size_t commit_bytes = 8u << 20;
+  size_t queue_frames = 1;
+  size_t commit_bytes = 1u << 20;
   int compression_level = 1;
 };
 

@@ -36,9 +36,9 @@ ScanRecorder::ScanRecorder(std::unique_ptr<ScanStore> store, const RecorderConfi
 
 size_t RecorderConfig::frame_log_bytes(const RecorderConfig& config, size_t pixels) {
   if (config.frame_log_interval_s <= 0) return 0;
-  const size_t raw_frame = pixels * (sizeof(float) + 3);
+  const size_t raw_frame = pixels * (sizeof(float) + 3), encoded_frame = pixels * (2 + 3);
   return (std::max<size_t>(1, config.frame_log_queue_frames) + 1) * raw_frame +
-         2 * (config.frame_log_commit_bytes + raw_frame);
+         2 * (config.frame_log_commit_bytes + encoded_frame);
 }
 
 namespace {

@@ -50,12 +50,16 @@ struct RecorderConfig {
   // changed since the last) come seldom. 0 = no log: a crash loses what came after the last
   // checkpoint.
   double frame_log_interval_s = 0.0;
-  size_t frame_log_queue_frames = 4;         // raw frames waiting for the thread (then record waits)
-  size_t frame_log_commit_bytes = 8u << 20;  // encoded frames committed early at this size
+  // Raw frames waiting for the log's thread (then record_frame waits), and the encoded frames'
+  // size at which they are committed early. Small: both count in the daemon's per-frame budget,
+  // and the thread encodes a frame as it comes.
+  size_t frame_log_queue_frames = 1;
+  size_t frame_log_commit_bytes = 1u << 20;
   int frame_log_compression_level = 1;
   // What the frame log holds in memory at most, for frames of `pixels` pixels, bytes: the raw
   // frames waiting and the one being encoded (depth as float, colour RGB), the encoded frames
-  // waiting and those in the transaction.
+  // waiting and those in the transaction (each up to the commit size and one more record, at
+  // most its 16-bit depth and RGB).
   static size_t frame_log_bytes(const RecorderConfig& config, size_t pixels);
 };
 
