@@ -182,6 +182,11 @@ Result<size_t> ScanRecorder::replay_log(IncrementalReconstructor& reconstructor)
           },
           after, kBatch);
     }
+    if (!st && st.code() != StatusCode::kCorrupt) {
+      // Not a damaged record but a file that cannot be read now: nothing is dropped.
+      replaying_ = false;
+      return note(st.with_context("reading the frame log of " + store_->path()));
+    }
     if (!st) damaged = st;
     for (LoggedFrame& f : batch) {
       // The stored pose is where the pager looks for the chunks the frame will touch.
