@@ -1,9 +1,12 @@
 // depthfuse export: a scan file's cloud to PLY or PCD, streamed chunk by chunk (bounded memory),
-// from the last checkpoint; works while the fusion daemon is writing the file. --mesh: a triangle
+// from the last checkpoint; works while the fusion daemon is writing the file. The frames of the
+// frame redo log after the last checkpoint (a scan killed and not resumed) are folded in: fused
+// in memory on the chunks they touch, which replace the file's. --mesh: a triangle
 // mesh of the cloud instead (lib/mesh), which holds the cloud whole and says so when it does not fit.
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <optional>
 #include <sstream>
 
 #include "cli_util.hpp"
@@ -12,7 +15,9 @@
 #include "depthfuse/mesh/scan_mesh.hpp"
 #include "mesh_options.hpp"
 #include "depthfuse/store/export.hpp"
+#include "depthfuse/store/frame_log_replay.hpp"
 #include "depthfuse/store/scan_store.hpp"
+#include "frame_log_fold.hpp"
 
 using namespace depthfuse;
 
@@ -67,6 +72,15 @@ int export_mesh(const cli::Args& args, const store::ExportOptions& filters, cons
 
   auto opened = store::ScanStore::open(args.positional()[0], store::OpenMode::kReadOnly);
   if (!opened) return cli::fail(opened.status().message());
+  // The mesh reads the file's chunks itself: logged frames would be left out without a word.
+  auto log = (*opened)->frame_log_summary();
+  if (!log) return cli::fail(log.status().message());
+  if (log->count > 0)
+    return cli::fail(args.positional()[0] + ": " + std::to_string(log->count) +
+                     " frames of the frame redo log (" + std::to_string(log->first_frame_id) + "-" +
+                     std::to_string(log->last_frame_id) +
+                     ") are not in a checkpoint, and a mesh would leave them out; fold them in "
+                     "first: depthfuse inspect --fold-log " + args.positional()[0]);
   const auto t0 = std::chrono::steady_clock::now();
   mesh::MeshReport report;
   std::vector<std::string> damaged;
@@ -118,10 +132,32 @@ int run(int argc, char** argv) {
   auto opened = store::ScanStore::open(args.positional()[0], store::OpenMode::kReadOnly);
   if (!opened) return cli::fail(opened.status().message());
   store::ScanStore& scan = **opened;
+  store::ScopedRead snapshot(scan);
+  if (!snapshot.status()) return cli::fail(snapshot.status().message());
+  // Frames after the last checkpoint that the redo log holds (killed, not resumed): replayed here
+  // as a resume would, so that the export loses none of them.
+  auto log = scan.frame_log_summary();
+  if (!log) return cli::fail(log.status().message());
+  std::optional<store::LogReplay> folded;
+  if (log->count > 0) {
+    const std::string how = " (resuming the scan, or depthfuse inspect --fold-log " + scan.path() +
+                            ", folds them into the file)";
+    auto config = cli::stored_reconstruction_config(scan);
+    if (!config) return cli::fail(config.status().message() + how);
+    auto replay = store::replay_frame_log(scan, *config);
+    if (!replay) return cli::fail("folding the frame redo log of " + scan.path() + ": " +
+                                  replay.status().message() + how);
+    if (!replay->damaged) DF_LOG(Export, Warning) << replay->damaged.message() << ": the frame log is folded in up to the record before it";
+    DF_LOG(Export, Info) << "folded in " << replay->poses.size() << " frames of the frame redo log ("
+                         << log->first_frame_id << "-" << log->last_frame_id << ") after the last checkpoint";
+    folded = std::move(replay).value();
+    options.replacing = folded->map.get();
+  }
   // The trajectory first: a damaged pose (its checksum fails) stops the export before the cloud
   // is written.
   if (args.has("trajectory")) {
-    const Status st = store::export_trajectory(scan, args.get("trajectory"));
+    const Status st = store::export_trajectory(scan, args.get("trajectory"),
+                                               folded ? folded->poses : std::vector<store::PoseRecord>{});
     if (!st) return cli::fail(st.message() + " (nothing exported)");
   }
   auto report = store::export_cloud(scan, out, options);
@@ -132,6 +168,7 @@ int run(int argc, char** argv) {
   for (const std::string& d : report->damaged) DF_LOG(Export, Warning) << "skipped: " << d;
   std::printf("wrote %llu points from %zu chunks to %s", static_cast<unsigned long long>(report->points_written),
               report->chunks_read, out.c_str());
+  if (folded) std::printf(" (%zu logged frames folded in)", folded->poses.size());
   if (report->points_filtered) std::printf(" (%llu filtered out)", static_cast<unsigned long long>(report->points_filtered));
   std::printf("\n");
   if (!report->damaged.empty()) {

@@ -7,6 +7,7 @@
 #include "command.hpp"
 #include "depthfuse/base/log.hpp"
 #include "depthfuse/store/scan_store.hpp"
+#include "frame_log_fold.hpp"
 
 using namespace depthfuse;
 
@@ -16,11 +17,13 @@ namespace {
 
 constexpr const char* kCmd = "inspect";
 constexpr const char* kUsage =
-    "depthfuse inspect <scan.db> [--quick] [--checkpoints] [--chunks] [--upgrade]\n"
+    "depthfuse inspect <scan.db> [--quick] [--checkpoints] [--chunks] [--upgrade] [--fold-log]\n"
     "  --quick        SQLite's integrity check only, blobs are not decoded\n"
     "  --checkpoints  list every checkpoint\n"
     "  --chunks       list every chunk (key, points, bounds)\n"
-    "  --upgrade      migrate an older schema in place (opens the file for writing)";
+    "  --upgrade      migrate an older schema in place (opens the file for writing)\n"
+    "  --fold-log     replay the frame redo log of a scan killed mid-scan into a new checkpoint\n"
+    "                 (opens the file for writing, as resuming the scan would)";
 
 std::string format_time(int64_t utime) {
   if (utime <= 0) return "-";
@@ -39,10 +42,10 @@ std::string mib(uint64_t bytes) {
 }
 
 int run(int argc, char** argv) {
-  cli::Args args(argc, argv, {"quick", "checkpoints", "chunks", "upgrade", "help"});
+  cli::Args args(argc, argv, {"quick", "checkpoints", "chunks", "upgrade", "fold-log", "help"});
   if (args.has("help")) return std::printf("usage: %s\n", kUsage), 0;
   if (!args.ok()) return cli::fail(args.error());
-  const std::string bad = args.unknown({"quick", "checkpoints", "chunks", "upgrade"});
+  const std::string bad = args.unknown({"quick", "checkpoints", "chunks", "upgrade", "fold-log"});
   if (!bad.empty()) return cli::fail("unknown option " + bad + "\nusage: " + kUsage);
   if (args.positional().size() != 1) return cli::fail(std::string("expected one scan file\nusage: ") + kUsage);
   const std::string path = args.positional()[0];
@@ -54,6 +57,11 @@ int run(int argc, char** argv) {
     std::printf("%s: schema %d%s\n", path.c_str(), rep.found_schema_version,
                 rep.migrated ? (" migrated to " + std::to_string(store::kSchemaVersion)).c_str()
                              : " is current");
+  }
+  if (args.has("fold-log")) {
+    auto folded = cli::fold_frame_log(path);
+    if (!folded) return cli::fail(folded.status().message());
+    std::printf("%s: %zu logged frames folded into a new checkpoint\n", path.c_str(), *folded);
   }
   auto opened = store::ScanStore::open(path, store::OpenMode::kReadOnly);
   if (!opened) return cli::fail(opened.status().message());
@@ -101,6 +109,16 @@ int run(int argc, char** argv) {
   if (s.staged_chunk_count)
     std::printf("staged         %zu evicted chunks not yet in a checkpoint (a writer is active or crashed)\n",
                 s.staged_chunk_count);
+  // The frame redo log after the last checkpoint: frames a resume (or export) replays.
+  if (auto log = scan.frame_log_summary(); !log) {
+    DF_LOG(Inspect, Error) << log.status().message();
+  } else if (log->count == 0) {
+    std::printf("frame log      empty\n");
+  } else {
+    std::printf("frame log      %zu frames (%u-%u) after the last checkpoint, %s: a resume or export "
+                "replays them\n",
+                log->count, log->first_frame_id, log->last_frame_id, mib(log->bytes).c_str());
+  }
   std::printf("file size      %s (+ %s WAL)\n", mib(s.file_bytes).c_str(), mib(s.wal_bytes).c_str());
 
   if (args.has("checkpoints")) {
@@ -136,6 +154,8 @@ int run(int argc, char** argv) {
         if (n > 0)
           checked += "; " + std::to_string(n) + what +
                      " poses unchecked (written before schema 4, without a checksum: only decoded)";
+      checked += "; " + std::to_string(integrity->log_records_checked) +
+                 " frame log records decoded and checksummed";
     }
     std::printf("integrity      ok (sqlite integrity_check%s)\n", checked.c_str());
     return 0;

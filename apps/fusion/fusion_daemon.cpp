@@ -553,9 +553,11 @@ void FusionDaemon::worker_loop() {
 
     preview_.tick(state_.load(), reconstructor_ ? scan_.scan_id : "", reconstructor_.get());
     refresh_sink_counters();
-    // A crash loses the frames since the last committed checkpoint's snapshot: the next snapshot
-    // comes early by the time the last one took to commit, so that this stays within the
-    // interval. One still being written delays the next rather than queueing it.
+    // Full checkpoints. With the frame log (fusion_daemon.frame_log_interval_s) a crash loses only
+    // the frames since its last commit, and these bound what a resume replays; without it, a crash
+    // loses the frames since the last committed checkpoint's snapshot, so the next snapshot comes
+    // early by the time the last one took to commit. One still being written delays the next
+    // rather than queueing it.
     if (reconstructor_ && sink_->durable() && state_.load() == heartbeat_t::STATE_RUNNING &&
         Clock::now() - last_checkpoint_ >
             std::chrono::duration<double>(config_.fusion.checkpoint_interval_s -
@@ -648,6 +650,7 @@ void FusionDaemon::publish_heartbeat() {
   daemon::add_counter(&hb, "budget_queue_mib", budget_.queue_mib);
   daemon::add_counter(&hb, "budget_receive_mib", budget_.receive_mib);
   daemon::add_counter(&hb, "budget_fusing_mib", budget_.worker_mib);
+  daemon::add_counter(&hb, "budget_frame_log_mib", budget_.frame_log_mib);
   daemon::add_counter(&hb, "budget_map_mib", budget_.map_mib());
   if (auto st = lcm_->publish_message(lcm::kHeartbeatChannel, hb); !st.is_ok())
     set_error(st.message());

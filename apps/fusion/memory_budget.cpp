@@ -4,6 +4,9 @@
 #include <string>
 
 #include "depthfuse/pipeline.hpp"
+#if DEPTHFUSE_FUSION_HAS_STORE
+#include "depthfuse/store/scan_recorder.hpp"
+#endif
 
 namespace depthfuse::fusiond {
 
@@ -33,6 +36,12 @@ MemoryBudget MemoryBudget::of(const AppConfig& config) {
                   static_cast<double>(IncrementalReconstructor::relocalisation_bytes(
                       config.reconstruction.relocalisation, static_cast<size_t>(pixels)))) /
                  kMiB;
+#if DEPTHFUSE_FUSION_HAS_STORE
+  store::RecorderConfig rc;
+  rc.frame_log_interval_s = f.frame_log_interval_s;
+  b.frame_log_mib =
+      static_cast<double>(store::RecorderConfig::frame_log_bytes(rc, static_cast<size_t>(pixels))) / kMiB;
+#endif
   return b;
 }
 
@@ -41,10 +50,11 @@ Status MemoryBudget::check() const {
   char text[512];
   std::snprintf(text, sizeof text,
                 "fusion_daemon.memory_budget_mib = %.1f leaves the map nothing: the per-frame work "
-                "alone takes %.1f MiB (queue %.1f, receiving %.1f, fusing %.1f); raise the budget, "
+                "alone takes %.1f MiB (queue %.1f, receiving %.1f, fusing %.1f, frame log %.1f); raise "
+                "the budget, "
                 "or lower fusion_daemon.queue_capacity_frames (--queue) or "
                 "max_frame_width/max_frame_height",
-                total_mib, frame_work_mib(), queue_mib, receive_mib, worker_mib);
+                total_mib, frame_work_mib(), queue_mib, receive_mib, worker_mib, frame_log_mib);
   return invalid_argument(text);
 }
 

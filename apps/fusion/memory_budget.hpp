@@ -23,10 +23,13 @@ struct MemoryBudget {
   // The worker's frame: the frame itself, and what fusing it holds besides the map
   // (IncrementalReconstructor::kWorkBytesPerPixel).
   double worker_mib = 0;
+  // The scan file's frame redo log: raw frames waiting for its thread, encoded ones waiting for
+  // their commit (store::RecorderConfig::frame_log_bytes). 0 without the log.
+  double frame_log_mib = 0;
 
   static MemoryBudget of(const AppConfig& config);
 
-  double frame_work_mib() const { return queue_mib + receive_mib + worker_mib; }
+  double frame_work_mib() const { return queue_mib + receive_mib + worker_mib + frame_log_mib; }
   double map_mib() const { return total_mib - frame_work_mib(); }
   // An error naming the figures and the settings when the per-frame work leaves the map nothing.
   Status check() const;

@@ -51,6 +51,7 @@ store::RecorderConfig SqliteCheckpointSink::recorder_config() const {
   rc.pager.evict_distance_m = config_.fusion.evict_distance_m;
   rc.pager.min_age_frames = config_.fusion.evict_min_age_frames;
   rc.keyframe_every_n_frames = config_.fusion.keyframe_every_n_frames;
+  rc.frame_log_interval_s = config_.fusion.frame_log_interval_s;
   return rc;
 }
 
@@ -107,10 +108,22 @@ Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, Sc
     if (!poses) return poses.status().with_context("reading the poses of " + path_);
     for (const auto& p : *poses) trajectory->push_back({p.utime * 1e-6, p.T_world_cam});
   }
+  // The frames after the checkpoint that the redo log holds are fused again at their poses.
+  auto replayed = recorder_->replay_log(reconstructor);
+  if (!replayed) return replayed.status();
+  // A checkpoint of the replayed frames, at once and in the background: otherwise every restart
+  // before the next full checkpoint would replay them again, and more.
+  if (*replayed > 0)
+    (void)recorder_->checkpoint_in_background(&reconstructor.map(), "replayed",
+                                              {resumed_received_, resumed_dropped_});
+  if (trajectory)
+    for (const auto& p : recorder_->pending_poses()) trajectory->push_back({p.utime * 1e-6, p.T_world_cam});
   const auto& r = at->open_report;
   DF_LOG(Fusion, Info) << "resumed scan " << scan->scan_id << " from " << path_ << " at checkpoint "
-                       << (at->checkpoint ? at->checkpoint->id : 0) << ": next frame "
-                       << at->next_frame_id << ", " << reconstructor.map().point_count()
+                       << (at->checkpoint ? at->checkpoint->id : 0) << " (frame "
+                       << at->next_frame_id - 1 << "), replayed " << *replayed
+                       << " logged frames: next frame " << reconstructor.next_frame_id() << ", "
+                       << reconstructor.map().point_count()
                        << " resident points; discarded after the checkpoint: " << r.discarded_poses
                        << " poses, " << r.discarded_keyframes << " keyframes, "
                        << r.discarded_staged_chunks << " staged chunks";
@@ -231,6 +244,17 @@ void SqliteCheckpointSink::add_counters(std::vector<std::pair<std::string, doubl
   counters->emplace_back("checkpoint_encode_ms", s.last_encode_seconds * 1e3);
   counters->emplace_back("checkpoint_write_ms", s.last_write_seconds * 1e3);
   counters->emplace_back("checkpoint_chunks", static_cast<double>(s.last_checkpoint_chunks));
+  // The frame redo log's thread: frames committed, the newest, those waiting, and its CPU time so
+  // far (encoding; the transactions), whose growth per second is durability's cost.
+  counters->emplace_back("frame_log_frames", static_cast<double>(s.frame_log.frames_logged));
+  counters->emplace_back("frame_log_last_frame", static_cast<double>(s.frame_log.last_logged_frame));
+  counters->emplace_back("frame_log_waiting", static_cast<double>(s.frame_log.frames_waiting));
+  counters->emplace_back("frame_log_failures", static_cast<double>(s.frame_log.failures));
+  counters->emplace_back("frame_log_encode_s", s.frame_log.encode_seconds);
+  counters->emplace_back("frame_log_write_s", s.frame_log.write_seconds);
+  // The checkpoint writer's thread time so far, comparable with the log's.
+  counters->emplace_back("checkpoint_encode_s", s.total_encode_seconds);
+  counters->emplace_back("checkpoint_write_s", s.total_write_seconds);
   counters->emplace_back("resident_mib", s.pager.resident_bytes / (1024.0 * 1024.0));
   counters->emplace_back("evicted_chunks", static_cast<double>(s.pager.evicted_chunks));
   // Paging activity since the scan (or its resume) began: chunks written out and brought back.

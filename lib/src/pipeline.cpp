@@ -205,6 +205,21 @@ double IncrementalReconstructor::model_fitness_reference() const {
   return sum / n;
 }
 
+Status IncrementalReconstructor::replay(const Frame& frame, uint32_t frame_id,
+                                       const Pose& T_world_cam) {
+  if (frame_id == 0 || frame_id == 0xFFFFFFFFu)
+    return invalid_argument("replay: frame id " + std::to_string(frame_id) + " is out of range");
+  Result<size_t> removed = measure(frame, config_, &scratch_);
+  if (!removed) return removed.status().with_context("replaying frame " + std::to_string(frame_id));
+  fuser_.fuse(scratch_, &frame.color, T_world_cam, frame_id, map_.get());
+  last_T_world_cam_ = T_world_cam;
+  // The registrar's model and photometric reference are of frames before the crash, or none.
+  frames_since_model_ = 0;
+  registrar_.keep_frame_as_photometric_reference(scratch_, T_world_cam);
+  next_frame_id_ = frame_id + 1;
+  return Status::ok();
+}
+
 size_t IncrementalReconstructor::finish() {
   return config_.postfilter.enabled ? postfilter(map_.get()) : 0;
 }

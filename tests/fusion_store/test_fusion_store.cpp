@@ -64,7 +64,22 @@ class FusionStore : public ::testing::Test {
     }
     auto last = (*store)->last_checkpoint();
     EXPECT_TRUE(last.is_ok()) << when << ": " << last.status().to_string();
-    return last.is_ok() && *last ? (*last)->last_frame_id : 0;
+    const uint32_t checkpointed = last.is_ok() && *last ? (*last)->last_frame_id : 0;
+    // The frame redo log holds the frames after it that a resume replays.
+    auto log = (*store)->frame_log_summary();
+    EXPECT_TRUE(log.is_ok()) << when << ": " << log.status().to_string();
+    if (log.is_ok() && log->count > 0) {
+      EXPECT_EQ(log->first_frame_id, checkpointed + 1) << when;
+      return log->last_frame_id;
+    }
+    return checkpointed;
+  }
+  // Frames of the file's redo log after its last checkpoint.
+  size_t logged_frames() {
+    auto store = store::ScanStore::open(db_, store::OpenMode::kReadOnly);
+    if (!store) return 0;
+    auto log = (*store)->frame_log_summary();
+    return log.is_ok() ? log->count : 0;
   }
 
   std::string url_;
@@ -231,9 +246,11 @@ TEST_F(FusionStore, KilledTwentyTimesResumesFromTheLastCheckpoint) {
 TEST_F(FusionStore, KilledAtRandomMomentsLosesAtMostOneSecondOfFrames) {
   constexpr int kKills = 12;
   constexpr int64_t kMaxLost = 30;
-  // A checkpoint every second, plus the time it takes to write on a loaded machine.
+  // A frame log commit every second, plus the time it takes to write on a loaded machine.
   constexpr milliseconds kOld(2000);
-  std::ofstream(config_) << "[fusion_daemon]\nscan_dir = \"" << dir_.file("scans") << "\"\n";  // 1 s
+  // The defaults: full checkpoints every 30 s, so nearly every frame the file holds after a kill
+  // is in the frame redo log.
+  std::ofstream(config_) << "[fusion_daemon]\nscan_dir = \"" << dir_.file("scans") << "\"\n";
   // Arrival times of the current round's poses.
   std::mutex mutex;
   std::vector<std::chrono::steady_clock::time_point> poses;
@@ -250,6 +267,7 @@ TEST_F(FusionStore, KilledAtRandomMomentsLosesAtMostOneSecondOfFrames) {
 
   uint32_t checkpoint_frame = 0;
   int64_t most_lost = 0, total_fused = 0;
+  int exports_folded = 0;
   for (int round = 0; round < kKills; ++round) {
     SCOPED_TRACE("round " + std::to_string(round));
     const std::string log = "fusion-k" + std::to_string(round) + ".log";
@@ -288,11 +306,18 @@ TEST_F(FusionStore, KilledAtRandomMomentsLosesAtMostOneSecondOfFrames) {
     std::string out;
     EXPECT_EQ(cli({"inspect", db_}, &out), 0) << out;
     EXPECT_NE(out.find("integrity      ok"), std::string::npos) << out;
+    // Export of the killed file, not resumed: the logged frames are folded in.
+    if (const size_t logged = logged_frames(); logged > 0 && round % 4 == 1) {
+      EXPECT_EQ(cli({"export", db_, "-o", dir_.file("killed.ply")}, &out), 0) << out;
+      EXPECT_NE(out.find(std::to_string(logged) + " logged frames folded in"), std::string::npos) << out;
+      ++exports_folded;
+    }
     checkpoint_frame = now;
     if (HasFatalFailure()) return;
   }
   capture->signal(SIGTERM);
   listener.stop();
+  EXPECT_GT(exports_folded, 0) << "no export of a killed file had logged frames to fold in";
   std::printf("%d kills: at most %lld frames lost of %lld fused, %u frames in the file\n", kKills,
               static_cast<long long>(most_lost), static_cast<long long>(total_fused), checkpoint_frame);
   EXPECT_GT(checkpoint_frame, static_cast<uint32_t>(kKills)) << "the scan hardly advanced";

@@ -4,18 +4,21 @@
 A synthetic capture publishes at 30 Hz (looping) into depthfuse-fusion recording a scan file. Each
 round starts the daemon on the same file (it resumes from the last checkpoint), waits a random time
 after the scan (re)started, kills it with SIGKILL and runs `depthfuse inspect` on the file. A frame
-is lost when the daemon fused it (published its pose) but the file's last checkpoint does not hold
-it: lost = (first frame of the round + poses published - 1) - last checkpoint frame after the kill.
-Then steady runs without kills (alternating between the modes) give the fused rate and the
-checkpoints' cost (the fusion daemon's heartbeat counters).
+is lost when the daemon fused it (published its pose) but the file does not hold it, neither in
+its last checkpoint nor in its frame redo log (schema 5): lost = (first frame of the round + poses
+published - 1) - the newest frame the file holds after the kill. Then steady runs without kills
+(alternating between the modes) give the fused rate and the writers' cost (the fusion daemon's
+heartbeat counters): the CPU seconds its checkpoint and frame log threads spend per second.
 
-The modes run side by side in one invocation: incremental checkpoints (this build, interval 1 s),
-this build with the 30 s interval (steady runs only: the fused rate without incremental
-checkpoints), and --baseline-bin (the binaries of an earlier build, interval --baseline-interval-s,
---baseline-kills rounds).
+The modes run side by side in one invocation: the frame log (this build, committed every
+--log-interval-s, full checkpoints every 30 s), this build without the log and 30 s checkpoints
+(steady runs only: the fused rate without incremental durability), and --baseline-bin (the
+binaries of an earlier build, checkpoints every --baseline-interval-s, --baseline-kills rounds;
+their configuration has no frame log key).
 
   tools/bench/kill9.py [--kills 100] [--bin build/bin] [--baseline-bin DIR]
                        [--baseline-interval-s 30] [--baseline-kills N] [--steady-s 30]
+                       [--log-interval-s 1] [--checkpoint-interval-s 30]
                        [--steady-runs 2] [--min-s 0.1] [--max-s 6] [--scene room] [--lcm URL]
                        [--workdir DIR]
 """
@@ -68,7 +71,7 @@ class Watcher:
 
     def heartbeats_between(self, t0, t1):
         with self.lock:
-            return [m for t, m in self.heartbeats if t0 <= t <= t1]
+            return [(t, m) for t, m in self.heartbeats if t0 <= t <= t1]
 
     def stop(self):
         self.proc.terminate()
@@ -94,28 +97,35 @@ def wait_for_line(path, pattern, timeout_s):
 
 
 def inspect(cli, db):
-    """(exit code, the last checkpoint's frame, output) of `depthfuse inspect`."""
+    """(exit code, the newest frame the file holds, output) of `depthfuse inspect`: the last
+    checkpoint's, or the frame log's last record after it."""
     r = subprocess.run([cli, "inspect", db], capture_output=True, text=True)
-    m = re.search(r"checkpoints +\d+, last #\d+ at .*\(\w+, frame (\d+)\)", r.stdout)
-    return r.returncode, int(m.group(1)) if m else 0, r.stdout + r.stderr
+    m = re.search(r"checkpoints +\d+, last #\d+ at .*\([\w ]+, frame (\d+)\)", r.stdout)
+    last = int(m.group(1)) if m else 0
+    log = re.search(r"frame log +\d+ frames \((\d+)-(\d+)\)", r.stdout)
+    if log:
+        last = max(last, int(log.group(2)))
+    return r.returncode, last, r.stdout + r.stderr
 
 
 class Mode:
     """One way of running the daemon: its binaries (and their CLI) and checkpoint interval."""
 
-    def __init__(self, name, bin_dir, interval_s, args, kills):
+    def __init__(self, name, bin_dir, interval_s, args, kills, log_interval_s=None):
         self.name, self.args, self.kills = name, args, kills
-        self.work = os.path.join(args.workdir, name.replace(" ", "-"))
+        self.work = os.path.join(args.workdir, name.replace(" ", "-").replace("/", "-"))
         shutil.rmtree(self.work, ignore_errors=True)
         os.makedirs(self.work)
         self.cfg = os.path.join(self.work, "depthfuse.toml")
         with open(self.cfg, "w") as f:
             f.write("[fusion_daemon]\ncheckpoint_interval_s = %g\nscan_dir = \"%s\"\n" %
                     (interval_s, os.path.join(self.work, "scans")))
+            if log_interval_s is not None:  # builds before the frame log do not know the key
+                f.write("frame_log_interval_s = %g\n" % log_interval_s)
         self.db = os.path.join(self.work, "scan.db")
         self.fusion = os.path.join(bin_dir, "depthfuse-fusion")
         self.cli = os.path.join(bin_dir, "depthfuse")  # inspect of the schema these binaries write
-        self.rates, self.heartbeats = [], []
+        self.rates, self.heartbeats, self.writer_cpu = [], [], []
         self.proc = None
 
     def start(self, log):
@@ -193,8 +203,28 @@ def steady(mode, args, watcher, run):
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     mode.rates.append(len(watcher.poses_between(t0, t1)) / (t1 - t0))
-    mode.heartbeats += watcher.heartbeats_between(t0, t1)
-    print("%-14s steady run %d: %.1f frames fused per second" % (mode.name, run + 1, mode.rates[-1]), flush=True)
+    hbs = watcher.heartbeats_between(t0, t1)
+    mode.heartbeats += [m for _, m in hbs]
+    mode.writer_cpu.append(writer_cpu(hbs))
+    print("%-14s steady run %d: %.1f frames fused per second, writer threads %.0f ms CPU per second, "
+          "load average %s" % (mode.name, run + 1, mode.rates[-1], 1e3 * mode.writer_cpu[-1],
+                                " ".join("%.2f" % x for x in os.getloadavg())), flush=True)
+
+
+def writer_cpu(hbs):
+    """Seconds the writer threads work per second of scan: from the cumulative counters of the
+    checkpoint and frame log threads where the build has them, else the last checkpoint's encode
+    and write times times the checkpoints committed per second."""
+    if len(hbs) < 2:
+        return 0.0
+    (ta, a), (tb, b) = hbs[0], hbs[-1]
+    cum = ["checkpoint_encode_s", "checkpoint_write_s", "frame_log_encode_s", "frame_log_write_s"]
+    if counter(b, "checkpoint_encode_s") is not None:
+        return sum((counter(b, k) or 0) - (counter(a, k) or 0) for k in cum) / (tb - ta)
+    per = [(counter(m, "checkpoint_encode_ms") or 0) + (counter(m, "checkpoint_write_ms") or 0)
+           for _, m in hbs]
+    n = (counter(b, "checkpoints_written") or 0) - (counter(a, "checkpoints_written") or 0)
+    return n / (tb - ta) * statistics.mean(per) * 1e-3
 
 
 def figures(mode, counter_name):
@@ -209,6 +239,8 @@ def main():
     ap.add_argument("--baseline-bin", default="", help="binaries of an earlier build ('' = skip)")
     ap.add_argument("--baseline-interval-s", type=float, default=30.0)
     ap.add_argument("--baseline-kills", type=int, default=-1, help="default: --kills")
+    ap.add_argument("--log-interval-s", type=float, default=1.0, help="this build's frame log commits")
+    ap.add_argument("--checkpoint-interval-s", type=float, default=30.0, help="this build's full checkpoints")
     ap.add_argument("--python-dir", default=os.path.join(ROOT, "build", "python"))
     ap.add_argument("--steady-s", type=float, default=30.0)
     ap.add_argument("--steady-runs", type=int, default=2)
@@ -226,8 +258,10 @@ def main():
         [os.path.join(args.bin, "depthfuse-capture"), "--source", "synthetic:%s?frames=600" % args.scene,
          "--rate", "30", "--loop", "--lcm", args.lcm, "--color", "none"],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    modes = [Mode("incremental 1s", args.bin, 1.0, args, args.kills),
-             Mode("this build 30s", args.bin, 30.0, args, 0)]
+    modes = [Mode("log %gs/%gs" % (args.log_interval_s, args.checkpoint_interval_s), args.bin,
+                  args.checkpoint_interval_s, args, args.kills, log_interval_s=args.log_interval_s),
+             Mode("no log/%gs" % args.checkpoint_interval_s, args.bin, args.checkpoint_interval_s,
+                  args, 0, log_interval_s=0)]
     if args.baseline_bin:
         modes.append(Mode("baseline %gs" % args.baseline_interval_s, args.baseline_bin,
                           args.baseline_interval_s, args,
@@ -249,15 +283,17 @@ def main():
         watcher.stop()
 
     print("\nkills at random moments %.1f-%.1f s after each round's first fused frame; capture 30 Hz "
-          "synthetic %s" % (args.min_s, args.max_s, args.scene))
+          "synthetic %s; load average at the end %s" % (args.min_s, args.max_s, args.scene,
+                                                       " ".join("%.2f" % x for x in os.getloadavg())))
     print("| mode | kills | inspect ok | frames lost max | mean | kills losing > 30 | fused rate "
-          "(%d x %.0f s, alternating) | checkpoint on the fusion thread (mean / max) | encode | write |"
-          % (args.steady_runs, args.steady_s))
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+          "(%d x %.0f s, alternating) | writer threads' CPU per second | checkpoint on the fusion "
+          "thread (mean / max) | encode | write |" % (args.steady_runs, args.steady_s))
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for m, r in zip(modes, results):
         rates = "%.1f fps (%s)" % (statistics.mean(m.rates), ", ".join("%.1f" % x for x in m.rates)) if m.rates else "-"
-        print("| %s | %d | %d | %d | %.1f | %d | %s | %.1f / %.1f ms | %.0f / %.0f ms | %.0f / %.0f ms |" %
-              (r["mode"], r["kills"], r["inspect_ok"], r["lost_max"], r["lost_mean"], r["lost_over_30"], rates,
+        cpu = "%.0f ms (%s)" % (1e3 * statistics.mean(m.writer_cpu), ", ".join("%.0f" % (1e3 * x) for x in m.writer_cpu)) if m.writer_cpu else "-"
+        print("| %s | %d | %d | %d | %.1f | %d | %s | %s | %.1f / %.1f ms | %.0f / %.0f ms | %.0f / %.0f ms |" %
+              (r["mode"], r["kills"], r["inspect_ok"], r["lost_max"], r["lost_mean"], r["lost_over_30"], rates, cpu,
                *figures(m, "checkpoint_snapshot_ms"), *figures(m, "checkpoint_encode_ms"),
                *figures(m, "checkpoint_write_ms")))
     for r in results:

@@ -221,6 +221,7 @@ void read_fusion_daemon(TableReader& r, FusionDaemonConfig* f) {
   r.read("evict_distance_m", &f->evict_distance_m, positive());
   r.read("evict_min_age_frames", &f->evict_min_age_frames, non_negative());
   r.read("checkpoint_interval_s", &f->checkpoint_interval_s, positive());
+  r.read("frame_log_interval_s", &f->frame_log_interval_s, non_negative());
   r.read("keyframe_every_n_frames", &f->keyframe_every_n_frames, at_least(1));
   r.read("heartbeat_rate_hz", &f->heartbeat_rate_hz, positive());
   r.read("max_frame_width", &f->max_frame_width, at_least(1));

@@ -75,6 +75,12 @@ class IncrementalReconstructor {
   Result<FrameReport> process(const Frame& frame,
                               const std::optional<Pose>& T_world_cam_prediction = std::nullopt);
 
+  // Fuses `frame` at `T_world_cam` as frame `frame_id`, with no registration: a frame that was
+  // fused before (a scan's frame redo log after a crash). Fusion is the same as process()'s, so
+  // the map becomes what it was; frame ids continue after frame_id, the last pose is T_world_cam,
+  // and the next frame renders its own model.
+  Status replay(const Frame& frame, uint32_t frame_id, const Pose& T_world_cam);
+
   // Post-filter the whole map (end of scan).
   size_t finish();
 

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <tuple>
 
 #include "depthfuse/trajectory.hpp"
 
@@ -52,13 +53,29 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
   // suffice; pass 2 still checks every blob against its row.
   uint64_t count = 0;
   std::vector<uint8_t> keep;
-  if (options.min_merges == 0 && !options.bbox_m && !options.skip_damaged) {
+  const PointMap* replacing = options.replacing;
+  auto replaced = [&](const ChunkKey& key) { return replacing && replacing->find(key) != nullptr; };
+  // The replacing chunks in key order, after the file's.
+  std::vector<ChunkKey> extra;
+  if (replacing) {
+    extra = replacing->keys();
+    std::sort(extra.begin(), extra.end(), [](const ChunkKey& a, const ChunkKey& b) {
+      return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
+    });
+    PointArrays copy;
+    for (const ChunkKey& key : extra) {
+      copy = replacing->find(key)->points;
+      count += select_points(copy, options, &keep);
+    }
+  }
+  if (options.min_merges == 0 && !options.bbox_m && !options.skip_damaged && !replacing) {
     auto chunks = store.list_chunks();
     if (!chunks) return chunks.status();
     for (const ChunkInfo& c : *chunks) count += c.point_count;
   } else {
     DF_RETURN_IF_ERROR(store.for_each_chunk(
-        [&](const ChunkInfo&, PointArrays& a) {
+        [&](const ChunkInfo& info, PointArrays& a) {
+          if (replaced(info.key)) return Status::ok();
           count += select_points(a, options, &keep);
           return Status::ok();
         },
@@ -70,17 +87,26 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
   Status st = writer.open(path, *format, CloudFields{options.with_color, options.with_fusion_stats},
                           count);
   if (st) {
+    auto write = [&](PointArrays& a) {
+      const size_t n = select_points(a, options, &keep);
+      ++report.chunks_read;
+      report.points_written += n;
+      report.points_filtered += a.size() - n;
+      if (report.points_written > count)
+        return internal_error(store.path() + " changed during the export");
+      return writer.write(a, &keep);
+    };
     st = store.for_each_chunk(
-        [&](const ChunkInfo&, PointArrays& a) {
-          const size_t n = select_points(a, options, &keep);
-          ++report.chunks_read;
-          report.points_written += n;
-          report.points_filtered += a.size() - n;
-          if (report.points_written > count)
-            return internal_error(store.path() + " changed during the export");
-          return writer.write(a, &keep);
+        [&](const ChunkInfo& info, PointArrays& a) {
+          if (replaced(info.key)) return Status::ok();
+          return write(a);
         },
         filter);
+    PointArrays copy;
+    for (size_t i = 0; i < extra.size() && st; ++i) {
+      copy = replacing->find(extra[i])->points;
+      if (!copy.empty()) st = write(copy);
+    }
   }
   Status closed = writer.finish();
   if (st) st = closed;
@@ -91,12 +117,14 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
   return report;
 }
 
-Status export_trajectory(ScanStore& store, const std::string& path) {
+Status export_trajectory(ScanStore& store, const std::string& path,
+                         const std::vector<PoseRecord>& logged) {
   auto poses = store.read_poses();
   if (!poses) return poses.status();
   std::vector<StampedPose> out;
-  out.reserve(poses->size());
+  out.reserve(poses->size() + logged.size());
   for (const PoseRecord& p : *poses) out.push_back({p.utime * 1e-6, p.T_world_cam});
+  for (const PoseRecord& p : logged) out.push_back({p.utime * 1e-6, p.T_world_cam});
   return write_tum_trajectory(path, out);
 }
 

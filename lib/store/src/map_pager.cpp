@@ -135,7 +135,7 @@ Status MapPager::load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t
   std::unique_lock<std::mutex> lock;
   if (store_mutex_ && !keys.empty()) lock = std::unique_lock<std::mutex>(*store_mutex_);
   for (const ChunkKey& k : keys) {
-    auto stored = store_->read_chunk(k, /*include_staged=*/true);
+    auto stored = store_->read_chunk(k, config_.read_staged);
     evicted_.erase(k);
     if (!stored) {
       // Not found: nothing to load. Damaged or unreadable: it stays in the file untouched (a

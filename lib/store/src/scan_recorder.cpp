@@ -6,7 +6,11 @@
 
 #include "checkpoint_writer.hpp"
 #include "depthfuse/base/clock.hpp"
+#include "depthfuse/base/log.hpp"
 #include "depthfuse/fusion.hpp"
+#include "frame_log_writer.hpp"
+
+DF_LOG_CATEGORY(Store)
 
 namespace depthfuse::store {
 
@@ -20,6 +24,21 @@ ScanRecorder::ScanRecorder(std::unique_ptr<ScanStore> store, const RecorderConfi
       if (writer_) writer_->wait_idle();
     });
   }
+  if (config_.frame_log_interval_s > 0) {
+    FrameLogWriterConfig lc;
+    lc.commit_interval_s = config_.frame_log_interval_s;
+    lc.queue_frames = std::max<size_t>(1, config_.frame_log_queue_frames);
+    lc.commit_bytes = config_.frame_log_commit_bytes;
+    lc.compression_level = config_.frame_log_compression_level;
+    frame_log_ = std::make_unique<FrameLogWriter>(store_.get(), &mutex_, lc);
+  }
+}
+
+size_t RecorderConfig::frame_log_bytes(const RecorderConfig& config, size_t pixels) {
+  if (config.frame_log_interval_s <= 0) return 0;
+  const size_t raw_frame = pixels * (sizeof(float) + 3), encoded_frame = pixels * (2 + 3);
+  return (std::max<size_t>(1, config.frame_log_queue_frames) + 1) * raw_frame +
+         2 * (config.frame_log_commit_bytes + encoded_frame);
 }
 
 namespace {
@@ -133,7 +152,83 @@ Result<std::unique_ptr<ScanRecorder>> ScanRecorder::resume(const std::string& pa
     }));
   }
   if (rec->pager_) rec->status_.pager = rec->pager_->stats();
+  auto log = store.frame_log_summary();
+  if (!log) return log.status();
+  resume->frame_log = *log;
+  rec->replay_pending_ = log->count > 0;
   return rec;
+}
+
+Result<size_t> ScanRecorder::replay_log(IncrementalReconstructor& reconstructor) {
+  if (!replay_pending_) return size_t{0};
+  replay_pending_ = false;
+  replaying_ = true;
+  // Read a few records at a time and fuse them with the read statement finished: fusing pages
+  // chunks in and out of the same file.
+  constexpr size_t kBatch = 4;
+  size_t replayed = 0;
+  uint32_t after = 0;
+  Status damaged;
+  std::vector<LoggedFrame> batch;
+  for (;;) {
+    batch.clear();
+    Status st;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      st = store_->for_each_logged_frame(
+          [&](LoggedFrame& f) {
+            batch.push_back(std::move(f));
+            return Status::ok();
+          },
+          after, kBatch);
+    }
+    if (!st && st.code() != StatusCode::kCorrupt) {
+      // Not a damaged record but a file that cannot be read now: nothing is dropped.
+      replaying_ = false;
+      return note(st.with_context("reading the frame log of " + store_->path()));
+    }
+    if (!st) damaged = st;
+    for (LoggedFrame& f : batch) {
+      // The stored pose is where the pager looks for the chunks the frame will touch.
+      f.frame.T_world_cam_hint = f.pose.T_world_cam;
+      Status done = prepare_frame(f.frame, reconstructor);
+      if (done) done = reconstructor.replay(f.frame, f.pose.frame_id, f.pose.T_world_cam);
+      if (done) {
+        FrameReport report;
+        report.frame_id = f.pose.frame_id;
+        report.T_world_cam = f.pose.T_world_cam;
+        report.registered = f.pose.registered;
+        report.registration.fitness = f.pose.fitness;
+        report.registration.rmse_m = f.pose.rmse_m;
+        report.registration.correspondences = f.pose.correspondences;
+        done = record_frame(f.frame, report, &reconstructor.map());
+      }
+      if (!done) {
+        replaying_ = false;
+        return note(done.with_context("replaying the frame log of " + store_->path() + " at frame " +
+                                      std::to_string(f.pose.frame_id)));
+      }
+      after = f.pose.frame_id;
+      ++replayed;
+    }
+    if (!damaged.is_ok() || batch.size() < kBatch) break;
+  }
+  replaying_ = false;
+  if (!damaged) {
+    // The damaged record and those after it cannot be replayed; the next frames take their ids.
+    DF_LOG(Store, Warning) << damaged.message() << ": the frame log is replayed up to frame " << after
+                           << " (" << replayed << " frames); the records after it are dropped";
+    std::lock_guard<std::mutex> lock(mutex_);
+    DF_RETURN_IF_ERROR(note(store_->discard_frame_log_from(after + 1)));
+  }
+  return replayed;
+}
+
+Status ScanRecorder::flush_frame_log() {
+  if (!frame_log_) return Status::ok();
+  const Status st = frame_log_->flush();
+  status_.frame_log = frame_log_->stats();
+  return st;
 }
 
 Status ScanRecorder::prepare_frame(const Frame& frame, IncrementalReconstructor& reconstructor,
@@ -150,6 +245,9 @@ Status ScanRecorder::prepare_frame(const Frame& frame, IncrementalReconstructor&
 }
 
 Status ScanRecorder::record_frame(const Frame& frame, const FrameReport& report, PointMap* map) {
+  if (replay_pending_)
+    return note(invalid_argument(store_->path() + ": the frame log's records are not replayed yet "
+                                 "(ScanRecorder::replay_log after resume)"));
   PoseRecord p;
   p.frame_id = report.frame_id;
   p.utime = frame.utime;
@@ -159,6 +257,11 @@ Status ScanRecorder::record_frame(const Frame& frame, const FrameReport& report,
   p.rmse_m = report.registration.rmse_m;
   p.correspondences = static_cast<uint32_t>(report.registration.correspondences);
   pending_poses_.push_back(p);
+  // A copy to the log's thread, which encodes and commits it (replayed frames are logged already).
+  if (frame_log_ && !replaying_) {
+    frame_log_->push(p, frame);
+    status_.frame_log = frame_log_->stats();
+  }
   last_frame_id_ = report.frame_id;
   last_pose_ = report.T_world_cam;
   ++frames_fused_;
@@ -230,6 +333,8 @@ Status ScanRecorder::checkpoint_failed(const Status& error) {
 
 void ScanRecorder::checkpoint_committed(const CheckpointRecord& rec, std::vector<ChunkKey> resident) {
   resident_at_checkpoint_ = std::move(resident);
+  // Its transaction deleted the log records of its frames; those still waiting need not be written.
+  if (frame_log_) frame_log_->covered_up_to(rec.last_frame_id);
   ++status_.checkpoints_written;
   status_.last_checkpoint = rec;
   status_.last_error_code = StatusCode::kOk;
@@ -279,6 +384,8 @@ void ScanRecorder::collect_background(PointMap* map, bool clear_dirty) {
   CheckpointJob& job = out->job;
   status_.last_encode_seconds = out->encode_seconds;
   status_.last_write_seconds = out->write_seconds;
+  status_.total_encode_seconds += out->encode_seconds;
+  status_.total_write_seconds += out->write_seconds;
   if (!out->record) {
     // Nothing of it was written: its poses are pending again, its chunks are still dirty (or were
     // staged dirty since), and the removed ones are found again from the last checkpoint's keys.

@@ -202,6 +202,18 @@ uint32_t keyframe_row_checksum(uint32_t frame_id, int64_t utime, const CameraInt
       .value();
 }
 
+uint32_t frame_log_row_checksum(const PoseRecord& p, const void* pose_blob, size_t pose_size,
+                                const CameraIntrinsics& K, const void* depth, size_t depth_size,
+                                const void* color, size_t color_size) {
+  return RowCrc()
+      .add(pose_record_checksum(pose_fields(p), pose_blob, pose_size))
+      .add(static_cast<uint32_t>(K.width)).add(static_cast<uint32_t>(K.height))
+      .add(K.fx).add(K.fy).add(K.cx).add(K.cy)
+      .add(static_cast<uint32_t>(depth_size)).bytes(depth, depth_size)
+      .add(static_cast<uint32_t>(color_size)).bytes(color, color_size)
+      .value();
+}
+
 uint32_t checkpoint_row_checksum(const CheckpointRecord& r, const void* pose_blob, size_t pose_size) {
   return RowCrc()
       .add(r.id).add(r.utime).add(r.last_frame_id)

@@ -222,6 +222,10 @@ Result<CheckpointRecord> ScanStore::commit_checkpoint(const CheckpointInfo& info
     if (pose.empty()) ins->bind_null(8); else ins->bind_blob(8, pose);
     ins->bind(9, checkpoint_row_checksum(rec, pose.data(), pose.size()));
     DF_RETURN_IF_ERROR(ins->run());
+    // The redo log's records of the checkpoint's frames are in the chunks now.
+    DF_RETURN_IF_ERROR(s.db.exec("DELETE FROM frame_log WHERE frame_id <= " +
+                                     std::to_string(rec.last_frame_id) + ";",
+                                 ctx));
     DF_RETURN_IF_ERROR(s.set_meta({{"frames_received", std::to_string(info.frames_received)},
                                    {"frames_fused", std::to_string(info.frames_fused)},
                                    {"frames_dropped", std::to_string(info.frames_dropped)}}));

@@ -8,6 +8,7 @@
 //   scan_store_checkpoint.cpp  writing: checkpoints, chunks, poses, keyframes, staging
 //   scan_store_read.cpp        reading: snapshots, chunks, poses, keyframes, checkpoints, summary
 //   scan_store_integrity.cpp   checking every table and blob
+//   scan_store_frame_log.cpp   the frame redo log: appending, reading, dropping records
 // A ScanStore is used by one thread at a time: the fusion daemon's worker thread owns the writer
 // (through ScanRecorder, whose background checkpoint thread takes it under the recorder's mutex);
 // readers are other processes (depthfuse export and inspect), each with its own
@@ -67,6 +68,12 @@ uint32_t keyframe_row_checksum(uint32_t frame_id, int64_t utime, const CameraInt
 // frames_fused u64, point_count u64, chunk_count u64, the reason's length u32 and bytes, the pose
 // blob's bytes (none when NULL).
 uint32_t checkpoint_row_checksum(const CheckpointRecord& r, const void* pose_blob, size_t pose_size);
+// CRC-32 of a frame log row (frame_log.checksum): the pose row's fields as poses.checksum has them
+// (pose_record_checksum), then width u32, height u32, fx fy cx cy f64, the depth blob's length u32
+// and bytes, the colour blob's length u32 and bytes (0 and none without colour).
+uint32_t frame_log_row_checksum(const PoseRecord& p, const void* pose_blob, size_t pose_size,
+                                const CameraIntrinsics& K, const void* depth, size_t depth_size,
+                                const void* color, size_t color_size);
 // "<what>: checksum mismatch (stored 0x…, computed 0x…)"
 Status checksum_mismatch(const std::string& what, uint32_t stored, uint32_t computed);
 // The row's checksum column at `column` against `computed`; NULL (written before the column

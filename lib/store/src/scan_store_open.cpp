@@ -186,7 +186,8 @@ Status ScanStore::Impl::open_existing() {
 }
 
 // A writer reopening the file drops what was written after the last checkpoint: staged chunks,
-// and poses and keyframes of later frames. The file is then exactly the last checkpoint.
+// and poses and keyframes of later frames. The file is then exactly the last checkpoint plus the
+// frame redo log's records after it, which a resume replays.
 Status ScanStore::Impl::recover() {
   DF_RETURN_IF_ERROR(set_synchronous("FULL"));
   return in_transaction("discarding work after the last checkpoint", [&]() -> Status {
@@ -198,6 +199,11 @@ Status ScanStore::Impl::recover() {
     DF_RETURN_IF_ERROR(db.exec("DELETE FROM keyframes WHERE NOT (" + kCommittedFrames + ");",
                                "discarding keyframes"));
     report.discarded_keyframes = db.changes();
+    // Log records after the checkpoint stay: a resume replays them (and re-records their poses
+    // and keyframes). Those it covers were left by a log commit that raced its checkpoint.
+    DF_RETURN_IF_ERROR(db.exec("DELETE FROM frame_log WHERE " + kCommittedFrames + ";",
+                               "discarding covered frame log records"));
+    report.discarded_log_records = db.changes();
     return Status::ok();
   });
 }

@@ -9,7 +9,7 @@
 namespace depthfuse::store::schema {
 
 const char* const kTables[] = {"meta", "checkpoints", "chunks", "chunk_staging", "poses",
-                               "keyframes", nullptr};
+                               "keyframes", "frame_log", nullptr};
 
 namespace {
 
@@ -160,6 +160,34 @@ PRAGMA user_version = 4;
 )sql", ctx);
 }
 
+// Schema 4 -> 5: the frame redo log. Every fused frame's pose, depth and colour are appended at
+// least every second (a commit of a few frames' compressed images), so that durability costs a
+// frame's bytes instead of rewriting every chunk in view; full checkpoints come less often and
+// delete the records they cover. The checksum sits before the images (see migrate_3_to_4).
+Status migrate_4_to_5(sql::Database& db) {
+  return db.exec(R"sql(
+CREATE TABLE frame_log (
+  frame_id INTEGER PRIMARY KEY,
+  utime INTEGER NOT NULL,
+  T_world_cam BLOB NOT NULL,
+  registered INTEGER NOT NULL,
+  fitness REAL NOT NULL,
+  rmse_m REAL NOT NULL,
+  correspondences INTEGER NOT NULL,
+  width INTEGER NOT NULL,
+  height INTEGER NOT NULL,
+  fx REAL NOT NULL,
+  fy REAL NOT NULL,
+  cx REAL NOT NULL,
+  cy REAL NOT NULL,
+  checksum INTEGER NOT NULL,
+  depth BLOB NOT NULL,
+  color BLOB
+);
+PRAGMA user_version = 5;
+)sql", "migrating schema 4 to 5");
+}
+
 }  // namespace
 
 Status create_current(sql::Database& db) {
@@ -170,13 +198,14 @@ Status create_current(sql::Database& db) {
   DF_RETURN_IF_ERROR(db.exec(added_in_v2(), ctx));
   DF_RETURN_IF_ERROR(migrate_2_to_3(db));
   DF_RETURN_IF_ERROR(migrate_3_to_4(db));
+  DF_RETURN_IF_ERROR(migrate_4_to_5(db));
   DF_RETURN_IF_ERROR(db.exec("PRAGMA application_id = " + std::to_string(kApplicationId) + ";", ctx));
   DF_RETURN_IF_ERROR(db.exec("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";", ctx));
   return Status::ok();
 }
 
 Status migrate(sql::Database& db, int from_version) {
-  static_assert(kSchemaVersion == 4, "add the migration step to the new version here");
+  static_assert(kSchemaVersion == 5, "add the migration step to the new version here");
   int v = from_version;
   if (v == 1) {
     DF_RETURN_IF_ERROR(migrate_1_to_2(db));
@@ -189,6 +218,10 @@ Status migrate(sql::Database& db, int from_version) {
   if (v == 3) {
     DF_RETURN_IF_ERROR(migrate_3_to_4(db));
     v = 4;
+  }
+  if (v == 4) {
+    DF_RETURN_IF_ERROR(migrate_4_to_5(db));
+    v = 5;
   }
   if (v != kSchemaVersion)
     return unsupported(db.path() + ": no migration from schema version " +

@@ -43,7 +43,12 @@ struct FusionDaemonConfig {
   double memory_budget_mib = 256.0;         // fused map resident in memory
   double evict_distance_m = 1.5;            // chunks within this of the camera are never evicted
   int evict_min_age_frames = 30;            // chunks seen within this many frames go last
-  double checkpoint_interval_s = 1.0;       // at most this much scanning is lost to a crash
+  // Full checkpoints (every chunk changed since the last); with the frame log, how much a resume
+  // replays at most.
+  double checkpoint_interval_s = 30.0;
+  // The frame redo log's commits: at most about this much scanning is lost to a crash. 0 = no log
+  // (a crash loses what came after the last full checkpoint).
+  double frame_log_interval_s = 1.0;
   int keyframe_every_n_frames = 10;         // depth kept for offline refinement
   double heartbeat_rate_hz = 1.0;
   // The largest depth image the daemon takes, px: frames beyond it are refused before decoding.

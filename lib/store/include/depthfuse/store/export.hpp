@@ -25,6 +25,9 @@ struct ExportOptions {
   bool with_color = true;
   bool with_fusion_stats = true;             // merges, violations, uncertainty_m
   bool skip_damaged = false;                 // salvage: leave out chunks that fail their checks
+  // Chunks that replace the file's chunks of the same keys, or add to them: the frame redo log
+  // folded in (replay_frame_log) for a scan killed and not resumed. Not owned.
+  const PointMap* replacing = nullptr;
 };
 
 // Marks in *keep the points of `a` that pass the filters (min_merges, bbox_m); returns how many.
@@ -42,7 +45,9 @@ struct ExportReport {
 Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
                                   const ExportOptions& options = {});
 
-// The poses of the last checkpoint as a TUM trajectory (timestamps from utime).
-Status export_trajectory(ScanStore& store, const std::string& path);
+// The poses of the last checkpoint as a TUM trajectory (timestamps from utime), then `logged`
+// (the frame redo log's, LogReplay::poses).
+Status export_trajectory(ScanStore& store, const std::string& path,
+                         const std::vector<PoseRecord>& logged = {});
 
 }  // namespace depthfuse::store

@@ -44,6 +44,10 @@ struct MapPagerConfig {
   int load_subsample_px = 4;              // prepare() looks at every n-th pixel in u and v
   int retry_after_failure_calls = 30;     // after a failed write, skip eviction this many calls
   bool release_memory_to_os = true;       // malloc_trim after evicting, so RSS follows the budget
+  // Loads take a staged copy over the committed one (the pager's own evictions). False: only
+  // committed chunks, for a reader that replays the frame log of a file killed mid-scan (its
+  // staged chunks belong to the frames it replays).
+  bool read_staged = true;
 };
 
 struct PagerStats {

@@ -22,6 +22,18 @@
 namespace depthfuse::store {
 
 class CheckpointWriter;
+class FrameLogWriter;
+
+// The frame redo log's thread: what it has done (RecorderStatus::frame_log).
+struct FrameLogStats {
+  uint64_t frames_logged = 0;            // committed to the file by this process
+  uint32_t last_logged_frame = 0;        // newest committed record
+  size_t frames_waiting = 0;             // pushed, not yet committed
+  uint64_t encoded_bytes_waiting = 0;
+  uint64_t commits = 0, failures = 0, frames_dropped = 0;
+  double encode_seconds = 0, write_seconds = 0;  // thread time so far
+  std::string last_error;
+};
 
 struct RecorderConfig {
   bool bounded_memory = true;        // run the MapPager
@@ -32,6 +44,23 @@ struct RecorderConfig {
   // every second, so speed counts for more than the last few percent of size.
   int background_compression_level = 1;
   StoreOptions store;
+  // The frame redo log (docs/checkpoint-format.md): every recorded frame's pose, depth and colour,
+  // encoded and committed by a thread of the recorder at least every frame_log_interval_s, so that
+  // a crash loses about that much of the scan while full checkpoints (which rewrite every chunk
+  // changed since the last) come seldom. 0 = no log: a crash loses what came after the last
+  // checkpoint.
+  double frame_log_interval_s = 0.0;
+  // Raw frames waiting for the log's thread (then record_frame waits), and the encoded frames'
+  // size at which they are committed early. Small: both count in the daemon's per-frame budget,
+  // and the thread encodes a frame as it comes.
+  size_t frame_log_queue_frames = 1;
+  size_t frame_log_commit_bytes = 1u << 20;
+  int frame_log_compression_level = 1;
+  // What the frame log holds in memory at most, for frames of `pixels` pixels, bytes: the raw
+  // frames waiting and the one being encoded (depth as float, colour RGB), the encoded frames
+  // waiting and those in the transaction (each up to the commit size and one more record, at
+  // most its 16-bit depth and RGB).
+  static size_t frame_log_bytes(const RecorderConfig& config, size_t pixels);
 };
 
 // Frame counters the daemon keeps (queue drops happen before the recorder sees a frame).
@@ -52,6 +81,7 @@ struct RecorderStatus {
   // thread's (encoding the chunks; the transaction and its fsync).
   double last_snapshot_seconds = 0.0;
   double last_encode_seconds = 0.0, last_write_seconds = 0.0;
+  double total_encode_seconds = 0.0, total_write_seconds = 0.0;  // all background checkpoints
   size_t last_checkpoint_chunks = 0;         // chunks the last checkpoint wrote
   PagerStats pager;
   StatusCode last_error_code = StatusCode::kOk;
@@ -61,6 +91,7 @@ struct RecorderStatus {
   std::string checkpoint_error;
   StatusCode checkpoint_error_code = StatusCode::kOk;
   uint64_t checkpoint_failures = 0;
+  FrameLogStats frame_log;                   // the frame redo log's thread (when it runs)
 };
 
 // Where a resumed scan continues.
@@ -71,6 +102,8 @@ struct ResumePoint {
   ScanMetadata metadata;
   std::optional<CheckpointRecord> checkpoint;
   OpenReport open_report;                    // what was discarded (work after the checkpoint)
+  // The frame redo log's records after the checkpoint: ScanRecorder::replay_log() fuses them.
+  FrameLogSummary frame_log;
 };
 
 // What ScanRecorder::restore_keyframes() did.
@@ -113,6 +146,18 @@ class ScanRecorder {
   Result<KeyframeRestoreReport> restore_keyframes(IncrementalReconstructor& reconstructor,
                                                   bool load_views = true);
 
+  // The second half of a resume, after reconstructor.reset(map, next_frame_id, pose) from the
+  // ResumePoint: fuses the frame redo log's records after the checkpoint, in frame order, each at
+  // its stored pose (no tracking), and records them (poses, keyframes, paging) as if just fused,
+  // so that the map, the next frame id and the last pose are those of the last logged frame.
+  // Returns how many frames it replayed. A damaged record ends the replay (the frames before it
+  // count) and is logged; it and the records after it are dropped. Until it has run, a resumed
+  // recorder refuses record_frame() when the file has records to replay.
+  Result<size_t> replay_log(IncrementalReconstructor& reconstructor);
+  // Waits until every recorded frame's log record is committed (tests; a clean stop needs none:
+  // finish() writes a checkpoint). Ok without a log.
+  Status flush_frame_log();
+
   // Before IncrementalReconstructor::process(frame): brings back the evicted chunks the frame can
   // touch (bounded memory only; free otherwise). The pose guess is the frame's hint, else
   // `prediction`, else the reconstructor's last pose.
@@ -149,6 +194,8 @@ class ScanRecorder {
   ScanStore& store() { return *store_; }
   MapPager* pager() { return pager_.get(); }
   uint32_t last_frame_id() const { return last_frame_id_; }
+  // Recorded since the last checkpoint (after replay_log: the replayed frames' too).
+  const std::vector<PoseRecord>& pending_poses() const { return pending_poses_; }
 
  private:
   ScanRecorder(std::unique_ptr<ScanStore> store, const RecorderConfig& config);
@@ -184,6 +231,9 @@ class ScanRecorder {
   // The store is shared with the background writer's thread: every use holds this mutex.
   mutable std::mutex mutex_;
   std::unique_ptr<CheckpointWriter> writer_;  // created by the first background checkpoint
+  std::unique_ptr<FrameLogWriter> frame_log_;  // with frame_log_interval_s > 0
+  bool replay_pending_ = false;              // resumed with log records not yet replayed
+  bool replaying_ = false;                   // replay_log() records frames that are logged already
 };
 
 }  // namespace depthfuse::store

@@ -31,7 +31,7 @@
 
 namespace depthfuse::store {
 
-constexpr int kSchemaVersion = 4;                 // PRAGMA user_version of files written now
+constexpr int kSchemaVersion = 5;                 // PRAGMA user_version of files written now
 constexpr int32_t kApplicationId = 0x44465343;    // PRAGMA application_id: "DFSC"
 
 enum class OpenMode {
@@ -112,6 +112,32 @@ struct EncodedChunk {
 };
 Status encode_chunk(BlobCodec& codec, const ChunkKey& key, const Chunk& chunk, EncodedChunk* out);
 
+// One fused frame of the frame redo log, encoded: what replaying it needs. Its pose is the one it
+// was fused at (no tracking on replay), its depth and colour the DFB1 blobs of keyframes.
+struct FrameLogRecord {
+  PoseRecord pose;                           // frame id, utime, T_world_cam as fused, ICP figures
+  CameraIntrinsics intrinsics;
+  std::vector<uint8_t> depth;                // DFB1 depth (lossless)
+  std::vector<uint8_t> color;                // DFB1 colour; empty when the frame had none
+};
+// Encodes `frame` (fused as `pose`) into `out`, reusing its buffers.
+Status encode_frame_log_record(BlobCodec& codec, const PoseRecord& pose, const Frame& frame,
+                               FrameLogRecord* out);
+
+// A logged frame decoded: the frame (no pose hint) and the pose it was fused at.
+struct LoggedFrame {
+  PoseRecord pose;
+  Frame frame;
+};
+
+// The redo log's records after the last checkpoint: what a resume replays.
+struct FrameLogSummary {
+  size_t count = 0;
+  uint32_t first_frame_id = 0, last_frame_id = 0;   // 0 when empty
+  size_t stale = 0;                          // covered by the last checkpoint (a writer drops them)
+  uint64_t bytes = 0;                        // stored blob sizes of the `count` records
+};
+
 // "Every frame": a checkpoint that takes all staged chunks.
 constexpr uint32_t kAllFrames = 0xFFFFFFFFu;
 
@@ -144,6 +170,7 @@ struct OpenReport {
   bool migrated = false;
   size_t discarded_staged_chunks = 0;        // staged after the last checkpoint (crash)
   size_t discarded_poses = 0, discarded_keyframes = 0;
+  size_t discarded_log_records = 0;          // redo log records the last checkpoint covers
 };
 
 struct StoreSummary {
@@ -171,6 +198,10 @@ struct IntegrityReport {
   size_t poses_unchecked = 0;
   // Keyframe and checkpoint rows written before schema 4, whose poses have no checksum.
   size_t keyframes_unchecked = 0, checkpoints_unchecked = 0;
+  // The frame redo log after the last checkpoint: records whose checksum and blobs were checked,
+  // and its summary.
+  size_t log_records_checked = 0;
+  FrameLogSummary frame_log;
 };
 
 // Chunk iteration options.
@@ -224,6 +255,22 @@ class ScanStore {
   // Inside a checkpoint it joins it; outside, its own (not fsynced) transaction. Keyframes newer
   // than the last checkpoint are discarded when a writer reopens after a crash.
   Status write_keyframe(const Keyframe& keyframe);
+
+  // ---- The frame redo log (scan_store_frame_log.cpp). Records are appended in one transaction
+  // committed with a full sync (inside an open checkpoint they join it); a checkpoint's commit
+  // deletes the records its frames cover. Readers and resumes use only the records after the last
+  // checkpoint.
+  Status append_frame_log(const std::vector<FrameLogRecord>& records);
+  Result<FrameLogSummary> frame_log_summary();
+  // The records after the last checkpoint in frame order, each checked (row checksum, blobs) and
+  // decoded before `fn` sees it. A record that fails a check ends the iteration with its kCorrupt
+  // status naming the frame, after `fn` had every record before it.
+  // `after_frame_id` and `limit` read a part: the records after that frame, at most `limit`.
+  Status for_each_logged_frame(const std::function<Status(LoggedFrame&)>& fn,
+                               uint32_t after_frame_id = 0, size_t limit = 0);
+  // Drops the records from `frame_id` on (a resume after a damaged record: they cannot be
+  // replayed, and the frames fused next take their ids).
+  Status discard_frame_log_from(uint32_t frame_id);
 
   // ---- Staging for the memory pager: one transaction for the batch; not allowed inside a
   // checkpoint (a rollback would lose chunks already dropped from memory).

@@ -1,0 +1,316 @@
+// The frame redo log (docs/checkpoint-format.md): a recorder killed after log-only commits resumes
+// to exactly the map, next frame id and pose it had; export of the killed file folds the logged
+// frames in; a damaged record is named and the records before it still count; a schema-4 file
+// opens (migrated).
+#include <gtest/gtest.h>
+#include <sqlite3.h>
+
+#include <map>
+#include <tuple>
+
+#include "depthfuse/pipeline.hpp"
+#include "depthfuse/store/export.hpp"
+#include "depthfuse/store/frame_log_replay.hpp"
+#include "depthfuse/store/scan_recorder.hpp"
+#include "store_test_util.hpp"
+
+using namespace depthfuse;
+using namespace depthfuse::store;
+using test::bit_equal;
+using test::TempDir;
+
+namespace {
+
+struct KeyLess {
+  bool operator()(const ChunkKey& a, const ChunkKey& b) const {
+    return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
+  }
+};
+using ChunkContents = std::map<ChunkKey, PointArrays, KeyLess>;
+
+ReconstructionConfig config() { return ReconstructionConfig{}.with_method(Method::kFull); }
+
+RecorderConfig logging_config() {
+  RecorderConfig rc;
+  rc.bounded_memory = false;  // the whole map stays in memory: compared chunk by chunk
+  rc.keyframe_every_n_frames = 5;
+  rc.frame_log_interval_s = 0.05;
+  return rc;
+}
+
+ChunkContents contents(const PointMap& map) {
+  ChunkContents out;
+  map.for_each_chunk([&](const ChunkKey& k, const Chunk& c) {
+    if (!c.points.empty()) out[k] = c.points;
+  });
+  return out;
+}
+
+size_t point_total(const ChunkContents& c) {
+  size_t n = 0;
+  for (const auto& [k, a] : c) n += a.size();
+  return n;
+}
+
+void expect_same_cloud(const ChunkContents& got, const ChunkContents& want) {
+  EXPECT_EQ(got.size(), want.size());
+  size_t different = 0, missing = 0;
+  for (const auto& [k, a] : want) {
+    auto it = got.find(k);
+    if (it == got.end()) ++missing;
+    else if (!bit_equal(it->second, a)) ++different;
+  }
+  EXPECT_EQ(missing, 0u);
+  EXPECT_EQ(different, 0u) << "of " << want.size() << " chunks (" << point_total(want) << " points)";
+}
+
+// What the live reconstructor had when its recorder was "killed".
+struct Killed {
+  ChunkContents cloud;
+  uint32_t next_frame_id = 0;
+  Pose last_pose = Pose::Identity();
+  uint32_t checkpoint_frame = 0;   // the last full checkpoint's
+  size_t logged = 0;               // frames after it
+};
+
+// Fuses `n` corridor frames into a new scan at `path` with a full checkpoint after frame
+// `checkpoint_after`, then commits the log and destroys the recorder without finish() (a crash
+// after the log's last commit).
+Killed run_and_kill(const std::string& path, int n, int checkpoint_after) {
+  Killed k;
+  test::Corridor corridor;
+  corridor.length_m = 8.0;
+  IncrementalReconstructor live(config());
+  ScanMetadata meta;
+  meta.scan_id = "log";
+  meta.chunk_size_m = config().fusion.chunk_size_m;
+  auto rec = ScanRecorder::create(path, meta, "", "", logging_config());
+  EXPECT_TRUE(rec) << rec.status().to_string();
+  if (!rec) return k;
+  for (int i = 0; i < n; ++i) {
+    const Frame f = corridor.render(corridor.pose(i, n), test::small_camera(), static_cast<uint32_t>(i));
+    EXPECT_TRUE((*rec)->prepare_frame(f, live));
+    auto rep = live.process(f);
+    EXPECT_TRUE(rep) << rep.status().to_string();
+    if (!rep || !rep->fused()) continue;
+    EXPECT_TRUE((*rec)->record_frame(f, *rep, &live.map()));
+    if (i == checkpoint_after) {
+      auto cp = (*rec)->checkpoint(&live.map(), "periodic");
+      EXPECT_TRUE(cp) << cp.status().to_string();
+      if (cp) k.checkpoint_frame = cp->last_frame_id;
+    } else if (i > checkpoint_after) {
+      ++k.logged;
+    }
+  }
+  const Status flushed = (*rec)->flush_frame_log();
+  EXPECT_TRUE(flushed) << flushed.to_string();
+  // Those before the checkpoint may have been dropped unwritten once it committed.
+  EXPECT_GE((*rec)->status().frame_log.frames_logged, static_cast<uint64_t>(k.logged));
+  k.cloud = contents(live.map());
+  k.next_frame_id = live.next_frame_id();
+  k.last_pose = *live.last_pose();
+  rec->reset();  // killed: no finish(), no checkpoint
+  return k;
+}
+
+// The CLI's exit code; its output in *out.
+int run_cli(const std::string& args, std::string* out) {
+  const test::Proc r = test::run(std::string(DEPTHFUSE_CLI) + " " + args);
+  *out = r.output;
+  return r.code;
+}
+
+void exec_sql(const std::string& path, const std::string& sql) {
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+  char* err = nullptr;
+  const int rc = sqlite3_exec(db, sql.c_str(), nullptr, nullptr, &err);
+  EXPECT_EQ(rc, SQLITE_OK) << (err ? err : "");
+  sqlite3_free(err);
+  sqlite3_close(db);
+}
+
+TEST(FrameLog, KilledAfterLogOnlyCommitsResumesToTheSameMapAndFrameId) {
+  TempDir dir;
+  const std::string path = dir.file("scan.db");
+  const Killed k = run_and_kill(path, 40, 9);
+  ASSERT_GT(k.logged, 20u);
+  ASSERT_EQ(k.checkpoint_frame, 10u);
+
+  {
+    // Killed and not resumed: the file says what its log holds, and every record checks.
+    auto ro = ScanStore::open(path, OpenMode::kReadOnly);
+    ASSERT_TRUE(ro) << ro.status().to_string();
+    auto log = (*ro)->frame_log_summary();
+    ASSERT_TRUE(log) << log.status().to_string();
+    EXPECT_EQ(log->count, k.logged);
+    EXPECT_EQ(log->first_frame_id, k.checkpoint_frame + 1);
+    EXPECT_EQ(log->last_frame_id, k.next_frame_id - 1);
+    // (Records of the checkpoint's frames committed after it, log->stale, are left to the next
+    // writer: the two threads race.)
+    auto integrity = (*ro)->integrity_check();
+    ASSERT_TRUE(integrity) << integrity.status().to_string();
+    EXPECT_TRUE(integrity->ok()) << integrity->problems.front();
+    EXPECT_EQ(integrity->log_records_checked, k.logged);
+  }
+
+  ResumePoint at;
+  RecorderConfig rc = logging_config();
+  auto rec = ScanRecorder::resume(path, rc, &at);
+  ASSERT_TRUE(rec) << rec.status().to_string();
+  EXPECT_EQ(at.next_frame_id, k.checkpoint_frame + 1);
+  EXPECT_EQ(at.frame_log.count, k.logged);
+  IncrementalReconstructor resumed(config());
+  resumed.reset(std::move(at.map), at.next_frame_id, at.last_T_world_cam);
+  // Until the log is replayed, recording would give new frames the logged frames' ids.
+  FrameReport early;
+  early.frame_id = at.next_frame_id;
+  EXPECT_FALSE((*rec)->record_frame(Frame{}, early, &resumed.map()));
+  auto replayed = (*rec)->replay_log(resumed);
+  ASSERT_TRUE(replayed) << replayed.status().to_string();
+  EXPECT_EQ(*replayed, k.logged);
+  EXPECT_EQ(resumed.next_frame_id(), k.next_frame_id);
+  ASSERT_TRUE(resumed.last_pose());
+  EXPECT_TRUE(resumed.last_pose()->matrix() == k.last_pose.matrix());
+  expect_same_cloud(contents(resumed.map()), k.cloud);
+  // The replayed frames' poses are recorded again, for the next checkpoint.
+  EXPECT_EQ((*rec)->pending_poses().size(), k.logged);
+  EXPECT_EQ((*rec)->last_frame_id(), k.next_frame_id - 1);
+  // A checkpoint now holds them, and drops their records.
+  auto cp = (*rec)->checkpoint(&resumed.map(), "periodic");
+  ASSERT_TRUE(cp) << cp.status().to_string();
+  EXPECT_EQ(cp->last_frame_id, k.next_frame_id - 1);
+  auto log = (*rec)->store().frame_log_summary();
+  ASSERT_TRUE(log);
+  EXPECT_EQ(log->count + log->stale, 0u);
+  EXPECT_TRUE((*rec)->store().frame_problems().empty());
+}
+
+TEST(FrameLog, ExportOfAKilledUnresumedFileFoldsTheLoggedFramesIn) {
+  TempDir dir;
+  const std::string path = dir.file("scan.db");
+  const Killed k = run_and_kill(path, 40, 9);
+  ASSERT_GT(k.logged, 20u);
+  auto ro = ScanStore::open(path, OpenMode::kReadOnly);
+  ASSERT_TRUE(ro) << ro.status().to_string();
+  auto replay = replay_frame_log(**ro, config());
+  ASSERT_TRUE(replay) << replay.status().to_string();
+  EXPECT_TRUE(replay->damaged) << replay->damaged.to_string();
+  EXPECT_EQ(replay->poses.size(), k.logged);
+  // The folded chunks with the file's others are the live map.
+  ChunkContents got;
+  ASSERT_TRUE((*ro)->for_each_chunk([&](const ChunkInfo& info, PointArrays& a) {
+    got[info.key] = std::move(a);
+    return Status::ok();
+  }));
+  const size_t checkpoint_points = point_total(got);
+  for (auto& [key, c] : contents(*replay->map)) got[key] = c;
+  expect_same_cloud(got, k.cloud);
+  ExportOptions options;
+  options.replacing = replay->map.get();
+  auto exported = export_cloud(**ro, dir.file("cloud.ply"), options);
+  ASSERT_TRUE(exported) << exported.status().to_string();
+  EXPECT_EQ(exported->points_written, point_total(k.cloud));
+  EXPECT_GT(exported->points_written, checkpoint_points) << "the logged frames added points";
+  auto plain = export_cloud(**ro, dir.file("checkpoint.ply"));
+  ASSERT_TRUE(plain);
+  EXPECT_EQ(plain->points_written, checkpoint_points);
+
+  // The CLI does the same, and says so.
+  std::string out;
+  EXPECT_EQ(run_cli("export " + path + " -o " + dir.file("cli.ply"), &out), 0) << out;
+  EXPECT_NE(out.find("wrote " + std::to_string(point_total(k.cloud)) + " points"), std::string::npos) << out;
+  EXPECT_NE(out.find(std::to_string(k.logged) + " logged frames folded in"), std::string::npos) << out;
+  EXPECT_NE(run_cli("export " + path + " --mesh -o " + dir.file("mesh.ply"), &out), 0);
+  EXPECT_NE(out.find("depthfuse inspect --fold-log"), std::string::npos) << out;
+  EXPECT_EQ(run_cli("inspect " + path, &out), 0) << out;
+  EXPECT_NE(out.find("frame log      " + std::to_string(k.logged) + " frames (" +
+                     std::to_string(k.checkpoint_frame + 1) + "-" + std::to_string(k.next_frame_id - 1) + ")"),
+            std::string::npos) << out;
+  EXPECT_NE(out.find(std::to_string(k.logged) + " frame log records decoded and checksummed"),
+            std::string::npos) << out;
+}
+
+TEST(FrameLog, DamagedRecordIsNamedAndTheRecordsBeforeItAreReplayed) {
+  TempDir dir;
+  const std::string path = dir.file("scan.db");
+  const Killed k = run_and_kill(path, 40, 9);
+  ASSERT_GT(k.logged, 20u);
+  const uint32_t bad = k.checkpoint_frame + 15;
+  exec_sql(path, "UPDATE frame_log SET checksum = checksum + 1 WHERE frame_id = " + std::to_string(bad) + ";");
+  {
+    auto ro = ScanStore::open(path, OpenMode::kReadOnly);
+    ASSERT_TRUE(ro);
+    auto integrity = (*ro)->integrity_check();
+    ASSERT_TRUE(integrity);
+    ASSERT_FALSE(integrity->ok());
+    bool named = false;
+    for (const std::string& p : integrity->problems)
+      named |= p.find("frame log record of frame " + std::to_string(bad) + ": checksum mismatch") !=
+               std::string::npos;
+    EXPECT_TRUE(named) << integrity->problems.front();
+    EXPECT_EQ(integrity->log_records_checked, 14u);
+    auto replay = replay_frame_log(**ro, config());
+    ASSERT_TRUE(replay) << replay.status().to_string();
+    EXPECT_EQ(replay->damaged.code(), StatusCode::kCorrupt);
+    EXPECT_EQ(replay->poses.size(), 14u);
+  }
+  ResumePoint at;
+  auto rec = ScanRecorder::resume(path, logging_config(), &at);
+  ASSERT_TRUE(rec) << rec.status().to_string();
+  IncrementalReconstructor resumed(config());
+  resumed.reset(std::move(at.map), at.next_frame_id, at.last_T_world_cam);
+  auto replayed = (*rec)->replay_log(resumed);
+  ASSERT_TRUE(replayed) << replayed.status().to_string();
+  EXPECT_EQ(*replayed, 14u);
+  EXPECT_EQ(resumed.next_frame_id(), bad);
+  // The damaged record and those after it are gone: the next frames take their ids.
+  auto log = (*rec)->store().frame_log_summary();
+  ASSERT_TRUE(log);
+  EXPECT_EQ(log->last_frame_id, bad - 1);
+}
+
+TEST(FrameLog, SchemaFourFileOpensMigrated) {
+  TempDir dir;
+  const std::string path = dir.file("v4.db");
+  {
+    auto s = ScanStore::open(path, OpenMode::kCreate);
+    ASSERT_TRUE(s) << s.status().to_string();
+    ASSERT_TRUE((*s)->begin_checkpoint());
+    PoseRecord p;
+    p.frame_id = 1;
+    p.utime = 7;
+    ASSERT_TRUE((*s)->write_pose(p));
+    CheckpointInfo info;
+    info.last_frame_id = 1;
+    info.frames_fused = 1;
+    ASSERT_TRUE((*s)->commit_checkpoint(info));
+  }
+  // Schema 5 is schema 4 and the frame_log table: without it, the file is what schema 4 wrote.
+  exec_sql(path, "DROP TABLE frame_log; PRAGMA user_version = 4;");
+  auto ro = ScanStore::open(path, OpenMode::kReadOnly);
+  ASSERT_FALSE(ro);
+  EXPECT_NE(ro.status().message().find("depthfuse inspect --upgrade"), std::string::npos)
+      << ro.status().to_string();
+  {
+    auto rw = ScanStore::open(path, OpenMode::kReadWrite);
+    ASSERT_TRUE(rw) << rw.status().to_string();
+    EXPECT_TRUE((*rw)->open_report().migrated);
+    EXPECT_EQ((*rw)->open_report().found_schema_version, 4);
+    EXPECT_EQ((*rw)->schema_version(), kSchemaVersion);
+  }
+  auto after = ScanStore::open(path, OpenMode::kReadOnly);
+  ASSERT_TRUE(after) << after.status().to_string();
+  auto log = (*after)->frame_log_summary();
+  ASSERT_TRUE(log) << log.status().to_string();
+  EXPECT_EQ(log->count, 0u);
+  auto poses = (*after)->read_poses();
+  ASSERT_TRUE(poses);
+  ASSERT_EQ(poses->size(), 1u);
+  EXPECT_EQ((*poses)[0].utime, 7);
+  auto integrity = (*after)->integrity_check();
+  ASSERT_TRUE(integrity);
+  EXPECT_TRUE(integrity->ok());
+}
+
+}  // namespace
