@@ -258,8 +258,9 @@ Result<std::unique_ptr<PointMap>> fuse_all(const std::vector<Frame>& frames,
                                            const std::string& stage) {
   SequenceFuser fuser(c);
   for (size_t i = 0; i < frames.size(); ++i) {
-    DF_RETURN_IF_ERROR(fuser.add(frames[i], poses[i], i < velocities.size() ? &velocities[i] : nullptr)
-                           .with_context("frame " + std::to_string(i)));
+    const CameraVelocity* velocity = i < velocities.size() ? &velocities[i] : nullptr;
+    DF_RETURN_IF_ERROR(
+        fuser.add(frames[i], poses[i], velocity).with_context("frame " + std::to_string(i)));
     if (progress) progress(stage, i + 1, frames.size());
   }
   *prefiltered = fuser.prefiltered();
@@ -292,8 +293,8 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
   ReconstructionConfig c_refine = c;
   if (rounds > 0) c_refine.fusion.redundancy_gate = 0.0;
 
-  // A rolling-shutter camera's frames are each taken over a motion: the velocities the current
-  // poses give undo it (camera_velocities is empty-handed for a global shutter: nothing to undo).
+  // A rolling-shutter camera's frames are each taken over a motion, which the velocities the
+  // current poses give undo (docs/architecture.md). For a global shutter none are computed.
   const bool rolling_shutter = std::any_of(frames.begin(), frames.end(), [](const Frame& f) {
     return f.intrinsics.row_readout_s > 0.0;
   });
@@ -303,8 +304,8 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
   std::vector<CameraVelocity> velocities = velocities_of(result.T_world_cam);
 
   auto t0 = Clock::now();
-  auto fused = fuse_all(frames, result.T_world_cam, velocities, c_refine, &result.prefiltered, &measurements,
-                        progress, "fusion 0");
+  auto fused = fuse_all(frames, result.T_world_cam, velocities, c_refine, &result.prefiltered,
+                        &measurements, progress, "fusion 0");
   if (!fused) return fused.status();
   result.map = std::move(fused.value());
   result.input_measurements = measurements;
@@ -321,7 +322,8 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
     std::vector<Pose> refined = result.T_world_cam;
     size_t registered = 0;
     for (size_t i = 0; i < frames.size(); ++i) {
-      Result<size_t> r = measure(frames[i], c, &m, i < velocities.size() ? &velocities[i] : nullptr);
+      Result<size_t> r =
+          measure(frames[i], c, &m, i < velocities.size() ? &velocities[i] : nullptr);
       if (!r) return r.status();
       // The first round starts from the initial poses, which may be several centimetres off:
       // coarse to fine, with wider correspondence gates. Later rounds only refine.
@@ -348,8 +350,8 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
     }
     result.T_world_cam = refined;
     velocities = velocities_of(result.T_world_cam);
-    fused = fuse_all(frames, result.T_world_cam, velocities, c_refine, &result.prefiltered, &measurements,
-                     progress, "fusion " + std::to_string(round));
+    fused = fuse_all(frames, result.T_world_cam, velocities, c_refine, &result.prefiltered,
+                     &measurements, progress, "fusion " + std::to_string(round));
     if (!fused) return fused.status();
     result.map = std::move(fused.value());
     rep.points = result.map->point_count();

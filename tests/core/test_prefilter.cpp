@@ -189,8 +189,11 @@ TEST(RollingShutter, UndoneWithTheVelocityAFrontalWallIsFlat) {
   DepthImage undone;
   ASSERT_TRUE(undo_rolling_shutter(f, velocity, &undone));
   ASSERT_EQ(undone.width, K.width);
-  for (int v = 0; v < K.height; v += 7)
-    for (int u = 0; u < K.width; u += 7) ASSERT_NEAR(undone.at(u, v), wall_m, 1e-5) << u << "," << v;
+  // Inside the image; at its border a pixel whose source lies outside (the wall grows as the
+  // camera nears it: by up to a pixel here) has no depth.
+  for (int v = 4; v < K.height - 4; v += 7)
+    for (int u = 4; u < K.width - 4; u += 7)
+      ASSERT_NEAR(undone.at(u, v), wall_m, 1e-5) << u << "," << v;
 
   // A global shutter, or no motion: nothing to undo.
   f.intrinsics.row_readout_s = 0.0;
