@@ -128,6 +128,12 @@ Result<CameraFile> read_camera_file(const std::string& path) {
     const std::string where = path + ":" + std::to_string(node.source().begin.line) + ": camera." + k;
     const std::optional<double> v = node.value<double>();
     if (!v) return invalid_argument(where + ": expected a number");
+    if (k == "row_readout_s") {
+      // 0 is a global shutter; a rolling shutter reads its rows within a frame period.
+      if (!(*v >= 0.0 && *v <= 1.0)) return invalid_argument(where + ": must be in [0, 1] s");
+      out.intrinsics.row_readout_s = *v;
+      continue;
+    }
     if (!(*v > 0) || !std::isfinite(*v)) return invalid_argument(where + ": must be > 0");
     if (k == "width") out.intrinsics.width = static_cast<int>(*v);
     else if (k == "height") out.intrinsics.height = static_cast<int>(*v);

@@ -182,6 +182,60 @@ int clamp_radius(int r) { return std::clamp(r, 1, 3); }
 
 }  // namespace
 
+std::vector<CameraVelocity> camera_velocities(const std::vector<Frame>& frames,
+                                              const std::vector<Pose>& T_world_cam) {
+  const size_t n = std::min(frames.size(), T_world_cam.size());
+  std::vector<CameraVelocity> out(n);
+  for (size_t i = 0; i < n && n > 1; ++i) {
+    const size_t k = i > 0 ? i - 1 : i, j = i + 1 < n ? i + 1 : i;
+    const double dt_s = static_cast<double>(frames[j].utime - frames[k].utime) * 1e-6;
+    if (!(dt_s > 0.0)) continue;
+    const Eigen::Matrix3d R_cam_world = T_world_cam[i].linear().transpose();
+    const Eigen::AngleAxisd turn(T_world_cam[j].linear() * T_world_cam[k].linear().transpose());
+    out[i].omega_cam_rad_s = R_cam_world * (turn.angle() * turn.axis()) / dt_s;
+    out[i].v_cam_m_s =
+        R_cam_world * (T_world_cam[j].translation() - T_world_cam[k].translation()) / dt_s;
+  }
+  return out;
+}
+
+bool undo_rolling_shutter(const Frame& frame, const CameraVelocity& velocity, DepthImage* out) {
+  const CameraIntrinsics& K = frame.intrinsics;
+  const DepthImage& D = frame.depth;
+  const double readout_s = K.row_readout_s;
+  if (!(readout_s > 0.0) || !K.valid() || D.width != K.width || D.height != K.height ||
+      (velocity.omega_cam_rad_s.isZero() && velocity.v_cam_m_s.isZero()))
+    return false;
+  const int W = D.width, H = D.height;
+  // A point seen at row v, taken dt = (row time - middle row's time) later, is, in the camera at
+  // the middle row's time, p + dt (omega x p + v) (first order: a few millimetres).
+  auto at_mid_time = [&](int u, int v, double z) {
+    const Eigen::Vector3d p((u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z);
+    const double dt_s = ((v + 0.5) / H - 0.5) * readout_s;
+    return Eigen::Vector3d(p + dt_s * (velocity.omega_cam_rad_s.cross(p) + velocity.v_cam_m_s));
+  };
+  DepthImage warped(W, H);
+  for (int v = 0; v < H; ++v) {
+    for (int u = 0; u < W; ++u) {
+      // The source pixel: this pixel moved back by the shift of its own point (the shift varies
+      // slowly over the image, so the source's is nearly the same).
+      int us = u, vs = v;
+      const float z = D.at(u, v);
+      if (std::isfinite(z) && z > 0.0f) {
+        const Eigen::Vector3d p = at_mid_time(u, v, z);
+        us = static_cast<int>(std::lround(2.0 * u - (K.fx * p.x() / p.z() + K.cx)));
+        vs = static_cast<int>(std::lround(2.0 * v - (K.fy * p.y() / p.z() + K.cy)));
+      }
+      if (us < 0 || us >= W || vs < 0 || vs >= H) continue;
+      const float zs = D.at(us, vs);
+      if (!(std::isfinite(zs) && zs > 0.0f)) continue;
+      warped.at(u, v) = static_cast<float>(at_mid_time(us, vs, zs).z());
+    }
+  }
+  *out = std::move(warped);
+  return true;
+}
+
 double reference_knn_distance_per_m(const CameraIntrinsics& K, int neighbour_rank,
                                     int window_radius_px) {
   // A constant depth map at 1 m, back-projected; average the k-th neighbour distance over a grid

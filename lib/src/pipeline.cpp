@@ -23,7 +23,20 @@ inline double ms_since(Clock::time_point t0) {
 // The per-frame path before registration and fusion, the same for a live frame and for every pass
 // of the batch loop: back-projection, normals and (if the method has it) the pre-filter. Returns
 // how many measurements the pre-filter removed.
-Result<size_t> measure(const Frame& frame, const ReconstructionConfig& c, MeasurementImage* m) {
+// `velocity`, where the pose sequence gives it, undoes a rolling shutter first (the batch loop:
+// frame by frame, the camera's motion through a frame is not known when it is fused).
+Result<size_t> measure(const Frame& frame, const ReconstructionConfig& c, MeasurementImage* m,
+                       const CameraVelocity* velocity = nullptr) {
+  if (velocity && frame.intrinsics.row_readout_s > 0.0) {
+    Frame at_mid_row;
+    at_mid_row.utime = frame.utime;
+    at_mid_row.intrinsics = frame.intrinsics;
+    if (undo_rolling_shutter(frame, *velocity, &at_mid_row.depth)) {
+      at_mid_row.color = frame.color;
+      DF_RETURN_IF_ERROR(backproject(at_mid_row, c.sensor, c.fusion, m));
+      return prefilter(c.prefilter, m, c.fusion.threads);
+    }
+  }
   DF_RETURN_IF_ERROR(backproject(frame, c.sensor, c.fusion, m));
   return prefilter(c.prefilter, m, c.fusion.threads);
 }
@@ -264,8 +277,9 @@ SequenceFuser::SequenceFuser(const ReconstructionConfig& config)
 
 SequenceFuser::~SequenceFuser() = default;
 
-Status SequenceFuser::add(const Frame& frame, const Pose& T_world_cam) {
-  const Result<size_t> removed = measure(frame, config_, &scratch_);
+Status SequenceFuser::add(const Frame& frame, const Pose& T_world_cam,
+                          const CameraVelocity* velocity) {
+  const Result<size_t> removed = measure(frame, config_, &scratch_, velocity);
   if (!removed) return removed.status();
   // The pre-filter only marks measurements invalid: those it removed were valid before.
   measurements_ += scratch_.valid_count() + *removed;
@@ -293,12 +307,15 @@ namespace {
 // Fuses every frame with its pose into a fresh map.
 Result<std::unique_ptr<PointMap>> fuse_all(const std::vector<Frame>& frames,
                                            const std::vector<Pose>& poses,
+                                           const std::vector<CameraVelocity>& velocities,
                                            const ReconstructionConfig& c, size_t* prefiltered,
                                            size_t* measurements, const ProgressFn& progress,
                                            const std::string& stage) {
   SequenceFuser fuser(c);
   for (size_t i = 0; i < frames.size(); ++i) {
-    DF_RETURN_IF_ERROR(fuser.add(frames[i], poses[i]).with_context("frame " + std::to_string(i)));
+    const CameraVelocity* velocity = i < velocities.size() ? &velocities[i] : nullptr;
+    DF_RETURN_IF_ERROR(
+        fuser.add(frames[i], poses[i], velocity).with_context("frame " + std::to_string(i)));
     if (progress) progress(stage, i + 1, frames.size());
   }
   *prefiltered = fuser.prefiltered();
@@ -331,9 +348,19 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
   ReconstructionConfig c_refine = c;
   if (rounds > 0) c_refine.fusion.redundancy_gate = 0.0;
 
+  // A rolling-shutter camera's frames are each taken over a motion, which the velocities the
+  // current poses give undo (docs/architecture.md). For a global shutter none are computed.
+  const bool rolling_shutter = std::any_of(frames.begin(), frames.end(), [](const Frame& f) {
+    return f.intrinsics.row_readout_s > 0.0;
+  });
+  auto velocities_of = [&](const std::vector<Pose>& poses) {
+    return rolling_shutter ? camera_velocities(frames, poses) : std::vector<CameraVelocity>{};
+  };
+  std::vector<CameraVelocity> velocities = velocities_of(result.T_world_cam);
+
   auto t0 = Clock::now();
-  auto fused = fuse_all(frames, result.T_world_cam, c_refine, &result.prefiltered, &measurements,
-                        progress, "fusion 0");
+  auto fused = fuse_all(frames, result.T_world_cam, velocities, c_refine, &result.prefiltered,
+                        &measurements, progress, "fusion 0");
   if (!fused) return fused.status();
   result.map = std::move(fused.value());
   result.input_measurements = measurements;
@@ -350,7 +377,8 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
     std::vector<Pose> refined = result.T_world_cam;
     size_t registered = 0;
     for (size_t i = 0; i < frames.size(); ++i) {
-      Result<size_t> r = measure(frames[i], c, &m);
+      Result<size_t> r =
+          measure(frames[i], c, &m, i < velocities.size() ? &velocities[i] : nullptr);
       if (!r) return r.status();
       // The first round starts from the initial poses, which may be several centimetres off:
       // coarse to fine, with wider correspondence gates. Later rounds only refine.
@@ -376,8 +404,9 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
       rep.mean_rmse_m /= registered;
     }
     result.T_world_cam = refined;
-    fused = fuse_all(frames, result.T_world_cam, c_refine, &result.prefiltered, &measurements,
-                     progress, "fusion " + std::to_string(round));
+    velocities = velocities_of(result.T_world_cam);
+    fused = fuse_all(frames, result.T_world_cam, velocities, c_refine, &result.prefiltered,
+                     &measurements, progress, "fusion " + std::to_string(round));
     if (!fused) return fused.status();
     result.map = std::move(fused.value());
     rep.points = result.map->point_count();
@@ -390,7 +419,7 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
     }
   }
   if (rounds > 0 && c.fusion.redundancy_gate > 0.0) {
-    fused = fuse_all(frames, result.T_world_cam, c, &result.prefiltered, &measurements,
+    fused = fuse_all(frames, result.T_world_cam, velocities, c, &result.prefiltered, &measurements,
                      progress, "final fusion");
     if (!fused) return fused.status();
     result.map = std::move(fused.value());

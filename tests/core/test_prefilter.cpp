@@ -162,3 +162,67 @@ TEST(Prefilter, TwoThreadsGiveTheSameMeasurements) {
                       &MeasurementImage::nx, &MeasurementImage::ny, &MeasurementImage::nz})
     EXPECT_TRUE(one.*member == two.*member);
 }
+
+// A rolling-shutter camera moving along its optical axis towards a wall: each row is taken from
+// another place, so the wall's depth changes from row to row by the distance travelled. Undone
+// with the camera's velocity, every row sees the wall from where the middle row was taken.
+TEST(RollingShutter, UndoneWithTheVelocityAFrontalWallIsFlat) {
+  CameraIntrinsics K = CameraIntrinsics::kinect_v2();
+  K.row_readout_s = 0.03;
+  const double wall_m = 2.0, speed_m_s = 0.5;
+  Frame f;
+  f.intrinsics = K;
+  f.depth = DepthImage(K.width, K.height);
+  for (int v = 0; v < K.height; ++v) {
+    const double dt_s = ((v + 0.5) / K.height - 0.5) * K.row_readout_s;
+    Pose T = Pose::Identity();
+    T.translation() = Eigen::Vector3d(0, 0, speed_m_s * dt_s);
+    const Frame row = test::render_plane(T, Eigen::Vector3d::UnitZ(), wall_m, K);
+    for (int u = 0; u < K.width; ++u) f.depth.at(u, v) = row.depth.at(u, v);
+  }
+  // As taken: the top row 7.5 mm farther than the wall, the bottom one 7.5 mm nearer.
+  EXPECT_NEAR(f.depth.at(K.width / 2, 0), wall_m + speed_m_s * K.row_readout_s / 2, 1e-4);
+  EXPECT_NEAR(f.depth.at(K.width / 2, K.height - 1), wall_m - speed_m_s * K.row_readout_s / 2, 1e-4);
+
+  CameraVelocity velocity;
+  velocity.v_cam_m_s = Eigen::Vector3d(0, 0, speed_m_s);
+  DepthImage undone;
+  ASSERT_TRUE(undo_rolling_shutter(f, velocity, &undone));
+  ASSERT_EQ(undone.width, K.width);
+  // Inside the image; at its border a pixel whose source lies outside (the wall grows as the
+  // camera nears it: by up to a pixel here) has no depth.
+  for (int v = 4; v < K.height - 4; v += 7)
+    for (int u = 4; u < K.width - 4; u += 7)
+      ASSERT_NEAR(undone.at(u, v), wall_m, 1e-5) << u << "," << v;
+
+  // A global shutter, or no motion: nothing to undo.
+  f.intrinsics.row_readout_s = 0.0;
+  EXPECT_FALSE(undo_rolling_shutter(f, velocity, &undone));
+  f.intrinsics.row_readout_s = 0.03;
+  EXPECT_FALSE(undo_rolling_shutter(f, CameraVelocity{}, &undone));
+}
+
+TEST(RollingShutter, VelocitiesFromNeighbouringPosesInTheCameraFrame) {
+  // A camera turned by 90 degrees about z, moving along world x at 0.3 m/s and turning about world
+  // z at 0.6 rad/s: in its own frame it moves along -y and turns about z.
+  std::vector<Frame> frames(3);
+  std::vector<Pose> poses(3);
+  for (int i = 0; i < 3; ++i) {
+    frames[i].utime = 1000000 + i * 33000;
+    const double t_s = i * 0.033;
+    poses[i] = Pose::Identity();
+    poses[i].linear() = Eigen::AngleAxisd(M_PI / 2 + 0.6 * t_s, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    poses[i].translation() = Eigen::Vector3d(0.3 * t_s, 0, 0);
+  }
+  const std::vector<CameraVelocity> vel = camera_velocities(frames, poses);
+  ASSERT_EQ(vel.size(), 3u);
+  EXPECT_NEAR(vel[1].omega_cam_rad_s.z(), 0.6, 1e-6);
+  EXPECT_NEAR(vel[1].omega_cam_rad_s.head<2>().norm(), 0.0, 1e-9);
+  // R^T (0.3, 0, 0) with R about z by 90 degrees plus a little: (0.3 cos, -0.3 sin, 0).
+  const double a = M_PI / 2 + 0.6 * 0.033;
+  EXPECT_NEAR(vel[1].v_cam_m_s.x(), 0.3 * std::cos(a), 1e-6);
+  EXPECT_NEAR(vel[1].v_cam_m_s.y(), -0.3 * std::sin(a), 1e-6);
+  // The ends are one-sided; one frame alone has no velocity.
+  EXPECT_NEAR(vel[0].v_cam_m_s.norm(), 0.3, 1e-6);
+  EXPECT_TRUE(camera_velocities({frames[0]}, {poses[0]})[0].v_cam_m_s.isZero());
+}

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <string>
 
 #include "depthfuse/replay/tum_source.hpp"
@@ -46,6 +47,34 @@ TEST(TumReplay, WrittenFolderReplaysAsRecordedData) {
     ASSERT_TRUE(f->T_world_cam_hint.has_value());
     EXPECT_TRUE(f->T_world_cam_hint->isApprox(seq->T_world_cam_perturbed(i), 1e-7));
   }
+}
+
+TEST(TumReplay, CameraFileReadsARollingShutterReadout) {
+  testing::TempDir dir;
+  const std::string path = (dir.path() / "camera.toml").string();
+  auto write = [&](const std::string& readout) {
+    std::FILE* f = std::fopen(path.c_str(), "w");
+    ASSERT_NE(f, nullptr);
+    std::fputs(("[camera]\nwidth = 640\nheight = 480\nfx = 517.3\nfy = 516.5\ncx = 318.6\n"
+                "cy = 255.3\n" + readout).c_str(), f);
+    std::fclose(f);
+  };
+  write("");
+  auto cam = replay::read_camera_file(path);
+  ASSERT_TRUE(cam.is_ok()) << cam.status().to_string();
+  EXPECT_EQ(cam->intrinsics.row_readout_s, 0.0);  // a global shutter unless said otherwise
+  write("row_readout_s = 0.03\n");
+  cam = replay::read_camera_file(path);
+  ASSERT_TRUE(cam.is_ok()) << cam.status().to_string();
+  EXPECT_EQ(cam->intrinsics.row_readout_s, 0.03);
+  write("row_readout_s = 0\n");
+  EXPECT_TRUE(replay::read_camera_file(path).is_ok());
+  write("row_readout_s = -0.03\n");
+  cam = replay::read_camera_file(path);
+  ASSERT_FALSE(cam.is_ok());
+  EXPECT_NE(cam.status().message().find("camera.row_readout_s: must be in [0, 1] s"),
+            std::string::npos)
+      << cam.status().to_string();
 }
 
 }  // namespace

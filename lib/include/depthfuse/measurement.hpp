@@ -29,6 +29,25 @@ struct MeasurementImage {
 Status backproject(const Frame& frame, const SensorModelConfig& sensor, const FusionConfig& fusion,
                    MeasurementImage* out);
 
+// How the camera moved while a frame was taken: its angular and linear velocity in its own frame
+// (rad/s, m/s), as a pose sequence gives it.
+struct CameraVelocity {
+  Eigen::Vector3d omega_cam_rad_s = Eigen::Vector3d::Zero();
+  Eigen::Vector3d v_cam_m_s = Eigen::Vector3d::Zero();
+};
+
+// The camera's velocity at each frame from its neighbours' poses and stamps (central differences;
+// one-sided at the ends; zero for a single frame or frames without increasing stamps).
+std::vector<CameraVelocity> camera_velocities(const std::vector<Frame>& frames,
+                                              const std::vector<Pose>& T_world_cam);
+
+// The depth image a rolling-shutter camera (intrinsics.row_readout_s > 0) moving at `velocity`
+// would have taken had every row been exposed at the middle row's time: each pixel's point is
+// moved by the camera's motion between its row's time and the middle row's, and the image is
+// resampled (nearest pixel, backward warp) so that every pixel keeps its own ray. Returns false and
+// leaves *out alone when there is nothing to do (a global shutter, or no motion).
+bool undo_rolling_shutter(const Frame& frame, const CameraVelocity& velocity, DepthImage* out);
+
 // d_r(z) / z for these intrinsics: the mean distance from a point to its k-th nearest neighbour
 // on a fronto-parallel plane at 1 m, found by back-projecting a constant depth map (d_r is linear
 // in z for a pinhole camera).

@@ -167,7 +167,8 @@ class SequenceFuser {
   explicit SequenceFuser(const ReconstructionConfig& config);
   ~SequenceFuser();
 
-  Status add(const Frame& frame, const Pose& T_world_cam);
+  // `velocity` (the camera's during the frame, where known) undoes a rolling shutter.
+  Status add(const Frame& frame, const Pose& T_world_cam, const CameraVelocity* velocity = nullptr);
   size_t frames() const { return frames_; }
   size_t measurements() const { return measurements_; }  // valid depth pixels (before pre-filter)
   size_t prefiltered() const { return prefiltered_; }

@@ -21,6 +21,11 @@ struct CameraIntrinsics {
   double fy = 365.0;
   double cx = 255.5;
   double cy = 211.5;
+  // Rolling shutter: the time from the first row's exposure to the last one's, s; 0 for a global
+  // shutter (the Kinect V2's time-of-flight camera). Rows are taken top to bottom; the frame's
+  // stamp and pose are those of its middle row. A Kinect v1 reads its rows over about a frame
+  // period (TUM fr1: 0.03 s, docs/results.md).
+  double row_readout_s = 0.0;
 
   bool valid() const { return width > 0 && height > 0 && fx > 0 && fy > 0; }
   // Why these values, though they parse, are no camera's (they would give an empty cloud), or

@@ -18,7 +18,8 @@ struct CameraFile {
   double depth_scale = 5000.0;  // PNG value per metre
 };
 
-// Reads a camera.toml ([camera] width height fx fy cx cy depth_scale); errors name key and line.
+// Reads a camera.toml ([camera] width height fx fy cx cy depth_scale, optional row_readout_s);
+// errors name key and line.
 Result<CameraFile> read_camera_file(const std::string& path);
 
 struct TumReplayConfig {
