@@ -182,6 +182,17 @@ int clamp_radius(int r) { return std::clamp(r, 1, 3); }
 
 }  // namespace
 
+CameraVelocity camera_velocity(const Pose& T_world_cam_from, const Pose& T_world_cam_to, double dt_s,
+                               const Pose& T_world_cam_at) {
+  CameraVelocity out;
+  if (!(dt_s > 0.0)) return out;
+  const Eigen::Matrix3d R_cam_world = T_world_cam_at.linear().transpose();
+  const Eigen::AngleAxisd turn(T_world_cam_to.linear() * T_world_cam_from.linear().transpose());
+  out.omega_cam_rad_s = R_cam_world * (turn.angle() * turn.axis()) / dt_s;
+  out.v_cam_m_s = R_cam_world * (T_world_cam_to.translation() - T_world_cam_from.translation()) / dt_s;
+  return out;
+}
+
 std::vector<CameraVelocity> camera_velocities(const std::vector<Frame>& frames,
                                               const std::vector<Pose>& T_world_cam) {
   const size_t n = std::min(frames.size(), T_world_cam.size());
@@ -189,12 +200,7 @@ std::vector<CameraVelocity> camera_velocities(const std::vector<Frame>& frames,
   for (size_t i = 0; i < n && n > 1; ++i) {
     const size_t k = i > 0 ? i - 1 : i, j = i + 1 < n ? i + 1 : i;
     const double dt_s = static_cast<double>(frames[j].utime - frames[k].utime) * 1e-6;
-    if (!(dt_s > 0.0)) continue;
-    const Eigen::Matrix3d R_cam_world = T_world_cam[i].linear().transpose();
-    const Eigen::AngleAxisd turn(T_world_cam[j].linear() * T_world_cam[k].linear().transpose());
-    out[i].omega_cam_rad_s = R_cam_world * (turn.angle() * turn.axis()) / dt_s;
-    out[i].v_cam_m_s =
-        R_cam_world * (T_world_cam[j].translation() - T_world_cam[k].translation()) / dt_s;
+    out[i] = camera_velocity(T_world_cam[k], T_world_cam[j], dt_s, T_world_cam[i]);
   }
   return out;
 }

@@ -110,7 +110,14 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   FrameReport report;
   report.frame_id = next_frame_id_;
   auto t0 = Clock::now();
-  Result<size_t> removed = measure(frame, config_, &scratch_);
+  // A rolling shutter (row_readout_s > 0) shears a moving camera's depth map, and a sheared map
+  // fits no rigid pose: tracking takes the shear for a shift (the batch loop's figures in
+  // docs/results.md). Frame by frame the motion through this frame is not known yet; the motion
+  // through the last two fused frames is the constant-velocity model's guess of it. A hint is a
+  // pose from elsewhere, and its frames are taken as they are.
+  const std::optional<CameraVelocity> velocity =
+      frame.T_world_cam_hint ? std::nullopt : camera_velocity_through_next(frame.utime);
+  Result<size_t> removed = measure(frame, config_, &scratch_, velocity ? &*velocity : nullptr);
   if (!removed) return removed.status();
   // Nothing to track or fuse: the frame cannot be placed, and tracking from an empty first frame
   // would anchor the map nowhere. Said with the reason, so that a broken sensor or a wrong depth
@@ -204,10 +211,30 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   t0 = Clock::now();
   report.fusion = fuser_.fuse(scratch_, &frame.color, T, next_frame_id_, map_.get());
   report.fusion_ms = ms_since(t0);
-  last_T_world_cam_ = T;
+  fused_at(frame.utime, T);
   registrar_.keep_frame_as_photometric_reference(scratch_, T);
   ++next_frame_id_;
   return report;
+}
+
+std::optional<CameraVelocity> IncrementalReconstructor::camera_velocity_through_next(
+    int64_t utime) const {
+  if (!fused_before_last_ || !fused_last_) return std::nullopt;
+  // Across a gap (frames lost, dropped by a full queue, or a stride of more than a few frames) the
+  // last motion says little about this frame's.
+  constexpr int64_t kMaxGapUs = 200000;
+  const int64_t between_us = fused_last_->utime - fused_before_last_->utime;
+  if (between_us <= 0 || between_us > kMaxGapUs || utime <= fused_last_->utime ||
+      utime - fused_last_->utime > kMaxGapUs)
+    return std::nullopt;
+  return camera_velocity(fused_before_last_->T_world_cam, fused_last_->T_world_cam,
+                         static_cast<double>(between_us) * 1e-6, fused_last_->T_world_cam);
+}
+
+void IncrementalReconstructor::fused_at(int64_t utime, const Pose& T_world_cam) {
+  last_T_world_cam_ = T_world_cam;
+  fused_before_last_ = fused_last_;
+  fused_last_ = StampedPose{utime, T_world_cam};
 }
 
 double IncrementalReconstructor::model_fitness_reference() const {
@@ -222,10 +249,13 @@ Status IncrementalReconstructor::replay(const Frame& frame, uint32_t frame_id,
                                        const Pose& T_world_cam) {
   if (frame_id == 0 || frame_id == 0xFFFFFFFFu)
     return invalid_argument("replay: frame id " + std::to_string(frame_id) + " is out of range");
-  Result<size_t> removed = measure(frame, config_, &scratch_);
+  // As process() measured it: replayed in order at the same poses, the same velocity.
+  const std::optional<CameraVelocity> velocity =
+      frame.T_world_cam_hint ? std::nullopt : camera_velocity_through_next(frame.utime);
+  Result<size_t> removed = measure(frame, config_, &scratch_, velocity ? &*velocity : nullptr);
   if (!removed) return removed.status().with_context("replaying frame " + std::to_string(frame_id));
   fuser_.fuse(scratch_, &frame.color, T_world_cam, frame_id, map_.get());
-  last_T_world_cam_ = T_world_cam;
+  fused_at(frame.utime, T_world_cam);
   // The registrar's model and photometric reference are of frames before the crash, or none.
   frames_since_model_ = 0;
   registrar_.keep_frame_as_photometric_reference(scratch_, T_world_cam);
@@ -245,6 +275,8 @@ void IncrementalReconstructor::reset(std::unique_ptr<PointMap> map, uint32_t nex
   recent_model_fitness_count_ = 0;
   next_frame_id_ = std::max<uint32_t>(1, next_frame_id);
   last_T_world_cam_ = last_T_world_cam;
+  fused_before_last_.reset();
+  fused_last_.reset();
   registrar_.forget_photometric_reference();
 }
 

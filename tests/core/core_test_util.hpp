@@ -42,29 +42,49 @@ inline Pose look_at(const Eigen::Vector3d& eye, const Eigen::Vector3d& target,
   return T;
 }
 
+// One row of the corner (x = 0, y = 0, z = 0, each face extent_m wide) as seen from T_world_cam.
+inline void render_corner_row(const Pose& T_world_cam, int v, double extent_m, Frame* f) {
+  const CameraIntrinsics& K = f->intrinsics;
+  const Eigen::Vector3d o = T_world_cam.translation();
+  for (int u = 0; u < K.width; ++u) {
+    const Eigen::Vector3d ray_w = T_world_cam.linear() * Eigen::Vector3d((u - K.cx) / K.fx, (v - K.cy) / K.fy, 1.0);
+    double best = INFINITY;
+    for (int a = 0; a < 3; ++a) {
+      if (std::abs(ray_w[a]) < 1e-12) continue;
+      const double s = -o[a] / ray_w[a];
+      if (s <= 0 || s >= best) continue;
+      const Eigen::Vector3d p = o + s * ray_w;
+      bool inside = true;
+      for (int b = 0; b < 3; ++b)
+        if (b != a && (p[b] < -1e-9 || p[b] > extent_m)) inside = false;
+      if (inside) best = s;
+    }
+    if (std::isfinite(best)) f->depth.at(u, v) = static_cast<float>(best);
+  }
+}
+
 inline Frame render_corner(const Pose& T_world_cam,
                            const CameraIntrinsics& K = CameraIntrinsics::kinect_v2(),
                            double extent_m = 3.0) {
   Frame f;
   f.intrinsics = K;
   f.depth = DepthImage(K.width, K.height);
-  const Eigen::Vector3d o = T_world_cam.translation();
-  for (int v = 0; v < K.height; ++v)
-    for (int u = 0; u < K.width; ++u) {
-      const Eigen::Vector3d ray_w = T_world_cam.linear() * Eigen::Vector3d((u - K.cx) / K.fx, (v - K.cy) / K.fy, 1.0);
-      double best = INFINITY;
-      for (int a = 0; a < 3; ++a) {
-        if (std::abs(ray_w[a]) < 1e-12) continue;
-        const double s = -o[a] / ray_w[a];
-        if (s <= 0 || s >= best) continue;
-        const Eigen::Vector3d p = o + s * ray_w;
-        bool inside = true;
-        for (int b = 0; b < 3; ++b)
-          if (b != a && (p[b] < -1e-9 || p[b] > extent_m)) inside = false;
-        if (inside) best = s;
-      }
-      if (std::isfinite(best)) f.depth.at(u, v) = static_cast<float>(best);
-    }
+  for (int v = 0; v < K.height; ++v) render_corner_row(T_world_cam, v, extent_m, &f);
+  return f;
+}
+
+// The corner as a rolling-shutter camera (K.row_readout_s) moving at v_world_m_s takes it: row v
+// when the camera is at T_world_cam moved by v_world_m_s times the row's time from the middle row's.
+inline Frame render_corner_rolling(const Pose& T_world_cam, const Eigen::Vector3d& v_world_m_s,
+                                   const CameraIntrinsics& K, double extent_m = 3.0) {
+  Frame f;
+  f.intrinsics = K;
+  f.depth = DepthImage(K.width, K.height);
+  for (int v = 0; v < K.height; ++v) {
+    Pose T_row = T_world_cam;
+    T_row.translation() += v_world_m_s * (((v + 0.5) / K.height - 0.5) * K.row_readout_s);
+    render_corner_row(T_row, v, extent_m, &f);
+  }
   return f;
 }
 

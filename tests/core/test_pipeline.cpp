@@ -289,6 +289,44 @@ TEST(Incremental, AFrameWithoutValidDepthIsRefusedWithTheReason) {
   EXPECT_GT(rec.map().point_count(), 0u);
 }
 
+// A rolling-shutter camera moving along its optical axis shears its depth maps, and tracking took
+// the shear for a shift (on TUM fr1/xyz, 10 mm along the camera's y). Frame by frame, the motion
+// of the last two frames fused is undone from the next frame's depth before it is tracked.
+TEST(Incremental, ARollingShutterIsUndoneWithTheMotionOfTheLastTwoFrames) {
+  CameraIntrinsics K = CameraIntrinsics::kinect_v2();
+  K.row_readout_s = 0.03;
+  const Pose T0 = test::look_at({2.4 * std::cos(0.6), 2.4 * std::sin(0.6), 1.4}, {0.3, 0.3, 0.3});
+  const Eigen::Vector3d v_world_m_s = 0.5 * T0.linear().col(2);  // towards the corner, 0.5 m/s
+  constexpr int64_t kFramePeriodUs = 33333;
+  auto pose_at = [&](int i) {
+    Pose T = T0;
+    T.translation() += v_world_m_s * (i * kFramePeriodUs * 1e-6);
+    return T;
+  };
+  // The worst position error of frames 2-9 (sheared), after frames 0 and 1 taken standing still
+  // at their places (no shear, the map's start); `readout_s` is what the frames say of their rows.
+  auto worst_error_m = [&](double readout_s) -> double {
+    IncrementalReconstructor rec{ReconstructionConfig{}};
+    double worst = 0;
+    for (int i = 0; i < 10; ++i) {
+      Frame f = i < 2 ? test::render_corner(pose_at(i), K) : test::render_corner_rolling(pose_at(i), v_world_m_s, K);
+      f.intrinsics.row_readout_s = readout_s;
+      f.utime = 1000000 + i * kFramePeriodUs;
+      auto r = rec.process(f, i == 0 ? std::optional<Pose>(pose_at(0)) : std::nullopt);
+      EXPECT_TRUE(r.is_ok()) << r.status().to_string();
+      if (!r.is_ok()) return 1.0;
+      EXPECT_TRUE(r->fused()) << "frame " << i;
+      if (i >= 2) worst = std::max(worst, (r->T_world_cam.translation() - pose_at(i).translation()).norm());
+    }
+    return worst;
+  };
+  const double undone = worst_error_m(K.row_readout_s), taken_as_is = worst_error_m(0.0);
+  std::printf("worst position error of the sheared frames: %.2f mm undone, %.2f mm as taken\n",
+              undone * 1e3, taken_as_is * 1e3);
+  EXPECT_LT(undone, 1.5e-3);
+  EXPECT_GT(taken_as_is, 2.0 * undone) << "undone " << undone << " m";
+}
+
 // Colour of another size than the depth is not the frame's colour: fused without it, no crash.
 TEST(Incremental, ColourOfAnotherSizeIsNotUsed) {
   const Pose T = test::look_at({2, 2, 1.5}, {0.3, 0.3, 0.3});

@@ -12,9 +12,11 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <map>
 #include <fstream>
 #include <random>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include "depthfuse/point_arrays.hpp"
@@ -82,6 +84,33 @@ bool same_bits(const std::vector<T>& a, const std::vector<T>& b) {
 // Bitwise equality of both arrays (float == would call -0 == 0 equal and NaN != NaN).
 inline bool bit_equal(const PointArrays& a, const PointArrays& b) {
   return same_bits(a.position_m, b.position_m) && same_bits(a.state, b.state);
+}
+
+// Chunk contents by key, in a fixed order, for comparing two clouds chunk by chunk.
+struct KeyLess {
+  bool operator()(const ChunkKey& a, const ChunkKey& b) const {
+    return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
+  }
+};
+using ChunkContents = std::map<ChunkKey, PointArrays, KeyLess>;
+
+inline size_t point_total(const ChunkContents& c) {
+  size_t n = 0;
+  for (const auto& [k, a] : c) n += a.size();
+  return n;
+}
+
+// The same chunks holding the same bytes.
+inline void expect_same_cloud(const ChunkContents& got, const ChunkContents& want) {
+  EXPECT_EQ(got.size(), want.size());
+  size_t different = 0, missing = 0;
+  for (const auto& [k, a] : want) {
+    auto it = got.find(k);
+    if (it == got.end()) ++missing;
+    else if (!bit_equal(it->second, a)) ++different;
+  }
+  EXPECT_EQ(missing, 0u);
+  EXPECT_EQ(different, 0u) << "of " << want.size() << " chunks (" << point_total(want) << " points)";
 }
 
 inline Pose look_at(const Eigen::Vector3d& eye, const Eigen::Vector3d& target) {

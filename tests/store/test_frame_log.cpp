@@ -17,16 +17,12 @@
 using namespace depthfuse;
 using namespace depthfuse::store;
 using test::bit_equal;
+using test::ChunkContents;
+using test::expect_same_cloud;
+using test::point_total;
 using test::TempDir;
 
 namespace {
-
-struct KeyLess {
-  bool operator()(const ChunkKey& a, const ChunkKey& b) const {
-    return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
-  }
-};
-using ChunkContents = std::map<ChunkKey, PointArrays, KeyLess>;
 
 ReconstructionConfig config() { return ReconstructionConfig{}.with_method(Method::kFull); }
 
@@ -44,24 +40,6 @@ ChunkContents contents(const PointMap& map) {
     if (!c.points.empty()) out[k] = c.points;
   });
   return out;
-}
-
-size_t point_total(const ChunkContents& c) {
-  size_t n = 0;
-  for (const auto& [k, a] : c) n += a.size();
-  return n;
-}
-
-void expect_same_cloud(const ChunkContents& got, const ChunkContents& want) {
-  EXPECT_EQ(got.size(), want.size());
-  size_t different = 0, missing = 0;
-  for (const auto& [k, a] : want) {
-    auto it = got.find(k);
-    if (it == got.end()) ++missing;
-    else if (!bit_equal(it->second, a)) ++different;
-  }
-  EXPECT_EQ(missing, 0u);
-  EXPECT_EQ(different, 0u) << "of " << want.size() << " chunks (" << point_total(want) << " points)";
 }
 
 // What the live reconstructor had when its recorder was "killed".

@@ -13,22 +13,17 @@
 using namespace depthfuse;
 using namespace depthfuse::store;
 using test::bit_equal;
+using test::ChunkContents;
 using test::make_points;
 using test::TempDir;
 
 namespace {
 
-struct KeyLess {
-  bool operator()(const ChunkKey& a, const ChunkKey& b) const {
-    return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
-  }
-};
-
 // A walk along x, 0.25 m per frame: each frame "fuses" by growing the chunks within 2 m of the
 // camera, as fusion would.
 struct Walk {
   PointMap map{0.5};
-  std::map<ChunkKey, PointArrays, KeyLess> reference;  // what every chunk should hold
+  ChunkContents reference;  // what every chunk should hold
   uint32_t frame = 0;
 
   Eigen::Vector3f camera(int step) const { return Eigen::Vector3f(0.25f * step, 0.1f, 1.0f); }

@@ -19,16 +19,11 @@
 using namespace depthfuse;
 using namespace depthfuse::store;
 using test::bit_equal;
+using test::ChunkContents;
+using test::expect_same_cloud;
 using test::TempDir;
 
 namespace {
-
-struct KeyLess {
-  bool operator()(const ChunkKey& a, const ChunkKey& b) const {
-    return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
-  }
-};
-using ChunkContents = std::map<ChunkKey, PointArrays, KeyLess>;
 
 ReconstructionConfig config() {
   ReconstructionConfig c;
@@ -91,19 +86,6 @@ ChunkContents stored_cloud(const std::string& path) {
   });
   EXPECT_TRUE(st) << st.to_string();
   return out;
-}
-
-void expect_same_cloud(const ChunkContents& got, const ChunkContents& want) {
-  EXPECT_EQ(got.size(), want.size());
-  size_t different = 0, missing = 0, points = 0;
-  for (const auto& [k, a] : want) {
-    points += a.size();
-    auto it = got.find(k);
-    if (it == got.end()) ++missing;
-    else if (!bit_equal(it->second, a)) ++different;
-  }
-  EXPECT_EQ(missing, 0u);
-  EXPECT_EQ(different, 0u) << "of " << want.size() << " chunks (" << points << " points)";
 }
 
 void expect_same_poses(const std::string& path, const std::vector<Pose>& want, size_t count) {

@@ -36,6 +36,11 @@ struct CameraVelocity {
   Eigen::Vector3d v_cam_m_s = Eigen::Vector3d::Zero();
 };
 
+// The velocity that takes the camera from T_world_cam_from to T_world_cam_to in dt_s seconds,
+// expressed in the camera frame at T_world_cam_at.
+CameraVelocity camera_velocity(const Pose& T_world_cam_from, const Pose& T_world_cam_to, double dt_s,
+                               const Pose& T_world_cam_at);
+
 // The camera's velocity at each frame from its neighbours' poses and stamps (central differences;
 // one-sided at the ends; zero for a single frame or frames without increasing stamps).
 std::vector<CameraVelocity> camera_velocities(const std::vector<Frame>& frames,

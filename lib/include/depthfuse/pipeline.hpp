@@ -117,6 +117,10 @@ class IncrementalReconstructor {
   // tracks well is the frame's pose.
   void relocalise(FrameReport* report);
   bool keeps_keyframes() const;
+  // Where the camera's motion was steady: the velocity of the last two frames fused, in the
+  // camera frame of the last; none across a gap of more than a few frame periods.
+  std::optional<CameraVelocity> camera_velocity_through_next(int64_t utime) const;
+  void fused_at(int64_t utime, const Pose& T_world_cam);
 
   ReconstructionConfig config_;
   std::unique_ptr<PointMap> map_;
@@ -126,6 +130,13 @@ class IncrementalReconstructor {
   MeasurementImage scratch_;
   int frames_since_model_ = 0;  // frames registered to the Registrar's last rendered model
   std::optional<Pose> last_T_world_cam_;
+  // The last two frames fused, stamped: the camera's velocity through the next frame, for a
+  // rolling shutter (camera_velocity_through_next()).
+  struct StampedPose {
+    int64_t utime = 0;
+    Pose T_world_cam = Pose::Identity();
+  };
+  std::optional<StampedPose> fused_before_last_, fused_last_;
   uint32_t next_frame_id_ = 1;
   // The model fitness of the last tracked frames (a ring; model_fitness_reference()).
   std::array<float, 8> recent_model_fitness_{};
