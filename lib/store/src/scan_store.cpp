@@ -246,12 +246,7 @@ Status ScanStore::Impl::keyframe_head_of(const sql::Row& row, Keyframe* k, bool*
   k->frame_id = static_cast<uint32_t>(frame_id);
   k->utime = row.int64(1);
   k->sensor_serial = row.text(2);
-  k->intrinsics.width = static_cast<int>(row.int64(3));
-  k->intrinsics.height = static_cast<int>(row.int64(4));
-  k->intrinsics.fx = row.real(5);
-  k->intrinsics.fy = row.real(6);
-  k->intrinsics.cx = row.real(7);
-  k->intrinsics.cy = row.real(8);
+  k->intrinsics = read_intrinsics_columns(row, 3);
   if (!k->intrinsics.valid()) return corrupt(what + ": invalid intrinsics");
   DF_RETURN_IF_ERROR(check_row_checksum(
       row, 10,
@@ -297,18 +292,33 @@ PoseFields pose_fields(const PoseRecord& p) {
   return f;
 }
 
+void read_pose_columns(const sql::Row& row, PoseRecord* p) {
+  p->frame_id = static_cast<uint32_t>(row.int64(0));
+  p->utime = row.int64(1);
+  p->registered = row.int64(3) != 0;
+  p->fitness = row.real(4);
+  p->rmse_m = row.real(5);
+  p->correspondences = static_cast<uint32_t>(row.int64(6));
+}
+
+CameraIntrinsics read_intrinsics_columns(const sql::Row& row, int first) {
+  CameraIntrinsics K;
+  K.width = static_cast<int>(row.int64(first));
+  K.height = static_cast<int>(row.int64(first + 1));
+  K.fx = row.real(first + 2);
+  K.fy = row.real(first + 3);
+  K.cx = row.real(first + 4);
+  K.cy = row.real(first + 5);
+  return K;
+}
+
 Result<PoseRecord> ScanStore::Impl::pose_of(const sql::Row& row, bool* checked) {
   PoseRecord p;
   const int64_t frame_id = row.int64(0);
   const std::string what = path + ": pose of frame " + std::to_string(frame_id);
   if (frame_id < 1 || frame_id >= kAllFrames)
     return corrupt(what + ": the frame id is out of range (1 to " + std::to_string(kAllFrames - 1) + ")");
-  p.frame_id = static_cast<uint32_t>(frame_id);
-  p.utime = row.int64(1);
-  p.registered = row.int64(3) != 0;
-  p.fitness = row.real(4);
-  p.rmse_m = row.real(5);
-  p.correspondences = static_cast<uint32_t>(row.int64(6));
+  read_pose_columns(row, &p);
   bool unchecked = false;
   DF_RETURN_IF_ERROR(check_row_checksum(
       row, 7, pose_record_checksum(pose_fields(p), row.blob(2), row.blob_size(2)), what, &unchecked));

@@ -133,13 +133,7 @@ Status ScanStore::update_keyframe_pose(uint32_t frame_id, const Pose& T_world_ca
     if (!found) return found.status();
     if (!*found) return not_found(impl_->path + ": no keyframe " + std::to_string(frame_id));
     const sql::Row r = row->row();
-    CameraIntrinsics K;
-    K.width = static_cast<int>(r.int64(1));
-    K.height = static_cast<int>(r.int64(2));
-    K.fx = r.real(3);
-    K.fy = r.real(4);
-    K.cx = r.real(5);
-    K.cy = r.real(6);
+    const CameraIntrinsics K = read_intrinsics_columns(r, 1);
     const std::vector<uint8_t> pose = encode_pose(T_world_cam);
     const uint32_t checksum = keyframe_row_checksum(frame_id, r.int64(0), K, pose.data(), pose.size());
     auto st = impl_->db.prepare(

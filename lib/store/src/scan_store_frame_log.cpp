@@ -106,19 +106,9 @@ Status ScanStore::for_each_logged_frame(const std::function<Status(LoggedFrame&)
     const std::string what = s.path + ": frame log record of frame " + std::to_string(frame_id);
     if (frame_id < 1 || frame_id >= kAllFrames) return corrupt(what + ": the frame id is out of range");
     PoseRecord& p = f.pose;
-    p.frame_id = static_cast<uint32_t>(frame_id);
-    p.utime = row.int64(1);
-    p.registered = row.int64(3) != 0;
-    p.fitness = row.real(4);
-    p.rmse_m = row.real(5);
-    p.correspondences = static_cast<uint32_t>(row.int64(6));
+    read_pose_columns(row, &p);
     CameraIntrinsics& K = f.frame.intrinsics;
-    K.width = static_cast<int>(row.int64(7));
-    K.height = static_cast<int>(row.int64(8));
-    K.fx = row.real(9);
-    K.fy = row.real(10);
-    K.cx = row.real(11);
-    K.cy = row.real(12);
+    K = read_intrinsics_columns(row, 7);
     const bool has_color = !row.is_null(15);
     DF_RETURN_IF_ERROR(check_row_checksum(
         row, 13,

@@ -74,6 +74,13 @@ uint32_t checkpoint_row_checksum(const CheckpointRecord& r, const void* pose_blo
 uint32_t frame_log_row_checksum(const PoseRecord& p, const void* pose_blob, size_t pose_size,
                                 const CameraIntrinsics& K, const void* depth, size_t depth_size,
                                 const void* color, size_t color_size);
+// The columns every row of a fused frame starts with (poses, frame_log): frame_id, utime, the pose
+// blob (left to the caller, who checks the row's checksum first), registered, fitness, rmse_m,
+// correspondences. The frame id's range is the caller's to check.
+void read_pose_columns(const sql::Row& row, PoseRecord* p);
+// Pinhole intrinsics from six columns starting at `first`: width, height, fx, fy, cx, cy.
+CameraIntrinsics read_intrinsics_columns(const sql::Row& row, int first);
+
 // "<what>: checksum mismatch (stored 0x…, computed 0x…)"
 Status checksum_mismatch(const std::string& what, uint32_t stored, uint32_t computed);
 // The row's checksum column at `column` against `computed`; NULL (written before the column
