@@ -80,6 +80,16 @@ TEST(BlobCodec, DepthPicksAnExactFormat) {
   DepthImage nan = mm;
   nan.depth_m[10] = std::numeric_limits<float>::quiet_NaN();
   check(nan, DepthFormat::kFloat32);
+  // The encoder checks blocks of pixels at a time: what cannot round-trip must be caught in the
+  // last pixel too, and the range's ends must hold.
+  DepthImage ends = mm;
+  ends.depth_m[w * h - 2] = 65535.0f / 1000.0f;
+  check(ends, DepthFormat::kU16DivBy1000);
+  for (float bad : {65536.0f / 1000.0f, -0.001f, -0.0f, 1e30f}) {
+    DepthImage d = mm;
+    d.depth_m[w * h - 1] = bad;
+    check(d, DepthFormat::kFloat32);
+  }
 }
 
 TEST(BlobCodec, ColorRoundTrips) {
@@ -92,6 +102,11 @@ TEST(BlobCodec, ColorRoundTrips) {
   ASSERT_TRUE(codec.encode_color(c, &blob));
   ColorImage back;
   ASSERT_TRUE(codec.decode_color(blob.data(), blob.size(), "colour", &back));
+  EXPECT_EQ(back.rgb, c.rgb);
+  // The frame log's fast colour level: still lossless.
+  BlobCodec fast(1, -5);
+  ASSERT_TRUE(fast.encode_color(c, &blob));
+  ASSERT_TRUE(fast.decode_color(blob.data(), blob.size(), "colour", &back));
   EXPECT_EQ(back.rgb, c.rgb);
 }
 

@@ -5,6 +5,7 @@
 
 #include <zstd.h>
 
+#include <algorithm>
 #include <cinttypes>
 #include <cmath>
 #include <cstdio>
@@ -130,14 +131,30 @@ inline float u16_to_depth(uint16_t v, const DepthCodeInfo& f) {
 
 bool try_u16(const DepthImage& d, const DepthCodeInfo& f, std::vector<uint16_t>* out) {
   out->resize(d.depth_m.size());
-  for (size_t i = 0; i < d.depth_m.size(); ++i) {
-    const float m = d.depth_m[i];
-    const double units = std::nearbyint(static_cast<double>(m) * f.scale);
-    if (!(units >= 0.0 && units <= 65535.0)) return false;  // also rejects NaN
-    const auto v = static_cast<uint16_t>(units);
-    const float back = u16_to_depth(v, f);
-    if (std::memcmp(&back, &m, sizeof(float)) != 0) return false;  // must be bit-exact
-    (*out)[i] = v;
+  const float* in = d.depth_m.data();
+  uint16_t* o = out->data();
+  // Blocks without an early exit inside, so that the compiler vectorises the conversion and the
+  // bit-exact check (this runs on every logged frame); a block that fails ends the try.
+  constexpr size_t kBlock = 256;
+  for (size_t begin = 0; begin < d.depth_m.size(); begin += kBlock) {
+    const size_t end = std::min(d.depth_m.size(), begin + kBlock);
+    uint32_t bad = 0;
+    for (size_t i = begin; i < end; ++i) {
+      const float m = in[i];
+      // Rounded by truncating x + 0.5 (x >= 0), not std::nearbyint, which is a libm call per pixel
+      // without SSE4.1; a tie cannot round-trip either way, and the check below is what counts.
+      const double units = static_cast<double>(m) * f.scale + 0.5;
+      // Out of range (or NaN) becomes a value whose round trip cannot match.
+      const bool in_range = units >= 0.0 && units < 65536.0;
+      const auto v = static_cast<uint16_t>(static_cast<int32_t>(in_range ? units : 0.0));
+      const float back = u16_to_depth(v, f);
+      uint32_t back_bits, m_bits;
+      std::memcpy(&back_bits, &back, sizeof(float));
+      std::memcpy(&m_bits, &m, sizeof(float));
+      bad |= static_cast<uint32_t>(!in_range) | (back_bits ^ m_bits);  // must be bit-exact
+      o[i] = v;
+    }
+    if (bad != 0) return false;
   }
   return true;
 }
@@ -155,8 +172,11 @@ const char* to_string(DepthFormat f) {
   return "unknown";
 }
 
-BlobCodec::BlobCodec(int compression_level)
-    : level_(compression_level), cctx_(ZSTD_createCCtx()), dctx_(ZSTD_createDCtx()) {}
+BlobCodec::BlobCodec(int compression_level, std::optional<int> color_compression_level)
+    : level_(compression_level),
+      color_level_(color_compression_level.value_or(compression_level)),
+      cctx_(ZSTD_createCCtx()),
+      dctx_(ZSTD_createDCtx()) {}
 
 BlobCodec::~BlobCodec() {
   ZSTD_freeCCtx(cctx_);
@@ -194,15 +214,19 @@ Result<BlobHeader> BlobCodec::read_header(const void* blob, size_t size, const s
 }
 
 Status BlobCodec::encode(BlobKind kind, uint32_t count, uint32_t width, uint32_t height,
-                         const std::vector<Column>& columns, std::vector<uint8_t>* blob) {
+                         const std::vector<Column>& columns, std::vector<uint8_t>* blob,
+                         int level) {
   if (!cctx_ || !dctx_) return internal_error("zstd contexts could not be created");
   size_t raw_bytes = 0;
   for (const Column& c : columns) raw_bytes += static_cast<size_t>(count) * c.element_size;
   if (raw_bytes > UINT32_MAX) return invalid_argument("blob too large: " + std::to_string(raw_bytes));
   raw_.resize(raw_bytes);
   const size_t header_bytes = kFixedHeader + columns.size() * kColumnEntry + 4;
-  blob->resize(header_bytes + ZSTD_compressBound(raw_bytes));
-  uint8_t* h = blob->data();
+  // Built in a reused buffer, then copied out at its final size: resizing the caller's blob to
+  // the compression bound zero-filled (and, for a fresh blob, faulted in) the whole bound.
+  const size_t bound = header_bytes + ZSTD_compressBound(raw_bytes);
+  if (out_.size() < bound) out_.resize(bound);
+  uint8_t* h = out_.data();
   std::memcpy(h, kMagic, 4);
   h[4] = static_cast<uint8_t>(kind);
   h[5] = static_cast<uint8_t>(columns.size());
@@ -229,26 +253,28 @@ Status BlobCodec::encode(BlobKind kind, uint32_t count, uint32_t width, uint32_t
     } else if (c.transform == kDelta16Planes) {
       // Difference to the previous element (wrapping), then planes: smooth depth becomes small.
       uint16_t prev = 0;
-      std::vector<uint8_t> tmp(bytes);
+      uint8_t* low = dst;
+      uint8_t* high = dst + count;
       for (size_t i = 0; i < count; ++i) {
         const uint16_t v = get<uint16_t>(src + 2 * i);
-        put<uint16_t>(tmp.data() + 2 * i, static_cast<uint16_t>(v - prev));
+        const auto e = static_cast<uint16_t>(v - prev);
+        low[i] = static_cast<uint8_t>(e);
+        high[i] = static_cast<uint8_t>(e >> 8);
         prev = v;
       }
-      to_planes(tmp.data(), count, 2, dst);
     } else if (bytes) {
       std::memcpy(dst, src, bytes);
     }
     offset += bytes;
   }
-  const size_t z = ZSTD_compressCCtx(cctx_, blob->data() + header_bytes,
-                                     blob->size() - header_bytes, raw_.data(), raw_bytes, level_);
+  const size_t z = ZSTD_compressCCtx(cctx_, out_.data() + header_bytes, bound - header_bytes,
+                                     raw_.data(), raw_bytes, level);
   if (ZSTD_isError(z)) return internal_error(std::string("zstd compression failed: ") +
                                              ZSTD_getErrorName(z));
-  h = blob->data();
+  h = out_.data();
   put<uint32_t>(h + 24, static_cast<uint32_t>(z));
   put<uint32_t>(h + header_bytes - 4, crc32(h, header_bytes - 4));
-  blob->resize(header_bytes + z);
+  blob->assign(out_.data(), out_.data() + header_bytes + z);
   return Status::ok();
 }
 
@@ -332,7 +358,7 @@ Status BlobCodec::encode_points(const PointArrays& a, std::vector<uint8_t>* blob
                     nullptr, c.name});
     dst += n * c.size;
   }
-  return encode(BlobKind::kPoints, static_cast<uint32_t>(n), 0, 0, cols, blob);
+  return encode(BlobKind::kPoints, static_cast<uint32_t>(n), 0, 0, cols, blob, level_);
 }
 
 Status BlobCodec::decode_points(const void* blob, size_t size, const std::string& what,
@@ -387,14 +413,14 @@ Status BlobCodec::encode_depth(const DepthImage& depth, std::vector<uint8_t>* bl
       return encode(BlobKind::kDepth, n, w, h,
                     {{static_cast<uint8_t>(f.format), 2, kDelta16Planes, u16_.data(), nullptr,
                       "depth"}},
-                    blob);
+                    blob, level_);
     }
   }
   if (chosen) *chosen = DepthFormat::kFloat32;
   return encode(BlobKind::kDepth, n, w, h,
                 {{static_cast<uint8_t>(DepthFormat::kFloat32), 4, kBytePlanes,
                   depth.depth_m.data(), nullptr, "depth"}},
-                blob);
+                blob, level_);
 }
 
 Status BlobCodec::decode_depth(const void* blob, size_t size, const std::string& what,
@@ -435,7 +461,7 @@ Status BlobCodec::encode_color(const ColorImage& color, std::vector<uint8_t>* bl
   const auto n = static_cast<uint32_t>(color.width * color.height);
   return encode(BlobKind::kColor, n, static_cast<uint32_t>(color.width),
                 static_cast<uint32_t>(color.height),
-                {{0, 3, kBytePlanes, color.rgb.data(), nullptr, "rgb"}}, blob);
+                {{0, 3, kBytePlanes, color.rgb.data(), nullptr, "rgb"}}, blob, color_level_);
 }
 
 Status BlobCodec::decode_color(const void* blob, size_t size, const std::string& what,

@@ -19,7 +19,7 @@ FrameLogWriter::FrameLogWriter(ScanStore* store, std::mutex* store_mutex,
     : store_(store),
       store_mutex_(store_mutex),
       config_(config),
-      codec_(config.compression_level),
+      codec_(config.compression_level, config.color_compression_level),
       thread_([this] { run(); }) {}
 
 FrameLogWriter::~FrameLogWriter() {

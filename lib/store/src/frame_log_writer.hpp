@@ -31,6 +31,7 @@ struct FrameLogWriterConfig {
   size_t queue_frames = 1;
   size_t commit_bytes = 1u << 20;
   int compression_level = 1;
+  int color_compression_level = -5;
 };
 
 class FrameLogWriter {

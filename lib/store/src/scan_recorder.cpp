@@ -30,6 +30,7 @@ ScanRecorder::ScanRecorder(std::unique_ptr<ScanStore> store, const RecorderConfi
     lc.queue_frames = std::max<size_t>(1, config_.frame_log_queue_frames);
     lc.commit_bytes = config_.frame_log_commit_bytes;
     lc.compression_level = config_.frame_log_compression_level;
+    lc.color_compression_level = config_.frame_log_color_compression_level;
     frame_log_ = std::make_unique<FrameLogWriter>(store_.get(), &mutex_, lc);
   }
 }

@@ -7,6 +7,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -44,7 +45,9 @@ struct BlobHeader {
 // Encoder/decoder with reusable zstd contexts and scratch buffers. Not thread-safe; one per thread.
 class BlobCodec {
  public:
-  explicit BlobCodec(int compression_level = 3);
+  // zstd levels; colour has its own (default: the same), since a camera's colour gains little
+  // from a slow level and costs most of a frame's encoding at one.
+  explicit BlobCodec(int compression_level = 3, std::optional<int> color_compression_level = {});
   ~BlobCodec();
   BlobCodec(const BlobCodec&) = delete;
   BlobCodec& operator=(const BlobCodec&) = delete;
@@ -73,15 +76,16 @@ class BlobCodec {
     const char* name;
   };
   Status encode(BlobKind kind, uint32_t count, uint32_t width, uint32_t height,
-                const std::vector<Column>& columns, std::vector<uint8_t>* blob);
+                const std::vector<Column>& columns, std::vector<uint8_t>* blob, int level);
   // Decodes into columns[i].out after checking the header agrees with `columns` (ids, sizes).
   Status decode(const void* blob, size_t size, const std::string& what, BlobKind kind,
                 const BlobHeader& header, std::vector<Column>& columns);
 
-  int level_;
+  int level_, color_level_;
   ZSTD_CCtx_s* cctx_ = nullptr;
   ZSTD_DCtx_s* dctx_ = nullptr;
   std::vector<uint8_t> raw_;     // transformed columns, concatenated
+  std::vector<uint8_t> out_;     // the blob being encoded
   std::vector<uint16_t> u16_;    // depth scratch
   std::vector<uint8_t> columns_; // point fields gathered into columns
 };

@@ -52,10 +52,15 @@ struct RecorderConfig {
   double frame_log_interval_s = 0.0;
   // Raw frames waiting for the log's thread (then record_frame waits), and the encoded frames'
   // size at which they are committed early. Small: both count in the daemon's per-frame budget,
-  // and the thread encodes a frame as it comes.
-  size_t frame_log_queue_frames = 1;
+  // and the thread encodes a frame as it comes. A few frames, not one: on two busy cores the
+  // thread is not always scheduled within a frame period, and with one slot the fusion thread
+  // waited for it.
+  size_t frame_log_queue_frames = 3;
   size_t frame_log_commit_bytes = 1u << 20;
+  // zstd levels of the log's depth and colour. A camera's colour loses little to a fast level (it
+  // hardly compresses losslessly at any), and at level 1 its encoding cost more than the depth's.
   int frame_log_compression_level = 1;
+  int frame_log_color_compression_level = -5;
   // What the frame log holds in memory at most, for frames of `pixels` pixels, bytes: the raw
   // frames waiting and the one being encoded (depth as float, colour RGB), the encoded frames
   // waiting and those in the transaction (each up to the commit size and one more record, at
