@@ -105,6 +105,7 @@ Result<Input> open_input(const std::string& input, const cli::Args& args, const 
       if (!cam) return cam.status();
       rc.intrinsics = cam->intrinsics;
       rc.depth_scale = cam->depth_scale;
+      rc.distortion = cam->distortion;
     }
     if (args.has("poses")) {
       rc.poses_path = args.get("poses");

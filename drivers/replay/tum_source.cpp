@@ -128,6 +128,13 @@ Result<CameraFile> read_camera_file(const std::string& path) {
     const std::string where = path + ":" + std::to_string(node.source().begin.line) + ": camera." + k;
     const std::optional<double> v = node.value<double>();
     if (!v) return invalid_argument(where + ": expected a number");
+    if (k == "k1" || k == "k2" || k == "p1" || k == "p2" || k == "k3") {
+      // Any sign; whether they describe a lens is checked on the map they make (Undistorter).
+      if (!std::isfinite(*v)) return invalid_argument(where + ": must be finite");
+      LensDistortion& d = out.distortion ? *out.distortion : out.distortion.emplace();
+      (k == "k1" ? d.k1 : k == "k2" ? d.k2 : k == "p1" ? d.p1 : k == "p2" ? d.p2 : d.k3) = *v;
+      continue;
+    }
     if (k == "row_readout_s") {
       // 0 is a global shutter; a rolling shutter reads its rows within a frame period.
       if (!(*v >= 0.0 && *v <= 1.0)) return invalid_argument(where + ": must be in [0, 1] s");
@@ -154,6 +161,11 @@ Result<CameraFile> read_camera_file(const std::string& path) {
   if (!(out.depth_scale >= 1.0 && out.depth_scale <= 1e6))
     return refuse("depth_scale " + std::to_string(out.depth_scale) +
                   " is not a PNG count per metre in [1, 1e6] (TUM: 5000, Kinect: 1000)");
+  if (out.distortion) {
+    // Refused here, with the file's name, rather than when a folder is opened with it.
+    auto u = Undistorter::create(k, *out.distortion);
+    if (!u) return invalid_argument(path + ": camera.k1..k3: " + u.status().message());
+  }
   return out;
 }
 
@@ -203,6 +215,7 @@ Result<std::unique_ptr<TumSource>> TumSource::open(const std::string& folder,
 
   // Intrinsics: the caller's, else camera.toml, else defaults for the image's own size.
   std::optional<CameraFile> cam;
+  std::optional<LensDistortion> distortion;
   if (fs::exists(folder + "/camera.toml")) {
     auto c = read_camera_file(folder + "/camera.toml");
     if (!c) return c.status();
@@ -212,9 +225,11 @@ Result<std::unique_ptr<TumSource>> TumSource::open(const std::string& folder,
   if (config.intrinsics) {
     src->intrinsics_ = *config.intrinsics;
     src->intrinsics_origin_ = "caller";
+    distortion = config.distortion;
   } else if (cam) {
     src->intrinsics_ = cam->intrinsics;
     src->intrinsics_origin_ = "camera.toml";
+    distortion = cam->distortion;
   } else {
     auto first = read_png(src->entries_.front().depth_path, cv::IMREAD_UNCHANGED,
                           kMaxUncalibratedSide, kMaxUncalibratedSide);
@@ -231,6 +246,13 @@ Result<std::unique_ptr<TumSource>> TumSource::open(const std::string& folder,
       src->intrinsics_ = {w, h, k.fx * s, k.fy * s, (w - 1) / 2.0, (h - 1) / 2.0};
       src->intrinsics_origin_ = "Kinect V2 default";
     }
+  }
+  if (distortion && !distortion->is_zero()) {
+    auto u = Undistorter::create(src->intrinsics_, *distortion);
+    if (!u) return u.status().with_context(folder);
+    DF_LOG(Tum, Info) << folder << ": lens distortion undone on every frame (pixels moved by up to "
+                      << u->max_shift_px() << " px)";
+    src->undistort_ = std::move(*u);
   }
   return src;
 }
@@ -254,9 +276,17 @@ Result<Frame> TumSource::load(size_t i) const {
   f.intrinsics = intrinsics_;
   f.depth = DepthImage(img->cols, img->rows);
   const float inv_scale = static_cast<float>(1.0 / depth_scale_);
-  for (int v = 0; v < img->rows; ++v) {
-    const uint16_t* row = img->ptr<uint16_t>(v);
-    for (int u = 0; u < img->cols; ++u) f.depth.at(u, v) = row[u] * inv_scale;
+  if (undistort_) {
+    // The lookup is the camera's size, and imread's images are continuous.
+    const uint16_t* in = img->ptr<uint16_t>(0);
+    const std::vector<int32_t>& from = undistort_->source();
+    for (size_t i = 0; i < from.size(); ++i)
+      f.depth.depth_m[i] = from[i] == Undistorter::kOutside ? 0.0f : in[from[i]] * inv_scale;
+  } else {
+    for (int v = 0; v < img->rows; ++v) {
+      const uint16_t* row = img->ptr<uint16_t>(v);
+      for (int u = 0; u < img->cols; ++u) f.depth.at(u, v) = row[u] * inv_scale;
+    }
   }
   if (!e.rgb_path.empty()) {
     // Colour is used only where it is registered to depth pixel for pixel (the same size); other
@@ -276,13 +306,30 @@ Result<Frame> TumSource::load(size_t i) const {
       f.color.width = rgb->cols;
       f.color.height = rgb->rows;
       f.color.rgb.resize(static_cast<size_t>(rgb->cols) * rgb->rows * 3);
-      for (int v = 0; v < rgb->rows; ++v) {
-        const cv::Vec3b* row = rgb->ptr<cv::Vec3b>(v);
-        for (int u = 0; u < rgb->cols; ++u) {
-          uint8_t* px = &f.color.rgb[(static_cast<size_t>(v) * rgb->cols + u) * 3];
-          px[0] = row[u][2];  // OpenCV is BGR
-          px[1] = row[u][1];
-          px[2] = row[u][0];
+      if (undistort_) {
+        // Registered to depth pixel for pixel, so it moves with it.
+        const cv::Vec3b* in = rgb->ptr<cv::Vec3b>(0);
+        const std::vector<int32_t>& from = undistort_->source();
+        for (size_t i = 0; i < from.size(); ++i) {
+          uint8_t* px = &f.color.rgb[i * 3];
+          if (from[i] == Undistorter::kOutside) {
+            px[0] = px[1] = px[2] = 0;
+            continue;
+          }
+          const cv::Vec3b& c = in[from[i]];
+          px[0] = c[2];  // OpenCV is BGR
+          px[1] = c[1];
+          px[2] = c[0];
+        }
+      } else {
+        for (int v = 0; v < rgb->rows; ++v) {
+          const cv::Vec3b* row = rgb->ptr<cv::Vec3b>(v);
+          for (int u = 0; u < rgb->cols; ++u) {
+            uint8_t* px = &f.color.rgb[(static_cast<size_t>(v) * rgb->cols + u) * 3];
+            px[0] = row[u][2];  // OpenCV is BGR
+            px[1] = row[u][1];
+            px[2] = row[u][0];
+          }
         }
       }
     }

@@ -3,7 +3,9 @@
 
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 
+#include <opencv2/calib3d.hpp>
 #include <opencv2/imgcodecs.hpp>
 
 #include "depthfuse/ply.hpp"
@@ -228,4 +230,197 @@ TEST(TumFolder, AssociatesPosesByNearestTimestamp) {
   ASSERT_TRUE(f0->T_world_cam_hint && f1->T_world_cam_hint);
   EXPECT_DOUBLE_EQ(f0->T_world_cam_hint->translation().x(), 1.0);
   EXPECT_DOUBLE_EQ(f1->T_world_cam_hint->translation().x(), 4.0);
+}
+
+// Lens distortion in camera.toml (k1 k2 p1 p2 k3, OpenCV's model): the replay undoes it, so that a
+// plane recorded through a distorting lens comes back as the same plane, every pixel on its own ray.
+namespace {
+
+// TUM fr1's colour camera, to which its depth images are registered, scaled to 160 x 120 (the same
+// field of view, so the same distortion at the edges).
+CameraIntrinsics small_fr1() { return {160, 120, 517.3 / 4, 516.5 / 4, 318.6 / 4, 255.3 / 4}; }
+replay::LensDistortion fr1_rgb() { return {0.2624, -0.9531, -0.0054, 0.0026, 1.1633}; }
+
+std::string camera_toml(const CameraIntrinsics& K, const std::string& extra) {
+  std::ostringstream s;
+  s.precision(17);
+  s << "[camera]\nwidth = " << K.width << "\nheight = " << K.height << "\nfx = " << K.fx
+    << "\nfy = " << K.fy << "\ncx = " << K.cx << "\ncy = " << K.cy << "\n" << extra;
+  return s.str();
+}
+
+std::string distortion_keys(const replay::LensDistortion& d) {
+  std::ostringstream s;
+  s.precision(17);
+  s << "k1 = " << d.k1 << "\nk2 = " << d.k2 << "\np1 = " << d.p1 << "\np2 = " << d.p2
+    << "\nk3 = " << d.k3 << "\n";
+  return s.str();
+}
+
+// The plane n . X = 2 m, tilted 17 and 11 degrees off the optical axis: its depth on the ray
+// through normalised (x, y).
+double plane_depth(double x, double y) {
+  const Eigen::Vector3d n = Eigen::Vector3d(0.3, -0.2, 1.0).normalized();
+  return 2.0 / n.dot(Eigen::Vector3d(x, y, 1.0));
+}
+
+// One frame of that plane as a camera with distortion d records it: each recorded pixel's ray is
+// found by OpenCV's own inversion of the model.
+void write_distorted_plane(const TempDir& d, const CameraIntrinsics& K,
+                           const replay::LensDistortion& dist) {
+  fs::create_directories(d / "depth");
+  std::vector<cv::Point2f> pixels;
+  for (int v = 0; v < K.height; ++v)
+    for (int u = 0; u < K.width; ++u) pixels.emplace_back(u, v);
+  std::vector<cv::Point2f> rays;
+  const cv::Matx33d camera(K.fx, 0, K.cx, 0, K.fy, K.cy, 0, 0, 1);
+  cv::undistortPoints(pixels, rays, camera, cv::Vec<double, 5>(dist.k1, dist.k2, dist.p1, dist.p2, dist.k3),
+                      cv::noArray(), cv::noArray(),
+                      cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 100, 1e-12));
+  cv::Mat img(K.height, K.width, CV_16UC1);
+  for (int v = 0; v < K.height; ++v)
+    for (int u = 0; u < K.width; ++u) {
+      const cv::Point2f r = rays[static_cast<size_t>(v) * K.width + u];
+      img.at<uint16_t>(v, u) = static_cast<uint16_t>(std::lround(plane_depth(r.x, r.y) * 5000));
+    }
+  cv::imwrite(d / "depth/1.000000.png", img);
+  write_text(d / "depth.txt", "1.000000 depth/1.000000.png\n");
+}
+
+struct PlaneError {
+  double rms_m = 0, worst_m = 0;
+  size_t valid = 0;
+};
+
+// Each pixel's depth against the plane's on that pixel's own (pinhole) ray.
+PlaneError plane_error(const Frame& f, const CameraIntrinsics& K) {
+  PlaneError e;
+  double sum = 0;
+  for (int v = 0; v < K.height; ++v)
+    for (int u = 0; u < K.width; ++u) {
+      const float z = f.depth.at(u, v);
+      if (z <= 0) continue;
+      const double err = z - plane_depth((u - K.cx) / K.fx, (v - K.cy) / K.fy);
+      sum += err * err;
+      e.worst_m = std::max(e.worst_m, std::abs(err));
+      ++e.valid;
+    }
+  e.rms_m = e.valid ? std::sqrt(sum / e.valid) : 0;
+  return e;
+}
+
+}  // namespace
+
+TEST(TumFolder, LensDistortionIsUndoneOnDepth) {
+  TempDir d;
+  const CameraIntrinsics K = small_fr1();
+  write_distorted_plane(d, K, fr1_rgb());
+  write_text(d / "camera.toml", camera_toml(K, distortion_keys(fr1_rgb())));
+  auto src = replay::TumSource::open(d.path.string(), replay::TumReplayConfig{});
+  ASSERT_TRUE(src.is_ok()) << src.status().to_string();
+  ASSERT_TRUE((*src)->undistorter().has_value());
+  auto f = (*src)->next();
+  ASSERT_TRUE(f.is_ok()) << f.status().to_string();
+  const PlaneError undone = plane_error(*f, K);
+
+  // The same recording read as if its lens had none: what depthfuse did before.
+  replay::TumReplayConfig as_recorded;
+  as_recorded.intrinsics = K;
+  auto raw_src = replay::TumSource::open(d.path.string(), as_recorded);
+  ASSERT_TRUE(raw_src.is_ok()) << raw_src.status().to_string();
+  EXPECT_FALSE((*raw_src)->undistorter().has_value());
+  auto raw = (*raw_src)->next();
+  ASSERT_TRUE(raw.is_ok());
+  const PlaneError ignored = plane_error(*raw, K);
+
+  // Nearest pixel: a sample is at most half a pixel off in u and in v, and the plane's depth
+  // changes by up to 8.3 mm a pixel in u and 5.6 in v (at its far side, 2.8 m away at the left
+  // edge); plus the PNG's 0.2 mm step. Ignoring the lens puts the edges' depths several pixels'
+  // worth off.
+  EXPECT_GT(undone.valid, 0.9 * K.width * K.height);  // the corners' rays left the recorded image
+  EXPECT_LT(undone.rms_m, 0.0025) << "worst " << undone.worst_m;
+  EXPECT_LT(undone.worst_m, 0.5 * (0.0083 + 0.0056) + 0.0002);
+  EXPECT_GT(ignored.rms_m, 3 * undone.rms_m) << "worst " << ignored.worst_m;
+  EXPECT_GT(ignored.worst_m, 0.02);
+}
+
+TEST(TumFolder, LensDistortionMapsEachPixelToItsRaysSample) {
+  // Against OpenCV's own map: every undistorted pixel reads the recorded pixel nearest to where
+  // cv::initUndistortRectifyMap says its ray landed.
+  const CameraIntrinsics K = small_fr1();
+  const replay::LensDistortion dist = fr1_rgb();
+  auto u = replay::Undistorter::create(K, dist);
+  ASSERT_TRUE(u.is_ok()) << u.status().to_string();
+  cv::Mat map_x, map_y;
+  const cv::Matx33d camera(K.fx, 0, K.cx, 0, K.fy, K.cy, 0, 0, 1);
+  cv::initUndistortRectifyMap(camera, cv::Vec<double, 5>(dist.k1, dist.k2, dist.p1, dist.p2, dist.k3),
+                              cv::noArray(), camera, cv::Size(K.width, K.height), CV_32FC1, map_x,
+                              map_y);
+  size_t outside = 0;
+  for (int v = 0; v < K.height; ++v)
+    for (int c = 0; c < K.width; ++c) {
+      const int32_t s = u->source()[static_cast<size_t>(v) * K.width + c];
+      const float x = map_x.at<float>(v, c), y = map_y.at<float>(v, c);
+      const bool inside = x > -0.5f && x < K.width - 0.5f && y > -0.5f && y < K.height - 0.5f;
+      if (s == replay::Undistorter::kOutside) {
+        ++outside;
+        EXPECT_FALSE(x > 0.01f && x < K.width - 1.01f && y > 0.01f && y < K.height - 1.01f)
+            << "pixel (" << c << ", " << v << ") has a sample at " << x << ", " << y;
+        continue;
+      }
+      ASSERT_TRUE(inside) << c << ", " << v;
+      EXPECT_LE(std::abs(s % K.width - x), 0.501f) << c << ", " << v;
+      EXPECT_LE(std::abs(s / K.width - y), 0.501f) << c << ", " << v;
+    }
+  EXPECT_GT(outside, 0u);  // fr1's lens pushes the corners' rays out of the image
+  EXPECT_GT(u->max_shift_px(), 3.0);
+}
+
+TEST(TumFolder, AbsurdLensDistortionIsRefused) {
+  const CameraIntrinsics K = small_fr1();
+  struct Case {
+    replay::LensDistortion d;
+    const char* expected;
+  };
+  for (const Case& c : {
+           // r (1 - 2 r^2) turns back at r = 0.41, inside the image: a fold.
+           Case{{-2.0, 0, 0, 0, 0}, "folds over along"},
+           // Monotonic, but the corners move by 30 px of a 200 px diagonal.
+           Case{{0.5, 0, 0, 0, 0}, "moves pixels by up to"},
+           // fr1's coefficients in the wrong order (k1 k2 k3 p1 p2): k3 as p1.
+           Case{{0.2624, -0.9531, 1.1633, -0.0054, 0.0026}, "folds over along"},
+       }) {
+    auto u = replay::Undistorter::create(K, c.d);
+    ASSERT_FALSE(u.is_ok()) << c.expected;
+    EXPECT_NE(u.status().message().find(c.expected), std::string::npos) << u.status().message();
+    // From a camera file: refused when it is read, naming the file.
+    TempDir d;
+    make_folder(d);
+    write_text(d / "camera.toml", camera_toml(K, distortion_keys(c.d)));
+    auto cam = replay::read_camera_file(d / "camera.toml");
+    ASSERT_FALSE(cam.is_ok());
+    EXPECT_NE(cam.status().message().find("camera.toml: camera.k1..k3: lens distortion"),
+              std::string::npos)
+        << cam.status().message();
+    // Given by the caller: refused when the folder is opened.
+    replay::TumReplayConfig rc;
+    rc.intrinsics = K;
+    rc.distortion = c.d;
+    write_text(d / "camera.toml", camera_toml(K, ""));
+    auto src = replay::TumSource::open(d.path.string(), rc);
+    ASSERT_FALSE(src.is_ok());
+    EXPECT_NE(src.status().message().find(c.expected), std::string::npos) << src.status().message();
+  }
+  // No keys: no distortion, and nothing is remapped.
+  TempDir d;
+  make_folder(d);
+  auto cam = replay::read_camera_file(d / "camera.toml");
+  ASSERT_TRUE(cam.is_ok());
+  EXPECT_FALSE(cam->distortion.has_value());
+  write_text(d / "camera.toml", camera_toml(small_fr1(), "k1 = 0.1\n"));
+  cam = replay::read_camera_file(d / "camera.toml");
+  ASSERT_TRUE(cam.is_ok()) << cam.status().to_string();
+  ASSERT_TRUE(cam->distortion.has_value());
+  EXPECT_EQ(cam->distortion->k1, 0.1);
+  EXPECT_EQ(cam->distortion->k3, 0.0);
 }

@@ -6,7 +6,7 @@
 # the tracker's own counts (uncertain / lost / relocalised).
 #
 #   tools/bench/track_fr1.sh [--bin DIR]... [--data DIR] [--work DIR] [--strides "1 3 5"]
-#                            [--max-frames N] [--config FILE]
+#                            [--max-frames N] [--config FILE] [--camera FILE]...
 #
 # --bin DIR    a directory with `depthfuse` (default build/bin); given twice, the first is the
 #              baseline and both are printed side by side
@@ -15,6 +15,8 @@
 # --strides    which subsets to run (1: every frame)
 # --max-frames at most this many frames of each subset (quick looks; the targets are on all)
 # --config     a config file passed to reconstruct (default: the built-in defaults)
+# --camera     the camera file (default tools/eval/tum_fr1_camera.toml); given twice, one for each
+#              --bin (the same DIR may be given twice to compare two camera files)
 #
 # The subsets are made by tools/eval/tum_subset.py (every n-th depth frame with a ground-truth pose
 # within 20 ms); stride 1 is the dataset itself unless --max-frames is given. Needs /usr/bin/python3
@@ -29,6 +31,7 @@ work="/tmp/track_fr1.${USER:-$(id -un)}"
 strides="1 3 5"
 max_frames=""
 config=""
+cameras=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --bin) bins+=("$2"); shift 2 ;;
@@ -37,7 +40,8 @@ while [[ $# -gt 0 ]]; do
     --strides) strides="$2"; shift 2 ;;
     --max-frames) max_frames="$2"; shift 2 ;;
     --config) config="$2"; shift 2 ;;
-    -h|--help) sed -n '2,21p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    --camera) cameras+=("$2"); shift 2 ;;
+    -h|--help) sed -n '2,23p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "track_fr1.sh: unknown argument $1 (--help)" >&2; exit 2 ;;
   esac
 done
@@ -48,7 +52,9 @@ for b in "${bins[@]}"; do
 done
 [[ -f "$data/depth.txt" && -f "$data/groundtruth.txt" ]] || {
   echo "track_fr1.sh: $data has no depth.txt and groundtruth.txt" >&2; exit 2; }
-camera="$here/tools/eval/tum_fr1_camera.toml"
+[[ ${#cameras[@]} -eq 0 ]] && cameras=("$here/tools/eval/tum_fr1_camera.toml")
+[[ ${#cameras[@]} -gt 2 || (${#cameras[@]} -eq 2 && ${#bins[@]} -ne 2) ]] && {
+  echo "track_fr1.sh: --camera once, or twice with two --bin" >&2; exit 2; }
 mkdir -p "$work"
 
 subset() {  # stride -> folder
@@ -67,6 +73,7 @@ for s in $strides; do
   dir=$(subset "$s")
   for k in "${!bins[@]}"; do
     b="${bins[$k]}"
+    camera="${cameras[$k]:-${cameras[0]}}"
     tag="s${s}_b${k}"
     log="$work/$tag.log"
     t0=$(date +%s.%N)
@@ -91,6 +98,7 @@ for s in $strides; do
   name="every frame"; [[ $s != 1 ]] && name="every ${s}th"; [[ $s == 3 ]] && name="every 3rd"
   [[ -n $max_frames ]] && name="$name (first $max_frames)"
   for k in "${!bins[@]}"; do
-    echo "| $name | ${bins[$k]} | ${result[s${s}_b${k}]} |"
+    what="${bins[$k]}"; [[ ${#cameras[@]} -eq 2 ]] && what="$what, $(basename "${cameras[$k]}")"
+    echo "| $name | $what | ${result[s${s}_b${k}]} |"
   done
 done

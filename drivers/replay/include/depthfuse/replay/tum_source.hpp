@@ -10,21 +10,26 @@
 
 #include "depthfuse/app_config.hpp"
 #include "depthfuse/frame_source.hpp"
+#include "depthfuse/replay/undistort.hpp"
 
 namespace depthfuse::replay {
 
 struct CameraFile {
   CameraIntrinsics intrinsics;
   double depth_scale = 5000.0;  // PNG value per metre
+  // The recorded images' lens distortion, undone as each frame is read; none if no key is given.
+  std::optional<LensDistortion> distortion;
 };
 
-// Reads a camera.toml ([camera] width height fx fy cx cy depth_scale, optional row_readout_s);
-// errors name key and line.
+// Reads a camera.toml ([camera] width height fx fy cx cy depth_scale, optional row_readout_s and
+// k1 k2 p1 p2 k3); errors name key and line.
 Result<CameraFile> read_camera_file(const std::string& path);
 
 struct TumReplayConfig {
   std::optional<CameraIntrinsics> intrinsics;  // overrides camera.toml and the defaults
   std::optional<double> depth_scale;           // PNG value per metre; default camera.toml or 5000
+  // With `intrinsics`: the images' lens distortion (camera.toml's is not read then).
+  std::optional<LensDistortion> distortion;
   std::string poses_path;                      // trajectory giving T_world_cam_hint; "" = none
   bool use_groundtruth = false;                // poses from <folder>/groundtruth.txt if present
   double max_association_dt_s = 0.02;          // rgb and poses matched to depth within this
@@ -51,6 +56,8 @@ class TumSource : public FrameSource {
   Result<Frame> load(size_t i) const;
   const CameraIntrinsics& intrinsics() const { return intrinsics_; }
   double depth_scale() const { return depth_scale_; }
+  // The lens distortion undone on every frame, if any.
+  const std::optional<Undistorter>& undistorter() const { return undistort_; }
   // Where the intrinsics came from: "camera.toml", "caller", "TUM freiburg default", ...
   const std::string& intrinsics_origin() const { return intrinsics_origin_; }
   bool has_poses() const { return has_poses_; }
@@ -68,6 +75,7 @@ class TumSource : public FrameSource {
   CameraIntrinsics intrinsics_;
   std::string intrinsics_origin_;
   double depth_scale_ = 5000.0;
+  std::optional<Undistorter> undistort_;  // depth and colour read through it; none: as recorded
   bool has_poses_ = false;
   size_t next_ = 0;
   mutable std::atomic<bool> warned_color_size_{false};  // load() said colour was another size
