@@ -242,6 +242,86 @@ TEST(UdpmReassembler, AFragmentThatDisagreesWithItsMessageIsDropped) {
   EXPECT_EQ(dropped(r, udpm::Drop::kEvicted), 1u);
 }
 
+// With a channel filter (a receiver's subscriptions), messages on other channels are counted as
+// unsubscribed, not handed out, and their fragments not kept: fragment 0 names the channel, so a
+// message whose fragment 0 comes first is never copied, and one whose fragment 0 comes last gives
+// its buffer back then. A wanted message still completes in any order. None of it is a drop.
+TEST(UdpmReassembler, MessagesOnUnwantedChannelsAreCountedNotReassembled) {
+  const auto payload = pattern(434'000);
+  for (bool reversed : {false, true}) {
+    udpm::Reassembler r;
+    std::vector<std::string> asked;
+    r.set_channel_filter([&](std::string_view channel) {
+      asked.emplace_back(channel);
+      return channel == "DEPTHFUSE_COMMAND" || channel == "DEPTHFUSE_DEPTH";
+    });
+    const auto other = short_datagram("DEPTHFUSE_POSE", {1, 2, 3});
+    EXPECT_FALSE(r.feed(other.data(), other.size(), 1));
+    const auto wanted = short_datagram("DEPTHFUSE_COMMAND", {4, 5});
+    const auto m = r.feed(wanted.data(), wanted.size(), 1);
+    ASSERT_TRUE(m);
+    EXPECT_EQ(m->channel, "DEPTHFUSE_COMMAND");
+    EXPECT_EQ(r.counters().unsubscribed, 1u);
+
+    auto unwanted = fragments_of("DEPTHFUSE_COLOR", payload, 65'000, 20);
+    if (reversed) std::reverse(unwanted.begin(), unwanted.end());
+    for (size_t i = 0; i < unwanted.size(); ++i) {
+      EXPECT_FALSE(r.feed(unwanted[i].data(), unwanted[i].size(), 2)) << i;
+      const bool zero_seen = reversed ? i + 1 == unwanted.size() : true;
+      // Nothing held once fragment 0 has named the channel; before that, what arrived.
+      if (zero_seen) {
+        EXPECT_EQ(r.reassembly_bytes(), 0u) << i;
+      } else {
+        EXPECT_EQ(r.reassembly_bytes(), payload.size()) << i;
+      }
+    }
+    EXPECT_EQ(r.counters().unsubscribed, 2u);
+
+    // The same sender's next message is wanted, fragment 0 last in the reversed run.
+    auto frames = fragments_of("DEPTHFUSE_DEPTH", payload, 65'000, 21);
+    if (reversed) std::reverse(frames.begin(), frames.end());
+    std::optional<udpm::Message> depth;
+    for (const auto& f : frames) depth = r.feed(f.data(), f.size(), 2);
+    ASSERT_TRUE(depth) << reversed;
+    EXPECT_EQ(depth->channel, "DEPTHFUSE_DEPTH");
+    ASSERT_EQ(depth->size, payload.size());
+    EXPECT_EQ(std::memcmp(depth->data, payload.data(), payload.size()), 0);
+    EXPECT_EQ(r.counters().messages, 2u);
+    EXPECT_EQ(r.counters().unsubscribed, 2u);
+    // Leaving an unwanted message behind loses nothing: not an eviction.
+    EXPECT_EQ(r.counters().dropped_total(), 0u);
+    EXPECT_EQ(r.reassembly_bytes(), 0u);
+    // The filter was asked once for each channel name a datagram carried.
+    EXPECT_EQ(asked, (std::vector<std::string>{"DEPTHFUSE_POSE", "DEPTHFUSE_COMMAND",
+                                               "DEPTHFUSE_COLOR", "DEPTHFUSE_DEPTH"}));
+  }
+}
+
+// The fragments of an unwanted message are still checked as before: one that disagrees with its
+// fragment 0 is dropped and counted, and unwanted messages stay within the bound on partial ones.
+TEST(UdpmReassembler, UnwantedFragmentsAreStillCheckedAndBounded) {
+  udpm::Limits limits;
+  limits.max_partial_messages = 4;
+  udpm::Reassembler r(limits);
+  r.set_channel_filter([](std::string_view channel) { return channel == "WANTED"; });
+  const auto data = pattern(100);
+  const auto zero = fragment_datagram(5, 200, 0, 0, 2, "OTHER", data.data(), 100);
+  const auto bigger = fragment_datagram(5, 300, 100, 1, 2, "", data.data(), 100);
+  const auto wraps = fragment_datagram(5, 200, 0xFFFFFF00u, 1, 2, "", data.data(), 100);
+  EXPECT_FALSE(r.feed(zero.data(), zero.size(), 1));
+  EXPECT_FALSE(r.feed(bigger.data(), bigger.size(), 1));
+  EXPECT_FALSE(r.feed(wraps.data(), wraps.size(), 1));
+  EXPECT_EQ(dropped(r, udpm::Drop::kInconsistent), 1u);
+  EXPECT_EQ(dropped(r, udpm::Drop::kBadFragment), 1u);
+  for (uint64_t sender = 10; sender < 100; ++sender) {
+    EXPECT_FALSE(r.feed(zero.data(), zero.size(), sender));
+    ASSERT_LE(r.partial_messages(), limits.max_partial_messages);
+  }
+  EXPECT_EQ(r.counters().unsubscribed, 91u);
+  EXPECT_EQ(dropped(r, udpm::Drop::kEvicted), 0u);
+  EXPECT_EQ(r.reassembly_bytes(), 0u);
+}
+
 // On a real socket: the crafted datagrams go to the transport's port, then a real message
 // published through liblcm; the transport drops and counts the first and delivers the second.
 TEST(UdpmTransport, HostileDatagramsAreDroppedAndTheBusGoesOn) {
