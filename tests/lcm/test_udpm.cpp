@@ -367,5 +367,53 @@ TEST(UdpmTransport, HostileDatagramsAreDroppedAndTheBusGoesOn) {
   EXPECT_EQ(counters.udpm.dropped[static_cast<size_t>(udpm::Drop::kBadChannel)], 1u);
 }
 
+// The socket takes queued datagrams in batches: a burst longer than a batch, with datagrams up to
+// the largest UDP allows, arrives whole, in order, each with its own bytes and sender.
+TEST(UdpmTransport, ABurstOfDatagramsArrivesWholeAndInOrder) {
+  const std::string url = test_url();
+  require_multicast_route(url);
+  auto parsed = lcm::parse_lcm_url(url);
+  ASSERT_TRUE(parsed.is_ok());
+  auto receiver = lcm::LcmTransport::open(url);
+  ASSERT_TRUE(receiver.is_ok()) << receiver.status().to_string();
+  std::vector<std::vector<uint8_t>> heard;
+  (*receiver)->subscribe("DEPTHFUSE_BURST", [&](const std::string&, const uint8_t* d, size_t n,
+                                                 int64_t) { heard.emplace_back(d, d + n); });
+
+  const int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
+  ASSERT_GE(fd, 0);
+  const int buffer = 4 << 20;
+  ::setsockopt(fd, SOL_SOCKET, SO_SNDBUF, &buffer, sizeof(buffer));
+  sockaddr_in to{};
+  to.sin_family = AF_INET;
+  to.sin_port = htons(static_cast<uint16_t>(parsed->port));
+  inet_pton(AF_INET, parsed->multicast_group.c_str(), &to.sin_addr);
+  const std::string channel = "DEPTHFUSE_BURST";
+  const size_t largest = 65507 - udpm::kShortHeaderBytes - channel.size() - 1;
+  std::vector<std::vector<uint8_t>> sent;
+  for (size_t i = 0; i < 40; ++i) {
+    std::vector<uint8_t> payload = pattern(i == 17 ? largest : 100 + 37 * i);
+    payload[0] = static_cast<uint8_t>(i);
+    const auto d = short_datagram(i % 3 == 0 ? "DEPTHFUSE_OTHER" : channel, payload,
+                                  static_cast<uint32_t>(i));
+    ASSERT_EQ(::sendto(fd, d.data(), d.size(), 0, reinterpret_cast<const sockaddr*>(&to),
+                       sizeof(to)),
+              static_cast<ssize_t>(d.size())) << i;
+    if (i % 3 != 0) sent.push_back(payload);
+  }
+  ::close(fd);
+  EXPECT_TRUE(eventually([&] {
+    (void)(*receiver)->handle(20);
+    return heard.size() >= sent.size();
+  }, std::chrono::seconds(5), std::chrono::milliseconds(1)));
+  ASSERT_EQ(heard.size(), sent.size());
+  for (size_t i = 0; i < sent.size(); ++i) EXPECT_EQ(heard[i], sent[i]) << i;
+  (void)(*receiver)->handle(20);  // the last datagram, unsubscribed, after the last message
+  const auto counters = (*receiver)->receive_counters();
+  EXPECT_EQ(counters.udpm.datagrams, 40u);
+  EXPECT_EQ(counters.unsubscribed, 14u);  // the ones on DEPTHFUSE_OTHER
+  EXPECT_EQ(counters.udpm.dropped_total(), 0u);
+}
+
 }  // namespace
 }  // namespace depthfuse

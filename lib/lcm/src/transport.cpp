@@ -336,16 +336,26 @@ Result<bool> LcmTransport::handle_udpm(int timeout_ms) {
     const int64_t left_ms = (deadline_ns - steady_ns()) / 1'000'000;
     auto datagram = udpm_->receive(static_cast<int>(std::max<int64_t>(left_ms, 0)));
     if (!datagram) return datagram.status();
-    if (!*datagram) return false;  // a timeout, or a signal: the caller checks its flags
+    if (!*datagram) {  // a timeout, or a signal: the caller checks its flags
+      update_counters();
+      return false;
+    }
     const auto& d = **datagram;
-    const int64_t recv_utime = now_utime();
     const auto message = reassembler_.feed(d.data, d.size, d.sender);
     if (message) {
-      deliver(message->channel, message->data, message->size, recv_utime);  // counts it
+      deliver(message->channel, message->data, message->size, now_utime());  // counts it
       return true;
     }
-    update_counters();
-    if (steady_ns() >= deadline_ns) return false;
+    // Other threads read a copy of the counters, under a lock: taken once per batch of datagrams
+    // rather than once per datagram, so a flood of them does not keep it busy.
+    if (++uncounted_ >= 64) {
+      uncounted_ = 0;
+      update_counters();
+    }
+    if (steady_ns() >= deadline_ns) {
+      update_counters();
+      return false;
+    }
   }
 }
 

@@ -158,6 +158,7 @@ class LcmTransport {
   std::unique_ptr<UdpmSocket> udpm_;
   udpm::Reassembler reassembler_;
   uint64_t unsubscribed_ = 0;  // liblcm's receiver: messages no subscription matched
+  int uncounted_ = 0;          // datagrams since counters_ was last brought up to date
   mutable std::mutex counters_mutex_;  // guards counters_, a copy for other threads
   ReceiveCounters counters_;
 };
