@@ -139,7 +139,9 @@ std::optional<Message> Reassembler::fragment(const uint8_t* d, size_t size, uint
     return std::nullopt;
   }
 
-  std::memcpy(partial->payload.data() + offset, data, data_bytes);
+  // A message of 0 bytes has no buffer (data() is null), and memcpy must not be given null even
+  // for 0 bytes.
+  if (data_bytes > 0) std::memcpy(partial->payload.data() + offset, data, data_bytes);
   partial->received[number] = true;
   ++partial->fragments_received;
   partial->bytes_received += data_bytes;
