@@ -191,6 +191,50 @@ TEST(MessageAuth, OverLcmOnlyTheRigsSignedMessagesReachTheHandlers) {
   EXPECT_EQ(counters.auth.dropped[static_cast<size_t>(AuthDrop::kBadSignature)], 1u);
 }
 
+// A message on a channel the receiver does not subscribe to is not verified at all (no HMAC for
+// what nobody here reads): whoever signed it, it is only counted as unsubscribed, on udpm (where
+// the reassembler leaves it out) as through liblcm's receiver (memq).
+TEST(MessageAuth, MessagesOnUnsubscribedChannelsAreCountedNotVerified) {
+  for (const bool udpm : {true, false}) {
+    const std::string url = udpm ? testing::test_url() : "memq://";
+    if (udpm) testing::require_multicast_route(url);
+    auto open = [&](std::optional<RigKey> key) {
+      auto t = lcm::LcmTransport::open(url);
+      EXPECT_TRUE(t.is_ok()) << t.status().to_string();
+      if (key) (*t)->authenticate(*key, kSkewUs);
+      return std::move(t).value();
+    };
+    auto receiver = open(key_of(5));
+    // memq delivers within one lcm_t: there the receiver sends everything itself.
+    auto rig = udpm ? open(key_of(5)) : nullptr;
+    auto stranger = udpm ? open(key_of(6)) : nullptr;
+    lcm::LcmTransport* rig_sender = udpm ? rig.get() : receiver.get();
+    std::vector<std::string> heard;
+    receiver->subscribe("AUTH_WANTED", [&](const std::string& channel, const uint8_t* d,
+                                           size_t n, int64_t) {
+      heard.push_back(channel + ":" + std::string(reinterpret_cast<const char*>(d), n));
+    });
+    const std::string big(200'000, 'x');  // fragmented on udpm
+    std::vector<std::pair<lcm::LcmTransport*, std::string>> sends{{rig_sender, "rig"},
+                                                                  {rig_sender, big}};
+    if (stranger) sends.emplace_back(stranger.get(), "stranger");
+    for (const auto& [sender, text] : sends)
+      ASSERT_TRUE(sender->publish("AUTH_OTHER", text.data(), text.size()).is_ok());
+    ASSERT_TRUE(rig_sender->publish("AUTH_WANTED", "yes", 3).is_ok());
+    testing::eventually([&] {
+      for (auto r = receiver->handle(10); r.is_ok() && *r; r = receiver->handle(10)) {
+      }
+      return !heard.empty() && receiver->receive_counters().unsubscribed >= sends.size();
+    }, std::chrono::seconds(5));
+    EXPECT_EQ(heard, (std::vector<std::string>{"AUTH_WANTED:yes"})) << udpm;
+    const auto counters = receiver->receive_counters();
+    EXPECT_EQ(counters.unsubscribed, sends.size()) << udpm;
+    EXPECT_EQ(counters.auth.verified, 1u) << udpm;
+    EXPECT_EQ(counters.auth.dropped_total(), 0u) << udpm;
+    EXPECT_EQ(counters.udpm.dropped_total(), 0u) << udpm;
+  }
+}
+
 // Other LCM clients still read what a rig signs: lcm-gen's decoders stop at the end of the type.
 TEST(MessageAuth, PythonBindingsReadASignedMessage) {
   depthfuse::heartbeat_t hb{};

@@ -242,6 +242,86 @@ TEST(UdpmReassembler, AFragmentThatDisagreesWithItsMessageIsDropped) {
   EXPECT_EQ(dropped(r, udpm::Drop::kEvicted), 1u);
 }
 
+// With a channel filter (a receiver's subscriptions), messages on other channels are counted as
+// unsubscribed, not handed out, and their fragments not kept: fragment 0 names the channel, so a
+// message whose fragment 0 comes first is never copied, and one whose fragment 0 comes last gives
+// its buffer back then. A wanted message still completes in any order. None of it is a drop.
+TEST(UdpmReassembler, MessagesOnUnwantedChannelsAreCountedNotReassembled) {
+  const auto payload = pattern(434'000);
+  for (bool reversed : {false, true}) {
+    udpm::Reassembler r;
+    std::vector<std::string> asked;
+    r.set_channel_filter([&](std::string_view channel) {
+      asked.emplace_back(channel);
+      return channel == "DEPTHFUSE_COMMAND" || channel == "DEPTHFUSE_DEPTH";
+    });
+    const auto other = short_datagram("DEPTHFUSE_POSE", {1, 2, 3});
+    EXPECT_FALSE(r.feed(other.data(), other.size(), 1));
+    const auto wanted = short_datagram("DEPTHFUSE_COMMAND", {4, 5});
+    const auto m = r.feed(wanted.data(), wanted.size(), 1);
+    ASSERT_TRUE(m);
+    EXPECT_EQ(m->channel, "DEPTHFUSE_COMMAND");
+    EXPECT_EQ(r.counters().unsubscribed, 1u);
+
+    auto unwanted = fragments_of("DEPTHFUSE_COLOR", payload, 65'000, 20);
+    if (reversed) std::reverse(unwanted.begin(), unwanted.end());
+    for (size_t i = 0; i < unwanted.size(); ++i) {
+      EXPECT_FALSE(r.feed(unwanted[i].data(), unwanted[i].size(), 2)) << i;
+      const bool zero_seen = reversed ? i + 1 == unwanted.size() : true;
+      // Nothing held once fragment 0 has named the channel; before that, what arrived.
+      if (zero_seen) {
+        EXPECT_EQ(r.reassembly_bytes(), 0u) << i;
+      } else {
+        EXPECT_EQ(r.reassembly_bytes(), payload.size()) << i;
+      }
+    }
+    EXPECT_EQ(r.counters().unsubscribed, 2u);
+
+    // The same sender's next message is wanted, fragment 0 last in the reversed run.
+    auto frames = fragments_of("DEPTHFUSE_DEPTH", payload, 65'000, 21);
+    if (reversed) std::reverse(frames.begin(), frames.end());
+    std::optional<udpm::Message> depth;
+    for (const auto& f : frames) depth = r.feed(f.data(), f.size(), 2);
+    ASSERT_TRUE(depth) << reversed;
+    EXPECT_EQ(depth->channel, "DEPTHFUSE_DEPTH");
+    ASSERT_EQ(depth->size, payload.size());
+    EXPECT_EQ(std::memcmp(depth->data, payload.data(), payload.size()), 0);
+    EXPECT_EQ(r.counters().messages, 2u);
+    EXPECT_EQ(r.counters().unsubscribed, 2u);
+    // Leaving an unwanted message behind loses nothing: not an eviction.
+    EXPECT_EQ(r.counters().dropped_total(), 0u);
+    EXPECT_EQ(r.reassembly_bytes(), 0u);
+    // The filter was asked once for each channel name a datagram carried.
+    EXPECT_EQ(asked, (std::vector<std::string>{"DEPTHFUSE_POSE", "DEPTHFUSE_COMMAND",
+                                               "DEPTHFUSE_COLOR", "DEPTHFUSE_DEPTH"}));
+  }
+}
+
+// The fragments of an unwanted message are still checked as before: one that disagrees with its
+// fragment 0 is dropped and counted, and unwanted messages stay within the bound on partial ones.
+TEST(UdpmReassembler, UnwantedFragmentsAreStillCheckedAndBounded) {
+  udpm::Limits limits;
+  limits.max_partial_messages = 4;
+  udpm::Reassembler r(limits);
+  r.set_channel_filter([](std::string_view channel) { return channel == "WANTED"; });
+  const auto data = pattern(100);
+  const auto zero = fragment_datagram(5, 200, 0, 0, 2, "OTHER", data.data(), 100);
+  const auto bigger = fragment_datagram(5, 300, 100, 1, 2, "", data.data(), 100);
+  const auto wraps = fragment_datagram(5, 200, 0xFFFFFF00u, 1, 2, "", data.data(), 100);
+  EXPECT_FALSE(r.feed(zero.data(), zero.size(), 1));
+  EXPECT_FALSE(r.feed(bigger.data(), bigger.size(), 1));
+  EXPECT_FALSE(r.feed(wraps.data(), wraps.size(), 1));
+  EXPECT_EQ(dropped(r, udpm::Drop::kInconsistent), 1u);
+  EXPECT_EQ(dropped(r, udpm::Drop::kBadFragment), 1u);
+  for (uint64_t sender = 10; sender < 100; ++sender) {
+    EXPECT_FALSE(r.feed(zero.data(), zero.size(), sender));
+    ASSERT_LE(r.partial_messages(), limits.max_partial_messages);
+  }
+  EXPECT_EQ(r.counters().unsubscribed, 91u);
+  EXPECT_EQ(dropped(r, udpm::Drop::kEvicted), 0u);
+  EXPECT_EQ(r.reassembly_bytes(), 0u);
+}
+
 // On a real socket: the crafted datagrams go to the transport's port, then a real message
 // published through liblcm; the transport drops and counts the first and delivers the second.
 TEST(UdpmTransport, HostileDatagramsAreDroppedAndTheBusGoesOn) {
@@ -285,6 +365,54 @@ TEST(UdpmTransport, HostileDatagramsAreDroppedAndTheBusGoesOn) {
   const auto counters = listener.lcm()->receive_counters();
   EXPECT_EQ(counters.udpm.dropped[static_cast<size_t>(udpm::Drop::kBadFragment)], 1u);
   EXPECT_EQ(counters.udpm.dropped[static_cast<size_t>(udpm::Drop::kBadChannel)], 1u);
+}
+
+// The socket takes queued datagrams in batches: a burst longer than a batch, with datagrams up to
+// the largest UDP allows, arrives whole, in order, each with its own bytes and sender.
+TEST(UdpmTransport, ABurstOfDatagramsArrivesWholeAndInOrder) {
+  const std::string url = test_url();
+  require_multicast_route(url);
+  auto parsed = lcm::parse_lcm_url(url);
+  ASSERT_TRUE(parsed.is_ok());
+  auto receiver = lcm::LcmTransport::open(url);
+  ASSERT_TRUE(receiver.is_ok()) << receiver.status().to_string();
+  std::vector<std::vector<uint8_t>> heard;
+  (*receiver)->subscribe("DEPTHFUSE_BURST", [&](const std::string&, const uint8_t* d, size_t n,
+                                                 int64_t) { heard.emplace_back(d, d + n); });
+
+  const int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
+  ASSERT_GE(fd, 0);
+  const int buffer = 4 << 20;
+  ::setsockopt(fd, SOL_SOCKET, SO_SNDBUF, &buffer, sizeof(buffer));
+  sockaddr_in to{};
+  to.sin_family = AF_INET;
+  to.sin_port = htons(static_cast<uint16_t>(parsed->port));
+  inet_pton(AF_INET, parsed->multicast_group.c_str(), &to.sin_addr);
+  const std::string channel = "DEPTHFUSE_BURST";
+  const size_t largest = 65507 - udpm::kShortHeaderBytes - channel.size() - 1;
+  std::vector<std::vector<uint8_t>> sent;
+  for (size_t i = 0; i < 40; ++i) {
+    std::vector<uint8_t> payload = pattern(i == 17 ? largest : 100 + 37 * i);
+    payload[0] = static_cast<uint8_t>(i);
+    const auto d = short_datagram(i % 3 == 0 ? "DEPTHFUSE_OTHER" : channel, payload,
+                                  static_cast<uint32_t>(i));
+    ASSERT_EQ(::sendto(fd, d.data(), d.size(), 0, reinterpret_cast<const sockaddr*>(&to),
+                       sizeof(to)),
+              static_cast<ssize_t>(d.size())) << i;
+    if (i % 3 != 0) sent.push_back(payload);
+  }
+  ::close(fd);
+  EXPECT_TRUE(eventually([&] {
+    (void)(*receiver)->handle(20);
+    return heard.size() >= sent.size();
+  }, std::chrono::seconds(5), std::chrono::milliseconds(1)));
+  ASSERT_EQ(heard.size(), sent.size());
+  for (size_t i = 0; i < sent.size(); ++i) EXPECT_EQ(heard[i], sent[i]) << i;
+  (void)(*receiver)->handle(20);  // the last datagram, unsubscribed, after the last message
+  const auto counters = (*receiver)->receive_counters();
+  EXPECT_EQ(counters.udpm.datagrams, 40u);
+  EXPECT_EQ(counters.unsubscribed, 14u);  // the ones on DEPTHFUSE_OTHER
+  EXPECT_EQ(counters.udpm.dropped_total(), 0u);
 }
 
 }  // namespace

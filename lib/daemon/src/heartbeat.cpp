@@ -68,6 +68,9 @@ void add_receive_counters(const lcm::LcmTransport& transport, depthfuse::heartbe
       add_counter(hb, counter_key(kAuthDroppedPrefix, to_string(static_cast<lcm::AuthDrop>(i))),
                   static_cast<double>(counters.auth.dropped[i]));
   }
+  // Not faults: a daemon hears the whole bus. Said only once there are some, like the drops.
+  if (counters.unsubscribed > 0)
+    add_counter(hb, "unsubscribed", static_cast<double>(counters.unsubscribed));
   for (size_t i = 0; i < counters.udpm.dropped.size(); ++i) {
     if (counters.udpm.dropped[i] == 0) continue;
     add_counter(hb, counter_key("udpm_dropped_", to_string(static_cast<lcm::udpm::Drop>(i))),

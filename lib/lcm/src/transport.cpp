@@ -216,7 +216,12 @@ Result<std::unique_ptr<LcmTransport>> LcmTransport::open(const std::string& url,
 }
 
 LcmTransport::LcmTransport(lcm_t* lcm, std::string url, std::unique_ptr<UdpmSocket> udpm)
-    : lcm_(lcm), url_(std::move(url)), udpm_(std::move(udpm)) {}
+    : lcm_(lcm), url_(std::move(url)), udpm_(std::move(udpm)) {
+  // A daemon hears every message on the bus (capture its own depth frames, all of them a flood's
+  // packets): those on channels it does not subscribe to are not reassembled nor verified.
+  reassembler_.set_channel_filter(
+      [this](std::string_view channel) { return first_match(channel) < subscriptions_.size(); });
+}
 
 LcmTransport::~LcmTransport() {
   if (lcm_) lcm_destroy(lcm_);
@@ -270,8 +275,33 @@ void LcmTransport::subscribe(const std::string& channel_regex, Handler handler) 
   subscriptions_.push_back(std::move(sub));
 }
 
+size_t LcmTransport::first_match(std::string_view channel, size_t from) const {
+  // regexec wants a C string; LCM's channel names are short (udpm::kMaxChannelBytes).
+  char name[128];
+  std::string long_name;
+  const char* text = name;
+  if (channel.size() < sizeof name) {
+    std::memcpy(name, channel.data(), channel.size());
+    name[channel.size()] = '\0';
+  } else {
+    long_name.assign(channel);
+    text = long_name.c_str();
+  }
+  for (size_t i = from; i < subscriptions_.size(); ++i)
+    if (subscriptions_[i]->matches(text)) return i;
+  return subscriptions_.size();
+}
+
 void LcmTransport::deliver(std::string_view channel_view, const uint8_t* data, size_t size,
                            int64_t recv_utime) {
+  // The channel first: a message no subscription wants is not worth an HMAC (udpm's reassembler
+  // already left these out; liblcm's receiver hands out everything).
+  const size_t first = first_match(channel_view);
+  if (first == subscriptions_.size()) {
+    ++unsubscribed_;
+    update_counters();
+    return;
+  }
   MessageAuth::Verdict verdict;
   if (auth_) {
     verdict = auth_->verify(channel_view, data, size, recv_utime);
@@ -289,14 +319,14 @@ void LcmTransport::deliver(std::string_view channel_view, const uint8_t* data, s
     return;
   }
   const std::string channel(channel_view);
-  for (const auto& sub : subscriptions_) {
-    if (sub->matches(channel.c_str())) sub->handler(channel, data, verdict.payload_size, recv_utime);
-  }
+  for (size_t i = first; i < subscriptions_.size(); i = first_match(channel, i + 1))
+    subscriptions_[i]->handler(channel, data, verdict.payload_size, recv_utime);
 }
 
 void LcmTransport::update_counters() {
   std::lock_guard<std::mutex> lock(counters_mutex_);
   counters_.udpm = reassembler_.counters();
+  counters_.unsubscribed = unsubscribed_ + reassembler_.counters().unsubscribed;
   if (auth_) counters_.auth = auth_->counters();
 }
 
@@ -306,16 +336,26 @@ Result<bool> LcmTransport::handle_udpm(int timeout_ms) {
     const int64_t left_ms = (deadline_ns - steady_ns()) / 1'000'000;
     auto datagram = udpm_->receive(static_cast<int>(std::max<int64_t>(left_ms, 0)));
     if (!datagram) return datagram.status();
-    if (!*datagram) return false;  // a timeout, or a signal: the caller checks its flags
+    if (!*datagram) {  // a timeout, or a signal: the caller checks its flags
+      update_counters();
+      return false;
+    }
     const auto& d = **datagram;
-    const int64_t recv_utime = now_utime();
     const auto message = reassembler_.feed(d.data, d.size, d.sender);
     if (message) {
-      deliver(message->channel, message->data, message->size, recv_utime);  // counts it
+      deliver(message->channel, message->data, message->size, now_utime());  // counts it
       return true;
     }
-    update_counters();
-    if (steady_ns() >= deadline_ns) return false;
+    // Other threads read a copy of the counters, under a lock: taken once per batch of datagrams
+    // rather than once per datagram, so a flood of them does not keep it busy.
+    if (++uncounted_ >= 64) {
+      uncounted_ = 0;
+      update_counters();
+    }
+    if (steady_ns() >= deadline_ns) {
+      update_counters();
+      return false;
+    }
   }
 }
 

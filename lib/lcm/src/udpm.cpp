@@ -74,9 +74,13 @@ std::optional<Message> Reassembler::short_message(const uint8_t* d, size_t size)
   const uint8_t* payload = channel + *length + 1;
   const size_t payload_bytes = static_cast<size_t>(end - payload);
   if (payload_bytes > limits_.max_message_bytes) return drop(Drop::kTooLarge);
+  const std::string_view name(reinterpret_cast<const char*>(channel), *length);
+  if (!wanted(name)) {
+    ++counters_.unsubscribed;
+    return std::nullopt;
+  }
   ++counters_.messages;
-  return Message{std::string_view(reinterpret_cast<const char*>(channel), *length), payload,
-                 payload_bytes};
+  return Message{name, payload, payload_bytes};
 }
 
 std::optional<Message> Reassembler::fragment(const uint8_t* d, size_t size, uint64_t sender) {
@@ -103,6 +107,8 @@ std::optional<Message> Reassembler::fragment(const uint8_t* d, size_t size, uint
   // 64-bit sums: a 32-bit offset near 2^32 must not wrap past the check.
   if (uint64_t{offset} + data_bytes > payload_bytes) return drop(Drop::kBadFragment);
 
+  // Only fragment 0 names the channel; the filter is asked once per datagram that does.
+  const bool unwanted = number == 0 && !wanted(channel);
   auto it = std::find_if(partials_.begin(), partials_.end(),
                          [&](const Partial& p) { return p.sender == sender; });
   if (it != partials_.end() && it->sequence != sequence) {
@@ -111,17 +117,31 @@ std::optional<Message> Reassembler::fragment(const uint8_t* d, size_t size, uint
   }
   Partial* partial = nullptr;
   if (it == partials_.end()) {
-    partial = start_partial(sender, sequence, payload_bytes, fragments);
+    // Fragment 0 first (as liblcm sends them) of a message nobody here wants: nothing is copied.
+    partial = start_partial(sender, sequence, payload_bytes, fragments, unwanted);
     if (!partial) return drop(Drop::kTooLarge);
+    if (unwanted) {
+      ++counters_.unsubscribed;
+      return std::nullopt;
+    }
   } else {
     partial = &*it;
     if (partial->payload_bytes != payload_bytes || partial->fragments != fragments)
       return drop(Drop::kInconsistent);
   }
   partial->last_feed = feeds_;
+  if (partial->unwanted) return std::nullopt;          // a later fragment of an unwanted message
   if (partial->received[number]) return std::nullopt;  // a duplicate: harmless, not counted
+  if (unwanted) {
+    // Fragment 0 after others: what they brought is let go, the rest will not be copied.
+    release(partial);
+    ++counters_.unsubscribed;
+    return std::nullopt;
+  }
 
-  std::memcpy(partial->payload.data() + offset, data, data_bytes);
+  // A message of 0 bytes has no buffer (data() is null), and memcpy must not be given null even
+  // for 0 bytes.
+  if (data_bytes > 0) std::memcpy(partial->payload.data() + offset, data, data_bytes);
   partial->received[number] = true;
   ++partial->fragments_received;
   partial->bytes_received += data_bytes;
@@ -141,12 +161,15 @@ std::optional<Message> Reassembler::fragment(const uint8_t* d, size_t size, uint
 }
 
 Reassembler::Partial* Reassembler::start_partial(uint64_t sender, uint32_t sequence,
-                                                 uint32_t payload_bytes, uint32_t fragments) {
+                                                 uint32_t payload_bytes, uint32_t fragments,
+                                                 bool unwanted) {
+  // The same limits as for any message, so that a datagram is dropped for the same reasons.
   if (payload_bytes > limits_.max_reassembly_bytes || limits_.max_partial_messages == 0)
     return nullptr;
+  const size_t bytes = unwanted ? 0 : payload_bytes;
   // Make room by dropping the partial messages that waited longest for a fragment.
   while (partials_.size() >= limits_.max_partial_messages ||
-         reassembly_bytes_ + payload_bytes > limits_.max_reassembly_bytes) {
+         reassembly_bytes_ + bytes > limits_.max_reassembly_bytes) {
     const auto oldest = std::min_element(
         partials_.begin(), partials_.end(),
         [](const Partial& a, const Partial& b) { return a.last_feed < b.last_feed; });
@@ -157,6 +180,8 @@ Reassembler::Partial* Reassembler::start_partial(uint64_t sender, uint32_t seque
   p.sequence = sequence;
   p.payload_bytes = payload_bytes;
   p.fragments = fragments;
+  p.unwanted = unwanted;
+  if (unwanted) return &p;
   take_spare(payload_bytes, &p.payload);
   // Only a buffer's growth is zeroed: the bytes of a reused one are those of an earlier message
   // until this one's fragments overwrite them. A message completes only once its fragments'
@@ -190,16 +215,26 @@ void Reassembler::take_spare(size_t bytes, std::vector<uint8_t>* out) {
 }
 
 void Reassembler::erase_partial(size_t index, bool evicted) {
-  if (evicted) ++counters_.dropped[static_cast<size_t>(Drop::kEvicted)];
-  reassembly_bytes_ -= partials_[index].payload_bytes;
-  std::vector<uint8_t>& buffer = partials_[index].payload;
+  Partial& partial = partials_[index];
+  if (evicted && !partial.unwanted) ++counters_.dropped[static_cast<size_t>(Drop::kEvicted)];
+  release(&partial);
+  partials_.erase(partials_.begin() + static_cast<std::ptrdiff_t>(index));
+}
+
+void Reassembler::release(Partial* partial) {
+  if (partial->unwanted) return;
+  partial->unwanted = true;
+  reassembly_bytes_ -= partial->payload_bytes;
+  std::vector<uint8_t>& buffer = partial->payload;
   // Kept within the same bounds as the messages in reassembly.
   if (spare_.size() < limits_.max_partial_messages &&
       spare_bytes_ + buffer.size() <= limits_.max_reassembly_bytes) {
     spare_bytes_ += buffer.size();
     spare_.push_back(std::move(buffer));
   }
-  partials_.erase(partials_.begin() + static_cast<std::ptrdiff_t>(index));
+  buffer = std::vector<uint8_t>();
+  partial->received = std::vector<bool>();
+  partial->channel.clear();
 }
 
 }  // namespace depthfuse::lcm::udpm

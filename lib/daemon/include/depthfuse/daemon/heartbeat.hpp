@@ -37,8 +37,10 @@ double counter_value(const depthfuse::heartbeat_t& hb, const std::string& key, d
 void add_device_status(const DeviceStatus& device, depthfuse::heartbeat_t* hb);
 
 // Puts what the daemon's LCM receiver dropped into its heartbeat: "signed" (1 with a rig key),
-// "auth_dropped_<reason>" for each reason authentication drops a message, and
-// "udpm_dropped_<reason>" for each reason the udpm receiver dropped a datagram at least once.
+// "auth_dropped_<reason>" for each reason authentication drops a message,
+// "udpm_dropped_<reason>" for each reason the udpm receiver dropped a datagram at least once, and
+// "unsubscribed", once there are some: messages on channels the daemon does not subscribe to,
+// left unverified (ReceiveCounters::unsubscribed).
 void add_receive_counters(const lcm::LcmTransport& transport, depthfuse::heartbeat_t* hb);
 
 // The messages a daemon refused as not signed with the rig key, by reason ("3 unsigned, 1

@@ -18,7 +18,8 @@
 //
 // What it does not do: hide anything (messages stay readable by anyone on the network), protect
 // against a holder of the key, or stop a flood of packets from using up the network and the
-// receivers' time (unsigned packets are dropped after one HMAC, before they are decoded).
+// receivers' time (packets are dropped after at most one HMAC, before they are decoded; those on
+// channels the receiver does not subscribe to are not verified at all, see LcmTransport).
 #pragma once
 
 #include <array>

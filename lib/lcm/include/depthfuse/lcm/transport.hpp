@@ -62,7 +62,10 @@ LcmDiagnosis diagnose_lcm_url(const LcmUrl& url);
 // receiver (udpm.hpp says why), with every datagram checked before it is used; other providers
 // (memq, file) receive through liblcm. With a rig key (authenticate()), every message published
 // is signed and every message received is verified before any handler sees it
-// (message_auth.hpp); handlers get the payload without its signature either way.
+// (message_auth.hpp); handlers get the payload without its signature either way. A message on a
+// channel that no subscription matches is only counted (ReceiveCounters::unsubscribed): it is
+// not verified, and on udpm not even reassembled, so that what this process does not read (a
+// flood, or capture's own frames heard back) costs it no HMAC.
 class LcmTransport {
  public:
   // channel, payload, size, receive time (microseconds, LCM's clock = wall clock)
@@ -119,6 +122,9 @@ class LcmTransport {
   struct ReceiveCounters {
     udpm::Counters udpm;
     AuthCounters auth;
+    // Messages on channels no subscription matches: neither verified nor handed out, and not
+    // faults (a daemon hears the whole bus), so in neither of the dropped counts.
+    uint64_t unsubscribed = 0;
   };
   ReceiveCounters receive_counters() const;
 
@@ -135,6 +141,9 @@ class LcmTransport {
   // whose expression matches its channel.
   void deliver(std::string_view channel, const uint8_t* data, size_t size, int64_t recv_utime);
   void update_counters();
+  // The index of the first subscription from `from` on whose expression matches the channel, or
+  // subscriptions_.size() when none does.
+  size_t first_match(std::string_view channel, size_t from = 0) const;
 
   lcm_t* lcm_ = nullptr;
   std::string url_;
@@ -148,6 +157,8 @@ class LcmTransport {
   // The udpm receiver; null on other providers. Used by the thread that calls handle().
   std::unique_ptr<UdpmSocket> udpm_;
   udpm::Reassembler reassembler_;
+  uint64_t unsubscribed_ = 0;  // liblcm's receiver: messages no subscription matched
+  int uncounted_ = 0;          // datagrams since counters_ was last brought up to date
   mutable std::mutex counters_mutex_;  // guards counters_, a copy for other threads
   ReceiveCounters counters_;
 };

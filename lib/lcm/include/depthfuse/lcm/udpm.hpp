@@ -18,6 +18,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -57,6 +58,8 @@ const char* to_string(Drop reason);
 struct Counters {
   uint64_t datagrams = 0;
   uint64_t messages = 0;  // complete messages handed out
+  // Well-formed messages on a channel the channel filter refused: not faults, so not in dropped.
+  uint64_t unsubscribed = 0;
   std::array<uint64_t, static_cast<size_t>(Drop::kCount)> dropped{};
   uint64_t dropped_total() const;
 };
@@ -72,6 +75,14 @@ struct Message {
 class Reassembler {
  public:
   explicit Reassembler(Limits limits = {});
+
+  // Which channels are wanted here (the receiver's subscriptions); unset, every channel is. A
+  // short message on another channel is counted (Counters::unsubscribed) and not handed out. So
+  // is a fragmented one, once its fragment 0 (which alone names the channel) arrives: its buffer
+  // is released, and its later fragments are checked as before but not copied. Fragments that
+  // arrive before fragment 0 are reassembled as usual until then: nothing else names the channel.
+  using ChannelFilter = std::function<bool(std::string_view channel)>;
+  void set_channel_filter(ChannelFilter wanted) { wanted_ = std::move(wanted); }
 
   // One datagram from `sender` (any key that tells senders apart: their address and port).
   // Returns the message this datagram completes, if any.
@@ -92,6 +103,9 @@ class Reassembler {
     uint32_t fragments_received = 0;
     uint64_t bytes_received = 0;
     uint64_t last_feed = 0;  // feed() count when a fragment last arrived: the oldest goes first
+    // Fragment 0 named a channel the filter refuses: no buffer, no reassembly bytes; kept only
+    // so that the message's other fragments are recognised and skipped.
+    bool unwanted = false;
     std::string channel;
     std::vector<uint8_t> payload;  // at least payload_bytes long (a reused buffer may be longer)
     std::vector<bool> received;    // by fragment number
@@ -99,14 +113,20 @@ class Reassembler {
 
   std::optional<Message> short_message(const uint8_t* d, size_t size);
   std::optional<Message> fragment(const uint8_t* d, size_t size, uint64_t sender);
+  // A new partial message; an unwanted one gets no buffer.
   Partial* start_partial(uint64_t sender, uint32_t sequence, uint32_t payload_bytes,
-                         uint32_t fragments);
+                         uint32_t fragments, bool unwanted);
+  // Counts an eviction only of a message that was being reassembled (an unwanted one loses nothing).
   void erase_partial(size_t index, bool evicted);
+  // Gives up the partial message's buffer and its reassembly bytes, and marks it unwanted.
+  void release(Partial* partial);
+  bool wanted(std::string_view channel) const { return !wanted_ || wanted_(channel); }
   // Moves a spare buffer fit for a message of `bytes` into `out` (left alone if none is).
   void take_spare(size_t bytes, std::vector<uint8_t>* out);
   std::nullopt_t drop(Drop reason);
 
   Limits limits_;
+  ChannelFilter wanted_;
   Counters counters_;
   std::vector<Partial> partials_;
   size_t reassembly_bytes_ = 0;
