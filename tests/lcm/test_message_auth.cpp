@@ -142,17 +142,20 @@ TEST(RigKey, LoadsAKeyFileAndNamesWhatIsWrongWithABadOne) {
   }
 }
 
+// A transport on `url` that verifies with `key` when one is given.
+auto open_transport(const std::string& url, std::optional<RigKey> key) {
+  auto t = lcm::LcmTransport::open(url);
+  EXPECT_TRUE(t.is_ok()) << t.status().to_string();
+  if (key) (*t)->authenticate(*key, kSkewUs);
+  return std::move(t).value();
+}
+
 // Over real LCM: a keyed receiver hears a keyed sender and drops, by reason, an unsigned sender
 // and one with another key; a receiver without a key reads signed messages too.
 TEST(MessageAuth, OverLcmOnlyTheRigsSignedMessagesReachTheHandlers) {
   const std::string url = testing::test_url();
   testing::require_multicast_route(url);
-  auto open = [&](std::optional<RigKey> key) {
-    auto t = lcm::LcmTransport::open(url);
-    EXPECT_TRUE(t.is_ok()) << t.status().to_string();
-    if (key) (*t)->authenticate(*key, kSkewUs);
-    return std::move(t).value();
-  };
+  auto open = [&](std::optional<RigKey> key) { return open_transport(url, key); };
   auto receiver = open(key_of(5));
   auto keyless_receiver = open(std::nullopt);
   auto rig = open(key_of(5));
@@ -198,12 +201,7 @@ TEST(MessageAuth, MessagesOnUnsubscribedChannelsAreCountedNotVerified) {
   for (const bool udpm : {true, false}) {
     const std::string url = udpm ? testing::test_url() : "memq://";
     if (udpm) testing::require_multicast_route(url);
-    auto open = [&](std::optional<RigKey> key) {
-      auto t = lcm::LcmTransport::open(url);
-      EXPECT_TRUE(t.is_ok()) << t.status().to_string();
-      if (key) (*t)->authenticate(*key, kSkewUs);
-      return std::move(t).value();
-    };
+    auto open = [&](std::optional<RigKey> key) { return open_transport(url, key); };
     auto receiver = open(key_of(5));
     // memq delivers within one lcm_t: there the receiver sends everything itself.
     auto rig = udpm ? open(key_of(5)) : nullptr;
