@@ -429,7 +429,13 @@ void FusionDaemon::execute(const command_t& cmd) {
 void FusionDaemon::fuse(QueuedFrame& item) {
   if (auto st = sink_->prepare_frame(item.frame, *reconstructor_); !st.is_ok())
     set_error("checkpoint store: " + st.to_string());
-  auto report = reconstructor_->process(item.frame);
+  // Without a hint, tracking starts where the camera's last motion puts it (the batch loop's
+  // model, scaled to the frame's time): a start at the last pose is a whole step away, two or
+  // three once the queue drops frames, and ICP then needs more iterations per frame.
+  std::optional<Pose> prediction;
+  if (!item.frame.T_world_cam_hint)
+    prediction = reconstructor_->constant_velocity_prediction(item.frame.utime);
+  auto report = reconstructor_->process(item.frame, prediction);
   if (!report) {
     ++process_errors_;
     set_error("frame " + std::to_string(item.frame.sequence) + ": " + report.status().to_string());

@@ -231,6 +231,20 @@ std::optional<CameraVelocity> IncrementalReconstructor::camera_velocity_through_
                          static_cast<double>(between_us) * 1e-6, fused_last_->T_world_cam);
 }
 
+std::optional<Pose> IncrementalReconstructor::constant_velocity_prediction(int64_t utime) const {
+  if (!camera_velocity_through_next(utime)) return std::nullopt;  // the gap rule
+  const double scale = static_cast<double>(utime - fused_last_->utime) /
+                       static_cast<double>(fused_last_->utime - fused_before_last_->utime);
+  // The step between the last two, as a rotation about one axis and a translation, stretched to
+  // this frame's time: after frames dropped by a full queue the step is two or three of them.
+  const Pose step = fused_before_last_->T_world_cam.inverse() * fused_last_->T_world_cam;
+  const Eigen::AngleAxisd rotation(step.rotation());
+  Pose scaled = Pose::Identity();
+  scaled.linear() = Eigen::AngleAxisd(rotation.angle() * scale, rotation.axis()).toRotationMatrix();
+  scaled.translation() = step.translation() * scale;
+  return fused_last_->T_world_cam * scaled;
+}
+
 void IncrementalReconstructor::fused_at(int64_t utime, const Pose& T_world_cam) {
   last_T_world_cam_ = T_world_cam;
   fused_before_last_ = fused_last_;

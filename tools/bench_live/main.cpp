@@ -69,7 +69,7 @@ constexpr const char* kUsage =
     "  --frames N   distinct frames rendered up front; the trajectory loops over them (default 300)\n"
     "  --lcm URL    default: a private loopback port, so a running appliance is not disturbed\n"
     "  --no-hint    frames without a pose hint, as from a Kinect: the daemon tracks each frame\n"
-    "               from the last refined pose (coarse to fine)\n"
+    "               from the last frames' motion (coarse to fine)\n"
     "  --hint-noise-m X  hints off the true pose by N(0, X) m per axis (default 0: exact)\n";
 
 double percentile(std::vector<double> v, double p) {

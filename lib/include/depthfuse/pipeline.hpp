@@ -74,6 +74,11 @@ class IncrementalReconstructor {
   // stays that of the last frame fused.
   Result<FrameReport> process(const Frame& frame,
                               const std::optional<Pose>& T_world_cam_prediction = std::nullopt);
+  // For a live stream, whose frames carry the sensor's times and may be dropped on the way: the
+  // pose at `utime` if the camera kept the motion of the last two frames fused, that motion scaled
+  // to the time since the last. None before two frames, or across a gap of more than a few frame
+  // periods (the same rule as the rolling-shutter velocity's).
+  std::optional<Pose> constant_velocity_prediction(int64_t utime) const;
 
   // Fuses `frame` at `T_world_cam` as frame `frame_id`, with no registration: a frame that was
   // fused before (a scan's frame redo log after a crash). Fusion is the same as process()'s, so
