@@ -4,6 +4,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <numeric>
 #include <sstream>
 
 #include <opencv2/imgcodecs.hpp>
@@ -254,6 +255,12 @@ Result<std::unique_ptr<TumSource>> TumSource::open(const std::string& folder,
                       << u->max_shift_px() << " px)";
     src->undistort_ = std::move(*u);
   }
+  if (src->undistort_) {
+    src->pixel_source_ = src->undistort_->source();
+  } else {
+    src->pixel_source_.resize(static_cast<size_t>(src->intrinsics_.width) * src->intrinsics_.height);
+    std::iota(src->pixel_source_.begin(), src->pixel_source_.end(), 0);
+  }
   return src;
 }
 
@@ -276,18 +283,11 @@ Result<Frame> TumSource::load(size_t i) const {
   f.intrinsics = intrinsics_;
   f.depth = DepthImage(img->cols, img->rows);
   const float inv_scale = static_cast<float>(1.0 / depth_scale_);
-  if (undistort_) {
-    // The lookup is the camera's size, and imread's images are continuous.
-    const uint16_t* in = img->ptr<uint16_t>(0);
-    const std::vector<int32_t>& from = undistort_->source();
-    for (size_t i = 0; i < from.size(); ++i)
-      f.depth.depth_m[i] = from[i] == Undistorter::kOutside ? 0.0f : in[from[i]] * inv_scale;
-  } else {
-    for (int v = 0; v < img->rows; ++v) {
-      const uint16_t* row = img->ptr<uint16_t>(v);
-      for (int u = 0; u < img->cols; ++u) f.depth.at(u, v) = row[u] * inv_scale;
-    }
-  }
+  // The lookup is the camera's size (checked above), and imread's images are continuous.
+  const uint16_t* in = img->ptr<uint16_t>(0);
+  const std::vector<int32_t>& from = pixel_source_;
+  for (size_t i = 0; i < from.size(); ++i)
+    f.depth.depth_m[i] = from[i] == Undistorter::kOutside ? 0.0f : in[from[i]] * inv_scale;
   if (!e.rgb_path.empty()) {
     // Colour is used only where it is registered to depth pixel for pixel (the same size); other
     // colour images are not decoded.
@@ -306,31 +306,18 @@ Result<Frame> TumSource::load(size_t i) const {
       f.color.width = rgb->cols;
       f.color.height = rgb->rows;
       f.color.rgb.resize(static_cast<size_t>(rgb->cols) * rgb->rows * 3);
-      if (undistort_) {
-        // Registered to depth pixel for pixel, so it moves with it.
-        const cv::Vec3b* in = rgb->ptr<cv::Vec3b>(0);
-        const std::vector<int32_t>& from = undistort_->source();
-        for (size_t i = 0; i < from.size(); ++i) {
-          uint8_t* px = &f.color.rgb[i * 3];
-          if (from[i] == Undistorter::kOutside) {
-            px[0] = px[1] = px[2] = 0;
-            continue;
-          }
-          const cv::Vec3b& c = in[from[i]];
-          px[0] = c[2];  // OpenCV is BGR
-          px[1] = c[1];
-          px[2] = c[0];
+      // Registered to depth pixel for pixel, so it is read through the same lookup.
+      const cv::Vec3b* rgb_in = rgb->ptr<cv::Vec3b>(0);
+      for (size_t i = 0; i < from.size(); ++i) {
+        uint8_t* px = &f.color.rgb[i * 3];
+        if (from[i] == Undistorter::kOutside) {
+          px[0] = px[1] = px[2] = 0;
+          continue;
         }
-      } else {
-        for (int v = 0; v < rgb->rows; ++v) {
-          const cv::Vec3b* row = rgb->ptr<cv::Vec3b>(v);
-          for (int u = 0; u < rgb->cols; ++u) {
-            uint8_t* px = &f.color.rgb[(static_cast<size_t>(v) * rgb->cols + u) * 3];
-            px[0] = row[u][2];  // OpenCV is BGR
-            px[1] = row[u][1];
-            px[2] = row[u][0];
-          }
-        }
+        const cv::Vec3b& c = rgb_in[from[i]];
+        px[0] = c[2];  // OpenCV is BGR
+        px[1] = c[1];
+        px[2] = c[0];
       }
     }
   }

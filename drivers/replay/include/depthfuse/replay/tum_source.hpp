@@ -75,7 +75,10 @@ class TumSource : public FrameSource {
   CameraIntrinsics intrinsics_;
   std::string intrinsics_origin_;
   double depth_scale_ = 5000.0;
-  std::optional<Undistorter> undistort_;  // depth and colour read through it; none: as recorded
+  std::optional<Undistorter> undistort_;  // the lens undone; none: as recorded
+  // Per pixel of a frame, the recorded pixel it is read from (undistort_'s lookup, or the identity):
+  // depth and colour are read by one loop each, whatever the lens.
+  std::vector<int32_t> pixel_source_;
   bool has_poses_ = false;
   size_t next_ = 0;
   mutable std::atomic<bool> warned_color_size_{false};  // load() said colour was another size
