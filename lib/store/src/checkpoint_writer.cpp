@@ -3,6 +3,7 @@
 #include "checkpoint_writer.hpp"
 
 #include "depthfuse/base/clock.hpp"
+#include "depthfuse/base/thread_priority.hpp"
 
 namespace depthfuse::store {
 
@@ -40,6 +41,7 @@ void CheckpointWriter::wait_idle() {
 }
 
 void CheckpointWriter::run() {
+  make_background_thread();  // its work has a second of slack, a frame's fusion 33 ms
   std::unique_lock<std::mutex> lock(*mutex_);
   for (;;) {
     cv_.wait(lock, [&] { return job_.has_value() || stop_; });

@@ -7,6 +7,7 @@
 #include <chrono>
 
 #include "depthfuse/base/clock.hpp"
+#include "depthfuse/base/thread_priority.hpp"
 
 namespace depthfuse::store {
 
@@ -84,6 +85,7 @@ FrameLogStats FrameLogWriter::stats() const {
 }
 
 void FrameLogWriter::run() {
+  make_background_thread();  // its work has a second of slack, a frame's fusion 33 ms
   std::unique_lock<std::mutex> lock(mu_);
   const int64_t interval_ns = to_ns(config_.commit_interval_s);
   for (;;) {
