@@ -20,6 +20,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <set>
 #include <mutex>
 #include <numeric>
 #include <sstream>
@@ -263,12 +264,14 @@ int run(int argc, char** argv) {
   depthfuse::heartbeat_t last_hb{};
   bool have_hb = false;
   int64_t poses = 0;
+  std::set<int64_t> fused_sequences;
   lcm->subscribe(lcm::kPoseChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
     const int64_t now = depthfuse::now_utime();
     depthfuse::pose_t p;
     if (lcm::decode_message(d, n, &p) != lcm::DecodeResult::kOk) return;
     std::lock_guard<std::mutex> lock(m);
     ++poses;
+    fused_sequences.insert(p.sequence);
     auto it = publish_utime_by_seq.find(p.sequence);
     if (it != publish_utime_by_seq.end()) latency_ms.push_back((now - it->second) * 1e-3);
     daemon_latency_ms.push_back((p.publish_utime - p.frame_publish_utime) * 1e-3);
@@ -361,6 +364,22 @@ int run(int argc, char** argv) {
               static_cast<long long>(last_hb.frames_in), static_cast<long long>(last_hb.frames_dropped),
               published ? 100.0 * last_hb.frames_dropped / published : 0.0,
               static_cast<long long>(last_hb.frames_lost));
+  // Where the frames without a pose were: the scan's first second (its first frames set up the map
+  // and the buffers, and cost several periods) or its steady state.
+  const int64_t first_second = static_cast<int64_t>(a.rate_hz);
+  int64_t missed_start = 0, missed_after = 0;
+  std::string missed_list;
+  for (int64_t seq = 0; seq < published; ++seq) {
+    if (fused_sequences.count(seq)) continue;
+    if (seq < first_second) {
+      ++missed_start;
+    } else if (++missed_after <= 12) {
+      missed_list += " " + std::to_string(seq);
+    }
+  }
+  std::printf("  not fused: %lld in the first second, %lld after it%s%s\n",
+              static_cast<long long>(missed_start), static_cast<long long>(missed_after),
+              missed_after ? " (frames" : "", missed_after ? (missed_list + (missed_after > 12 ? " ...)" : ")")).c_str() : "");
   std::printf("  latency publish -> refined pose received: p50 %.1f ms, p99 %.1f ms, max %.1f ms\n",
               percentile(latency_ms, 0.5), percentile(latency_ms, 0.99), percentile(latency_ms, 1.0));
   std::printf("  (daemon side, frame publish -> pose publish: p50 %.1f ms, p99 %.1f ms)\n",
