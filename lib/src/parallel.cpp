@@ -11,7 +11,9 @@ namespace depthfuse::detail {
 namespace {
 
 // One thread for the second halves of run_pair, started on first use and kept for the process's
-// life (never joined: it sleeps between tasks, and exits with the process).
+// life (never joined: it sleeps between tasks, and exits with the process). It inherits the
+// scheduling priority of the thread that first splits work, which in the daemons is the fusion
+// thread: the background writers (make_background_thread) never split theirs.
 class PairThread {
  public:
   static PairThread* get() {
