@@ -20,9 +20,9 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
-#include <set>
 #include <mutex>
 #include <numeric>
+#include <set>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -368,18 +368,20 @@ int run(int argc, char** argv) {
   // and the buffers, and cost several periods) or its steady state.
   const int64_t first_second = static_cast<int64_t>(a.rate_hz);
   int64_t missed_start = 0, missed_after = 0;
-  std::string missed_list;
+  std::string missed_list;  // the steady state's, the first dozen
   for (int64_t seq = 0; seq < published; ++seq) {
     if (fused_sequences.count(seq)) continue;
     if (seq < first_second) {
       ++missed_start;
     } else if (++missed_after <= 12) {
-      missed_list += " " + std::to_string(seq);
+      missed_list += (missed_after == 1 ? " (frames " : " ") + std::to_string(seq);
     }
   }
-  std::printf("  not fused: %lld in the first second, %lld after it%s%s\n",
+  if (missed_after > 12) missed_list += " ...";
+  if (missed_after > 0) missed_list += ")";
+  std::printf("  not fused: %lld in the first second, %lld after it%s\n",
               static_cast<long long>(missed_start), static_cast<long long>(missed_after),
-              missed_after ? " (frames" : "", missed_after ? (missed_list + (missed_after > 12 ? " ...)" : ")")).c_str() : "");
+              missed_list.c_str());
   std::printf("  latency publish -> refined pose received: p50 %.1f ms, p99 %.1f ms, max %.1f ms\n",
               percentile(latency_ms, 0.5), percentile(latency_ms, 0.99), percentile(latency_ms, 1.0));
   std::printf("  (daemon side, frame publish -> pose publish: p50 %.1f ms, p99 %.1f ms)\n",
