@@ -149,6 +149,11 @@ void Registrar::render_model(const MeasurementImage& m, const PointMap& map, con
   if (proj.rendered_points() == 0) view_.clear();
 }
 
+// An ICP step this small (0.1 mrad and 0.1 mm) is done: the pairs change a little at each
+// iteration, so on real depth the step rarely gets much smaller, and the iterations left would
+// each cost as much as the first for motion far below the sensor's noise.
+constexpr double kConvergedStep = 1e-4;
+
 RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& model,
                                   const Pose& initial, const Hold& hold, int subsample,
                                   int iterations, double max_corr_m, size_t min_pairs,
@@ -239,7 +244,7 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
     Tc.translation() = centre.cast<double>();
     T = Tc * twist_to_pose(xi) * Tc.inverse() * T;
     T.linear() = Eigen::Quaterniond(T.linear()).normalized().toRotationMatrix();
-    if (xi.head<3>().norm() < 1e-7 && xi.tail<3>().norm() < 1e-7) break;
+    if (xi.head<3>().norm() < kConvergedStep && xi.tail<3>().norm() < kConvergedStep) break;
   }
 
   result.correspondences = eq.inliers;

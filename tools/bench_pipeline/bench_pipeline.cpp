@@ -156,6 +156,21 @@ void BM_Reregistration(benchmark::State& state) {
   for (auto _ : state) benchmark::DoNotOptimize(reg.refine(m, s.map, initial));
 }
 
+// The live path without a hint: coarse-to-fine tracking from a start 2 cm off, the map rendered
+// at the start pose (Registrar::track), as the fusion daemon tracks a Kinect's frame.
+void BM_Tracking(benchmark::State& state) {
+  Scan& s = Scan::get();
+  MeasurementImage m;
+  (void)backproject(s.frames[20], s.config.sensor, s.config.fusion, &m);
+  prefilter(s.config.prefilter, &m);
+  RegistrationConfig rc = s.config.registration;
+  rc.threads = static_cast<int>(state.range(0));
+  Registrar reg(rc);
+  Pose initial = s.seq.T_world_cam_true(20);
+  initial.translation() += Eigen::Vector3d(0.02, -0.01, 0.01);
+  for (auto _ : state) benchmark::DoNotOptimize(reg.track(m, s.map, initial, initial));
+}
+
 }  // namespace
 
 BENCHMARK(BM_Backproject)->Unit(benchmark::kMillisecond);
@@ -165,4 +180,5 @@ BENCHMARK(BM_Fuse)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_PrefilterPlusFusion)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_FramePath)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_Reregistration)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Tracking)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond);
 BENCHMARK_MAIN();
