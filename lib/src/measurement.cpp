@@ -206,9 +206,17 @@ std::vector<CameraVelocity> camera_velocities(const std::vector<Frame>& frames,
 }
 
 bool undo_rolling_shutter(const Frame& frame, const CameraVelocity& velocity, DepthImage* out) {
+  return undo_rolling_shutter(frame, velocity, frame.intrinsics.row_readout_s, out);
+}
+
+double row_readout_s(const Frame& frame, const SensorModelConfig& sensor) {
+  return frame.intrinsics.row_readout_s > 0.0 ? frame.intrinsics.row_readout_s : sensor.row_readout_s;
+}
+
+bool undo_rolling_shutter(const Frame& frame, const CameraVelocity& velocity, double readout_s,
+                          DepthImage* out) {
   const CameraIntrinsics& K = frame.intrinsics;
   const DepthImage& D = frame.depth;
-  const double readout_s = K.row_readout_s;
   if (!(readout_s > 0.0) || !K.valid() || D.width != K.width || D.height != K.height ||
       (velocity.omega_cam_rad_s.isZero() && velocity.v_cam_m_s.isZero()))
     return false;

@@ -27,11 +27,12 @@ inline double ms_since(Clock::time_point t0) {
 // frame by frame, the camera's motion through a frame is not known when it is fused).
 Result<size_t> measure(const Frame& frame, const ReconstructionConfig& c, MeasurementImage* m,
                        const CameraVelocity* velocity = nullptr) {
-  if (velocity && frame.intrinsics.row_readout_s > 0.0) {
+  const double readout_s = row_readout_s(frame, c.sensor);
+  if (velocity && readout_s > 0.0) {
     Frame at_mid_row;
     at_mid_row.utime = frame.utime;
     at_mid_row.intrinsics = frame.intrinsics;
-    if (undo_rolling_shutter(frame, *velocity, &at_mid_row.depth)) {
+    if (undo_rolling_shutter(frame, *velocity, readout_s, &at_mid_row.depth)) {
       at_mid_row.color = frame.color;
       DF_RETURN_IF_ERROR(backproject(at_mid_row, c.sensor, c.fusion, m));
       return prefilter(c.prefilter, m, c.fusion.threads);
@@ -396,8 +397,8 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
 
   // A rolling-shutter camera's frames are each taken over a motion, which the velocities the
   // current poses give undo (docs/architecture.md). For a global shutter none are computed.
-  const bool rolling_shutter = std::any_of(frames.begin(), frames.end(), [](const Frame& f) {
-    return f.intrinsics.row_readout_s > 0.0;
+  const bool rolling_shutter = std::any_of(frames.begin(), frames.end(), [&](const Frame& f) {
+    return row_readout_s(f, c.sensor) > 0.0;
   });
   auto velocities_of = [&](const std::vector<Pose>& poses) {
     return rolling_shutter ? camera_velocities(frames, poses) : std::vector<CameraVelocity>{};

@@ -31,6 +31,7 @@ void expect_sensor_eq(const SensorModelConfig& a, const SensorModelConfig& b) {
   EXPECT_EQ(a.alpha2_per_m, b.alpha2_per_m);
   EXPECT_EQ(a.min_depth_m, b.min_depth_m);
   EXPECT_EQ(a.max_depth_m, b.max_depth_m);
+  EXPECT_EQ(a.row_readout_s, b.row_readout_s);
 }
 
 void expect_config_eq(const AppConfig& a, const AppConfig& b) {
@@ -144,6 +145,7 @@ alpha1 = -0.0004
 alpha2_per_m = 0.0002
 min_depth_m = 0.6
 max_depth_m = 4.0
+row_readout_s = 0.03
 
 [prefilter]
 enabled = false
@@ -237,6 +239,7 @@ publish_rate_hz = 0.5
   EXPECT_EQ(s.beta_x_rad, 0.0027);
   EXPECT_EQ(s.beta_y_rad, 0.0028);
   EXPECT_EQ(s.alpha0_m, 0.002);
+  EXPECT_EQ(s.row_readout_s, 0.03);
   EXPECT_EQ(s.alpha1, -0.0004);
   EXPECT_EQ(s.alpha2_per_m, 0.0002);
   EXPECT_EQ(s.min_depth_m, 0.6);

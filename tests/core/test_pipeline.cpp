@@ -304,9 +304,12 @@ TEST(Incremental, ARollingShutterIsUndoneWithTheMotionOfTheLastTwoFrames) {
     return T;
   };
   // The worst position error of frames 2-9 (sheared), after frames 0 and 1 taken standing still
-  // at their places (no shear, the map's start); `readout_s` is what the frames say of their rows.
-  auto worst_error_m = [&](double readout_s) -> double {
-    IncrementalReconstructor rec{ReconstructionConfig{}};
+  // at their places (no shear, the map's start); `readout_s` is what the frames say of their rows,
+  // `sensor_readout_s` what the sensor's configuration says.
+  auto worst_error_m = [&](double readout_s, double sensor_readout_s) -> double {
+    ReconstructionConfig config;
+    config.sensor.row_readout_s = sensor_readout_s;
+    IncrementalReconstructor rec{config};
     double worst = 0;
     for (int i = 0; i < 10; ++i) {
       Frame f = i < 2 ? test::render_corner(pose_at(i), K) : test::render_corner_rolling(pose_at(i), v_world_m_s, K);
@@ -320,11 +323,15 @@ TEST(Incremental, ARollingShutterIsUndoneWithTheMotionOfTheLastTwoFrames) {
     }
     return worst;
   };
-  const double undone = worst_error_m(K.row_readout_s), taken_as_is = worst_error_m(0.0);
+  const double undone = worst_error_m(K.row_readout_s, 0.0), taken_as_is = worst_error_m(0.0, 0.0);
   std::printf("worst position error of the sheared frames: %.2f mm undone, %.2f mm as taken\n",
               undone * 1e3, taken_as_is * 1e3);
   EXPECT_LT(undone, 1.5e-3);
   EXPECT_GT(taken_as_is, 2.0 * undone) << "undone " << undone << " m";
+  // Frames over LCM carry no readout time: the sensor's configuration supplies it, the same.
+  EXPECT_EQ(worst_error_m(0.0, K.row_readout_s), undone);
+  // A frame's own readout time wins over the configuration's.
+  EXPECT_EQ(worst_error_m(K.row_readout_s, 0.05), undone);
 }
 
 // A live stream's prediction: the last two frames' motion (a step along and about the camera's

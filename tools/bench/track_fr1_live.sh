@@ -9,7 +9,7 @@
 # the batch loop, every frame fused.
 #
 #   tools/bench/track_fr1_live.sh [--bin DIR]... [--data DIR] [--work DIR] [--camera FILE]
-#                                 [--key-file FILE] [--port P]
+#                                 [--key-file FILE] [--port P] [--readout yes|no]...
 #
 # --bin DIR    a directory with depthfuse-capture, depthfuse-fusion (default build/bin); given
 #              twice, the first is the baseline, run first, and both are printed side by side
@@ -18,6 +18,10 @@
 # --camera     the camera file (default tools/eval/tum_fr1_camera.toml)
 # --key-file   the rig key for both daemons (default: none)
 # --port P     the loopback multicast port (default 7699: not the appliance's)
+# --readout    whether the fusion daemon is told the camera file's rolling shutter (its
+#              row_readout_s, as [sensor] row_readout_s in a config of its own): frames over LCM
+#              do not carry it. Default yes; given twice, one for each --bin (a build older than
+#              the setting needs no)
 #
 # The replay folder links the dataset's depth and colour and holds the camera file, but not
 # groundtruth.txt: with it the replay would send the true poses as hints. Needs the multicast
@@ -32,6 +36,7 @@ work="/tmp/track_fr1_live.${USER:-$(id -un)}"
 camera="$here/tools/eval/tum_fr1_camera.toml"
 key_file=""
 port=7699
+readouts=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --bin) bins+=("$2"); shift 2 ;;
@@ -40,6 +45,7 @@ while [[ $# -gt 0 ]]; do
     --camera) camera="$2"; shift 2 ;;
     --key-file) key_file="$2"; shift 2 ;;
     --port) port="$2"; shift 2 ;;
+    --readout) readouts+=("$2"); shift 2 ;;
     -h|--help) sed -n '2,25p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "track_fr1_live.sh: unknown argument $1 (--help)" >&2; exit 2 ;;
   esac
@@ -62,6 +68,8 @@ for f in depth.txt depth rgb.txt rgb; do
   [[ -e "$data/$f" ]] && ln -s "$(cd "$data" && pwd)/$f" "$replay/$f"
 done
 cp "$camera" "$replay/camera.toml"
+readout_s=$(sed -n 's/^row_readout_s *= *\([0-9.eE+-]*\).*/\1/p' "$camera" | tail -1)
+printf '[sensor]\nrow_readout_s = %s\n' "${readout_s:-0.0}" > "$work/fusion_readout.toml"
 url="udpm://239.255.76.67:$port?ttl=0&recv_buf_size=4194304"
 
 declare -A result
@@ -69,7 +77,11 @@ for k in "${!bins[@]}"; do
   b="${bins[$k]}"
   scans="$work/scans_b$k"
   rm -rf "$scans"
-  "$b/depthfuse-fusion" --lcm "$url" --key-file "$key_file" --scan-dir "$scans" \
+  readout="${readouts[$k]:-${readouts[0]:-yes}}"
+  [[ $readout == yes || $readout == no ]] || { echo "track_fr1_live.sh: --readout yes|no" >&2; exit 2; }
+  config=()
+  [[ $readout == yes ]] && config=(--config "$work/fusion_readout.toml")
+  "$b/depthfuse-fusion" --lcm "$url" --key-file "$key_file" --scan-dir "$scans" "${config[@]}" \
     --autostart fr1 > "$work/fusion_b$k.log" 2>&1 &
   fusion=$!
   sleep 1
@@ -90,14 +102,14 @@ for k in "${!bins[@]}"; do
   ate=$("$py" "$here/tools/eval/ate.py" "$traj" "$data/groundtruth.txt" --json \
           --per-frame "$work/b$k.err")
   line=$("$py" -c 'import json,sys; a=json.loads(sys.argv[1]); print("%.1f | %.1f | %d" % (a["rmse_mm"], a["worst_mm"], a["over"]))' "$ate")
-  result[$k]="${published:-?} | $fused | $line | $lost / $relocalised | $(printf %.0f "$secs") s"
+  result[$k]="$readout | ${published:-?} | $fused | $line | $lost / $relocalised | $(printf %.0f "$secs") s"
   echo "done: $b: published ${published:-?}, fused $fused, ATE $line" >&2
 done
 
 echo "load: $(cut -d' ' -f1-3 /proc/loadavg)"
 echo
-echo "| binary | published | fused | ATE RMSE mm | worst mm | > 50 mm | losses / relocalisations | time |"
-echo "|---|---|---|---|---|---|---|---|"
+echo "| binary | readout | published | fused | ATE RMSE mm | worst mm | > 50 mm | losses / relocalisations | time |"
+echo "|---|---|---|---|---|---|---|---|---|"
 for k in "${!bins[@]}"; do
   echo "| ${bins[$k]} | ${result[$k]} |"
 done

@@ -53,6 +53,7 @@ void read_sensor(TableReader& r, SensorModelConfig* s) {
   r.read("alpha2_per_m", &s->alpha2_per_m, app_config_detail::any_number());
   r.read("min_depth_m", &s->min_depth_m, positive());
   r.read("max_depth_m", &s->max_depth_m, positive());
+  r.read("row_readout_s", &s->row_readout_s, non_negative());
   r.reject_unknown();
   if (!r.clean()) return;  // the rules below assume each value is sane
 

@@ -19,6 +19,10 @@ struct SensorModelConfig {
   double alpha2_per_m = 0.3e-3;    // m per m^2
   double min_depth_m = 0.5;        // Kinect V2 operating range
   double max_depth_m = 4.5;
+  // The depth camera's rolling shutter, s (CameraIntrinsics::row_readout_s), for frames that do
+  // not say: frames over LCM carry no readout time (depth_frame_t is frozen), so a rolling-shutter
+  // sensor behind the capture daemon is described here. 0: a global shutter (the Kinect V2).
+  double row_readout_s = 0.0;
 };
 
 // Pre-filter: drop a measurement whose distance to its k-th nearest neighbour in the back-projected

@@ -52,6 +52,11 @@ std::vector<CameraVelocity> camera_velocities(const std::vector<Frame>& frames,
 // resampled (nearest pixel, backward warp) so that every pixel keeps its own ray. Returns false and
 // leaves *out alone when there is nothing to do (a global shutter, or no motion).
 bool undo_rolling_shutter(const Frame& frame, const CameraVelocity& velocity, DepthImage* out);
+// The same with the readout time given (`readout_s`), for a frame that does not carry its own.
+bool undo_rolling_shutter(const Frame& frame, const CameraVelocity& velocity, double readout_s,
+                          DepthImage* out);
+// The rows' readout time of `frame`: its own, or where it carries none, the sensor's.
+double row_readout_s(const Frame& frame, const SensorModelConfig& sensor);
 
 // d_r(z) / z for these intrinsics: the mean distance from a point to its k-th nearest neighbour
 // on a fronto-parallel plane at 1 m, found by back-projecting a constant depth map (d_r is linear
