@@ -1,7 +1,6 @@
 #include "depthfuse/base/heap_reserve.hpp"
 
 #include <malloc.h>
-#include <sys/mman.h>
 #include <unistd.h>
 
 #include <cstdint>
@@ -17,13 +16,6 @@ namespace {
 constexpr size_t kMmapThreshold = size_t{32} << 20;
 // The pieces the reserve is taken in: below the threshold, so that they come from the heap.
 constexpr size_t kPiece = size_t{16} << 20;
-constexpr uintptr_t kHugePage = uintptr_t{2} << 20;
-
-void ask_for_huge_pages(void* p, size_t bytes) {
-  const uintptr_t begin = (reinterpret_cast<uintptr_t>(p) + kHugePage - 1) & ~(kHugePage - 1);
-  const uintptr_t end = (reinterpret_cast<uintptr_t>(p) + bytes) & ~(kHugePage - 1);
-  if (end > begin) (void)madvise(reinterpret_cast<void*>(begin), end - begin, MADV_HUGEPAGE);
-}
 
 }  // namespace
 
@@ -40,7 +32,6 @@ size_t reserve_heap(size_t bytes) {
     void* p = std::malloc(kPiece);
     if (!p) break;
     pieces.push_back(p);
-    ask_for_huge_pages(p, kPiece);
     // Through a volatile pointer: a compiler may drop writes to memory that is freed unread.
     for (size_t o = 0; o < kPiece; o += page) static_cast<volatile char*>(p)[o] = 0;
     touched += kPiece;

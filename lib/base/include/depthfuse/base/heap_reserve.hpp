@@ -9,8 +9,9 @@ namespace depthfuse {
 // already mapped: later allocations of up to 32 MiB reuse it without a page fault. A scan's first
 // frames build the map from nothing and fault in about a hundred MiB of new memory; each 4 KiB page
 // costs the kernel microseconds, and together they cost several frame periods (docs/results.md),
-// so frames were dropped at the start of every scan. Transparent huge pages are asked for where
-// the kernel offers them (madvise mode): 512 times fewer faults, here and later.
+// so frames were dropped at the start of every scan. Not with transparent huge pages: where the
+// kernel compacts memory for them on a fault (defrag "madvise"), fusion slowed down by half after
+// a quarter of a minute (docs/results.md).
 //
 // Call it before the process starts threads: it makes all threads share one heap (with a heap per
 // thread, memory freed in one is not reused by another, and a thread's heap is bounded to 64 MiB
