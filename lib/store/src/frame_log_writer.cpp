@@ -132,17 +132,6 @@ void FrameLogWriter::run() {
       cv_.wait_for(lock, std::chrono::nanoseconds(due - now));
       continue;
     }
-    // The checkpoint writer holds the store for its whole transaction, a second or more. Waiting
-    // for it here would stop the encoding, fill the queue, and make push() hold up the fusion
-    // thread (30-80 frames dropped at every checkpoint): frames are encoded meanwhile, and held
-    // up to kHeldCommits commits' worth. (try_lock: the store's mutex is taken before this one
-    // elsewhere, so blocking on it here could deadlock.)
-    std::unique_lock<std::mutex> store_lock(*store_mutex_, std::try_to_lock);
-    if (!store_lock && !flushing &&
-        encoded_bytes_ < FrameLogWriterConfig::kHeldCommits * config_.commit_bytes) {
-      cv_.wait_for(lock, std::chrono::milliseconds(5));
-      continue;
-    }
     std::vector<FrameLogRecord> batch;
     batch.reserve(encoded_.size());
     std::vector<int64_t> pushed;
@@ -156,9 +145,11 @@ void FrameLogWriter::run() {
     writing_ = true;
     lock.unlock();
     const int64_t t0 = steady_ns();
-    if (!store_lock) store_lock.lock();
-    const Status st = store_->append_frame_log(batch);
-    store_lock.unlock();
+    Status st;
+    {
+      std::lock_guard<std::mutex> store_lock(*store_mutex_);
+      st = store_->append_frame_log(batch);
+    }
     const int64_t t1 = steady_ns();
     lock.lock();
     writing_ = false;
@@ -174,8 +165,7 @@ void FrameLogWriter::run() {
       retry_after_ns_ = t1 + interval_ns;
       // Kept for the next try, before anything encoded meanwhile; beyond the bound they go, and
       // logging waits for a checkpoint to cover them.
-      if (bytes + encoded_bytes_ > FrameLogWriterConfig::kHeldCommits * config_.commit_bytes ||
-          suspended_until_ != 0) {
+      if (bytes + encoded_bytes_ > 4 * config_.commit_bytes || suspended_until_ != 0) {
         stats_.frames_dropped += batch.size() + encoded_.size();
         uint32_t newest = batch.back().pose.frame_id;
         if (!encoded_.empty()) newest = encoded_.back().record.pose.frame_id;

@@ -27,10 +27,6 @@
 namespace depthfuse::store {
 
 struct FrameLogWriterConfig {
-  // Encoded frames held at most, in commits' worth (commit_bytes): while the checkpoint writer has
-  // the store (a second or more) and while a commit is retried after a failure.
-  static constexpr size_t kHeldCommits = 8;
-
   double commit_interval_s = 1.0;
   size_t queue_frames = 1;
   size_t commit_bytes = 1u << 20;

@@ -38,11 +38,14 @@ ScanRecorder::ScanRecorder(std::unique_ptr<ScanStore> store, const RecorderConfi
 size_t RecorderConfig::frame_log_bytes(const RecorderConfig& config, size_t pixels) {
   if (config.frame_log_interval_s <= 0) return 0;
   const size_t raw_frame = pixels * (sizeof(float) + 3), encoded_frame = pixels * (2 + 3);
-  const size_t keyframe = pixels * (sizeof(float) + 3);
   return (std::max<size_t>(1, config.frame_log_queue_frames) + 1) * raw_frame +
-         FrameLogWriterConfig::kHeldCommits * config.frame_log_commit_bytes + 2 * encoded_frame +
-         kMaxPendingKeyframes * keyframe;
+         2 * (config.frame_log_commit_bytes + encoded_frame);
 }
+
+namespace {
+// Keyframes the fusion thread holds while the background writer has the store (~1 MB each).
+constexpr size_t kMaxPendingKeyframes = 4;
+}  // namespace
 
 Status ScanRecorder::write_pending_keyframes() {
   Status result;
@@ -59,7 +62,7 @@ Status ScanRecorder::write_pending_keyframes() {
 // and can wait (the outcome, keyframes) waits for a frame where the store is free.
 Status ScanRecorder::catch_up(PointMap* map) {
   std::unique_lock<std::mutex> lock(mutex_, std::try_to_lock);
-  if (!lock && pending_keyframes_.size() < RecorderConfig::kMaxPendingKeyframes) return Status::ok();
+  if (!lock && pending_keyframes_.size() < kMaxPendingKeyframes) return Status::ok();
   if (!lock) lock.lock();
   collect_background(map);
   return write_pending_keyframes();

@@ -63,14 +63,9 @@ struct RecorderConfig {
   int frame_log_color_compression_level = -5;
   // What the frame log holds in memory at most, for frames of `pixels` pixels, bytes: the raw
   // frames waiting and the one being encoded (depth as float, colour RGB), the encoded frames
-  // waiting and those in the transaction (up to FrameLogWriterConfig::kHeldCommits commits while
-  // a checkpoint has the store, and one more record, at most its 16-bit depth and RGB), and the
-  // keyframes the fusion thread holds meanwhile (kMaxPendingKeyframes).
+  // waiting and those in the transaction (each up to the commit size and one more record, at
+  // most its 16-bit depth and RGB).
   static size_t frame_log_bytes(const RecorderConfig& config, size_t pixels);
-  // Keyframes held while the background checkpoint writer has the store; the fusion thread waits
-  // for it only beyond them. A keyframe every keyframe_every_n_frames (10): 2.7 s of scan, longer
-  // than a checkpoint's transaction (1.5 s for 260 k points here).
-  static constexpr size_t kMaxPendingKeyframes = 8;
 };
 
 // Frame counters the daemon keeps (queue drops happen before the recorder sees a frame).
