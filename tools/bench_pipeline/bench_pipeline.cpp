@@ -143,16 +143,23 @@ void BM_FramePath(benchmark::State& state) {
   state.counters["map_points"] = static_cast<double>(map.point_count());
 }
 
+// Both registration benchmarks' case: frame 20 back-projected and pre-filtered, its start 2 cm
+// off the true pose, and the registration settings with `threads`.
+RegistrationConfig registration_case(const Scan& s, int threads, MeasurementImage* m, Pose* initial) {
+  (void)backproject(s.frames[20], s.config.sensor, s.config.fusion, m);
+  prefilter(s.config.prefilter, m);
+  *initial = s.seq.T_world_cam_true(20);
+  initial->translation() += Eigen::Vector3d(0.02, -0.01, 0.01);
+  RegistrationConfig rc = s.config.registration;
+  rc.threads = threads;
+  return rc;
+}
+
 void BM_Reregistration(benchmark::State& state) {
   Scan& s = Scan::get();
   MeasurementImage m;
-  (void)backproject(s.frames[20], s.config.sensor, s.config.fusion, &m);
-  prefilter(s.config.prefilter, &m);
-  RegistrationConfig rc = s.config.registration;
-  rc.threads = static_cast<int>(state.range(0));
-  Registrar reg(rc);
-  Pose initial = s.seq.T_world_cam_true(20);
-  initial.translation() += Eigen::Vector3d(0.02, -0.01, 0.01);
+  Pose initial;
+  Registrar reg(registration_case(s, static_cast<int>(state.range(0)), &m, &initial));
   for (auto _ : state) benchmark::DoNotOptimize(reg.refine(m, s.map, initial));
 }
 
@@ -161,13 +168,8 @@ void BM_Reregistration(benchmark::State& state) {
 void BM_Tracking(benchmark::State& state) {
   Scan& s = Scan::get();
   MeasurementImage m;
-  (void)backproject(s.frames[20], s.config.sensor, s.config.fusion, &m);
-  prefilter(s.config.prefilter, &m);
-  RegistrationConfig rc = s.config.registration;
-  rc.threads = static_cast<int>(state.range(0));
-  Registrar reg(rc);
-  Pose initial = s.seq.T_world_cam_true(20);
-  initial.translation() += Eigen::Vector3d(0.02, -0.01, 0.01);
+  Pose initial;
+  Registrar reg(registration_case(s, static_cast<int>(state.range(0)), &m, &initial));
   for (auto _ : state) benchmark::DoNotOptimize(reg.track(m, s.map, initial, initial));
 }
 
