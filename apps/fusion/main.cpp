@@ -1,6 +1,4 @@
 // depthfuse-fusion: the fusion daemon (FusionDaemon) started from the command line.
-#include <algorithm>
-#include <chrono>
 #include <string>
 
 #include "depthfuse/base/heap_reserve.hpp"
@@ -58,14 +56,8 @@ int main(int argc, char** argv) {
       DF_LOG(Fusion, Error) << st.message();
       return 2;
     }
-    // Before any thread starts (reserve_heap()): the per-frame work's memory, and as much again
-    // for the map's first frames, so that a scan's start does not wait on page faults.
-    const double reserve_mib = std::min(budget.total_mib, 2.0 * budget.frame_work_mib());
-    const auto t0 = std::chrono::steady_clock::now();
-    const size_t reserved = depthfuse::reserve_heap(static_cast<size_t>(reserve_mib * (1 << 20)));
-    DF_LOG(Fusion, Debug) << "reserved " << (reserved >> 20) << " MiB of memory in "
-                          << std::chrono::duration_cast<std::chrono::milliseconds>(
-                                 std::chrono::steady_clock::now() - t0).count() << " ms";
+    // Before any thread starts: see reserve_heap().
+    depthfuse::reserve_heap(static_cast<size_t>(budget.reserve_mib() * (1 << 20)));
 
     auto& shutdown = dd::ShutdownSignal::install();
     auto lcm = startup.open_lcm();

@@ -3,6 +3,7 @@
 // rest, which the map pager keeps to. A budget that leaves the map nothing is refused at start.
 #pragma once
 
+#include <algorithm>
 #include <cstddef>
 
 #include "depthfuse/app_config.hpp"
@@ -31,6 +32,9 @@ struct MemoryBudget {
 
   double frame_work_mib() const { return queue_mib + receive_mib + worker_mib + frame_log_mib; }
   double map_mib() const { return total_mib - frame_work_mib(); }
+  // What the daemon takes from the kernel at start and keeps (reserve_heap()): the per-frame work,
+  // and as much again for the map's first frames, within the budget.
+  double reserve_mib() const { return std::min(total_mib, 2.0 * frame_work_mib()); }
   // An error naming the figures and the settings when the per-frame work leaves the map nothing.
   Status check() const;
 };
