@@ -8,6 +8,7 @@
 
 #include <atomic>
 #include <chrono>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -40,11 +41,42 @@ inline void require_multicast_route(const std::string& url) {
       << " (tools/setup.sh and tools/lcm/route add the route)";
 }
 
+// The directories temp_dir() made go when the test program ends with no test failed. After a
+// failure, or with DEPTHFUSE_KEEP_TEST_FILES set, they stay and are named: the daemons' logs are in
+// them.
+class TempDirCleanup : public ::testing::Environment {
+ public:
+  void add(const std::filesystem::path& dir) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    dirs_.push_back(dir);
+  }
+  void TearDown() override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const bool keep = std::getenv("DEPTHFUSE_KEEP_TEST_FILES") ||
+                      ::testing::UnitTest::GetInstance()->Failed();
+    for (const auto& dir : dirs_) {
+      std::error_code ec;
+      if (keep) std::fprintf(stderr, "kept %s\n", dir.c_str());
+      else std::filesystem::remove_all(dir, ec);
+    }
+    dirs_.clear();
+  }
+
+ private:
+  std::mutex mutex_;
+  std::vector<std::filesystem::path> dirs_;
+};
+
+// Registered before main (gtest's documented way for a program without its own main).
+inline TempDirCleanup* const temp_dir_cleanup = static_cast<TempDirCleanup*>(
+    ::testing::AddGlobalTestEnvironment(new TempDirCleanup));
+
 inline std::string temp_dir(const std::string& tag) {
   auto dir = std::filesystem::temp_directory_path() /
              ("depthfuse-" + tag + "-" + std::to_string(::getpid()));
   std::filesystem::remove_all(dir);
   std::filesystem::create_directories(dir);
+  temp_dir_cleanup->add(dir);
   return dir.string();
 }
 
