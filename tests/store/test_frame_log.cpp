@@ -210,9 +210,9 @@ TEST(FrameLog, ExportOfAKilledUnresumedFileFoldsTheLoggedFramesIn) {
             std::string::npos) << out;
 }
 
-// A checkpoint drops the log records of its frames: 30 s of them at 30 Hz is ~150 MB. Freeing
-// those pages must not write them again (SQLite's secure delete, on in Debian's build, zeroes each
-// freed page through the WAL): that held the store for a second, and the fusion thread behind it.
+// A checkpoint drops the log records of its frames, 30 s of frames by default. Freeing those
+// pages must not write them again (SQLite's secure delete, on in Debian's build, zeroes each freed
+// page through the WAL): that held the store, and the fusion thread behind it.
 TEST(FrameLog, ACheckpointDropsItsRecordsWithoutWritingThemAgain) {
   TempDir dir;
   const std::string path = dir.file("scan.db");
