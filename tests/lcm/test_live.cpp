@@ -351,6 +351,20 @@ TEST_F(LiveAppliance, CaptureFusionMonitorEndToEnd) {
   EXPECT_LT(p90, 0.015);
 }
 
+depthfuse::depth_frame_t small_frame(int64_t sequence) {
+  Frame f;
+  f.sequence = static_cast<uint32_t>(sequence);
+  f.utime = sequence * 33333;
+  f.intrinsics = {64, 48, 60.0, 60.0, 31.5, 23.5};
+  f.depth = DepthImage(64, 48);
+  for (auto& d : f.depth.depth_m) d = 1.5f;
+  f.T_world_cam_hint = Pose::Identity();
+  depthfuse::depth_frame_t msg;
+  EXPECT_TRUE(lcm::encode_depth_frame(f, {}, &msg).is_ok());
+  msg.sequence = sequence;
+  return msg;
+}
+
 TEST_F(LiveAppliance, OverloadDropsTheOldestFramesAndCountsThem) {
   auto monitor = start("monitor", {bin("depthfuse-monitor"), "--lcm", url_});
   auto fusion = start_fusion({"--queue", "1", "--autostart", "overload"});
@@ -359,14 +373,7 @@ TEST_F(LiveAppliance, OverloadDropsTheOldestFramesAndCountsThem) {
   // 40 frames back to back, far faster than any fusion. (A capture daemon rendering at its
   // maximum rate was not always faster than fusion on a loaded machine.)
   std::vector<depthfuse::depth_frame_t> burst;
-  for (int64_t sequence = 1; sequence <= 40; ++sequence) {
-    Frame f = wall_frame(sequence, 1.5f, 0.2f);
-    f.T_world_cam_hint = Pose::Identity();
-    depthfuse::depth_frame_t msg;
-    ASSERT_TRUE(lcm::encode_depth_frame(f, {}, &msg).is_ok());
-    msg.sequence = sequence;
-    burst.push_back(std::move(msg));
-  }
+  for (int64_t sequence = 1; sequence <= 40; ++sequence) burst.push_back(small_frame(sequence));
   for (const auto& msg : burst)
     ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kDepthChannel, msg).is_ok());
   // Settled: the queue is empty and every received frame is fused or dropped.
@@ -490,19 +497,6 @@ TEST_F(LiveAppliance, CommandsTakeEffect) {
 }
 
 // Small valid frames for the robustness test: a wall 1.5 m in front of a 64x48 camera.
-depthfuse::depth_frame_t small_frame(int64_t sequence) {
-  Frame f;
-  f.sequence = static_cast<uint32_t>(sequence);
-  f.utime = sequence * 33333;
-  f.intrinsics = {64, 48, 60.0, 60.0, 31.5, 23.5};
-  f.depth = DepthImage(64, 48);
-  for (auto& d : f.depth.depth_m) d = 1.5f;
-  f.T_world_cam_hint = Pose::Identity();
-  depthfuse::depth_frame_t msg;
-  EXPECT_TRUE(lcm::encode_depth_frame(f, {}, &msg).is_ok());
-  msg.sequence = sequence;
-  return msg;
-}
 
 TEST_F(LiveAppliance, HostileInputIsCountedAndSurvived) {
   auto monitor = start("monitor", {bin("depthfuse-monitor"), "--lcm", url_});
@@ -690,6 +684,16 @@ TEST_F(LiveAppliance, FusionBudgetsThePerFrameWorkAndRefusesABudgetItFills) {
   EXPECT_NE(out.find("queue_capacity_frames"), std::string::npos) << out;
 }
 
+// A heartbeat as anyone on the bus can send it, unsigned.
+depthfuse::heartbeat_t stranger_heartbeat(const std::string& name, const std::string& host) {
+  depthfuse::heartbeat_t hb{};
+  hb.protocol_version = depthfuse::heartbeat_t::PROTOCOL_VERSION;
+  hb.utime = now_utime();
+  hb.name = name;
+  hb.host = host;
+  return hb;
+}
+
 // Forged heartbeats cannot blind the monitor: one host holds at most 8 of its slots, a stale slot
 // goes to a new name, and a heartbeat too large to be real is refused before it is decoded
 // (issue 22: 70 forged names filled the 64-slot table for good; 1 MB heartbeats were relayed).
@@ -697,10 +701,7 @@ TEST_F(LiveAppliance, ForgedHeartbeatsAreBoundedPerHostAndExpire) {
   auto monitor = start("monitor", {bin("depthfuse-monitor"), "--lcm", url_, "--stale-after", "1",
                                    "--rate", "10"});
   auto send = [&](const std::string& name, const std::string& host, size_t error_bytes = 0) {
-    depthfuse::heartbeat_t hb{};
-    hb.protocol_version = depthfuse::heartbeat_t::PROTOCOL_VERSION;
-    hb.name = name;
-    hb.host = host;
+    depthfuse::heartbeat_t hb = stranger_heartbeat(name, host);
     hb.last_error.assign(error_bytes, 'x');
     ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kHeartbeatChannel, hb).is_ok());
   };
@@ -805,11 +806,7 @@ TEST_F(LiveAppliance, WithARigKeyOnlySignedMessagesAreHeard) {
   const auto killed_at = std::chrono::steady_clock::now();
   int checked = 0, shown_alive = 0;
   for (int i = 0; i < 25; ++i) {  // 5 s of them, five times the monitor's --stale-after
-    depthfuse::heartbeat_t forged{};
-    forged.protocol_version = depthfuse::heartbeat_t::PROTOCOL_VERSION;
-    forged.utime = now_utime();
-    forged.name = "fusion";
-    forged.host = host;
+    depthfuse::heartbeat_t forged = stranger_heartbeat("fusion", host);
     forged.state = depthfuse::heartbeat_t::STATE_RUNNING;
     forged.scan_id = "keyed";
     ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kHeartbeatChannel, forged).is_ok());

@@ -206,6 +206,8 @@ TEST(Recorder, KilledAndResumedScanEqualsUninterruptedRun) {
   // cost several times the reference's mean (page faults), more so on a loaded machine, and with
   // lives of the mean's length alone all twenty kills could come before the first checkpoint.
   uint32_t extra_ms = 0;
+  // A life lasts about a dozen frames on average, whatever this machine's speed.
+  const auto span = static_cast<uint32_t>(std::max(1.0, 40.0 * ref.ms_per_frame));
   std::string progress;
   for (int life = 0; life < 200; ++life) {
     const pid_t child = fork();
@@ -213,8 +215,6 @@ TEST(Recorder, KilledAndResumedScanEqualsUninterruptedRun) {
     if (child == 0) scan_process(path);
     int status = 0;
     if (kills < 20) {
-      // A life lasts about a dozen frames on average, whatever this machine's speed.
-      const auto span = static_cast<uint32_t>(std::max(1.0, 40.0 * ref.ms_per_frame));
       std::this_thread::sleep_for(std::chrono::milliseconds(30 + extra_ms + rng() % span));
       kill(child, SIGKILL);
     }
@@ -236,7 +236,6 @@ TEST(Recorder, KilledAndResumedScanEqualsUninterruptedRun) {
     ASSERT_TRUE(last);
     const uint32_t frame = *last ? (*last)->last_frame_id : 0;
     EXPECT_GE(frame, last_frame_seen);
-    const auto span = static_cast<uint32_t>(std::max(1.0, 40.0 * ref.ms_per_frame));
     extra_ms = frame > last_frame_seen ? 0 : extra_ms + span / 2;
     last_frame_seen = frame;
     progress += " " + std::to_string(frame);
