@@ -8,6 +8,12 @@ from N(0, sigma_deg^2). Deterministic for a given --seed. Writes a TUM trajector
 depth frames' timestamps (camera-to-world).
 
   /usr/bin/python3 perturb_poses.py FOLDER OUT.txt [--sigma-m 0.02] [--sigma-deg 1] [--seed 1]
+                                   [--offset-ms MS] [--poses FILE]
+
+--offset-ms: each frame's pose is the ground truth's at the frame's stamp + MS, interpolated, not
+the nearest sample: the motion capture's clock is not the depth stamps' (fr1/xyz: -25 ms, see
+docs/results.md). With --sigma-m 0 --sigma-deg 0 that is the truth on the depth frames' clock.
+--poses: perturb FILE's poses (a TUM trajectory, e.g. a refined one) at its own stamps instead.
 """
 import argparse
 import bisect
@@ -15,6 +21,9 @@ import os
 import sys
 
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from pose_moves import quat_to_rot, read_tum, slerp  # noqa: E402
 
 
 def q_to_R(qx, qy, qz, qw):
@@ -66,6 +75,8 @@ def main():
     ap.add_argument("--sigma-deg", type=float, default=1.0)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--max-dt-s", type=float, default=0.02)
+    ap.add_argument("--offset-ms", type=float, default=None)
+    ap.add_argument("--poses", default="")
     a = ap.parse_args()
     gt = sorted((float(r[0]), [float(v) for v in r[1:8]]) for r in read_rows(os.path.join(a.folder, "groundtruth.txt")))
     gt_t = [t for t, _ in gt]
@@ -74,15 +85,39 @@ def main():
              f"N(0, {a.sigma_deg} deg) about a random axis, seed {a.seed}\n",
              "# timestamp tx ty tz qx qy qz qw\n"]
     dt, dr = [], []
-    for r in read_rows(os.path.join(a.folder, "depth.txt")):
-        t = float(r[0])
-        i = bisect.bisect_left(gt_t, t)
-        cand = [j for j in (i - 1, i) if 0 <= j < len(gt) and abs(gt_t[j] - t) <= a.max_dt_s]
-        if not cand:
-            sys.exit(f"perturb_poses.py: depth frame t = {r[0]} has no ground-truth pose within "
-                     f"{a.max_dt_s * 1e3:g} ms")
-        p = gt[min(cand, key=lambda j: abs(gt_t[j] - t))][1]
-        R = q_to_R(*p[3:7])
+    if a.poses:
+        stamps, poses = read_tum(a.poses)
+        frames = [("%.6f" % t, list(p)) for t, p in zip(stamps, poses)]
+        lines[0] = f"# {a.poses}: perturbed by N(0, {a.sigma_m} m) per axis and N(0, {a.sigma_deg} deg) about a random axis, seed {a.seed}\n"
+    else:
+        frames = [(r[0], None) for r in read_rows(os.path.join(a.folder, "depth.txt"))]
+    if a.offset_ms is not None:
+        gt_stamps, gt_poses = read_tum(os.path.join(a.folder, "groundtruth.txt"))
+        lines[0] = lines[0].rstrip("\n") + f", the truth at the stamp {a.offset_ms:+g} ms\n"
+    gaps = []  # motion-capture gaps over 50 ms interpolated across (fr1/xyz has one of 110 ms)
+    for stamp, p in frames:
+        t = float(stamp)
+        if p is not None:
+            R = q_to_R(*p[3:7])
+        elif a.offset_ms is not None:
+            q = t + a.offset_ms / 1e3
+            k = int(np.searchsorted(gt_stamps, q))
+            if k == 0 or k >= len(gt_stamps):
+                sys.exit(f"perturb_poses.py: depth frame t = {stamp}: t {a.offset_ms:+g} ms is outside the ground truth")
+            gap = gt_stamps[k] - gt_stamps[k - 1]
+            if gap > 0.05:
+                gaps.append(gap)
+            w = (q - gt_stamps[k - 1]) / gap
+            R = quat_to_rot(slerp(gt_poses[k - 1, 3:], gt_poses[k, 3:], w))
+            p = list((1 - w) * gt_poses[k - 1, :3] + w * gt_poses[k, :3])
+        else:
+            i = bisect.bisect_left(gt_t, t)
+            cand = [j for j in (i - 1, i) if 0 <= j < len(gt) and abs(gt_t[j] - t) <= a.max_dt_s]
+            if not cand:
+                sys.exit(f"perturb_poses.py: depth frame t = {stamp} has no ground-truth pose within "
+                         f"{a.max_dt_s * 1e3:g} ms")
+            p = gt[min(cand, key=lambda j: abs(gt_t[j] - t))][1]
+            R = q_to_R(*p[3:7])
         d_t = a.sigma_m * rng.standard_normal(3)
         axis = rng.standard_normal(3)
         axis /= np.linalg.norm(axis)
@@ -92,9 +127,12 @@ def main():
         q = R_to_q(R2)
         dt.append(np.linalg.norm(d_t))
         dr.append(abs(np.rad2deg(angle)))
-        lines.append(f"{r[0]} {t2[0]:.9f} {t2[1]:.9f} {t2[2]:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}\n")
+        lines.append(f"{stamp} {t2[0]:.9f} {t2[1]:.9f} {t2[2]:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}\n")
     with open(a.out, "w") as f:
         f.writelines(lines)
+    if gaps:
+        print(f"{a.out}: {len(gaps)} poses interpolated across a motion-capture gap of up to "
+              f"{max(gaps) * 1e3:.0f} ms")
     print(f"{a.out}: {len(dt)} poses, offset RMS {np.sqrt(np.mean(np.square(dt))) * 1e3:.1f} mm, "
           f"angle RMS {np.sqrt(np.mean(np.square(dr))):.2f} deg")
 
