@@ -106,6 +106,7 @@ Result<Input> open_input(const std::string& input, const cli::Args& args, const 
       rc.intrinsics = cam->intrinsics;
       rc.depth_scale = cam->depth_scale;
       rc.distortion = cam->distortion;
+      rc.color_stamp_offset_s = cam->color_stamp_offset_s;
     }
     if (args.has("poses")) {
       rc.poses_path = args.get("poses");

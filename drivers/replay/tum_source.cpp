@@ -136,6 +136,12 @@ Result<CameraFile> read_camera_file(const std::string& path) {
       (k == "k1" ? d.k1 : k == "k2" ? d.k2 : k == "p1" ? d.p1 : k == "p2" ? d.p2 : d.k3) = *v;
       continue;
     }
+    if (k == "color_stamp_offset_s") {
+      // Any sign; more than a second apart, the two streams are not of one scene.
+      if (!(std::fabs(*v) <= 1.0)) return invalid_argument(where + ": must be in [-1, 1] s");
+      out.color_stamp_offset_s = *v;
+      continue;
+    }
     if (k == "row_readout_s") {
       // 0 is a global shutter; a rolling shutter reads its rows within a frame period.
       if (!(*v >= 0.0 && *v <= 1.0)) return invalid_argument(where + ": must be in [0, 1] s");
@@ -176,6 +182,13 @@ Result<std::unique_ptr<TumSource>> TumSource::open(const std::string& folder,
   auto src = std::unique_ptr<TumSource>(new TumSource());
   src->folder_ = folder;
 
+  std::optional<CameraFile> cam;
+  if (fs::exists(folder + "/camera.toml")) {
+    auto c = read_camera_file(folder + "/camera.toml");
+    if (!c) return c.status();
+    cam = *c;
+  }
+
   auto depth_list = read_list(folder + "/depth.txt");
   if (!depth_list) return depth_list.status().with_context("reading the depth list");
   if (depth_list->empty()) return invalid_argument(folder + "/depth.txt lists no frames: empty sequence");
@@ -184,6 +197,10 @@ Result<std::unique_ptr<TumSource>> TumSource::open(const std::string& folder,
     auto r = read_list(folder + "/rgb.txt");
     if (!r) return r.status();
     rgb_list = std::move(*r);
+    const double offset_s = config.color_stamp_offset_s ? *config.color_stamp_offset_s
+                            : cam                       ? cam->color_stamp_offset_s
+                                                        : 0.0;
+    for (ListEntry& e : rgb_list) e.t += offset_s;
     std::sort(rgb_list.begin(), rgb_list.end(), [](auto& a, auto& b) { return a.t < b.t; });
   }
 
@@ -215,13 +232,7 @@ Result<std::unique_ptr<TumSource>> TumSource::open(const std::string& folder,
   }
 
   // Intrinsics: the caller's, else camera.toml, else defaults for the image's own size.
-  std::optional<CameraFile> cam;
   std::optional<LensDistortion> distortion;
-  if (fs::exists(folder + "/camera.toml")) {
-    auto c = read_camera_file(folder + "/camera.toml");
-    if (!c) return c.status();
-    cam = *c;
-  }
   src->depth_scale_ = config.depth_scale ? *config.depth_scale : cam ? cam->depth_scale : 5000.0;
   if (config.intrinsics) {
     src->intrinsics_ = *config.intrinsics;

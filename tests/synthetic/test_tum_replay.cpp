@@ -4,7 +4,12 @@
 
 #include <cmath>
 #include <cstdio>
+#include <fstream>
+#include <iomanip>
+#include <optional>
+#include <sstream>
 #include <string>
+#include <vector>
 
 #include "depthfuse/replay/tum_source.hpp"
 #include "depthfuse/synthetic/tum_writer.hpp"
@@ -75,6 +80,77 @@ TEST(TumReplay, CameraFileReadsARollingShutterReadout) {
   EXPECT_NE(cam.status().message().find("camera.row_readout_s: must be in [0, 1] s"),
             std::string::npos)
       << cam.status().to_string();
+}
+
+// Two unsynchronised streams: here every colour image is stamped 20 ms before the depth frame it
+// was taken with (30 Hz, so 13 ms after the previous one, which pairing by stamp alone then picks).
+// The camera file's color_stamp_offset_s puts the colour stamps on the depth frames' clock.
+TEST(TumReplay, ColourIsPairedWithTheDepthItWasTakenWithAfterTheCameraFilesOffset) {
+  testing::TempDir dir;
+  SyntheticConfig c;
+  c.scene = SceneKind::kCorner;
+  c.frames = 4;
+  auto seq = SyntheticSequence::create(c);
+  ASSERT_TRUE(seq.is_ok());
+  const std::string folder = (dir.path() / "corner").string();
+  ASSERT_TRUE(write_tum_folder(*seq, folder).is_ok());
+  {
+    std::ifstream in(folder + "/rgb.txt");
+    std::ostringstream out;
+    std::string line;
+    while (std::getline(in, line)) {
+      if (line.empty() || line[0] == '#') {
+        out << line << "\n";
+        continue;
+      }
+      std::istringstream fields(line);
+      double t = 0;
+      std::string path;
+      fields >> t >> path;
+      out << std::fixed << std::setprecision(6) << t - 0.020 << " " << path << "\n";
+    }
+    std::ofstream(folder + "/rgb.txt") << out.str();
+  }
+  std::vector<std::vector<uint8_t>> expected;
+  for (size_t i = 0; i < 4; ++i) expected.push_back(seq->render(i).color.rgb);
+  ASSERT_NE(expected[1], expected[2]);  // the camera moves: frames' colours differ
+
+  auto colour_of = [&](std::optional<double> offset_s) {
+    replay::TumReplayConfig rc;
+    rc.color_stamp_offset_s = offset_s;
+    auto src = replay::TumSource::open(folder, rc);
+    EXPECT_TRUE(src.is_ok()) << src.status().to_string();
+    std::vector<std::vector<uint8_t>> got;
+    for (size_t i = 0; src.is_ok() && i < 4; ++i) {
+      auto f = (*src)->next();
+      EXPECT_TRUE(f.is_ok()) << f.status().to_string();
+      got.push_back(f.is_ok() ? f->color.rgb : std::vector<uint8_t>{});
+    }
+    return got;
+  };
+  // By stamp alone depth frame 1 gets colour 2, taken a frame later.
+  const auto by_stamp = colour_of(0.0);
+  ASSERT_EQ(by_stamp.size(), 4u);
+  EXPECT_EQ(by_stamp[1], expected[2]);
+
+  const auto shifted = colour_of(0.020);
+  ASSERT_EQ(shifted.size(), 4u);
+  for (size_t i = 0; i < 4; ++i) EXPECT_EQ(shifted[i], expected[i]) << "frame " << i;
+
+  // The folder's camera.toml says it when the caller does not.
+  std::ostringstream camera;
+  camera << std::ifstream(folder + "/camera.toml").rdbuf();
+  std::ofstream(folder + "/camera.toml") << camera.str() << "color_stamp_offset_s = 0.02\n";
+  const auto from_file = colour_of(std::nullopt);
+  ASSERT_EQ(from_file.size(), 4u);
+  for (size_t i = 0; i < 4; ++i) EXPECT_EQ(from_file[i], expected[i]) << "frame " << i;
+
+  std::ofstream(folder + "/camera.toml") << camera.str() << "color_stamp_offset_s = 2\n";
+  auto bad = replay::read_camera_file(folder + "/camera.toml");
+  ASSERT_FALSE(bad.is_ok());
+  EXPECT_NE(bad.status().message().find("camera.color_stamp_offset_s: must be in [-1, 1] s"),
+            std::string::npos)
+      << bad.status().to_string();
 }
 
 }  // namespace

@@ -19,10 +19,15 @@ struct CameraFile {
   double depth_scale = 5000.0;  // PNG value per metre
   // The recorded images' lens distortion, undone as each frame is read; none if no key is given.
   std::optional<LensDistortion> distortion;
+  // Added to every colour image's stamp before it is paired with the depth frame nearest in time.
+  // Two unsynchronised streams stamp their images with different delays after the exposure: on
+  // TUM fr1 the colour image stamped t was taken with the depth frame stamped t + 20 ms, and pairing
+  // by stamp alone gave each depth frame the colour of the next exposure.
+  double color_stamp_offset_s = 0.0;
 };
 
-// Reads a camera.toml ([camera] width height fx fy cx cy depth_scale, optional row_readout_s and
-// k1 k2 p1 p2 k3); errors name key and line.
+// Reads a camera.toml ([camera] width height fx fy cx cy depth_scale, optional row_readout_s,
+// k1 k2 p1 p2 k3 and color_stamp_offset_s); errors name key and line.
 Result<CameraFile> read_camera_file(const std::string& path);
 
 struct TumReplayConfig {
@@ -30,6 +35,8 @@ struct TumReplayConfig {
   std::optional<double> depth_scale;           // PNG value per metre; default camera.toml or 5000
   // With `intrinsics`: the images' lens distortion (camera.toml's is not read then).
   std::optional<LensDistortion> distortion;
+  // CameraFile::color_stamp_offset_s; default camera.toml's, or 0.
+  std::optional<double> color_stamp_offset_s;
   std::string poses_path;                      // trajectory giving T_world_cam_hint; "" = none
   bool use_groundtruth = false;                // poses from <folder>/groundtruth.txt if present
   double max_association_dt_s = 0.02;          // rgb and poses matched to depth within this
