@@ -87,6 +87,10 @@ class CheckpointSink {
   virtual void add_counters(std::vector<std::pair<std::string, double>>* counters) const {
     (void)counters;
   }
+  // The latest failure that add_counters() counts and no call has returned yet (those of the
+  // sink's own threads: a background checkpoint, a log), ok when there is none. The daemon takes it
+  // with the counters, so that a heartbeat never counts a failure without showing its error.
+  virtual Status take_unreported_failure() { return Status::ok(); }
   // True when checkpoint() actually stores something (false: the periodic timer is not run).
   virtual bool durable() const = 0;
 };

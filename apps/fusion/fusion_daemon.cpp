@@ -594,12 +594,18 @@ void FusionDaemon::worker_loop() {
   }
 }
 
-// The sink belongs to the worker; the heartbeat (receive thread) reads a copy of its figures.
+// The sink belongs to the worker; the heartbeat (receive thread) reads a copy of its figures. A
+// failure they count comes with its error in the same update: otherwise a heartbeat could count a
+// failed background checkpoint, collected by a frame, with no word of it until the next periodic
+// call, a whole checkpoint interval later.
 void FusionDaemon::refresh_sink_counters() {
   std::vector<std::pair<std::string, double>> counters;
   sink_->add_counters(&counters);
+  const Status failed = sink_->take_unreported_failure();
+  if (!failed.is_ok()) DF_LOG(Fusion, Warning) << "checkpoint store: " << failed.to_string();
   std::lock_guard<std::mutex> lock(mutex_);
   sink_counters_.swap(counters);
+  if (!failed.is_ok()) last_error_ = "checkpoint store: " + failed.to_string();
 }
 
 // ---------------------------------------------------------------- heartbeat

@@ -60,7 +60,7 @@ Status SqliteCheckpointSink::begin_scan(const ScanContext& scan) {
   resume_.reset();
   final_written_ = false;
   resumed_received_ = resumed_dropped_ = 0;
-  reported_failures_ = 0;
+  reported_failures_ = reported_log_failures_ = 0;
   if (!options_.scan_db_path.empty() && !scan_db_used_) {
     path_ = options_.scan_db_path;
     scan_db_used_ = true;
@@ -166,22 +166,40 @@ Status SqliteCheckpointSink::checkpoint(const std::string& reason, IncrementalRe
   if (!recorder_) return invalid_argument("no scan file is open");
   // Periodic checkpoints come every second or so: written on the recorder's own thread from a copy
   // of what changed, so that fusion does not wait for the encoding and the fsync. Their failures
-  // reach the heartbeat through the recorder's status (checkpoint_failures, last_error).
+  // are counted when the next recorder call collects the outcome, whichever call that is (a frame's
+  // most often), and reach the heartbeat through take_unreported_failure.
   if (reason == "periodic") {
     (void)recorder_->checkpoint_in_background(&reconstructor.map(), reason, counters_of(progress));
-    // A background checkpoint that failed since the last call is this call's error (the daemon
-    // makes it the heartbeat's last_error).
-    const store::RecorderStatus& st = recorder_->status();
-    if (st.checkpoint_failures > reported_failures_) {
-      reported_failures_ = st.checkpoint_failures;
-      return Status(st.checkpoint_error_code, st.checkpoint_error)
-          .with_context("checkpoint of " + path_ + " (the last good one is kept)");
-    }
     return Status::ok();
   }
   auto r = recorder_->checkpoint(&reconstructor.map(), reason, counters_of(progress));
-  if (!r) return r.status().with_context("checkpoint of " + path_ + " (the last good one is kept)");
+  if (!r) {
+    // Returned to the daemon: the newest counted failure is this one.
+    reported_failures_ = recorder_->status().checkpoint_failures;
+    return r.status().with_context("checkpoint of " + path_ + " (the last good one is kept)");
+  }
   return Status::ok();
+}
+
+Status SqliteCheckpointSink::take_unreported_failure() {
+  if (!recorder_) return Status::ok();
+  const store::RecorderStatus& s = recorder_->status();
+  std::vector<Status> failures;
+  if (s.checkpoint_failures > reported_failures_) {
+    reported_failures_ = s.checkpoint_failures;
+    failures.push_back(s.last_checkpoint_failure);
+  }
+  if (s.frame_log.failures > reported_log_failures_) {
+    reported_log_failures_ = s.frame_log.failures;
+    failures.push_back(s.frame_log.last_error.with_context(
+        "frame log (a crash before the next checkpoint loses the frames it could not log)"));
+  }
+  if (failures.empty()) return Status::ok();
+  // Both at once when the disk is full: the checkpoint's is the graver, and both are kept.
+  Status failure = failures.front();
+  for (size_t i = 1; i < failures.size(); ++i)
+    failure = Status(failure.code(), failure.message() + "; " + failures[i].to_string());
+  return failure;
 }
 
 bool SqliteCheckpointSink::checkpoint_in_flight() const {
@@ -196,7 +214,10 @@ Status SqliteCheckpointSink::end_scan(const std::string& reason, IncrementalReco
                                       const FusionProgress& progress) {
   if (!recorder_) return invalid_argument("no scan file is open");
   auto r = recorder_->finish(&reconstructor.map(), counters_of(progress), reason);
-  if (!r) return r.status().with_context("final checkpoint of " + path_);
+  if (!r) {
+    reported_failures_ = recorder_->status().checkpoint_failures;  // returned to the daemon
+    return r.status().with_context("final checkpoint of " + path_);
+  }
   final_written_ = true;
   return Status::ok();
 }

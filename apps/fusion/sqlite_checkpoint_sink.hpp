@@ -38,6 +38,7 @@ class SqliteCheckpointSink : public CheckpointSink {
   Result<size_t> write_cloud(const std::string& ply_path,
                              IncrementalReconstructor& reconstructor) override;
   void add_counters(std::vector<std::pair<std::string, double>>* counters) const override;
+  Status take_unreported_failure() override;
   bool durable() const override { return true; }
 
   // The scan file of the current (or last) scan.
@@ -57,7 +58,10 @@ class SqliteCheckpointSink : public CheckpointSink {
   std::unique_ptr<store::ResumePoint> resume_;  // between begin_scan and restore
   bool final_written_ = false;      // end_scan's checkpoint committed
   uint64_t resumed_received_ = 0, resumed_dropped_ = 0;  // counted before a resume
-  uint64_t reported_failures_ = 0;  // background checkpoint failures already returned
+  // Failures counted in the recorder's status that the daemon has had (returned by a call, or by
+  // take_unreported_failure).
+  uint64_t reported_failures_ = 0;      // checkpoints
+  uint64_t reported_log_failures_ = 0;  // frame log commits and encodings
 };
 
 }  // namespace depthfuse::fusiond

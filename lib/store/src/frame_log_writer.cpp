@@ -106,7 +106,7 @@ void FrameLogWriter::run() {
       stats_.encode_seconds += static_cast<double>(t1 - t0) * 1e-9;
       if (!st) {
         // A fused frame that cannot be logged is a hole: nothing after it can be replayed.
-        stats_.last_error = st.to_string();
+        stats_.last_error = st;
         ++stats_.failures;
         suspended_until_ = std::max(suspended_until_, r.pose.frame_id);
         raw_.clear();
@@ -161,7 +161,7 @@ void FrameLogWriter::run() {
       retry_after_ns_ = 0;
     } else {
       ++stats_.failures;
-      stats_.last_error = st.to_string();
+      stats_.last_error = st;
       retry_after_ns_ = t1 + interval_ns;
       // Kept for the next try, before anything encoded meanwhile; beyond the bound they go, and
       // logging waits for a checkpoint to cover them.

@@ -324,10 +324,12 @@ std::vector<ChunkKey> ScanRecorder::removed_chunks(const PointMap& map) const {
   return removed;
 }
 
-Status ScanRecorder::checkpoint_failed(const Status& error) {
-  const Status st = error.with_context("checkpoint (the previous checkpoint is intact)");
+Status ScanRecorder::checkpoint_failed(const Status& error, uint32_t last_frame_id) {
+  const Status st = error.with_context("checkpoint to frame " + std::to_string(last_frame_id) +
+                                       " (the previous checkpoint is intact)");
   status_.checkpoint_error = st.to_string();
   status_.checkpoint_error_code = st.code();
+  status_.last_checkpoint_failure = st;
   ++status_.checkpoint_failures;
   return note(st);
 }
@@ -392,7 +394,7 @@ void ScanRecorder::collect_background(PointMap* map, bool clear_dirty) {
     // staged dirty since), and the removed ones are found again from the last checkpoint's keys.
     pending_poses_.insert(pending_poses_.begin(), job.poses.begin(), job.poses.end());
     status_.pending_poses = pending_poses_.size();
-    (void)checkpoint_failed(out->record.status());
+    (void)checkpoint_failed(out->record.status(), job.info.last_frame_id);
     return;
   }
   // A chunk a later frame touched has changes the checkpoint does not hold: it stays dirty.
@@ -417,7 +419,7 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
   const int64_t t0_ns = steady_ns();
   ScanStore& store = *store_;
   Status st = store.begin_checkpoint();
-  if (!st) return checkpoint_failed(st);
+  if (!st) return checkpoint_failed(st, last_frame_id_);
   std::vector<ChunkKey> emptied_evicted;
   size_t written = 0;
   auto body = [&]() -> Status {
@@ -453,10 +455,10 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
   st = body();
   if (!st) {
     store.rollback_checkpoint();
-    return checkpoint_failed(st);
+    return checkpoint_failed(st, last_frame_id_);
   }
   auto rec = store.commit_checkpoint(checkpoint_info(reason, counters));
-  if (!rec) return checkpoint_failed(rec.status());
+  if (!rec) return checkpoint_failed(rec.status(), last_frame_id_);
   std::vector<ChunkKey> resident;
   map->for_each_chunk([&](const ChunkKey& k, Chunk& c) {
     c.dirty = false;

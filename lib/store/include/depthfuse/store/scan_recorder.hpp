@@ -32,7 +32,7 @@ struct FrameLogStats {
   uint64_t encoded_bytes_waiting = 0;
   uint64_t commits = 0, failures = 0, frames_dropped = 0;
   double encode_seconds = 0, write_seconds = 0;  // thread time so far
-  std::string last_error;
+  Status last_error;                     // the latest of `failures`, kept after later commits
 };
 
 struct RecorderConfig {
@@ -96,6 +96,10 @@ struct RecorderStatus {
   std::string checkpoint_error;
   StatusCode checkpoint_error_code = StatusCode::kOk;
   uint64_t checkpoint_failures = 0;
+  // The latest of checkpoint_failures, kept after later successes: whoever reports failures as
+  // the count grows needs the newest one's error, and one call can collect a background
+  // checkpoint's failure and then commit a checkpoint of its own.
+  Status last_checkpoint_failure;
   FrameLogStats frame_log;                   // the frame redo log's thread (when it runs)
 };
 
@@ -210,7 +214,8 @@ class ScanRecorder {
   CheckpointInfo checkpoint_info(const std::string& reason, const FrameCounters& counters) const;
   // Chunks that were in the map at the last checkpoint and have left it without being evicted.
   std::vector<ChunkKey> removed_chunks(const PointMap& map) const;
-  Status checkpoint_failed(const Status& error);
+  // `last_frame_id`: the failed checkpoint's, which its error names.
+  Status checkpoint_failed(const Status& error, uint32_t last_frame_id);
   void checkpoint_committed(const CheckpointRecord& rec, std::vector<ChunkKey> resident);
   // With the mutex held: applies a finished background checkpoint's outcome to the map and status.
   // `clear_dirty`: the chunks it wrote and no later frame touched are clean. Not when the map may
