@@ -13,6 +13,9 @@ namespace depthfuse::store {
 
 namespace {
 int64_t to_ns(double seconds) { return static_cast<int64_t>(seconds * 1e9); }
+// How often a commit asks again for the store while the checkpoint writer has it (new frames to
+// encode wake the thread sooner).
+constexpr std::chrono::milliseconds kStoreRetry{5};
 }  // namespace
 
 FrameLogWriter::FrameLogWriter(ScanStore* store, std::mutex* store_mutex,
@@ -132,6 +135,14 @@ void FrameLogWriter::run() {
       cv_.wait_for(lock, std::chrono::nanoseconds(due - now));
       continue;
     }
+    // While the checkpoint writer has the store, encoding goes on instead of waiting for it, up to
+    // 2 x commit_bytes encoded (the bound above): otherwise the raw frames pile up and push()
+    // holds up the fusion thread for as long as the checkpoint's transaction.
+    std::unique_lock<std::mutex> store_lock(*store_mutex_, std::try_to_lock);
+    if (!store_lock.owns_lock() && !flushing && encoded_bytes_ < 2 * config_.commit_bytes) {
+      cv_.wait_for(lock, kStoreRetry);
+      continue;
+    }
     std::vector<FrameLogRecord> batch;
     batch.reserve(encoded_.size());
     std::vector<int64_t> pushed;
@@ -145,11 +156,9 @@ void FrameLogWriter::run() {
     writing_ = true;
     lock.unlock();
     const int64_t t0 = steady_ns();
-    Status st;
-    {
-      std::lock_guard<std::mutex> store_lock(*store_mutex_);
-      st = store_->append_frame_log(batch);
-    }
+    if (!store_lock.owns_lock()) store_lock.lock();
+    const Status st = store_->append_frame_log(batch);
+    store_lock.unlock();
     const int64_t t1 = steady_ns();
     lock.lock();
     writing_ = false;
