@@ -120,9 +120,15 @@ def main():
                     help="grey-level gradient (|d/du| + |d/dv|) below which a pixel is not compared")
     ap.add_argument("--per-frame", default="", help="write each trajectory's per-pair means at the first gap (.npy)")
     a = ap.parse_args()
+    camera = a.camera or os.path.join(a.folder, "camera.toml")
+    needed = [camera, os.path.join(a.folder, "rgb.txt"), os.path.join(a.folder, "depth.txt")]
+    needed += [spec.partition("@")[0] for spec in a.trajectories]
+    for path in needed:
+        if not os.path.isfile(path):
+            sys.exit("colour_consistency.py: no such file: %s" % path)
     import open3d as o3d
 
-    cam = Camera(a.camera or os.path.join(a.folder, "camera.toml"))
+    cam = Camera(camera)
     gaps = [int(g) for g in a.gaps.split(",")]
     rgb, dep = read_list(a.folder, "rgb.txt"), read_list(a.folder, "depth.txt")
     dstamps = np.array([t for t, _ in dep])
