@@ -78,6 +78,10 @@ def main():
     ap.add_argument("--offset-ms", type=float, default=None)
     ap.add_argument("--poses", default="")
     a = ap.parse_args()
+    for path in [os.path.join(a.folder, "groundtruth.txt"), os.path.join(a.folder, "depth.txt")] + (
+            [a.poses] if a.poses else []):
+        if not os.path.isfile(path):
+            sys.exit(f"perturb_poses.py: no such file: {path}")
     gt = sorted((float(r[0]), [float(v) for v in r[1:8]]) for r in read_rows(os.path.join(a.folder, "groundtruth.txt")))
     gt_t = [t for t, _ in gt]
     rng = np.random.default_rng(a.seed)
