@@ -2,10 +2,13 @@
 # Long-scan memory benchmark (issue 22): a capture daemon publishes the synthetic room at 30 Hz,
 # looping, to a fusion daemon with the default memory budget, for M minutes; every minute the fusion
 # daemon's resident memory (VmRSS), its fused frame count and rate are printed, read from
-# /proc/<pid>/status and from the monitor's status (depthfuse status --json).
+# /proc/<pid>/status and from the monitor's status (depthfuse status --json), with the frames the
+# daemon received and those its queue dropped (a checkpoint's cost shows there).
 #
-#   tools/bench/long_scan_rss.sh [--minutes M] [--bin DIR] [--lcm URL] [--frames N]
+#   tools/bench/long_scan_rss.sh [--minutes M | --seconds S] [--bin DIR] [--lcm URL] [--frames N]
 #     --minutes M  length of the scan (default 20)
+#     --seconds S  a short scan instead, reported at its start and end only (70: two checkpoints;
+#                  run it for two builds, alternating, several times: one run says little)
 #     --bin DIR    the depthfuse binaries to measure (default: build/bin of this tree)
 #     --lcm URL    default: a private loopback port, so a running appliance is not disturbed
 #     --frames N   frames of one loop around the room (default 900: 30 s at 30 Hz)
@@ -14,12 +17,14 @@ set -euo pipefail
 
 here="$(cd "$(dirname "$0")/../.." && pwd)"
 minutes=20
+seconds=""
 bin="$here/build/bin"
 lcm_url="udpm://239.255.76.67:7689?ttl=0&recv_buf_size=4194304"
 frames=900
 while [ $# -gt 0 ]; do
   case "$1" in
     --minutes) minutes="$2"; shift 2 ;;
+    --seconds) seconds="$2"; shift 2 ;;
     --bin) bin="$2"; shift 2 ;;
     --lcm) lcm_url="$2"; shift 2 ;;
     --frames) frames="$2"; shift 2 ;;
@@ -54,18 +59,27 @@ fused() {
     python3 -c 'import json, sys
 s = json.loads(sys.stdin.readline())
 d = [d for d in s["daemons"] if d["name"] == "fusion"]
-print(d[0]["frames_out"], d[0]["output_rate_hz"], d[0]["point_count"]) if d else print("- - -")' ||
-    echo "- - -"
+print(*[d[0][k] for k in ("frames_out", "output_rate_hz", "point_count", "frames_in", "frames_dropped")]) if d else print("- - - - -")' ||
+    echo "- - - - -"
 }
 
-echo "# $bin, synthetic:room?frames=$frames at 30 Hz (looping) for $minutes min"
-echo "# minute  fusion_rss_mib  frames_fused  fused_rate_hz  map_points"
-for ((m = 0; m <= minutes; m++)); do
-  if [ "$m" -gt 0 ]; then sleep 60; fi
+if [ -n "$seconds" ]; then
+  report_s=(0 "$seconds")
+  echo "# $bin, synthetic:room?frames=$frames at 30 Hz (looping) for $seconds s"
+else
+  report_s=()
+  for ((m = 0; m <= minutes; m++)); do report_s+=($((m * 60))); done
+  echo "# $bin, synthetic:room?frames=$frames at 30 Hz (looping) for $minutes min"
+fi
+echo "# second  fusion_rss_mib  frames_fused  fused_rate_hz  map_points  frames_received  frames_dropped"
+last=0
+for t in "${report_s[@]}"; do
+  sleep $((t - last))
+  last=$t
   if ! kill -0 "$fusion_pid" 2>/dev/null; then
     echo "fusion daemon died; its log:" >&2
     tail -20 "$work/fusion.log" >&2
     exit 1
   fi
-  printf '%8d  %14s  %s\n' "$m" "$(rss_mib "$fusion_pid")" "$(fused)"
+  printf '%8d  %14s  %s\n' "$t" "$(rss_mib "$fusion_pid")" "$(fused)"
 done
