@@ -1,5 +1,5 @@
 // The seam between the fusion daemon and durable storage: the daemon tells a CheckpointSink when
-// a scan begins, after every fused frame, when a checkpoint is due (periodic, or the operator's
+// a scan begins, around every frame, when a checkpoint is due (periodic, or the operator's
 // 'checkpoint now') and when the scan ends. The SQLite scan store plugs in here by implementing
 // this interface (SqliteCheckpointSink, sqlite_checkpoint_sink.hpp, on store::ScanRecorder:
 // create or resume / prepare_frame / record_frame / checkpoint / finish / export_cloud);
@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "depthfuse/app_config.hpp"
+#include "depthfuse/frame_path.hpp"
 #include "depthfuse/pipeline.hpp"
 #include "depthfuse/ply.hpp"
 #include "depthfuse/status.hpp"
@@ -34,9 +35,12 @@ struct FusionProgress {
   uint64_t frames_dropped = 0;
 };
 
-class CheckpointSink {
+// A FrameStore of the scan's frame path (ScanSession runs FramePath over it): prepare_frame before
+// each frame is processed (a pager loads the evicted chunks the frame will touch), frame_fused
+// after each fused frame (poses, keyframes every fusion_daemon.keyframe_every_n_frames, paging of
+// the map around the camera).
+class CheckpointSink : public FrameStore {
  public:
-  virtual ~CheckpointSink() = default;
   // "none", "sqlite:/var/lib/depthfuse/scans/x.dfscan", ... for heartbeats and logs.
   virtual std::string describe() const = 0;
   virtual Status begin_scan(const ScanContext& scan) = 0;
@@ -50,16 +54,13 @@ class CheckpointSink {
     (void)trajectory;
     return Status::ok();
   }
-  // Before IncrementalReconstructor::process: a pager loads the evicted chunks the frame will touch.
-  virtual Status prepare_frame(const Frame& frame, IncrementalReconstructor& reconstructor) {
+  Status prepare_frame(const Frame& frame, const Pose& T_world_cam_initial,
+                       IncrementalReconstructor& reconstructor) override {
     (void)frame;
+    (void)T_world_cam_initial;
     (void)reconstructor;
     return Status::ok();
   }
-  // After each fused frame: poses, keyframes (fusion_daemon.keyframe_every_n_frames), and paging
-  // of the map around the camera (a pager may load and evict chunks of reconstructor.map()).
-  virtual Status frame_fused(const Frame& frame, const FrameReport& report,
-                             IncrementalReconstructor& reconstructor) = 0;
   // reason: "periodic" (every fusion_daemon.checkpoint_interval_s, only when durable()) or
   // "command" (depthfuse scan checkpoint). A periodic checkpoint may be written in the background
   // (the frames keep coming); a commanded one is written when this returns.

@@ -4,8 +4,6 @@
 #include "fusion_daemon.hpp"
 
 #include <algorithm>
-#include <cctype>
-#include <ctime>
 #include <filesystem>
 
 #include "depthfuse/base/clock.hpp"
@@ -17,6 +15,7 @@
 #include "depthfuse/depth_frame_t.hpp"
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/frame_codec.hpp"
+#include "depthfuse/lcm/pose_messages.hpp"
 #include "depthfuse/ply.hpp"
 #include "depthfuse/pose2_t.hpp"
 #include "depthfuse/pose_t.hpp"
@@ -38,24 +37,6 @@ using daemon::ewma;  // the heartbeat's moving averages, over ~10 frames
 
 // Saving a very large scan may take a while; a frame takes well under a second.
 constexpr double kStuckWorkerS = 60.0;
-
-std::string generated_scan_name() {
-  const std::time_t t = std::time(nullptr);
-  std::tm tm{};
-  localtime_r(&t, &tm);
-  char buf[64];
-  std::strftime(buf, sizeof(buf), "scan-%Y%m%d-%H%M%S", &tm);
-  return buf;
-}
-
-// A scan name becomes a file name: keep it to [A-Za-z0-9._-], no leading dot.
-bool valid_scan_name(const std::string& s) {
-  if (s.empty() || s.size() > 100 || s[0] == '.') return false;
-  for (const char c : s)
-    if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '_' || c == '-'))
-      return false;
-  return true;
-}
 
 const char* action_name(int8_t a) {
   switch (a) {
@@ -82,7 +63,8 @@ FusionDaemon::FusionDaemon(const AppConfig& config, const DaemonOptions& options
       hb_base_(options.name),
       queue_(static_cast<size_t>(std::max(1, config.fusion.queue_capacity_frames))),
       preview_(config.map_preview, options.name, lcm_.get()),
-      state_(heartbeat_t::STATE_IDLE) {
+      state_(heartbeat_t::STATE_IDLE),
+      session_(config_, *sink_) {
   frame_limits_.max_width = config.fusion.max_frame_width;
   frame_limits_.max_height = config.fusion.max_frame_height;
   lcm_->subscribe(lcm::kDepthChannel, [this](const std::string&, const uint8_t* d, size_t n,
@@ -213,143 +195,45 @@ void FusionDaemon::on_command(const uint8_t* data, size_t size) {
 
 // ---------------------------------------------------------------- worker thread
 
-Status FusionDaemon::may_start_scan() const {
-  const auto& f = config_.fusion;
-  if (last_scan_start_) {
-    const double since_s =
-        std::chrono::duration<double>(Clock::now() - *last_scan_start_).count();
-    if (since_s < f.min_scan_interval_s)
-      return unavailable("a scan started " + std::to_string(since_s) +
-                         " s ago; scans start at most every " +
-                         std::to_string(f.min_scan_interval_s) +
-                         " s (fusion_daemon.min_scan_interval_s)");
-  }
-  std::error_code ec;
-  std::filesystem::path where = f.scan_dir;
-  while (!where.empty() && !std::filesystem::exists(where, ec)) where = where.parent_path();
-  const auto space = std::filesystem::space(where.empty() ? "." : where, ec);
-  if (ec) return io_error("cannot tell the free space of '" + f.scan_dir + "': " + ec.message());
-  const double free_mib = static_cast<double>(space.available) / (1024.0 * 1024.0);
-  if (free_mib < f.min_free_disk_mib)
-    return unavailable("only " + std::to_string(static_cast<int64_t>(free_mib)) + " MiB free in '" +
-                       f.scan_dir + "', below fusion_daemon.min_free_disk_mib (" +
-                       std::to_string(static_cast<int64_t>(f.min_free_disk_mib)) + ")");
-  return Status::ok();
+FusionProgress FusionDaemon::progress() const {
+  return FusionProgress{static_cast<uint64_t>(frames_in_.load()),
+                        static_cast<uint64_t>(frames_fused_.load()),
+                        static_cast<uint64_t>(queue_.dropped())};
 }
 
 Status FusionDaemon::start_scan(const std::string& requested_name, std::string* message) {
-  std::string name = requested_name.empty() || requested_name == "-" ? generated_scan_name()
-                                                                     : requested_name;
-  if (!valid_scan_name(name))
-    return invalid_argument("scan name '" + name + "' must be 1-100 characters of A-Z a-z 0-9 . _ -");
-  DF_RETURN_IF_ERROR(may_start_scan());
-  last_scan_start_ = Clock::now();
-  std::error_code ec;
-  std::filesystem::create_directories(config_.fusion.scan_dir, ec);
-  if (ec)
-    return io_error("cannot create the scan directory '" + config_.fusion.scan_dir + "': " +
-                    ec.message() + " (set fusion_daemon.scan_dir in the config)");
-  scan_ = ScanContext{name, config_.fusion.scan_dir, now_utime(), &config_};
-  DF_RETURN_IF_ERROR(sink_->begin_scan(scan_).with_context("checkpoint store"));
-  reconstructor_ = std::make_unique<IncrementalReconstructor>(config_.reconstruction);
-  trajectory_.clear();
-  // An existing scan file (a restart after a crash): continue from its last checkpoint.
-  if (auto st = sink_->restore(*reconstructor_, &scan_, &trajectory_); !st.is_ok()) {
-    reconstructor_.reset();
-    trajectory_.clear();
-    return st.with_context("checkpoint store");
-  }
-  // A resumed scan takes the id stored in its file, which names the files written at its end (PLY,
-  // trajectory): one that is not a scan name ("../../x", "/etc/x") would write them outside
-  // scan_dir.
-  if (!valid_scan_name(scan_.scan_id)) {
-    reconstructor_.reset();
-    trajectory_.clear();
-    return corrupt("the scan file for '" + name + "' holds the scan id '" + scan_.scan_id +
-                   "', which is not a scan name: not resumed");
-  }
-  name = scan_.scan_id;
-  point_count_ = static_cast<int64_t>(reconstructor_->map().point_count());
-  last_checkpoint_ = Clock::now();
+  Result<std::string> started = session_.start(requested_name);
+  if (!started) return started.status();
+  *message = *started;
+  point_count_ = static_cast<int64_t>(session_.point_count());
   frames_ignored_ += static_cast<int64_t>(queue_.clear());  // not part of this scan
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    scan_id_ = name;
+    scan_id_ = session_.scan_id();
   }
   state_ = heartbeat_t::STATE_RUNNING;
-  *message = "scan " + name + (reconstructor_->next_frame_id() > 1
-                                   ? " resumed at frame " + std::to_string(reconstructor_->next_frame_id())
-                                   : std::string(" started"));
-  DF_LOG(Fusion, Info) << *message;
   return Status::ok();
 }
 
-// Writes `path` through a temporary file and a rename, so that a crash or a full disk never leaves
-// a truncated file under the final name.
-template <typename WriteFn>
-Status write_atomically(const std::string& path, WriteFn write) {
-  const std::string tmp = path + ".partial";
-  Status st = write(tmp);
-  std::error_code ec;
-  if (st.is_ok()) {
-    std::filesystem::rename(tmp, path, ec);
-    if (ec) st = io_error("cannot rename " + tmp + " to " + path + ": " + ec.message());
-  }
-  if (!st.is_ok()) std::filesystem::remove(tmp, ec);
-  return st;
-}
-
 Status FusionDaemon::stop_scan(const std::string& reason, std::string* message) {
-  if (!reconstructor_) return invalid_argument("no scan is running");
+  if (!session_.active()) return invalid_argument("no scan is running");
   state_ = heartbeat_t::STATE_STOPPING;
   frames_ignored_ += static_cast<int64_t>(queue_.clear());
-  const size_t removed = reconstructor_->finish();
-  const FusionProgress progress{static_cast<uint64_t>(frames_in_.load()),
-                                static_cast<uint64_t>(frames_fused_.load()),
-                                static_cast<uint64_t>(queue_.dropped())};
-  const Status sink_status = sink_->end_scan(reason, *reconstructor_, progress);
-
-  const std::string base = (std::filesystem::path(scan_.scan_dir) / scan_.scan_id).string();
-  const std::string ply_path = base + ".ply";
-  const std::string tum_path = base + "-trajectory.txt";
-  std::error_code ec;
-  std::filesystem::create_directories(scan_.scan_dir, ec);
-  size_t points = 0;
-  Status st = write_atomically(ply_path, [&](const std::string& p) -> Status {
-    auto written = sink_->write_cloud(p, *reconstructor_);
-    if (!written) return written.status();
-    points = *written;
-    return Status::ok();
-  });
-  if (st.is_ok()) {
-    st = write_atomically(tum_path, [&](const std::string& p) {
-      return write_tum_trajectory(p, trajectory_);
-    });
-  }
-  const std::string id = scan_.scan_id;
-  if (!st.is_ok()) {
+  Result<ScanSession::Saved> saved = session_.stop(reason, progress());
+  if (!saved) {
     // Never lose a scan: keep it, paused, so that the operator can fix the cause and stop again.
     state_ = heartbeat_t::STATE_PAUSED;
-    const Status failed = st.with_context("saving scan " + id);
-    set_error(failed.to_string());
-    return Status(failed.code(), failed.message() + "; the scan is kept in memory, paused: fix "
-                                                    "the problem and stop again");
+    set_error(saved.status().to_string());
+    return Status(saved.status().code(), saved.status().message() +
+                                             "; the scan is kept in memory, paused: fix the "
+                                             "problem and stop again");
   }
-  reconstructor_.reset();
+  *message = saved->message;
+  if (!saved->store.is_ok()) set_error(saved->store.to_string());
   point_count_ = 0;
   state_ = heartbeat_t::STATE_IDLE;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    scan_id_.clear();
-  }
-  *message = "scan " + id + " saved: " + std::to_string(points) + " points (" +
-             std::to_string(removed) + " removed by the post-filter) in " + ply_path + ", " +
-             std::to_string(trajectory_.size()) + " poses in " + tum_path;
-  if (!sink_status.is_ok()) {
-    *message += "; checkpoint store: " + sink_status.to_string();
-    set_error(sink_status.to_string());
-  }
-  DF_LOG(Fusion, Info) << *message;
+  std::lock_guard<std::mutex> lock(mutex_);
+  scan_id_.clear();
   return Status::ok();
 }
 
@@ -357,16 +241,16 @@ void FusionDaemon::execute(const command_t& cmd) {
   std::string message;
   Status st = Status::ok();
   const int8_t state = state_.load();
-  const bool in_scan = reconstructor_ != nullptr;
+  const bool in_scan = session_.active();
   switch (cmd.action) {
     case command_t::ACTION_START:
       if (!in_scan) {
         st = start_scan(cmd.argument, &message);
       } else if (state == heartbeat_t::STATE_PAUSED) {
         state_ = heartbeat_t::STATE_RUNNING;
-        message = "scan " + scan_.scan_id + " resumed";
+        message = "scan " + session_.scan_id() + " resumed";
       } else {
-        message = "scan " + scan_.scan_id + " is already running";
+        message = "scan " + session_.scan_id() + " is already running";
       }
       break;
     case command_t::ACTION_STOP:
@@ -378,7 +262,7 @@ void FusionDaemon::execute(const command_t& cmd) {
       } else {
         state_ = heartbeat_t::STATE_PAUSED;
         frames_ignored_ += static_cast<int64_t>(queue_.clear());
-        message = "scan " + scan_.scan_id + " paused";
+        message = "scan " + session_.scan_id() + " paused";
       }
       break;
     case command_t::ACTION_RESUME:
@@ -386,13 +270,13 @@ void FusionDaemon::execute(const command_t& cmd) {
         st = invalid_argument("no scan is running");
       } else {
         state_ = heartbeat_t::STATE_RUNNING;
-        message = "scan " + scan_.scan_id + " resumed";
+        message = "scan " + session_.scan_id() + " resumed";
       }
       break;
     case command_t::ACTION_NEW_SCAN: {
       std::string saved;
       // Checked before the running scan is stopped: a refused `new` leaves it running.
-      st = may_start_scan();
+      st = session_.may_start();
       if (st.is_ok() && in_scan) st = stop_scan("final", &saved);
       if (st.is_ok()) st = start_scan(cmd.argument, &message);
       if (st.is_ok() && !saved.empty()) message = saved + "; " + message;
@@ -402,11 +286,7 @@ void FusionDaemon::execute(const command_t& cmd) {
       if (!in_scan) {
         st = invalid_argument("no scan is running");
       } else {
-        const FusionProgress progress{static_cast<uint64_t>(frames_in_.load()),
-                                      static_cast<uint64_t>(frames_fused_.load()),
-                                      static_cast<uint64_t>(queue_.dropped())};
-        st = sink_->checkpoint("command", *reconstructor_, progress);
-        last_checkpoint_ = Clock::now();
+        st = session_.checkpoint("command", progress());
         message = sink_->durable() ? "checkpoint written (" + sink_->describe() + ")"
                                    : "checkpoint: no checkpoint store in this build (nothing written)";
       }
@@ -427,85 +307,57 @@ void FusionDaemon::execute(const command_t& cmd) {
 }
 
 void FusionDaemon::fuse(QueuedFrame& item) {
-  if (auto st = sink_->prepare_frame(item.frame, *reconstructor_); !st.is_ok())
-    set_error("checkpoint store: " + st.to_string());
-  // Without a hint, tracking starts where the camera's last motion puts it (the batch loop's
-  // model, scaled to the frame's time): a start at the last pose is a whole step away, two or
-  // three once the queue drops frames, and ICP then needs more iterations per frame.
-  std::optional<Pose> prediction;
-  if (!item.frame.T_world_cam_hint)
-    prediction = reconstructor_->constant_velocity_prediction(item.frame.utime);
-  auto report = reconstructor_->process(item.frame, prediction);
-  if (!report) {
+  Result<FrameOutcome> outcome = session_.process(item.frame);
+  if (!outcome) {
     ++process_errors_;
-    set_error("frame " + std::to_string(item.frame.sequence) + ": " + report.status().to_string());
+    set_error("frame " + std::to_string(item.frame.sequence) + ": " + outcome.status().to_string());
     return;
   }
-  const FrameReport& rep = *report;
+  if (!outcome->store_status.is_ok())
+    set_error("checkpoint store: " + outcome->store_status.to_string());
+  const FrameReport& rep = outcome->report;
   count_tracking(rep);
   preview_.frame_tracked(static_cast<int8_t>(rep.tracking));
-  depthfuse::pose2_t pose2{};
-  pose2.protocol_version = depthfuse::pose2_t::PROTOCOL_VERSION;
-  pose2.tracking = static_cast<int8_t>(rep.tracking);
-  pose2.fused = rep.fused();
-  pose2.icp_conditioning = rep.registration.conditioning;
-  depthfuse::pose_t& pose = pose2.pose;
-  pose.protocol_version = depthfuse::pose_t::PROTOCOL_VERSION;
-  pose.utime = item.frame.utime;
-  pose.sequence = item.frame.sequence;
-  pose.frame_publish_utime = item.publish_utime;
-  pose.scan_id = scan_.scan_id;
-  pose.registered = rep.registered;
-  pose.icp_fitness = rep.registration.fitness;
-  pose.icp_rmse_m = rep.registration.rmse_m;
-  pose.icp_correspondences = static_cast<int32_t>(rep.registration.correspondences);
-  pose.icp_iterations = rep.registration.iterations;
-  pose.prefiltered = static_cast<int32_t>(rep.prefiltered);
-  pose.prefilter_ms = static_cast<float>(rep.prefilter_ms);
-  pose.registration_ms = static_cast<float>(rep.registration_ms);
-  // A lost frame's pose is unknown: it was not fused, and it has no place in the trajectory, the
-  // pose channel or the scan file. The next frame is tracked from the last frame fused. Viewers
-  // see the loss on DEPTHFUSE_POSE2, with the last fused pose.
-  if (!rep.fused()) {
-    lcm::pose_to_arrays(reconstructor_->last_pose().value_or(Pose::Identity()), pose.position_m,
-                        pose.orientation_wxyz);
-    pose.map_points = point_count_.load();
-    pose.publish_utime = now_utime();
-    if (auto st = lcm_->publish_message(lcm::kPose2Channel, pose2); !st.is_ok()) set_error(st.message());
-    return;
+  if (rep.fused()) {
+    point_count_ = static_cast<int64_t>(session_.point_count());
+    ++frames_fused_;
+    out_rate_.add();
+    preview_.frame_fused(item.frame.sequence, rep.T_world_cam, rep.registered);
+    if (rep.registered) ++registered_;
+    else if (session_.trajectory().size() > 1) ++icp_failures_;
   }
-  trajectory_.push_back({item.frame.utime * 1e-6, rep.T_world_cam});
-  const int64_t points = static_cast<int64_t>(reconstructor_->map().point_count());
-  point_count_ = points;
-  ++frames_fused_;
-  out_rate_.add();
-  preview_.frame_fused(item.frame.sequence, rep.T_world_cam, rep.registered);
-  if (rep.registered) ++registered_;
-  else if (trajectory_.size() > 1) ++icp_failures_;
+  publish_frame(item, rep);
+}
 
-  lcm::pose_to_arrays(rep.T_world_cam, pose.position_m, pose.orientation_wxyz);
-  pose.measurements = static_cast<int32_t>(rep.fusion.measurements);
-  pose.merged = static_cast<int32_t>(rep.fusion.merged);
-  pose.added = static_cast<int32_t>(rep.fusion.added);
-  pose.map_points = points;
-  pose.fusion_ms = static_cast<float>(rep.fusion_ms);
-  pose.publish_utime = now_utime();
-  if (auto st = lcm_->publish_message(lcm::kPoseChannel, pose); !st.is_ok()) set_error(st.message());
-  if (auto st = lcm_->publish_message(lcm::kPose2Channel, pose2); !st.is_ok()) set_error(st.message());
-
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    if (item.publish_utime > 0) ewma(&mean_latency_ms_, (pose.publish_utime - item.publish_utime) * 1e-3);
-    ewma(&mean_prefilter_ms_, rep.prefilter_ms);
-    ewma(&mean_registration_ms_, rep.registration_ms);
-    ewma(&mean_fusion_ms_, rep.fusion_ms);
-    if (rep.registered) {
-      ewma(&mean_fitness_, rep.registration.fitness);
-      ewma(&mean_rmse_m_, rep.registration.rmse_m);
-    }
+// A lost frame's pose is unknown: it was not fused, and it has no place in the trajectory, the pose
+// channel or the scan file. The next frame is tracked from the last frame fused. Viewers see the
+// loss on DEPTHFUSE_POSE2, with the last fused pose.
+void FusionDaemon::publish_frame(const QueuedFrame& item, const FrameReport& rep) {
+  lcm::FramePublication publication;
+  publication.frame_publish_utime = item.publish_utime;
+  publication.scan_id = session_.scan_id();
+  publication.map_points = point_count_.load();
+  publication.publish_utime = now_utime();
+  const depthfuse::pose2_t pose2 = lcm::make_pose2(
+      item.frame, rep, session_.reconstructor()->last_pose().value_or(Pose::Identity()),
+      publication);
+  if (rep.fused()) {
+    if (auto st = lcm_->publish_message(lcm::kPoseChannel, pose2.pose); !st.is_ok())
+      set_error(st.message());
   }
-  if (auto st = sink_->frame_fused(item.frame, rep, *reconstructor_); !st.is_ok())
-    set_error("checkpoint store: " + st.to_string());
+  if (auto st = lcm_->publish_message(lcm::kPose2Channel, pose2); !st.is_ok())
+    set_error(st.message());
+  if (!rep.fused()) return;
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (item.publish_utime > 0)
+    ewma(&mean_latency_ms_, (publication.publish_utime - item.publish_utime) * 1e-3);
+  ewma(&mean_prefilter_ms_, rep.prefilter_ms);
+  ewma(&mean_registration_ms_, rep.registration_ms);
+  ewma(&mean_fusion_ms_, rep.fusion_ms);
+  if (rep.registered) {
+    ewma(&mean_fitness_, rep.registration.fitness);
+    ewma(&mean_rmse_m_, rep.registration.rmse_m);
+  }
 }
 
 void FusionDaemon::count_tracking(const FrameReport& rep) {
@@ -549,7 +401,7 @@ void FusionDaemon::worker_loop() {
     if (stopping_.load()) break;
 
     auto item = queue_.pop(std::chrono::milliseconds(50));
-    if (item && state_.load() == heartbeat_t::STATE_RUNNING && reconstructor_) {
+    if (item && state_.load() == heartbeat_t::STATE_RUNNING && session_.active()) {
       worker_busy_since_ns_ = steady_ns();
       fuse(*item);
       worker_busy_since_ns_ = 0;
@@ -557,34 +409,27 @@ void FusionDaemon::worker_loop() {
       ++frames_ignored_;  // queued just before a pause or stop
     }
 
-    preview_.tick(state_.load(), reconstructor_ ? scan_.scan_id : "", reconstructor_.get());
+    preview_.tick(state_.load(), session_.active() ? session_.scan_id() : "",
+                  session_.reconstructor());
     refresh_sink_counters();
     // Full checkpoints. With the frame log (fusion_daemon.frame_log_interval_s) a crash loses only
     // the frames since its last commit, and these bound what a resume replays; without it, a crash
-    // loses the frames since the last committed checkpoint's snapshot, so the next snapshot comes
-    // early by the time the last one took to commit. One still being written delays the next
-    // rather than queueing it.
-    if (reconstructor_ && sink_->durable() && state_.load() == heartbeat_t::STATE_RUNNING &&
-        Clock::now() - last_checkpoint_ >
-            std::chrono::duration<double>(config_.fusion.checkpoint_interval_s -
-                                          sink_->checkpoint_latency_s()) &&
-        !sink_->checkpoint_in_flight()) {
-      const FusionProgress progress{static_cast<uint64_t>(frames_in_.load()),
-                                    static_cast<uint64_t>(frames_fused_.load()),
-                                    static_cast<uint64_t>(queue_.dropped())};
-      last_checkpoint_ = Clock::now();
-      if (auto st = sink_->checkpoint("periodic", *reconstructor_, progress); !st.is_ok())
+    // loses the frames since the last committed checkpoint's snapshot.
+    if (state_.load() == heartbeat_t::STATE_RUNNING && session_.checkpoint_due()) {
+      if (auto st = session_.checkpoint("periodic", progress()); !st.is_ok())
         set_error("checkpoint: " + st.to_string());
     }
   }
   // Shutting down (SIGTERM): a running scan is saved, not lost; if the scan directory cannot take
   // it, the temporary directory gets it rather than nobody.
-  if (reconstructor_) {
+  if (session_.active()) {
     std::string message;
     if (auto st = stop_scan("sigterm", &message); !st.is_ok()) {
       DF_LOG(Fusion, Error) << st.to_string();
-      scan_.scan_dir = (std::filesystem::temp_directory_path() / "depthfuse-rescue").string();
-      DF_LOG(Fusion, Info) << "saving scan " << scan_.scan_id << " to " << scan_.scan_dir
+      const std::string rescue =
+          (std::filesystem::temp_directory_path() / "depthfuse-rescue").string();
+      session_.save_to(rescue);
+      DF_LOG(Fusion, Info) << "saving scan " << session_.scan_id() << " to " << rescue
                            << " instead";
       if (auto again = stop_scan("sigterm", &message); !again.is_ok()) {
         DF_LOG(Fusion, Error) << again.to_string();

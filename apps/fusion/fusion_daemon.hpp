@@ -2,9 +2,10 @@
 //  - the receive thread (run()) decodes and checks messages, counts what it cannot use, and pushes
 //    frames into a bounded queue that drops the oldest frame when fusion falls behind; it never
 //    waits on fusion work;
-//  - the worker thread runs IncrementalReconstructor::process per frame (pre-filter, initial pose
-//    from the hint or the last pose, re-registration against the map, fusion), publishes the
-//    refined pose, and carries out the operator's commands between frames.
+//  - the worker thread runs the scan (ScanSession: each frame's path, predict -> prepare -> process
+//    -> record, and the periodic checkpoint), publishes each frame's pose, and carries out the
+//    operator's commands between frames.
+// The heartbeat is published by either.
 #pragma once
 
 #include <atomic>
@@ -31,6 +32,7 @@
 #include "depthfuse/pipeline.hpp"
 #include "map_preview.hpp"
 #include "memory_budget.hpp"
+#include "scan_session.hpp"
 
 namespace depthfuse::fusiond {
 
@@ -68,12 +70,12 @@ class FusionDaemon {
   void on_command(const uint8_t* data, size_t size);
   void worker_loop();
   void execute(const depthfuse::command_t& cmd);
-  // Whether a scan may start now: not sooner than min_scan_interval_s after the last, and with
-  // min_free_disk_mib free in scan_dir.
-  Status may_start_scan() const;
   Status start_scan(const std::string& requested_name, std::string* message);
   Status stop_scan(const std::string& reason, std::string* message);
   void fuse(QueuedFrame& item);
+  void publish_frame(const QueuedFrame& item, const FrameReport& report);
+  // The daemon's counters, for checkpoints.
+  FusionProgress progress() const;
   void count_tracking(const FrameReport& report);
   void publish_heartbeat();
   void refresh_sink_counters();
@@ -121,11 +123,7 @@ class FusionDaemon {
          mean_fusion_ms_ = 0, mean_fitness_ = 0, mean_rmse_m_ = 0;
 
   // Worker only.
-  std::unique_ptr<IncrementalReconstructor> reconstructor_;
-  std::vector<StampedPose> trajectory_;
-  ScanContext scan_;
-  std::chrono::steady_clock::time_point last_checkpoint_;
-  std::optional<std::chrono::steady_clock::time_point> last_scan_start_;  // for min_scan_interval_s
+  ScanSession session_;
   std::thread worker_;
 };
 

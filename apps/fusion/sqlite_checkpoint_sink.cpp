@@ -150,9 +150,10 @@ void SqliteCheckpointSink::restore_keyframes(IncrementalReconstructor& reconstru
                        << static_cast<int>(restored->seconds * 1e3 + 0.5) << " ms";
 }
 
-Status SqliteCheckpointSink::prepare_frame(const Frame& frame, IncrementalReconstructor& reconstructor) {
+Status SqliteCheckpointSink::prepare_frame(const Frame& frame, const Pose& T_world_cam_initial,
+                                           IncrementalReconstructor& reconstructor) {
   if (!recorder_) return invalid_argument("no scan file is open");
-  return recorder_->prepare_frame(frame, reconstructor);
+  return recorder_->prepare_frame(frame, T_world_cam_initial, reconstructor);
 }
 
 Status SqliteCheckpointSink::frame_fused(const Frame& frame, const FrameReport& report,

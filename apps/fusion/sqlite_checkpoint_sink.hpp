@@ -26,7 +26,8 @@ class SqliteCheckpointSink : public CheckpointSink {
   Status begin_scan(const ScanContext& scan) override;
   Status restore(IncrementalReconstructor& reconstructor, ScanContext* scan,
                  std::vector<StampedPose>* trajectory) override;
-  Status prepare_frame(const Frame& frame, IncrementalReconstructor& reconstructor) override;
+  Status prepare_frame(const Frame& frame, const Pose& T_world_cam_initial,
+                       IncrementalReconstructor& reconstructor) override;
   Status frame_fused(const Frame& frame, const FrameReport& report,
                      IncrementalReconstructor& reconstructor) override;
   Status checkpoint(const std::string& reason, IncrementalReconstructor& reconstructor,

@@ -71,7 +71,7 @@ Recorded record(const synthetic::SyntheticSequence& seq, const std::string& path
   auto step = [&](size_t i) {
     Frame f = live_frame(seq, i);
     if (walk.hints_before_kill) f.T_world_cam_hint = seq.T_world_cam_true(0).inverse() * seq.T_world_cam_true(i);
-    EXPECT_TRUE((*rec)->prepare_frame(f, recon).is_ok());
+    EXPECT_TRUE((*rec)->prepare_frame(f, recon.initial_pose(f, std::nullopt), recon).is_ok());
     auto r = recon.process(f);
     ASSERT_TRUE(r.is_ok()) << r.status().to_string();
     ASSERT_TRUE(r->fused()) << "frame " << i;
@@ -127,7 +127,7 @@ Resumed resume_and_return(const synthetic::SyntheticSequence& seq, const std::st
   for (int k = 0; k < kReturnFrames; ++k) {
     const size_t i = static_cast<size_t>(walk.return_at + k * kStride);
     const Frame f = live_frame(seq, i);
-    EXPECT_TRUE((*rec)->prepare_frame(f, recon).is_ok());
+    EXPECT_TRUE((*rec)->prepare_frame(f, recon.initial_pose(f, std::nullopt), recon).is_ok());
     auto r = recon.process(f);
     EXPECT_TRUE(r.is_ok()) << r.status().to_string();
     if (!r) return out;

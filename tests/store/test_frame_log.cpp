@@ -68,7 +68,7 @@ Killed run_and_kill(const std::string& path, int n, int checkpoint_after) {
   if (!rec) return k;
   for (int i = 0; i < n; ++i) {
     const Frame f = corridor.render(corridor.pose(i, n), test::small_camera(), static_cast<uint32_t>(i));
-    EXPECT_TRUE((*rec)->prepare_frame(f, live));
+    EXPECT_TRUE((*rec)->prepare_frame(f, live.initial_pose(f, std::nullopt), live));
     auto rep = live.process(f);
     EXPECT_TRUE(rep) << rep.status().to_string();
     if (!rep || !rep->fused()) continue;

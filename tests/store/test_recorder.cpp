@@ -123,7 +123,7 @@ TEST(Recorder, BoundedRunEqualsUnboundedRun) {
   IncrementalReconstructor rec(config());
   size_t max_resident = 0;
   for (size_t i = 0; i < ref.frames.size(); ++i) {
-    ASSERT_TRUE(recorder.prepare_frame(ref.frames[i], rec)) << recorder.status().last_error;
+    ASSERT_TRUE(recorder.prepare_frame(ref.frames[i], rec.initial_pose(ref.frames[i], std::nullopt), rec)) << recorder.status().last_error;
     auto rep = rec.process(ref.frames[i]);
     ASSERT_TRUE(rep) << rep.status().to_string();
     ASSERT_TRUE(recorder.record_frame(ref.frames[i], *rep, &rec.map())) << recorder.status().last_error;
@@ -182,7 +182,7 @@ namespace {
     rec.reset(std::move(resume.map), resume.next_frame_id, resume.last_T_world_cam);
   }
   for (size_t i = next; i < ref.frames.size(); ++i) {
-    if (!recorder->prepare_frame(ref.frames[i], rec)) _exit(9);
+    if (!recorder->prepare_frame(ref.frames[i], rec.initial_pose(ref.frames[i], std::nullopt), rec)) _exit(9);
     auto rep = rec.process(ref.frames[i]);
     if (!rep || rep->frame_id != i + 1) _exit(5);
     if (!recorder->record_frame(ref.frames[i], *rep, &rec.map())) _exit(6);
@@ -298,7 +298,7 @@ TEST(Recorder, FullDiskMidScanLosesNothing) {
                     static_cast<unsigned long long>(recorder.status().pager.failures),
                     recorder.status().pager.resident_bytes / 1048576.0);
       }
-      (void)recorder.prepare_frame(ref.frames[i], rec);
+      (void)recorder.prepare_frame(ref.frames[i], rec.initial_pose(ref.frames[i], std::nullopt), rec);
       auto rep = rec.process(ref.frames[i]);
       if (!rep) _exit(10);
       (void)recorder.record_frame(ref.frames[i], *rep, &rec.map());  // evictions may fail: kept

@@ -173,7 +173,7 @@ int run(const Options& o, bool bounded) {
   Frame frame;
   for (size_t i = 0; i < seq->size(); ++i) {
     seq->render_into(i, o.noise, &frame);
-    if (auto st = recorder.prepare_frame(frame, rec); !st) {
+    if (auto st = recorder.prepare_frame(frame, rec.initial_pose(frame, std::nullopt), rec); !st) {
       ++errors;
       if (errors < 5) {
         DF_LOG(BenchMemory, Error) << "[" << name << "] " << st.to_string();

@@ -192,7 +192,7 @@ Result<size_t> ScanRecorder::replay_log(IncrementalReconstructor& reconstructor)
     for (LoggedFrame& f : batch) {
       // The stored pose is where the pager looks for the chunks the frame will touch.
       f.frame.T_world_cam_hint = f.pose.T_world_cam;
-      Status done = prepare_frame(f.frame, reconstructor);
+      Status done = prepare_frame(f.frame, f.pose.T_world_cam, reconstructor);
       if (done) done = reconstructor.replay(f.frame, f.pose.frame_id, f.pose.T_world_cam);
       if (done) {
         FrameReport report;
@@ -232,15 +232,12 @@ Status ScanRecorder::flush_frame_log() {
   return st;
 }
 
-Status ScanRecorder::prepare_frame(const Frame& frame, IncrementalReconstructor& reconstructor,
-                                   const std::optional<Pose>& prediction) {
+Status ScanRecorder::prepare_frame(const Frame& frame, const Pose& T_world_cam_initial,
+                                   IncrementalReconstructor& reconstructor) {
   if (!pager_) return Status::ok();
   (void)catch_up(&reconstructor.map());
-  Pose guess = Pose::Identity();
-  if (frame.T_world_cam_hint) guess = *frame.T_world_cam_hint;
-  else if (prediction) guess = *prediction;
-  else if (reconstructor.last_pose()) guess = *reconstructor.last_pose();
-  Status st = pager_->prepare(&reconstructor.map(), frame, guess, reconstructor.next_frame_id());
+  Status st = pager_->prepare(&reconstructor.map(), frame, T_world_cam_initial,
+                              reconstructor.next_frame_id());
   status_.pager = pager_->stats();
   return note(st);
 }

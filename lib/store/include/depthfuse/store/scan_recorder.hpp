@@ -168,10 +168,10 @@ class ScanRecorder {
   Status flush_frame_log();
 
   // Before IncrementalReconstructor::process(frame): brings back the evicted chunks the frame can
-  // touch (bounded memory only; free otherwise). The pose guess is the frame's hint, else
-  // `prediction`, else the reconstructor's last pose.
-  Status prepare_frame(const Frame& frame, IncrementalReconstructor& reconstructor,
-                       const std::optional<Pose>& prediction = std::nullopt);
+  // touch from `T_world_cam_initial` (IncrementalReconstructor::initial_pose; bounded memory only,
+  // free otherwise).
+  Status prepare_frame(const Frame& frame, const Pose& T_world_cam_initial,
+                       IncrementalReconstructor& reconstructor);
 
   // After IncrementalReconstructor::process: buffers the pose, writes a keyframe every n frames,
   // and lets the pager evict what the budget cannot hold.

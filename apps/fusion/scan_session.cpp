@@ -1,0 +1,173 @@
+#include "scan_session.hpp"
+
+#include <cctype>
+#include <ctime>
+#include <filesystem>
+
+#include "depthfuse/base/clock.hpp"
+#include "depthfuse/base/log.hpp"
+#include "depthfuse/trajectory.hpp"
+
+DF_LOG_CATEGORY(Fusion)
+
+namespace depthfuse::fusiond {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+std::string generated_scan_name() {
+  const std::time_t t = std::time(nullptr);
+  std::tm tm{};
+  localtime_r(&t, &tm);
+  char buf[64];
+  std::strftime(buf, sizeof(buf), "scan-%Y%m%d-%H%M%S", &tm);
+  return buf;
+}
+
+// A scan name becomes a file name: keep it to [A-Za-z0-9._-], no leading dot.
+bool valid_scan_name(const std::string& s) {
+  if (s.empty() || s.size() > 100 || s[0] == '.') return false;
+  for (const char c : s)
+    if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '_' || c == '-'))
+      return false;
+  return true;
+}
+
+// Writes `path` through a temporary file and a rename, so that a crash or a full disk never leaves
+// a truncated file under the final name.
+template <typename WriteFn>
+Status write_atomically(const std::string& path, WriteFn write) {
+  const std::string tmp = path + ".partial";
+  Status st = write(tmp);
+  std::error_code ec;
+  if (st.is_ok()) {
+    std::filesystem::rename(tmp, path, ec);
+    if (ec) st = io_error("cannot rename " + tmp + " to " + path + ": " + ec.message());
+  }
+  if (!st.is_ok()) std::filesystem::remove(tmp, ec);
+  return st;
+}
+
+}  // namespace
+
+ScanSession::ScanSession(const AppConfig& config, CheckpointSink& sink)
+    : config_(config), sink_(sink) {}
+
+ScanSession::~ScanSession() = default;
+
+Status ScanSession::may_start() const {
+  const auto& f = config_.fusion;
+  if (last_start_) {
+    const double since_s = std::chrono::duration<double>(Clock::now() - *last_start_).count();
+    if (since_s < f.min_scan_interval_s)
+      return unavailable("a scan started " + std::to_string(since_s) +
+                         " s ago; scans start at most every " +
+                         std::to_string(f.min_scan_interval_s) +
+                         " s (fusion_daemon.min_scan_interval_s)");
+  }
+  std::error_code ec;
+  std::filesystem::path where = f.scan_dir;
+  while (!where.empty() && !std::filesystem::exists(where, ec)) where = where.parent_path();
+  const auto space = std::filesystem::space(where.empty() ? "." : where, ec);
+  if (ec) return io_error("cannot tell the free space of '" + f.scan_dir + "': " + ec.message());
+  const double free_mib = static_cast<double>(space.available) / (1024.0 * 1024.0);
+  if (free_mib < f.min_free_disk_mib)
+    return unavailable("only " + std::to_string(static_cast<int64_t>(free_mib)) + " MiB free in '" +
+                       f.scan_dir + "', below fusion_daemon.min_free_disk_mib (" +
+                       std::to_string(static_cast<int64_t>(f.min_free_disk_mib)) + ")");
+  return Status::ok();
+}
+
+Result<std::string> ScanSession::start(const std::string& requested_name) {
+  if (active()) return invalid_argument("scan " + scan_.scan_id + " is running");
+  std::string name = requested_name.empty() || requested_name == "-" ? generated_scan_name()
+                                                                     : requested_name;
+  if (!valid_scan_name(name))
+    return invalid_argument("scan name '" + name + "' must be 1-100 characters of A-Z a-z 0-9 . _ -");
+  DF_RETURN_IF_ERROR(may_start());
+  last_start_ = Clock::now();
+  std::error_code ec;
+  std::filesystem::create_directories(config_.fusion.scan_dir, ec);
+  if (ec)
+    return io_error("cannot create the scan directory '" + config_.fusion.scan_dir + "': " +
+                    ec.message() + " (set fusion_daemon.scan_dir in the config)");
+  scan_ = ScanContext{name, config_.fusion.scan_dir, now_utime(), &config_};
+  DF_RETURN_IF_ERROR(sink_.begin_scan(scan_).with_context("checkpoint store"));
+  auto reconstructor = std::make_unique<IncrementalReconstructor>(config_.reconstruction);
+  std::vector<StampedPose> trajectory;
+  // An existing scan file (a restart after a crash): continue from its last checkpoint.
+  DF_RETURN_IF_ERROR(
+      sink_.restore(*reconstructor, &scan_, &trajectory).with_context("checkpoint store"));
+  // A resumed scan takes the id stored in its file, which names the files written at its end (PLY,
+  // trajectory): one that is not a scan name ("../../x", "/etc/x") would write them outside
+  // scan_dir.
+  if (!valid_scan_name(scan_.scan_id))
+    return corrupt("the scan file for '" + name + "' holds the scan id '" + scan_.scan_id +
+                   "', which is not a scan name: not resumed");
+  reconstructor_ = std::move(reconstructor);
+  path_ = std::make_unique<FramePath>(*reconstructor_, &sink_);
+  trajectory_ = std::move(trajectory);
+  last_checkpoint_ = Clock::now();
+  const uint32_t next = reconstructor_->next_frame_id();
+  const std::string message = "scan " + scan_.scan_id +
+                              (next > 1 ? " resumed at frame " + std::to_string(next)
+                                        : std::string(" started"));
+  DF_LOG(Fusion, Info) << message;
+  return message;
+}
+
+Result<FrameOutcome> ScanSession::process(const Frame& frame) {
+  if (!active()) return invalid_argument("no scan is running");
+  Result<FrameOutcome> outcome = path_->run(frame);
+  if (outcome && outcome->report.fused())
+    trajectory_.push_back({frame.utime * 1e-6, outcome->report.T_world_cam});
+  return outcome;
+}
+
+bool ScanSession::checkpoint_due() const {
+  return active() && sink_.durable() && !sink_.checkpoint_in_flight() &&
+         Clock::now() - last_checkpoint_ >
+             std::chrono::duration<double>(config_.fusion.checkpoint_interval_s -
+                                           sink_.checkpoint_latency_s());
+}
+
+Status ScanSession::checkpoint(const std::string& reason, const FusionProgress& progress) {
+  if (!active()) return invalid_argument("no scan is running");
+  last_checkpoint_ = Clock::now();
+  return sink_.checkpoint(reason, *reconstructor_, progress);
+}
+
+Result<ScanSession::Saved> ScanSession::stop(const std::string& reason,
+                                             const FusionProgress& progress) {
+  if (!active()) return invalid_argument("no scan is running");
+  const size_t removed = reconstructor_->finish();
+  Saved saved;
+  saved.store = sink_.end_scan(reason, *reconstructor_, progress);
+
+  const std::string base = (std::filesystem::path(scan_.scan_dir) / scan_.scan_id).string();
+  const std::string ply_path = base + ".ply";
+  const std::string tum_path = base + "-trajectory.txt";
+  std::error_code ec;
+  std::filesystem::create_directories(scan_.scan_dir, ec);
+  size_t points = 0;
+  DF_RETURN_IF_ERROR(write_atomically(ply_path, [&](const std::string& p) -> Status {
+                       auto written = sink_.write_cloud(p, *reconstructor_);
+                       if (!written) return written.status();
+                       points = *written;
+                       return Status::ok();
+                     }).with_context("saving scan " + scan_.scan_id));
+  DF_RETURN_IF_ERROR(write_atomically(tum_path, [&](const std::string& p) {
+                       return write_tum_trajectory(p, trajectory_);
+                     }).with_context("saving scan " + scan_.scan_id));
+  saved.message = "scan " + scan_.scan_id + " saved: " + std::to_string(points) + " points (" +
+                  std::to_string(removed) + " removed by the post-filter) in " + ply_path + ", " +
+                  std::to_string(trajectory_.size()) + " poses in " + tum_path;
+  if (!saved.store.is_ok()) saved.message += "; checkpoint store: " + saved.store.to_string();
+  DF_LOG(Fusion, Info) << saved.message;
+  path_.reset();
+  reconstructor_.reset();
+  return saved;
+}
+
+}  // namespace depthfuse::fusiond

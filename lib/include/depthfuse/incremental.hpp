@@ -1,0 +1,158 @@
+// The paper's method one frame at a time into a growing map: IncrementalReconstructor (the fusion
+// daemon's, and the tracking of the offline tools through FramePath, frame_path.hpp).
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <optional>
+
+#include "depthfuse/config.hpp"
+#include "depthfuse/fusion.hpp"
+#include "depthfuse/measurement.hpp"
+#include "depthfuse/point_map.hpp"
+#include "depthfuse/registration.hpp"
+#include "depthfuse/status.hpp"
+
+namespace depthfuse {
+
+struct FrameReport {
+  uint32_t frame_id = 0;
+  Pose T_world_cam = Pose::Identity();   // the pose the frame was fused with
+  bool registered = false;               // ICP ran and converged
+  bool model_reused = false;             // ICP aligned to the previous frame's model (no render)
+  bool tracking_retried = false;         // a poor track from the prediction started again
+  // Tracking was lost and the camera was found among the keyframes (the frame is kTracked and
+  // fused at the pose found).
+  bool relocalised = false;
+  // Without a pose hint, how far the tracked pose can be trusted (classify_tracking()); with one,
+  // tracked if its ICP converged, else uncertain (the hint is fused). A lost frame is not fused.
+  TrackingState tracking = TrackingState::kTracked;
+  bool fused() const { return tracking != TrackingState::kLost; }
+  RegistrationResult registration;
+  FusionStats fusion;
+  size_t prefiltered = 0;                // measurements the pre-filter removed
+  double prefilter_ms = 0, registration_ms = 0, fusion_ms = 0;
+  double relocalisation_ms = 0;          // the keyframe search, part of registration_ms
+};
+
+class Relocaliser;
+
+class IncrementalReconstructor {
+ public:
+  // What process() holds for a frame besides the map, per pixel of the frame: the measurement
+  // image, the rendered model, the model projections of ICP and fusion (two threads) and their
+  // scratch, and with colour the photometric term's intensity pyramids. Most of it is kept from
+  // frame to frame (the buffers are reused), so it is resident, not a peak. A bound for budgets,
+  // held from both sides by a test that counts malloc's mapped blocks too
+  // (Incremental.FrameWorkStaysWithinItsBound; the figure is in docs/results.md).
+  static constexpr size_t kWorkBytesPerPixel = 288;
+
+  // What the relocaliser holds at most, keyframes and the search of one frame of `pixels`.
+  static size_t relocalisation_bytes(const RelocalisationConfig& config, size_t pixels);
+
+  explicit IncrementalReconstructor(const ReconstructionConfig& config);
+  ~IncrementalReconstructor();
+
+  // Pre-filter; initial pose (initial_pose()); re-registration against the map (if the method has
+  // it and the map is not empty); fusion. With a hint, ICP refines it; without one, coarse-to-fine tracking runs.
+  // The model is the map rendered at the initial pose, for every frame or, with
+  // registration.live_model_reuse_frames = n, for every n-th (the first after a reset renders).
+  // Without a hint, directions of the pose the view hardly constrains keep the initial pose's
+  // value (Registrar::track): the motion model's. A track from a prediction that is lost or has a
+  // fitness below registration.tracking_retry_fitness starts again from the last refined pose,
+  // and the start whose ICP ends with the lower mean cost is kept. A frame whose track is lost is
+  // searched for among the keyframes (Relocaliser; every frame tracked without a hint may become
+  // one): a candidate pose that tracks against the map as kTracked, with a model fitness as good as
+  // the lost rule asks of a poor track (relocalisation_verified()), is the camera's, and the frame
+  // is fused there (relocalised). Otherwise the frame is not fused, and the last refined pose
+  // stays that of the last frame fused.
+  Result<FrameReport> process(const Frame& frame,
+                              const std::optional<Pose>& T_world_cam_prediction = std::nullopt);
+  // Where a frame's registration starts: its hint if it has one, otherwise `prediction` (the
+  // motion model's), otherwise the last refined pose (the origin before any frame). The one rule:
+  // process() starts there, and a map pager loads the chunks around it before process() runs.
+  Pose initial_pose(const Frame& frame, const std::optional<Pose>& prediction) const;
+  // For a live stream, whose frames carry the sensor's times and may be dropped on the way: the
+  // pose at `utime` if the camera kept the motion of the last two frames fused, that motion scaled
+  // to the time since the last. None before two frames, or across a gap of more than a few frame
+  // periods (the same rule as the rolling-shutter velocity's).
+  std::optional<Pose> constant_velocity_prediction(int64_t utime) const;
+
+  // Fuses `frame` at `T_world_cam` as frame `frame_id`, with no registration: a frame that was
+  // fused before (a scan's frame redo log after a crash). Fusion is the same as process()'s, so
+  // the map becomes what it was; frame ids continue after frame_id, the last pose is T_world_cam,
+  // and the next frame renders its own model.
+  Status replay(const Frame& frame, uint32_t frame_id, const Pose& T_world_cam);
+
+  // Post-filter the whole map (end of scan).
+  size_t finish();
+
+  PointMap& map() { return *map_; }
+  const PointMap& map() const { return *map_; }
+  // Replaces the map (resume from a checkpoint); frame ids continue from next_frame_id.
+  void reset(std::unique_ptr<PointMap> map, uint32_t next_frame_id,
+             const std::optional<Pose>& last_T_world_cam);
+  const std::optional<Pose>& last_pose() const { return last_T_world_cam_; }
+
+  // Relocalisation keyframes for a resumed scan (after reset(), which empties them): frames stored
+  // with the poses they were fused at put back as keyframes, so that a camera that moved while the
+  // scan was down can be found again. Stored frames are offered newest first (where the camera
+  // was last is likeliest to be where it is), each older than the keyframes already held:
+  //  - keyframe_wanted: whether a frame at T_world_cam would be kept, by the spacing rule of a
+  //    tracked frame and while there is room (max_keyframes), from the pose alone: only the frames
+  //    wanted need decoding. False when relocalisation is off or there is no registration.
+  //  - restore_keyframe: measures the frame as process() does (back-projection, normals,
+  //    pre-filter) and makes it a keyframe at T_world_cam by the same code as a tracked frame.
+  //    False when it is not kept (not wanted, or too few points); an error only when the frame
+  //    cannot be measured.
+  bool keyframe_wanted(const Pose& T_world_cam) const;
+  Result<bool> restore_keyframe(const Frame& frame, const Pose& T_world_cam);
+  size_t keyframe_count() const;
+  uint32_t next_frame_id() const { return next_frame_id_; }
+  const ReconstructionConfig& config() const { return config_; }
+  // The mean model fitness (RegistrationResult::model_fitness) of the last frames tracked without a
+  // hint, 1 before any: what a correctly placed frame of this sensor and scene scores, the scale of
+  // the lost rule's and the relocalisation's model-fitness threshold (classify_tracking()).
+  double model_fitness_reference() const;
+
+ private:
+  // Registration of the measured frame (scratch_) against the map from `*T_world_cam` (the initial
+  // pose), which it replaces by the registered pose: tracking without a hint (with a second start
+  // from the last pose after a poor track, and the relocaliser after a loss), refinement with one.
+  void register_frame(const Frame& frame, const std::optional<Pose>& prediction, Pose* T_world_cam,
+                      FrameReport* report);
+  // A poor track from the prediction starts again from the last refined pose; the start with the
+  // lower mean cost is kept.
+  void retry_from_last_pose(FrameReport* report);
+  // The keyframes' candidates for a lost frame, each tracked against the map; the first that
+  // tracks well is the frame's pose.
+  void relocalise(FrameReport* report);
+  bool keeps_keyframes() const;
+  // Where the camera's motion was steady: the velocity of the last two frames fused, in the
+  // camera frame of the last; none across a gap of more than a few frame periods.
+  std::optional<CameraVelocity> camera_velocity_through_next(int64_t utime) const;
+  void fused_at(int64_t utime, const Pose& T_world_cam);
+
+  ReconstructionConfig config_;
+  std::unique_ptr<PointMap> map_;
+  Fuser fuser_;
+  Registrar registrar_;
+  std::unique_ptr<Relocaliser> relocaliser_;
+  MeasurementImage scratch_;
+  int frames_since_model_ = 0;  // frames registered to the Registrar's last rendered model
+  std::optional<Pose> last_T_world_cam_;
+  // The last two frames fused, stamped: the camera's velocity through the next frame, for a
+  // rolling shutter (camera_velocity_through_next()).
+  struct StampedPose {
+    int64_t utime = 0;
+    Pose T_world_cam = Pose::Identity();
+  };
+  std::optional<StampedPose> fused_before_last_, fused_last_;
+  uint32_t next_frame_id_ = 1;
+  // The model fitness of the last tracked frames (a ring; model_fitness_reference()).
+  std::array<float, 8> recent_model_fitness_{};
+  size_t recent_model_fitness_count_ = 0;
+};
+
+}  // namespace depthfuse

@@ -1,0 +1,27 @@
+// The fusion daemon's per-frame messages, assembled from what the frame path reported: pose2_t
+// (DEPTHFUSE_POSE2) for every frame processed, and its pose_t (DEPTHFUSE_POSE) for a fused one.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "depthfuse/incremental.hpp"
+#include "depthfuse/pose2_t.hpp"
+#include "depthfuse/pose_t.hpp"
+#include "depthfuse/types.hpp"
+
+namespace depthfuse::lcm {
+
+struct FramePublication {
+  int64_t frame_publish_utime = 0;  // the depth frame's publish time (capture side), 0 unknown
+  std::string scan_id;
+  int64_t map_points = 0;           // after the frame
+  int64_t publish_utime = 0;        // now
+};
+
+// A lost frame (not fused) carries `T_world_cam_last_fused`, where the camera was last known to
+// be, and no fusion counts; pose.pose is then not to be published on DEPTHFUSE_POSE.
+pose2_t make_pose2(const Frame& frame, const FrameReport& report, const Pose& T_world_cam_last_fused,
+                   const FramePublication& publication);
+
+}  // namespace depthfuse::lcm

@@ -1,0 +1,286 @@
+#include "depthfuse/incremental.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <string>
+
+#include "frame_measure.hpp"
+#include "relocaliser.hpp"
+
+namespace depthfuse {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+inline double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+// Whether a frame whose initial pose is T may be aligned to `last`, the model rendered for the
+// frame before, after `reused` frames registered to it in a row (0: none rendered since a reset).
+// Without a hint T is the previous refined pose, so the distance says how far the last ICP moved
+// the camera rather than how far it moved since; the frame count bounds the reuse either way.
+bool may_reuse(const RegistrationConfig& c, int reused, const SurfaceView& last, const Pose& T) {
+  return reused > 0 && reused < c.live_model_reuse_frames && !last.empty() &&
+         (T.translation() - last.T_world_cam.translation()).norm() <= c.live_model_reuse_max_m &&
+         rotation_between_deg(T, last.T_world_cam) <= c.live_model_reuse_max_deg;
+}
+
+}  // namespace
+
+IncrementalReconstructor::IncrementalReconstructor(const ReconstructionConfig& config)
+    : config_(config.with_method(config.pipeline.method)),
+      map_(std::make_unique<PointMap>(config.fusion.chunk_size_m)),
+      fuser_(config_.sensor, config_.fusion),
+      registrar_(config_.registration),
+      relocaliser_(std::make_unique<Relocaliser>(config_.relocalisation)) {}
+
+IncrementalReconstructor::~IncrementalReconstructor() = default;
+
+size_t IncrementalReconstructor::relocalisation_bytes(const RelocalisationConfig& config,
+                                                      size_t pixels) {
+  return Relocaliser::memory_bound_bytes(config, pixels);
+}
+
+void IncrementalReconstructor::relocalise(FrameReport* report) {
+  const auto t0 = Clock::now();
+  const auto found = relocaliser_->search(scratch_, [&](const Pose& candidate) {
+    const RegistrationResult r = registrar_.track(scratch_, *map_, candidate);
+    frames_since_model_ = 1;  // the track rendered the map around the candidate
+    if (!relocalisation_verified(r, config_.registration, model_fitness_reference())) return false;
+    report->registration = r;
+    return true;
+  });
+  if (found) {
+    report->registered = true;
+    report->tracking = TrackingState::kTracked;
+    report->relocalised = true;
+  }
+  report->relocalisation_ms = ms_since(t0);
+}
+
+Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
+                                                      const std::optional<Pose>& prediction) {
+  FrameReport report;
+  report.frame_id = next_frame_id_;
+  auto t0 = Clock::now();
+  // A rolling shutter (row_readout_s > 0) shears a moving camera's depth map, and a sheared map
+  // fits no rigid pose: tracking takes the shear for a shift (docs/results.md). Frame by frame the
+  // motion through this frame is not known yet; the motion through the last two fused frames is
+  // the constant-velocity model's guess of it. A hint is a pose from elsewhere, and its frames are
+  // taken as they are.
+  const std::optional<CameraVelocity> velocity =
+      frame.T_world_cam_hint ? std::nullopt : camera_velocity_through_next(frame.utime);
+  Result<size_t> removed = measure_frame(frame, config_, &scratch_, velocity ? &*velocity : nullptr);
+  if (!removed) return removed.status();
+  // Nothing to track or fuse: the frame cannot be placed, and tracking from an empty first frame
+  // would anchor the map nowhere. Said with the reason, so that a broken sensor or a wrong depth
+  // scale is recognised.
+  // Once the map has begun, such a frame (the sensor covered for a moment, a dropout) is a gap:
+  // lost, nothing fused, and the next frame starts from the last frame fused.
+  if (scratch_.valid_count() + *removed == 0) {
+    if (map_->point_count() == 0) return no_measurement(frame.depth, config_.sensor);
+    report.tracking = TrackingState::kLost;
+    report.T_world_cam = last_T_world_cam_.value_or(Pose::Identity());
+    frames_since_model_ = 0;
+    ++next_frame_id_;
+    return report;
+  }
+  report.prefiltered = *removed;
+  report.prefilter_ms = ms_since(t0);
+
+  Pose T = initial_pose(frame, prediction);
+  t0 = Clock::now();
+  registrar_.set_frame_color(frame.color, scratch_);
+  if (config_.registration.enabled && map_->point_count() > 0)
+    register_frame(frame, prediction, &T, &report);
+  report.registration_ms = ms_since(t0);
+  report.T_world_cam = T;
+  if (report.tracking == TrackingState::kLost) {
+    // The pose is unknown: fusing the frame would put a copy of the scene in the wrong place, and
+    // the next frame starts from the last frame fused. The model rendered for this frame covers
+    // what it saw from the wrong place: the next frame renders its own.
+    frames_since_model_ = 0;
+    ++next_frame_id_;
+    return report;
+  }
+
+  // Only a frame tracked without a hint is a keyframe: with hints, or without registration,
+  // nothing is ever relocalised.
+  if (config_.registration.enabled && !frame.T_world_cam_hint &&
+      report.tracking == TrackingState::kTracked) {
+    relocaliser_->frame_tracked(scratch_, T);
+    // The first frame, on an empty map, has nothing to agree with.
+    if (report.registered)
+      recent_model_fitness_[recent_model_fitness_count_++ % recent_model_fitness_.size()] =
+          static_cast<float>(report.registration.model_fitness);
+  }
+
+  t0 = Clock::now();
+  report.fusion = fuser_.fuse(scratch_, &frame.color, T, next_frame_id_, map_.get());
+  report.fusion_ms = ms_since(t0);
+  fused_at(frame.utime, T);
+  registrar_.keep_frame_as_photometric_reference(scratch_, T);
+  ++next_frame_id_;
+  return report;
+}
+
+Pose IncrementalReconstructor::initial_pose(const Frame& frame,
+                                            const std::optional<Pose>& prediction) const {
+  if (frame.T_world_cam_hint) return *frame.T_world_cam_hint;
+  if (prediction) return *prediction;
+  return last_T_world_cam_.value_or(Pose::Identity());
+}
+
+void IncrementalReconstructor::register_frame(const Frame& frame,
+                                              const std::optional<Pose>& prediction,
+                                              Pose* T_world_cam, FrameReport* report) {
+  const Pose T = *T_world_cam;
+  const bool hint = frame.T_world_cam_hint.has_value();
+  // Without a hint: the tracking of a moving camera. The directions the view does not constrain
+  // keep the value the motion model gives them, that of the pose the track starts from.
+  const std::optional<Pose> held = hint ? std::nullopt : std::optional<Pose>(T);
+  const SurfaceView& last = registrar_.model();
+  if (may_reuse(config_.registration, frames_since_model_, last, T)) {
+    report->registration = hint ? registrar_.refine(scratch_, last, T)
+                                : registrar_.track(scratch_, last, T, held);
+    ++frames_since_model_;
+    report->model_reused = true;
+  } else {
+    report->registration = hint ? registrar_.refine(scratch_, *map_, T)
+                                : registrar_.track(scratch_, *map_, T, held);
+    frames_since_model_ = 1;
+  }
+  const double reference = model_fitness_reference();
+  if (!hint && prediction && last_T_world_cam_ && config_.registration.tracking_retry_fitness > 0 &&
+      (report->registration.fitness < config_.registration.tracking_retry_fitness ||
+       classify_tracking(report->registration, config_.registration, reference) ==
+           TrackingState::kLost))
+    retry_from_last_pose(report);
+  report->registered = report->registration.converged;
+  if (!hint)
+    report->tracking = classify_tracking(report->registration, config_.registration, reference);
+  else if (!report->registered)
+    report->tracking = TrackingState::kUncertain;
+  if (report->tracking == TrackingState::kLost && !hint) relocalise(report);
+  if (report->registered) *T_world_cam = report->registration.T_world_cam;
+}
+
+// A constant-velocity prediction overshoots where the camera stops or turns back. Of two local
+// minima the one with the lower robust cost over all sampled measurements explains more of the
+// frame, and better: fitness alone would prefer many loose pairs, the residual alone few tight
+// ones. A direction held for want of information is no reason to start again: the two starts
+// would differ only there, where the cost cannot tell them apart, and the track would jump between
+// the motion model and a standstill.
+void IncrementalReconstructor::retry_from_last_pose(FrameReport* report) {
+  const RegistrationResult second =
+      registrar_.track(scratch_, *map_, *last_T_world_cam_, *last_T_world_cam_);
+  frames_since_model_ = 1;
+  if (second.converged &&
+      (!report->registration.converged || second.mean_cost < report->registration.mean_cost)) {
+    report->registration = second;
+    report->model_reused = false;  // the second track rendered the map
+  }
+  report->tracking_retried = true;
+}
+
+std::optional<CameraVelocity> IncrementalReconstructor::camera_velocity_through_next(
+    int64_t utime) const {
+  if (!fused_before_last_ || !fused_last_) return std::nullopt;
+  // Across a gap (frames lost, dropped by a full queue, or a stride of more than a few frames) the
+  // last motion says little about this frame's.
+  constexpr int64_t kMaxGapUs = 200000;
+  const int64_t between_us = fused_last_->utime - fused_before_last_->utime;
+  if (between_us <= 0 || between_us > kMaxGapUs || utime <= fused_last_->utime ||
+      utime - fused_last_->utime > kMaxGapUs)
+    return std::nullopt;
+  return camera_velocity(fused_before_last_->T_world_cam, fused_last_->T_world_cam,
+                         static_cast<double>(between_us) * 1e-6, fused_last_->T_world_cam);
+}
+
+std::optional<Pose> IncrementalReconstructor::constant_velocity_prediction(int64_t utime) const {
+  if (!camera_velocity_through_next(utime)) return std::nullopt;  // the gap rule
+  const double scale = static_cast<double>(utime - fused_last_->utime) /
+                       static_cast<double>(fused_last_->utime - fused_before_last_->utime);
+  // The step between the last two, as a rotation about one axis and a translation, stretched to
+  // this frame's time: after frames dropped by a full queue the step is two or three of them.
+  const Pose step = fused_before_last_->T_world_cam.inverse() * fused_last_->T_world_cam;
+  const Eigen::AngleAxisd rotation(step.rotation());
+  Pose scaled = Pose::Identity();
+  scaled.linear() = Eigen::AngleAxisd(rotation.angle() * scale, rotation.axis()).toRotationMatrix();
+  scaled.translation() = step.translation() * scale;
+  return fused_last_->T_world_cam * scaled;
+}
+
+void IncrementalReconstructor::fused_at(int64_t utime, const Pose& T_world_cam) {
+  last_T_world_cam_ = T_world_cam;
+  fused_before_last_ = fused_last_;
+  fused_last_ = StampedPose{utime, T_world_cam};
+}
+
+double IncrementalReconstructor::model_fitness_reference() const {
+  const size_t n = std::min(recent_model_fitness_count_, recent_model_fitness_.size());
+  if (n == 0) return 1.0;
+  double sum = 0;
+  for (size_t k = 0; k < n; ++k) sum += recent_model_fitness_[k];
+  return sum / n;
+}
+
+Status IncrementalReconstructor::replay(const Frame& frame, uint32_t frame_id,
+                                       const Pose& T_world_cam) {
+  if (frame_id == 0 || frame_id == 0xFFFFFFFFu)
+    return invalid_argument("replay: frame id " + std::to_string(frame_id) + " is out of range");
+  // As process() measured it: replayed in order at the same poses, the same velocity.
+  const std::optional<CameraVelocity> velocity =
+      frame.T_world_cam_hint ? std::nullopt : camera_velocity_through_next(frame.utime);
+  Result<size_t> removed = measure_frame(frame, config_, &scratch_, velocity ? &*velocity : nullptr);
+  if (!removed) return removed.status().with_context("replaying frame " + std::to_string(frame_id));
+  fuser_.fuse(scratch_, &frame.color, T_world_cam, frame_id, map_.get());
+  fused_at(frame.utime, T_world_cam);
+  // The registrar's model and photometric reference are of frames before the crash, or none.
+  frames_since_model_ = 0;
+  registrar_.keep_frame_as_photometric_reference(scratch_, T_world_cam);
+  next_frame_id_ = frame_id + 1;
+  return Status::ok();
+}
+
+size_t IncrementalReconstructor::finish() {
+  return config_.postfilter.enabled ? postfilter(map_.get()) : 0;
+}
+
+void IncrementalReconstructor::reset(std::unique_ptr<PointMap> map, uint32_t next_frame_id,
+                                     const std::optional<Pose>& last_T_world_cam) {
+  map_ = map ? std::move(map) : std::make_unique<PointMap>(config_.fusion.chunk_size_m);
+  frames_since_model_ = 0;
+  relocaliser_->clear();
+  recent_model_fitness_count_ = 0;
+  next_frame_id_ = std::max<uint32_t>(1, next_frame_id);
+  last_T_world_cam_ = last_T_world_cam;
+  fused_before_last_.reset();
+  fused_last_.reset();
+  registrar_.forget_photometric_reference();
+}
+
+bool IncrementalReconstructor::keeps_keyframes() const {
+  // As in process(): only frames tracked without a hint become keyframes, so without registration
+  // there are none.
+  return config_.registration.enabled && config_.relocalisation.enabled;
+}
+
+bool IncrementalReconstructor::keyframe_wanted(const Pose& T_world_cam) const {
+  return keeps_keyframes() && relocaliser_->wants(T_world_cam);
+}
+
+Result<bool> IncrementalReconstructor::restore_keyframe(const Frame& frame, const Pose& T_world_cam) {
+  if (!keyframe_wanted(T_world_cam)) return false;
+  // The same measurement a live frame gets: the keyframe's thumbnail and points are what they
+  // would have been had this process tracked the frame. scratch_ is the next frame's anyway.
+  Result<size_t> removed = measure_frame(frame, config_, &scratch_);
+  if (!removed) return removed.status();
+  return relocaliser_->add_older_keyframe(scratch_, T_world_cam);
+}
+
+size_t IncrementalReconstructor::keyframe_count() const { return relocaliser_->keyframe_count(); }
+
+}  // namespace depthfuse
