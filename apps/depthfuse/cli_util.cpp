@@ -2,22 +2,25 @@
 
 #include <unistd.h>
 
-
 #include "depthfuse/base/log.hpp"
 #include "depthfuse/base/meminfo.hpp"
-#include "depthfuse/daemon/startup.hpp"
 
 DF_LOG_CATEGORY(Cli)
 
 namespace depthfuse::cli {
 
-std::optional<AppConfig> load_config_or_report(const Args& args) {
-  auto c = daemon::load_config(args);
-  if (!c) {
-    fail(c.status().message());
-    return std::nullopt;
-  }
-  return *c;
+daemon::Program offline_program(const std::string& name, const char* usage,
+                                std::vector<std::string> options, std::vector<std::string> flags,
+                                size_t max_positional, bool reads_config) {
+  daemon::Program program;
+  program.name = "depthfuse " + name;
+  program.usage = "usage: " + std::string(usage) + "\n";
+  program.options = std::move(options);
+  program.flags = std::move(flags);
+  program.max_positional = max_positional;
+  program.reads_config = reads_config;
+  program.uses_lcm = false;
+  return program;
 }
 
 Progress::Progress(FILE* out) : out_(out), tty_(isatty(fileno(out)) != 0) {}

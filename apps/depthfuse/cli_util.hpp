@@ -1,13 +1,13 @@
-// Small helpers shared by the CLI's subcommands: option parsing, progress, config loading.
+// Small helpers shared by the CLI's subcommands: their start-up, progress, memory checks, reports.
 #pragma once
 
 #include <cstdint>
 #include <cstdio>
-#include <optional>
 #include <string>
+#include <vector>
 
-#include "depthfuse/app_config.hpp"
 #include "depthfuse/daemon/args.hpp"
+#include "depthfuse/daemon/startup.hpp"
 #include "depthfuse/pipeline.hpp"
 
 namespace depthfuse::cli {
@@ -19,8 +19,12 @@ using Args = daemon::Args;
 // once the poses settle, and a larger number is a typo, not a plan.
 inline constexpr long kMaxIterations = 1000;
 
-// Loads --config if given (else defaults); prints the error and returns nullopt on failure.
-std::optional<AppConfig> load_config_or_report(const Args& args);
+// The start-up of an offline subcommand (daemon::Startup): named "depthfuse <name>" in its log
+// lines, `usage` (one line or more, without "usage: ") as --help prints it, no LCM options;
+// --config only when it reads the appliance's config file.
+daemon::Program offline_program(const std::string& name, const char* usage,
+                                std::vector<std::string> options, std::vector<std::string> flags,
+                                size_t max_positional, bool reads_config);
 
 // For a run that holds every frame of its input (the batch pipeline's rounds go over all of them):
 // an error when `frames` frames of `frame_bytes` each do not fit in the memory this machine has

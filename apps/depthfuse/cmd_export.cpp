@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <vector>
 #include <optional>
 #include <sstream>
 
@@ -61,34 +62,71 @@ bool parse_bbox(const std::string& text, Eigen::AlignedBox3f* out, std::string* 
   return true;
 }
 
-int export_mesh(const cli::Args& args, const store::ExportOptions& filters, const std::string& out) {
-  mesh::MeshOptions options;
-  std::string err;
-  if (!cli::parse_mesh_options(args, &options, &err)) return cli::fail(err);
-  options.with_color = filters.with_color;
-  if (args.has("no-stats") || args.has("trajectory"))
-    return cli::fail("--no-stats and --trajectory are for cloud exports, not --mesh");
-  if (const Status path_ok = cli::check_mesh_path(out); !path_ok) return cli::fail(path_ok.message());
+// What the command line asks for, checked before the scan file is opened.
+struct Options {
+  std::string scan, output;
+  store::ExportOptions filters;
+  std::optional<mesh::MeshOptions> mesh;  // --mesh
+  std::optional<std::string> trajectory;
+};
 
-  auto opened = store::ScanStore::open(args.positional()[0], store::OpenMode::kReadOnly);
+// An option that is missing, malformed or out of range: an invalid_argument naming it.
+Result<Options> parse_options(const cli::Args& args) {
+  if (args.positional().size() != 1 || !args.has("output"))
+    return invalid_argument("expected one scan file and -o out.ply|out.pcd");
+  Options o;
+  o.scan = args.positional()[0];
+  o.output = args.get("output");
+  long min_merges = 0;
+  std::string err;
+  if (!args.get_int("min-merges", &min_merges, &err, daemon::closed(0, 65535)))
+    return invalid_argument(err);
+  o.filters.min_merges = static_cast<uint32_t>(min_merges);
+  if (args.has("bbox")) {
+    Eigen::AlignedBox3f box;
+    if (!parse_bbox(args.get("bbox"), &box, &err)) return invalid_argument(err);
+    o.filters.bbox_m = box;
+  }
+  o.filters.with_color = !args.has("no-color");
+  o.filters.with_fusion_stats = !args.has("no-stats");
+  o.filters.skip_damaged = args.has("skip-damaged");
+  if (args.has("trajectory")) o.trajectory = args.get("trajectory");
+  if (const std::string stray = cli::mesh_option_without_mesh(args); !stray.empty())
+    return invalid_argument("unknown option --" + stray + " (without --mesh)");
+  if (!args.has("mesh")) {
+    DF_RETURN_IF_ERROR(store::cloud_format_for(o.output).status());
+    return o;
+  }
+  mesh::MeshOptions mesh_options;
+  if (!cli::parse_mesh_options(args, &mesh_options, &err)) return invalid_argument(err);
+  mesh_options.with_color = o.filters.with_color;
+  if (args.has("no-stats") || args.has("trajectory"))
+    return invalid_argument("--no-stats and --trajectory are for cloud exports, not --mesh");
+  DF_RETURN_IF_ERROR(cli::check_mesh_path(o.output));
+  o.mesh = mesh_options;
+  return o;
+}
+
+int export_mesh(const Options& o) {
+  auto opened = store::ScanStore::open(o.scan, store::OpenMode::kReadOnly);
   if (!opened) return cli::fail(opened.status().message());
   // The mesh reads the file's chunks itself: logged frames would be left out without a word.
   auto log = (*opened)->frame_log_summary();
   if (!log) return cli::fail(log.status().message());
   if (log->count > 0)
-    return cli::fail(args.positional()[0] + ": " + std::to_string(log->count) +
+    return cli::fail(o.scan + ": " + std::to_string(log->count) +
                      " frames of the frame redo log (" + std::to_string(log->first_frame_id) + "-" +
                      std::to_string(log->last_frame_id) +
                      ") are not in a checkpoint, and a mesh would leave them out; fold them in "
-                     "first: depthfuse inspect --fold-log " + args.positional()[0]);
+                     "first: depthfuse inspect --fold-log " + o.scan);
   const auto t0 = std::chrono::steady_clock::now();
   mesh::MeshReport report;
   std::vector<std::string> damaged;
-  auto m = mesh::mesh_scan(**opened, filters, options, &report, &damaged);
+  auto m = mesh::mesh_scan(**opened, o.filters, *o.mesh, &report, &damaged);
   for (const std::string& d : damaged) DF_LOG(Export, Warning) << "skipped: " << d;
   if (!m) return cli::fail(m.status().message());
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  auto line = cli::write_mesh(out, *m, report, seconds);
+  auto line = cli::write_mesh(o.output, *m, report, seconds);
   if (!line) return cli::fail(line.status().message());
   std::fputs(line->c_str(), stdout);
   if (!damaged.empty()) {
@@ -98,84 +136,76 @@ int export_mesh(const cli::Args& args, const store::ExportOptions& filters, cons
   return 0;
 }
 
-int run(int argc, char** argv) {
-  cli::Args args(argc, argv, {"no-color", "no-stats", "skip-damaged", "mesh", "help"});
-  if (args.has("help")) return std::printf("usage: %s\n", kUsage), 0;
-  if (!args.ok()) return cli::fail(args.error());
-  std::vector<std::string> known = {"output", "min-merges", "bbox", "no-color", "no-stats",
-                                    "trajectory", "skip-damaged", "mesh"};
-  if (args.has("mesh")) known.insert(known.end(), cli::mesh_option_names().begin(), cli::mesh_option_names().end());
-  const std::string bad = args.unknown(known);
-  if (!bad.empty())
-    return cli::fail("unknown option " + bad + (bad.rfind("--mesh-", 0) == 0 ? " (without --mesh)" : "") +
-                     "\nusage: " + kUsage);
-  if (args.positional().size() != 1 || !args.has("output"))
-    return cli::fail(std::string("expected one scan file and -o out.ply|out.pcd\nusage: ") + kUsage);
+// Frames after the last checkpoint that the redo log holds (killed, not resumed): replayed here
+// as a resume would, so that the export loses none of them. Nothing when the log is empty.
+Result<std::optional<store::LogReplay>> fold_log(store::ScanStore& scan) {
+  auto log = scan.frame_log_summary();
+  if (!log) return log.status();
+  if (log->count == 0) return std::optional<store::LogReplay>();
+  const std::string how = " (resuming the scan, or depthfuse inspect --fold-log " + scan.path() +
+                          ", folds them into the file)";
+  auto config = cli::stored_reconstruction_config(scan);
+  if (!config) return Status(config.status().code(), config.status().message() + how);
+  auto replay = store::replay_frame_log(scan, *config);
+  if (!replay)
+    return Status(replay.status().code(), "folding the frame redo log of " + scan.path() + ": " +
+                                              replay.status().message() + how);
+  if (!replay->damaged)
+    DF_LOG(Export, Warning) << replay->damaged.message()
+                            << ": the frame log is folded in up to the record before it";
+  DF_LOG(Export, Info) << "folded in " << replay->poses.size() << " frames of the frame redo log ("
+                       << log->first_frame_id << "-" << log->last_frame_id
+                       << ") after the last checkpoint";
+  return std::optional<store::LogReplay>(std::move(replay).value());
+}
 
-  store::ExportOptions options;
-  long min_merges = 0;
-  std::string err;
-  if (!args.get_int("min-merges", &min_merges, &err, daemon::closed(0, 65535))) return cli::fail(err);
-  options.min_merges = static_cast<uint32_t>(min_merges);
-  if (args.has("bbox")) {
-    Eigen::AlignedBox3f box;
-    if (!parse_bbox(args.get("bbox"), &box, &err)) return cli::fail(err);
-    options.bbox_m = box;
-  }
-  options.with_color = !args.has("no-color");
-  options.with_fusion_stats = !args.has("no-stats");
-  options.skip_damaged = args.has("skip-damaged");
-  const std::string out = args.get("output");
-  if (args.has("mesh")) return export_mesh(args, options, out);
-  if (auto format = store::cloud_format_for(out); !format) return cli::fail(format.status().message());
-
-  auto opened = store::ScanStore::open(args.positional()[0], store::OpenMode::kReadOnly);
+int export_points(Options o) {
+  auto opened = store::ScanStore::open(o.scan, store::OpenMode::kReadOnly);
   if (!opened) return cli::fail(opened.status().message());
   store::ScanStore& scan = **opened;
   store::ScopedRead snapshot(scan);
   if (!snapshot.status()) return cli::fail(snapshot.status().message());
-  // Frames after the last checkpoint that the redo log holds (killed, not resumed): replayed here
-  // as a resume would, so that the export loses none of them.
-  auto log = scan.frame_log_summary();
-  if (!log) return cli::fail(log.status().message());
-  std::optional<store::LogReplay> folded;
-  if (log->count > 0) {
-    const std::string how = " (resuming the scan, or depthfuse inspect --fold-log " + scan.path() +
-                            ", folds them into the file)";
-    auto config = cli::stored_reconstruction_config(scan);
-    if (!config) return cli::fail(config.status().message() + how);
-    auto replay = store::replay_frame_log(scan, *config);
-    if (!replay) return cli::fail("folding the frame redo log of " + scan.path() + ": " +
-                                  replay.status().message() + how);
-    if (!replay->damaged) DF_LOG(Export, Warning) << replay->damaged.message() << ": the frame log is folded in up to the record before it";
-    DF_LOG(Export, Info) << "folded in " << replay->poses.size() << " frames of the frame redo log ("
-                         << log->first_frame_id << "-" << log->last_frame_id << ") after the last checkpoint";
-    folded = std::move(replay).value();
-    options.replacing = folded->map.get();
-  }
+  auto folded = fold_log(scan);
+  if (!folded) return cli::fail(folded.status().message());
+  if (*folded) o.filters.replacing = (*folded)->map.get();
   // The trajectory first: a damaged pose (its checksum fails) stops the export before the cloud
   // is written.
-  if (args.has("trajectory")) {
-    const Status st = store::export_trajectory(scan, args.get("trajectory"),
-                                               folded ? folded->poses : std::vector<store::PoseRecord>{});
+  if (o.trajectory) {
+    const Status st = store::export_trajectory(
+        scan, *o.trajectory, *folded ? (*folded)->poses : std::vector<store::PoseRecord>{});
     if (!st) return cli::fail(st.message() + " (nothing exported)");
   }
-  auto report = store::export_cloud(scan, out, options);
+  auto report = store::export_cloud(scan, o.output, o.filters);
   if (!report) {
-    if (args.has("trajectory")) std::remove(args.get("trajectory").c_str());
+    if (o.trajectory) std::remove(o.trajectory->c_str());
     return cli::fail(report.status().message());
   }
   for (const std::string& d : report->damaged) DF_LOG(Export, Warning) << "skipped: " << d;
-  std::printf("wrote %llu points from %zu chunks to %s", static_cast<unsigned long long>(report->points_written),
-              report->chunks_read, out.c_str());
-  if (folded) std::printf(" (%zu logged frames folded in)", folded->poses.size());
-  if (report->points_filtered) std::printf(" (%llu filtered out)", static_cast<unsigned long long>(report->points_filtered));
+  std::printf("wrote %llu points from %zu chunks to %s",
+              static_cast<unsigned long long>(report->points_written), report->chunks_read,
+              o.output.c_str());
+  if (*folded) std::printf(" (%zu logged frames folded in)", (*folded)->poses.size());
+  if (report->points_filtered)
+    std::printf(" (%llu filtered out)", static_cast<unsigned long long>(report->points_filtered));
   std::printf("\n");
   if (!report->damaged.empty()) {
     DF_LOG(Export, Error) << report->damaged.size() << " damaged chunks were left out";
     return 1;
   }
   return 0;
+}
+
+int run(int argc, char** argv) {
+  std::vector<std::string> options = {"output", "min-merges", "bbox", "trajectory"};
+  options.insert(options.end(), cli::mesh_option_names().begin(), cli::mesh_option_names().end());
+  daemon::Startup startup(cli::offline_program(kCmd, kUsage, options,
+                                               {"no-color", "no-stats", "skip-damaged", "mesh"}, 1,
+                                               false),
+                          argc, argv);
+  if (auto code = startup.exit_code()) return *code;
+  auto o = parse_options(startup.args());
+  if (!o) return startup.usage_error(o.status().message());
+  return o->mesh ? export_mesh(*o) : export_points(std::move(*o));
 }
 
 }  // namespace

@@ -41,18 +41,11 @@ std::string mib(uint64_t bytes) {
   return buf;
 }
 
-int run(int argc, char** argv) {
-  cli::Args args(argc, argv, {"quick", "checkpoints", "chunks", "upgrade", "fold-log", "help"});
-  if (args.has("help")) return std::printf("usage: %s\n", kUsage), 0;
-  if (!args.ok()) return cli::fail(args.error());
-  const std::string bad = args.unknown({"quick", "checkpoints", "chunks", "upgrade", "fold-log"});
-  if (!bad.empty()) return cli::fail("unknown option " + bad + "\nusage: " + kUsage);
-  if (args.positional().size() != 1) return cli::fail(std::string("expected one scan file\nusage: ") + kUsage);
-  const std::string path = args.positional()[0];
-
+// --upgrade and --fold-log: the changes to the file asked for, before it is read.
+Status change_file(const std::string& path, const cli::Args& args) {
   if (args.has("upgrade")) {
     auto rw = store::ScanStore::open(path, store::OpenMode::kReadWrite);
-    if (!rw) return cli::fail(rw.status().message());
+    if (!rw) return rw.status();
     const auto& rep = (*rw)->open_report();
     std::printf("%s: schema %d%s\n", path.c_str(), rep.found_schema_version,
                 rep.migrated ? (" migrated to " + std::to_string(store::kSchemaVersion)).c_str()
@@ -60,25 +53,13 @@ int run(int argc, char** argv) {
   }
   if (args.has("fold-log")) {
     auto folded = cli::fold_frame_log(path);
-    if (!folded) return cli::fail(folded.status().message());
+    if (!folded) return folded.status();
     std::printf("%s: %zu logged frames folded into a new checkpoint\n", path.c_str(), *folded);
   }
-  auto opened = store::ScanStore::open(path, store::OpenMode::kReadOnly);
-  if (!opened) return cli::fail(opened.status().message());
-  store::ScanStore& scan = **opened;
+  return Status::ok();
+}
 
-  auto sum = scan.summary();
-  if (!sum) {
-    // Damaged beyond a summary: still say what the integrity check finds.
-    DF_LOG(Inspect, Error) << sum.status().message();
-    auto integrity = scan.integrity_check(!args.has("quick"));
-    if (integrity) {
-      for (const auto& p : integrity->problems) DF_LOG(Inspect, Error) << p;
-    }
-    std::printf("integrity      DAMAGED\n");
-    return 1;
-  }
-  const store::StoreSummary& s = *sum;
+void print_summary(const store::StoreSummary& s) {
   std::printf("scan file      %s\n", s.path.c_str());
   std::printf("schema version %d\n", s.schema_version);
   std::printf("scan id        %s\n", s.metadata.scan_id.empty() ? "-" : s.metadata.scan_id.c_str());
@@ -109,7 +90,10 @@ int run(int argc, char** argv) {
   if (s.staged_chunk_count)
     std::printf("staged         %zu evicted chunks not yet in a checkpoint (a writer is active or crashed)\n",
                 s.staged_chunk_count);
-  // The frame redo log after the last checkpoint: frames a resume (or export) replays.
+}
+
+// The frame redo log after the last checkpoint: frames a resume (or export) replays.
+void print_frame_log(store::ScanStore& scan) {
   if (auto log = scan.frame_log_summary(); !log) {
     DF_LOG(Inspect, Error) << log.status().message();
   } else if (log->count == 0) {
@@ -119,50 +103,91 @@ int run(int argc, char** argv) {
                 "replays them\n",
                 log->count, log->first_frame_id, log->last_frame_id, mib(log->bytes).c_str());
   }
-  std::printf("file size      %s (+ %s WAL)\n", mib(s.file_bytes).c_str(), mib(s.wal_bytes).c_str());
+}
 
+// --checkpoints and --chunks.
+Status print_lists(store::ScanStore& scan, const cli::Args& args) {
   if (args.has("checkpoints")) {
     auto cps = scan.checkpoints();
-    if (!cps) return cli::fail(cps.status().message());
+    if (!cps) return cps.status();
     for (const auto& c : *cps)
       std::printf("  checkpoint #%" PRId64 "  %s  %-8s frame %u  %" PRIu64 " points  %" PRIu64 " chunks\n", c.id,
                   format_time(c.utime).c_str(), c.reason.c_str(), c.last_frame_id, c.point_count, c.chunk_count);
   }
   if (args.has("chunks")) {
     auto chunks = scan.list_chunks(true);
-    if (!chunks) return cli::fail(chunks.status().message());
+    if (!chunks) return chunks.status();
     for (const auto& c : *chunks)
       std::printf("  chunk %-16s %7u points  %8zu bytes  %s\n", store::to_string(c.key).c_str(), c.point_count,
                   c.blob_bytes, c.checkpoint_id ? ("checkpoint " + std::to_string(c.checkpoint_id)).c_str() : "staged");
   }
+  return Status::ok();
+}
 
-  auto integrity = scan.integrity_check(!args.has("quick"));
+// What a full check covered: only what was checked is said (poses written before schema 3 have
+// no checksum).
+std::string describe_checked(const store::IntegrityReport& integrity) {
+  const size_t poses_summed = integrity.poses_checked - integrity.poses_unchecked;
+  std::string checked = "; " + std::to_string(integrity.chunks_checked) + " chunk and " +
+                        std::to_string(integrity.keyframes_checked) + " keyframe records decoded and "
+                        "checksummed; " + std::to_string(poses_summed) + " pose records checksummed";
+  if (integrity.poses_unchecked > 0)
+    checked += ", " + std::to_string(integrity.poses_unchecked) +
+               " unchecked (written before schema 3, without a checksum: only decoded)";
+  for (auto [n, what] : {std::pair{integrity.keyframes_unchecked, " keyframe"},
+                         std::pair{integrity.checkpoints_unchecked, " checkpoint"}})
+    if (n > 0)
+      checked += "; " + std::to_string(n) + what +
+                 " poses unchecked (written before schema 4, without a checksum: only decoded)";
+  checked += "; " + std::to_string(integrity.log_records_checked) +
+             " frame log records decoded and checksummed";
+  return checked;
+}
+
+// The integrity line; the exit code: 0 intact, 1 damaged.
+int check_integrity(store::ScanStore& scan, bool quick) {
+  auto integrity = scan.integrity_check(!quick);
   if (!integrity) return cli::fail(integrity.status().message());
   if (integrity->ok()) {
-    // Say only what was checked: poses written before schema 3 have no checksum.
-    std::string checked = "; blobs not checked (--quick)";
-    if (!args.has("quick")) {
-      const size_t poses_summed = integrity->poses_checked - integrity->poses_unchecked;
-      checked = "; " + std::to_string(integrity->chunks_checked) + " chunk and " +
-                std::to_string(integrity->keyframes_checked) + " keyframe records decoded and "
-                "checksummed; " + std::to_string(poses_summed) + " pose records checksummed";
-      if (integrity->poses_unchecked > 0)
-        checked += ", " + std::to_string(integrity->poses_unchecked) +
-                   " unchecked (written before schema 3, without a checksum: only decoded)";
-      for (auto [n, what] : {std::pair{integrity->keyframes_unchecked, " keyframe"},
-                             std::pair{integrity->checkpoints_unchecked, " checkpoint"}})
-        if (n > 0)
-          checked += "; " + std::to_string(n) + what +
-                     " poses unchecked (written before schema 4, without a checksum: only decoded)";
-      checked += "; " + std::to_string(integrity->log_records_checked) +
-                 " frame log records decoded and checksummed";
-    }
+    const std::string checked = quick ? "; blobs not checked (--quick)" : describe_checked(*integrity);
     std::printf("integrity      ok (sqlite integrity_check%s)\n", checked.c_str());
     return 0;
   }
   std::printf("integrity      DAMAGED: %zu problems\n", integrity->problems.size());
   for (const auto& p : integrity->problems) DF_LOG(Inspect, Error) << p;
   return 1;
+}
+
+int run(int argc, char** argv) {
+  daemon::Startup startup(cli::offline_program(kCmd, kUsage, {},
+                                               {"quick", "checkpoints", "chunks", "upgrade", "fold-log"},
+                                               1, false),
+                          argc, argv);
+  if (auto code = startup.exit_code()) return *code;
+  const cli::Args& args = startup.args();
+  if (args.positional().size() != 1) return startup.usage_error("expected one scan file");
+  const std::string path = args.positional()[0];
+  if (const Status changed = change_file(path, args); !changed) return cli::fail(changed.message());
+  auto opened = store::ScanStore::open(path, store::OpenMode::kReadOnly);
+  if (!opened) return cli::fail(opened.status().message());
+  store::ScanStore& scan = **opened;
+
+  auto sum = scan.summary();
+  if (!sum) {
+    // Damaged beyond a summary: still say what the integrity check finds.
+    DF_LOG(Inspect, Error) << sum.status().message();
+    auto integrity = scan.integrity_check(!args.has("quick"));
+    if (integrity) {
+      for (const auto& p : integrity->problems) DF_LOG(Inspect, Error) << p;
+    }
+    std::printf("integrity      DAMAGED\n");
+    return 1;
+  }
+  print_summary(*sum);
+  print_frame_log(scan);
+  std::printf("file size      %s (+ %s WAL)\n", mib(sum->file_bytes).c_str(), mib(sum->wal_bytes).c_str());
+  if (const Status listed = print_lists(scan, args); !listed) return cli::fail(listed.message());
+  return check_integrity(scan, args.has("quick"));
 }
 
 }  // namespace

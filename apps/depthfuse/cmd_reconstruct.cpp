@@ -87,47 +87,92 @@ struct Input {
   std::optional<Frame> peeked_;
 };
 
-Result<Input> open_input(const std::string& input, const cli::Args& args, const AppConfig& config) {
-  Input in;
-  long max_frames = 0, stride = 1;
+// What the command line asks for, checked before anything is read.
+struct Options {
+  std::string input, output;
+  ReconstructionConfig rc;
+  bool track = false;
+  // Set when given, even as "": an empty path is refused where it is opened.
+  std::optional<std::string> poses, camera, trajectory_out, report;
+  size_t max_frames = 0;  // 0 = all
+  size_t stride = 1;
+  std::optional<mesh::MeshOptions> mesh;  // --mesh
+  std::string mesh_path;
+};
+
+// An option that is missing, malformed or out of range: an invalid_argument naming it.
+Result<Options> parse_options(const daemon::Startup& startup) {
+  const cli::Args& args = startup.args();
+  if (args.positional().size() != 1 || !args.has("output"))
+    return invalid_argument("expected one input and -o cloud.ply");
+  Options o;
+  o.input = args.positional()[0];
+  o.output = args.get("output");
+  mesh::MeshOptions mesh_options;
   std::string err;
-  if (!args.get_int("max-frames", &max_frames, &err, daemon::closed(0, INT32_MAX)) ||
+  if (!cli::parse_mesh_options(args, &mesh_options, &err)) return invalid_argument(err);
+  if (const std::string stray = cli::mesh_option_without_mesh(args); !stray.empty())
+    return invalid_argument("--" + stray + " without --mesh FILE");
+  if (args.has("mesh")) {
+    o.mesh_path = args.get("mesh");
+    DF_RETURN_IF_ERROR(cli::check_mesh_path(o.mesh_path));
+    o.mesh = mesh_options;
+  }
+  o.rc = startup.config().reconstruction;
+  if (args.has("method") && !parse_method(args.get("method"), &o.rc.pipeline.method))
+    return invalid_argument("--method must be full, ylimaki17 or kyostila13, got '" +
+                            args.get("method") + "'");
+  long iterations = o.rc.pipeline.outer_iterations, max_frames = 0, stride = 1;
+  if (!args.get_int("iterations", &iterations, &err, daemon::closed(0, cli::kMaxIterations)) ||
+      !args.get_int("max-frames", &max_frames, &err, daemon::closed(0, INT32_MAX)) ||
       !args.get_int("stride", &stride, &err, daemon::closed(1, INT32_MAX)))
     return invalid_argument(err);
-  in.max_frames = static_cast<size_t>(max_frames);
+  o.rc.pipeline.outer_iterations = static_cast<int>(iterations);
+  o.max_frames = static_cast<size_t>(max_frames);
+  o.stride = static_cast<size_t>(stride);
+  o.track = args.has("track");
+  for (auto [name, value] : {std::pair{"poses", &o.poses}, std::pair{"camera", &o.camera},
+                              std::pair{"trajectory-out", &o.trajectory_out},
+                              std::pair{"report", &o.report}})
+    if (args.has(name)) *value = args.get(name);
+  return o;
+}
 
-  if (fs::is_directory(input)) {
+Result<Input> open_input(const Options& o, const AppConfig& config) {
+  Input in;
+  in.max_frames = o.max_frames;
+  if (fs::is_directory(o.input)) {
     replay::TumReplayConfig rc;
-    rc.max_frames = static_cast<size_t>(max_frames);
-    rc.stride = static_cast<size_t>(stride);
-    if (args.has("camera")) {
-      auto cam = replay::read_camera_file(args.get("camera"));
+    rc.max_frames = o.max_frames;
+    rc.stride = o.stride;
+    if (o.camera) {
+      auto cam = replay::read_camera_file(*o.camera);
       if (!cam) return cam.status();
       rc.intrinsics = cam->intrinsics;
       rc.depth_scale = cam->depth_scale;
       rc.distortion = cam->distortion;
       rc.color_stamp_offset_s = cam->color_stamp_offset_s;
     }
-    if (args.has("poses")) {
-      rc.poses_path = args.get("poses");
+    if (o.poses) {
+      rc.poses_path = *o.poses;
       in.pose_origin = rc.poses_path;
-    } else if (!args.has("track") && fs::exists(input + "/groundtruth.txt")) {
+    } else if (!o.track && fs::exists(o.input + "/groundtruth.txt")) {
       rc.use_groundtruth = true;
-      in.pose_origin = input + "/groundtruth.txt";
+      in.pose_origin = o.input + "/groundtruth.txt";
     }
-    auto s = replay::TumSource::open(input, rc);
+    auto s = replay::TumSource::open(o.input, rc);
     if (!s) return s.status();
     in.source = std::move(s.value());
   } else {
-    std::string spec = input;
-    if (input.find(':') == std::string::npos || fs::exists(input)) spec = "lcmlog:" + input;
-    if (!fs::exists(input) && spec.rfind("lcmlog:", 0) == 0)
-      return not_found("no such folder or file: " + input);
+    std::string spec = o.input;
+    if (o.input.find(':') == std::string::npos || fs::exists(o.input)) spec = "lcmlog:" + o.input;
+    if (!fs::exists(o.input) && spec.rfind("lcmlog:", 0) == 0)
+      return not_found("no such folder or file: " + o.input);
     auto s = open_frame_source(spec, config);
     if (!s) return s.status();
     in.source = std::move(s.value());
-    if (args.has("poses")) return invalid_argument("--poses works with TUM folders only");
-    in.stride = static_cast<size_t>(stride);
+    if (o.poses) return invalid_argument("--poses works with TUM folders only");
+    in.stride = o.stride;
   }
   in.description = in.source->describe();
   return in;
@@ -182,167 +227,184 @@ Result<BatchResult> fuse_streamed(Input& in, const ReconstructionConfig& rc, boo
   if (fuser.frames() == 0) return invalid_argument("empty sequence, no frames to fuse");
   return fuser.finish();
 }
-int run(int argc, char** argv) {
-  cli::Args args(argc, argv, {"track", "help"});
-  if (args.has("help")) return std::printf("usage: %s\n", kUsage), 0;
-  if (!args.ok()) return cli::fail(args.error());
-  std::vector<std::string> known = {"poses", "track", "method", "iterations", "config", "camera",
-                                    "trajectory-out", "report", "max-frames", "stride", "output", "mesh"};
-  known.insert(known.end(), cli::mesh_option_names().begin(), cli::mesh_option_names().end());
-  const std::string bad = args.unknown(known);
-  if (!bad.empty()) return cli::fail("unknown option " + bad + "\nusage: " + kUsage);
-  if (args.positional().size() != 1 || !args.has("output"))
-    return cli::fail(std::string("expected one input and -o cloud.ply\nusage: ") + kUsage);
 
-  mesh::MeshOptions mesh_options;
-  std::string mesh_err;
-  if (!cli::parse_mesh_options(args, &mesh_options, &mesh_err)) return cli::fail(mesh_err);
-  for (const std::string& name : cli::mesh_option_names())
-    if (args.has(name) && !args.has("mesh")) return cli::fail("--" + name + " without --mesh FILE");
-  if (args.has("mesh")) {
-    const Status path_ok = cli::check_mesh_path(args.get("mesh"));
-    if (!path_ok) return cli::fail(path_ok.message());
+// What a run made, for the outputs and the report.
+struct Outcome {
+  BatchResult result;
+  size_t frames = 0;
+  bool has_color = false;
+  std::string pose_note;  // where the initial poses came from
+};
+
+// The initial poses of held frames: tracked from the first frame (a lost frame is left out of the
+// frames, the cloud and the trajectory, its pose being unknown), or the frames' own.
+Result<std::vector<Pose>> initial_poses(Input& in, std::vector<Frame>& frames,
+                                        const ReconstructionConfig& rc, cli::Progress& progress,
+                                        std::string* pose_note) {
+  std::vector<Pose> initial;
+  if (pose_note->empty()) {
+    auto tracked = track_sequence(frames, rc, progress.fn());
+    if (!tracked) return tracked.status();
+    std::vector<Frame> kept;
+    for (size_t i = 0; i < frames.size(); ++i) {
+      if (tracked->state[i] == TrackingState::kLost) continue;
+      kept.push_back(std::move(frames[i]));
+      initial.push_back(tracked->T_world_cam[i]);
+    }
+    frames = std::move(kept);
+    *pose_note = "tracked from the first frame: " + std::to_string(tracked->uncertain) +
+                 " frames uncertain, " + std::to_string(tracked->lost) + " lost (left out), " +
+                 std::to_string(tracked->relocalised) + " relocalised";
+    return initial;
   }
+  for (size_t i = 0; i < frames.size(); ++i) {
+    if (!frames[i].T_world_cam_hint) {
+      in.taken = i + 1;
+      return in.missing_pose(frames[i], false);
+    }
+    initial.push_back(*frames[i].T_world_cam_hint);
+  }
+  return initial;
+}
 
-  auto config = cli::load_config_or_report(args);
-  if (!config) return 1;
-  ReconstructionConfig rc = config->reconstruction;
-  if (args.has("method") && !parse_method(args.get("method"), &rc.pipeline.method))
-    return cli::fail("--method must be full, ylimaki17 or kyostila13, got '" + args.get("method") + "'");
-  long iterations = rc.pipeline.outer_iterations;
-  std::string err;
-  if (!args.get_int("iterations", &iterations, &err, daemon::closed(0, cli::kMaxIterations)))
-    return cli::fail(err);
-  rc.pipeline.outer_iterations = static_cast<int>(iterations);
+// The batch pipeline over every frame held in memory: initial poses, then fusion and the
+// re-registration rounds.
+Result<Outcome> fuse_held(Input& in, const Options& o, bool rounds, bool from_hints,
+                          TumTrajectoryWriter* trajectory, cli::Progress& progress) {
+  Outcome out;
+  out.pose_note = in.pose_origin;
+  auto held = hold_frames(in,
+                          rounds ? "re-registration (--iterations " +
+                                       std::to_string(o.rc.pipeline.outer_iterations) + ")"
+                                 : std::string("tracking (--track, or no poses in the input)"),
+                          !out.pose_note.empty(), progress);
+  if (!held) return held.status().with_context(o.input);
+  std::vector<Frame>& frames = *held;
+  out.frames = frames.size();
+  out.has_color = std::any_of(frames.begin(), frames.end(),
+                              [](const Frame& f) { return !f.color.empty(); });
+  // Hints on some frames only: tracked, as hints are all or nothing.
+  if (from_hints && !std::all_of(frames.begin(), frames.end(), [](const Frame& f) {
+        return f.T_world_cam_hint.has_value();
+      }))
+    out.pose_note.clear();
+  const bool given = !out.pose_note.empty();
+  auto initial = initial_poses(in, frames, o.rc, progress, &out.pose_note);
+  if (!initial) return given ? initial.status().with_context(o.input) : initial.status();
+  auto batch = reconstruct_batch(frames, *initial, o.rc, progress.fn());
+  if (!batch) return batch.status();
+  out.result = std::move(*batch);
+  for (size_t i = 0; i < frames.size(); ++i)
+    trajectory->add({frames[i].utime / 1e6, out.result.T_world_cam[i]});
+  return out;
+}
+
+// The whole run: poses from a file (TUM), or else from the frames' own hints when the first has
+// one, or tracked; streamed when there are poses and no rounds, else held.
+Result<Outcome> reconstruct(Input& in, const Options& o, TumTrajectoryWriter* trajectory,
+                            cli::Progress& progress) {
+  bool from_hints = false;
+  if (in.pose_origin.empty() && !o.track) {
+    auto first = in.peek();
+    if (!first) return first.status().with_context(o.input);
+    from_hints = *first && (*first)->T_world_cam_hint;
+    if (from_hints) in.pose_origin = "the frames' pose hints";
+  }
+  const bool rounds = o.rc.with_method(o.rc.pipeline.method).registration.enabled &&
+                      o.rc.pipeline.outer_iterations > 0;
+  if (rounds || in.pose_origin.empty())
+    return fuse_held(in, o, rounds, from_hints, trajectory, progress);
+  Outcome out;
+  out.pose_note = in.pose_origin;
+  auto fused = fuse_streamed(in, o.rc, from_hints, o.trajectory_out ? trajectory : nullptr,
+                             &out.has_color, progress);
+  if (!fused) return fused.status().with_context(o.input);
+  out.result = std::move(*fused);
+  out.frames = in.taken;
+  return out;
+}
+
+// The cloud, the mesh (its report line in *mesh_line) and the trajectory.
+Status write_outputs(const Options& o, const Outcome& out, const PointArrays& cloud,
+                     TumTrajectoryWriter* trajectory, std::string* mesh_line) {
+  PlyOptions po;
+  po.with_color = out.has_color;
+  DF_RETURN_IF_ERROR(write_ply(o.output, cloud, po));
+  if (o.mesh) {
+    const auto m0 = std::chrono::steady_clock::now();
+    mesh::MeshOptions options = *o.mesh;
+    options.with_color = out.has_color;
+    mesh::MeshReport mesh_report;
+    auto m = mesh::mesh_points(cloud, options, &mesh_report);
+    if (!m) return m.status();
+    auto line = cli::write_mesh(
+        o.mesh_path, *m, mesh_report,
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - m0).count());
+    if (!line) return line.status();
+    *mesh_line = *line;
+  }
+  if (o.trajectory_out) DF_RETURN_IF_ERROR(trajectory->close());
+  return Status::ok();
+}
+
+std::string describe(const Options& o, const Input& in, const Outcome& out, size_t points,
+                     const std::string& mesh_line, double seconds) {
+  const BatchResult& result = out.result;
+  std::ostringstream r;
+  r << "depthfuse reconstruct\n"
+    << "  input:        " << in.description << "\n"
+    << "  frames:       " << out.frames << "\n"
+    << "  initial poses: " << out.pose_note << "\n"
+    << "  method:       " << to_string(o.rc.pipeline.method) << "\n"
+    << "  measurements: " << result.input_measurements << " valid depth pixels\n"
+    << "  pre-filter:   " << result.prefiltered << " removed\n"
+    << "  post-filter:  " << result.postfiltered << " removed\n"
+    << "  points:       " << points << " (reduction "
+    << 100.0 * (1.0 - static_cast<double>(points) / std::max<size_t>(1, result.input_measurements))
+    << " %)\n"
+    << "  iterations:\n";
+  for (const auto& it : result.iterations) r << cli::describe_iteration(it, out.frames);
+  if (result.converged_early) r << "  stopped early: the poses stopped moving\n";
+  r << "  cloud:        " << o.output << "\n";
+  if (!mesh_line.empty()) r << "  " << mesh_line;
+  if (o.trajectory_out) r << "  trajectory:   " << *o.trajectory_out << "\n";
+  r << "  time:         " << seconds << " s\n";
+  return r.str();
+}
+
+int run(int argc, char** argv) {
+  std::vector<std::string> options = {"poses", "method", "iterations", "camera", "trajectory-out",
+                                      "report", "max-frames", "stride", "output", "mesh"};
+  options.insert(options.end(), cli::mesh_option_names().begin(), cli::mesh_option_names().end());
+  daemon::Startup startup(cli::offline_program(kCmd, kUsage, options, {"track"}, 1, true), argc,
+                          argv);
+  if (auto code = startup.exit_code()) return *code;
+  const auto o = parse_options(startup);
+  if (!o) return startup.usage_error(o.status().message());
 
   cli::Progress progress;
   const auto t0 = std::chrono::steady_clock::now();
-  const std::string& input_name = args.positional()[0];
-  auto input = open_input(input_name, args, *config);
+  auto input = open_input(*o, startup.config());
   if (!input) return cli::fail(input.status().message());
-  auto failed = [&](const Status& st) { return cli::fail(input_name + ": " + st.message()); };
-
-  // Poses come from a file (TUM), or else from the frames' own hints when the first has one.
-  bool from_hints = false;
-  if (input->pose_origin.empty() && !args.has("track")) {
-    auto first = input->peek();
-    if (!first) return failed(first.status());
-    from_hints = *first && (*first)->T_world_cam_hint;
-    if (from_hints) input->pose_origin = "the frames' pose hints";
-  }
-  const bool rounds = rc.with_method(rc.pipeline.method).registration.enabled &&
-                      rc.pipeline.outer_iterations > 0;
   TumTrajectoryWriter trajectory;
-  if (args.has("trajectory-out")) {
-    const Status s = trajectory.open(args.get("trajectory-out"));
+  if (o->trajectory_out) {
+    const Status s = trajectory.open(*o->trajectory_out);
     if (!s) return cli::fail(s.message());
   }
-
-  std::optional<BatchResult> result;
-  size_t frame_count = 0;
-  bool has_color = false;
-  std::string pose_note = input->pose_origin;
-  if (!rounds && !pose_note.empty()) {
-    auto fused = fuse_streamed(*input, rc, from_hints,
-                               args.has("trajectory-out") ? &trajectory : nullptr, &has_color,
-                               progress);
-    if (!fused) return failed(fused.status());
-    result = std::move(*fused);
-    frame_count = input->taken;
-  } else {
-    auto held = hold_frames(*input,
-                            rounds ? "re-registration (--iterations " +
-                                         std::to_string(rc.pipeline.outer_iterations) + ")"
-                                   : std::string("tracking (--track, or no poses in the input)"),
-                            !pose_note.empty(), progress);
-    if (!held) return failed(held.status());
-    std::vector<Frame>& frames = *held;
-    frame_count = frames.size();
-    has_color = std::any_of(frames.begin(), frames.end(),
-                            [](const Frame& f) { return !f.color.empty(); });
-    std::vector<Pose> initial;
-    // Hints on some frames only: tracked, as hints are all or nothing.
-    if (from_hints && !std::all_of(frames.begin(), frames.end(), [](const Frame& f) {
-          return f.T_world_cam_hint.has_value();
-        }))
-      pose_note.clear();
-    if (pose_note.empty()) {
-      auto tracked = track_sequence(frames, rc, progress.fn());
-      if (!tracked) return cli::fail(tracked.status().message());
-      // A lost frame's pose is unknown: it is left out of the cloud and the trajectory.
-      std::vector<Frame> kept;
-      for (size_t i = 0; i < frames.size(); ++i) {
-        if (tracked->state[i] == TrackingState::kLost) continue;
-        kept.push_back(std::move(frames[i]));
-        initial.push_back(tracked->T_world_cam[i]);
-      }
-      frames = std::move(kept);
-      pose_note = "tracked from the first frame: " + std::to_string(tracked->uncertain) +
-                  " frames uncertain, " + std::to_string(tracked->lost) + " lost (left out), " +
-                  std::to_string(tracked->relocalised) + " relocalised";
-    } else {
-      for (size_t i = 0; i < frames.size(); ++i) {
-        if (!frames[i].T_world_cam_hint) {
-          input->taken = i + 1;
-          return failed(input->missing_pose(frames[i], false));
-        }
-        initial.push_back(*frames[i].T_world_cam_hint);
-      }
-    }
-    auto batch = reconstruct_batch(frames, initial, rc, progress.fn());
-    if (!batch) return cli::fail(batch.status().message());
-    result = std::move(*batch);
-    for (size_t i = 0; i < frames.size(); ++i)
-      trajectory.add({frames[i].utime / 1e6, result->T_world_cam[i]});
-  }
+  auto out = reconstruct(*input, *o, &trajectory, progress);
+  if (!out) return cli::fail(out.status().message());
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 
-  PlyOptions po;
-  po.with_color = has_color;
-  const PointArrays cloud = result->map->gather();
-  const Status w = write_ply(args.get("output"), cloud, po);
-  if (!w) return cli::fail(w.message());
+  const PointArrays cloud = out->result.map->gather();
   std::string mesh_line;
-  if (args.has("mesh")) {
-    const auto m0 = std::chrono::steady_clock::now();
-    mesh_options.with_color = has_color;
-    mesh::MeshReport mesh_report;
-    auto m = mesh::mesh_points(cloud, mesh_options, &mesh_report);
-    if (!m) return cli::fail(m.status().message());
-    auto line = cli::write_mesh(args.get("mesh"), *m, mesh_report,
-                                std::chrono::duration<double>(std::chrono::steady_clock::now() - m0).count());
-    if (!line) return cli::fail(line.status().message());
-    mesh_line = *line;
-  }
-  if (args.has("trajectory-out")) {
-    const Status s = trajectory.close();
-    if (!s) return cli::fail(s.message());
-  }
-
-  std::ostringstream r;
-  r << "depthfuse reconstruct\n"
-    << "  input:        " << input->description << "\n"
-    << "  frames:       " << frame_count << "\n"
-    << "  initial poses: " << pose_note << "\n"
-    << "  method:       " << to_string(rc.pipeline.method) << "\n"
-    << "  measurements: " << result->input_measurements << " valid depth pixels\n"
-    << "  pre-filter:   " << result->prefiltered << " removed\n"
-    << "  post-filter:  " << result->postfiltered << " removed\n"
-    << "  points:       " << cloud.size() << " (reduction "
-    << 100.0 * (1.0 - static_cast<double>(cloud.size()) / std::max<size_t>(1, result->input_measurements))
-    << " %)\n"
-    << "  iterations:\n";
-  for (const auto& it : result->iterations) r << cli::describe_iteration(it, frame_count);
-  if (result->converged_early) r << "  stopped early: the poses stopped moving\n";
-  r << "  cloud:        " << args.get("output") << "\n";
-  if (!mesh_line.empty()) r << "  " << mesh_line;
-  if (args.has("trajectory-out")) r << "  trajectory:   " << args.get("trajectory-out") << "\n";
-  r << "  time:         " << seconds << " s\n";
-  std::fputs(r.str().c_str(), stdout);
-  if (args.has("report")) {
-    FILE* f = std::fopen(args.get("report").c_str(), "w");
-    if (!f) return cli::fail("cannot write report " + args.get("report"));
-    std::fputs(r.str().c_str(), f);
+  if (const Status w = write_outputs(*o, *out, cloud, &trajectory, &mesh_line); !w)
+    return cli::fail(w.message());
+  const std::string report = describe(*o, *input, *out, cloud.size(), mesh_line, seconds);
+  std::fputs(report.c_str(), stdout);
+  if (o->report) {
+    FILE* f = std::fopen(o->report->c_str(), "w");
+    if (!f) return cli::fail("cannot write report " + *o->report);
+    std::fputs(report.c_str(), f);
     std::fclose(f);
   }
   return 0;

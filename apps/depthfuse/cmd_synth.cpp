@@ -13,17 +13,12 @@ constexpr const char* kUsage =
     "depthfuse synth <corner|room|rooms> <out-folder> [--frames N] [--seed S]\n"
     "         [--pose-noise-m X] [--pose-noise-deg Y] [--no-noise] [--no-color]";
 
-int run(int argc, char** argv) {
-  cli::Args args(argc, argv, {"no-noise", "no-color", "help"});
-  if (args.has("help")) return std::printf("usage: %s\n", kUsage), 0;
-  if (!args.ok()) return cli::fail(args.error());
-  const std::string bad = args.unknown({"frames", "seed", "pose-noise-m", "pose-noise-deg", "no-noise", "no-color"});
-  if (!bad.empty()) return cli::fail("unknown option " + bad + "\nusage: " + kUsage);
-  if (args.positional().size() != 2) return cli::fail(std::string("usage: ") + kUsage);
-
+// The scene and its generation as the command line gives them.
+Result<synthetic::SyntheticConfig> parse_options(const cli::Args& args) {
+  if (args.positional().size() != 2) return invalid_argument("expected a scene and an out-folder");
   synthetic::SyntheticConfig c;
   auto kind = synthetic::parse_scene_kind(args.positional()[0]);
-  if (!kind) return cli::fail(kind.status().message());
+  if (!kind) return kind.status();
   c.scene = *kind;
   long frames = c.frames, seed = static_cast<long>(c.seed);
   std::string err;
@@ -31,17 +26,29 @@ int run(int argc, char** argv) {
       !args.get_int("seed", &seed, &err, daemon::closed(0, INT64_MAX)) ||
       !args.get_double("pose-noise-m", &c.pose_noise_m, &err) ||
       !args.get_double("pose-noise-deg", &c.pose_noise_deg, &err))
-    return cli::fail(err);
+    return invalid_argument(err);
   c.frames = static_cast<int>(frames);
   c.seed = static_cast<uint64_t>(seed);
   if (args.has("no-noise")) c.noise.enabled = false;
-  auto seq = synthetic::SyntheticSequence::create(c);
+  return c;
+}
+
+int run(int argc, char** argv) {
+  daemon::Startup startup(cli::offline_program(kCmd, kUsage,
+                                               {"frames", "seed", "pose-noise-m", "pose-noise-deg"},
+                                               {"no-noise", "no-color"}, 2, false),
+                          argc, argv);
+  if (auto code = startup.exit_code()) return *code;
+  const cli::Args& args = startup.args();
+  const auto c = parse_options(args);
+  if (!c) return startup.usage_error(c.status().message());
+  auto seq = synthetic::SyntheticSequence::create(*c);
   if (!seq) return cli::fail(seq.status().message());
   const Status s = synthetic::write_tum_folder(*seq, args.positional()[1], !args.has("no-color"));
   if (!s) return cli::fail(s.message());
-  std::printf("wrote %d frames of '%s' to %s (pose noise %.3f m, %.2f deg; sensor noise %s)\n", c.frames,
-              args.positional()[0].c_str(), args.positional()[1].c_str(), c.pose_noise_m, c.pose_noise_deg,
-              c.noise.enabled ? "on" : "off");
+  std::printf("wrote %d frames of '%s' to %s (pose noise %.3f m, %.2f deg; sensor noise %s)\n", c->frames,
+              args.positional()[0].c_str(), args.positional()[1].c_str(), c->pose_noise_m, c->pose_noise_deg,
+              c->noise.enabled ? "on" : "off");
   return 0;
 }
 

@@ -7,6 +7,13 @@
 
 namespace depthfuse::cli {
 
+std::string mesh_option_without_mesh(const Args& args) {
+  if (args.has("mesh")) return "";
+  for (const std::string& name : mesh_option_names())
+    if (args.has(name)) return name;
+  return "";
+}
+
 bool parse_mesh_options(const Args& args, mesh::MeshOptions* options, std::string* error) {
   long depth = options->depth, memory_mb = 0;
   if (!args.get_int("mesh-depth", &depth, error, daemon::closed(mesh::kMinDepth, mesh::kMaxDepth)) ||

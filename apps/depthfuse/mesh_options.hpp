@@ -15,6 +15,9 @@ inline const std::vector<std::string>& mesh_option_names() {
   return names;
 }
 
+// The first mesh option given (its name without "--"), for a command line without --mesh; "" if none.
+std::string mesh_option_without_mesh(const Args& args);
+
 // False with the reason in *error for a value out of range.
 bool parse_mesh_options(const Args& args, mesh::MeshOptions* options, std::string* error);
 

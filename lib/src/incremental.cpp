@@ -66,9 +66,10 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   report.frame_id = next_frame_id_;
   auto t0 = Clock::now();
   // A rolling shutter (row_readout_s > 0) shears a moving camera's depth map, and a sheared map
-  // fits no rigid pose: tracking takes the shear for a shift (docs/results.md). Frame by frame the
-  // motion through this frame is not known yet; the motion through the last two fused frames is
-  // the constant-velocity model's guess of it. A hint is a pose from elsewhere, and its frames are
+  // fits no rigid pose: tracking takes the shear for a shift (the batch loop's figures in
+  // docs/history/results-sessions-1-33.md). Frame by frame the motion through this frame is not
+  // known yet; the motion through the last two fused frames is the constant-velocity model's guess
+  // of it. A hint is a pose from elsewhere, and its frames are
   // taken as they are.
   const std::optional<CameraVelocity> velocity =
       frame.T_world_cam_hint ? std::nullopt : camera_velocity_through_next(frame.utime);

@@ -75,7 +75,7 @@ class ModelProjection {
   // cloud still has several layers (poorly registered frames), and ICP would pull every camera
   // towards itself. Two passes: the front depth, then the sums. (A single pass whose band follows
   // the front as points stream in leaks farther layers into the mean, and the poses come out worse:
-  // docs/results.md.) The result goes to *view.
+  // docs/history/results-sessions-1-33.md.) The result goes to *view.
   void render_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m,
                       SurfaceView* view);
 

@@ -267,11 +267,12 @@ TEST(Registration, TrackingCoarseLevelsRunOnAFrameWithHoles) {
   }
 }
 
-// Issue 19, every 3rd frame of TUM fr1/xyz (docs/results.md): correctly placed frames of a real
-// Kinect agree with the map on ~84 % of their samples that land on it (5 % of them under 73 %),
-// synthetic ones on 99.7 %. Under the absolute rule (0.9) seven frames in a row that looked into
-// unmapped space (fitness 0.41, model fitness 0.87) were lost although tracked, and the relocaliser
-// took a candidate 12 cm off (fitness 0.53, model fitness 0.63, residual 10 mm) as "tracked".
+// Issue 19, every 3rd frame of TUM fr1/xyz (docs/history/results-sessions-1-33.md, "Issue 19 at
+// s28-track"): correctly placed frames of a real Kinect agree with the map on ~84 % of their
+// samples that land on it (5 % of them under 73 %), synthetic ones on 99.7 %. Under the absolute
+// rule (0.9) seven frames in a row that looked into unmapped space (fitness 0.41, model fitness
+// 0.87) were lost although tracked, and the relocaliser took a candidate 12 cm off (fitness 0.53,
+// model fitness 0.63, residual 10 mm) as "tracked".
 TEST(Registration, ModelFitnessIsJudgedAgainstWhatTrackedFramesScore) {
   RegistrationConfig c;
   RegistrationResult exploring;

@@ -14,19 +14,22 @@ namespace {
 const Program kProgram{"test-startup", "usage: test-startup [--rate HZ] [--loop] [ARG]\n",
                        {"rate"}, {"loop"}, {}, 1};
 
+// An offline program: no config file, no bus.
+const Program kOffline{"test-offline", "usage: test-offline ARG\n", {}, {}, {}, 1, false, false};
+
 struct Started {
   std::optional<int> exit_code;
   std::string out, err;
   std::string lcm_url;
 };
 
-Started start(std::vector<std::string> words) {
-  words.insert(words.begin(), "test-startup");
+Started start(std::vector<std::string> words, const Program& program = kProgram) {
+  words.insert(words.begin(), program.name);
   std::vector<char*> argv;
   for (auto& w : words) argv.push_back(w.data());
   ::testing::internal::CaptureStdout();
   ::testing::internal::CaptureStderr();
-  Startup startup(kProgram, static_cast<int>(argv.size()), argv.data());
+  Startup startup(program, static_cast<int>(argv.size()), argv.data());
   Started s;
   s.exit_code = startup.exit_code();
   s.out = ::testing::internal::GetCapturedStdout();
@@ -65,6 +68,25 @@ TEST(DaemonStartup, BadArgumentsAreSaidWithTheUsageAndExitTwo) {
     EXPECT_NE(s.err.find("usage: test-startup"), std::string::npos) << s.err;
     EXPECT_EQ(s.out, "");
   }
+}
+
+TEST(DaemonStartup, AProgramWithoutConfigOrBusRefusesTheirOptionsAndTakesTheLogLevel) {
+  const Started help = start({"--help"}, kOffline);
+  EXPECT_EQ(help.exit_code, 0);
+  EXPECT_NE(help.out.find("--log-level"), std::string::npos) << help.out;
+  EXPECT_EQ(help.out.find("--key-file"), std::string::npos) << help.out;
+  for (const char* option : {"--config", "--lcm", "--key-file"}) {
+    SCOPED_TRACE(option);
+    const Started s = start({option, "x", "arg"}, kOffline);
+    EXPECT_EQ(s.exit_code, 2);
+    EXPECT_EQ(s.err.rfind("test-offline: unknown option " + std::string(option) + "\n", 0), 0u)
+        << s.err;
+  }
+  const Started ok = start({"--log-level", "info", "arg"}, kOffline);
+  EXPECT_FALSE(ok.exit_code.has_value()) << ok.err;
+  const Started bad = start({"--log-level", "loud", "arg"}, kOffline);
+  EXPECT_EQ(bad.exit_code, 2);
+  EXPECT_EQ(bad.err.rfind("test-offline: --log-level: ", 0), 0u) << bad.err;
 }
 
 TEST(DaemonStartup, AConfigThatDoesNotLoadExitsTwo) {

@@ -1,6 +1,6 @@
 // One 512x424 depth packet through depthfuse's decoder and, where libfreenect2 and its source
 // are at hand, through libfreenect2's CPU decoder: side by side in one run, with the ratio.
-//   build/bin/bench_kinect2_decode
+//   build/bin/bench_kinect2_decode [--benchmark_format=json]   (the ratios then go to stderr)
 // Packets are encoded from the synthetic scene of the decoder tests (both filters on, the
 // driver's default). BM_DecodeDepth/depthfuse is one thread, as libfreenect2's.
 #include <cstdio>
@@ -77,9 +77,17 @@ void decode_libfreenect2(benchmark::State& state, bool filters) {
 }
 #endif
 
-// Prints, after the table, how many times faster depthfuse is than libfreenect2.
-class RatioReporter : public benchmark::ConsoleReporter {
+// Reports as --benchmark_format asks (through the library's own reporter), then how many times
+// faster depthfuse is than libfreenect2: after the table on stdout in the console format, on
+// stderr in the others (json, csv), so that their stdout stays what tools parse.
+class RatioReporter : public benchmark::BenchmarkReporter {
  public:
+  // The library owns the default display reporter (it is never freed).
+  RatioReporter()
+      : display_(benchmark::CreateDefaultDisplayReporter()),
+        summary_(dynamic_cast<benchmark::ConsoleReporter*>(display_) ? stdout : stderr) {}
+
+  bool ReportContext(const Context& context) override { return display_->ReportContext(context); }
   void ReportRuns(const std::vector<Run>& runs) override {
     for (const Run& run : runs) {
       // With --benchmark_repetitions, the median.
@@ -89,10 +97,11 @@ class RatioReporter : public benchmark::ConsoleReporter {
       // All are registered in milliseconds.
       times_[name] = {run.GetAdjustedRealTime(), run.GetAdjustedCPUTime()};
     }
-    ConsoleReporter::ReportRuns(runs);
+    display_->ReportRuns(runs);
   }
   void Finalize() override {
-    ConsoleReporter::Finalize();
+    display_->Finalize();
+    std::fflush(stdout);
     ratio("BM_DecodeDepth/depthfuse", "BM_DecodeDepth/libfreenect2_cpu");
     ratio("BM_DecodeDepth/depthfuse_2threads", "BM_DecodeDepth/libfreenect2_cpu");
     ratio("BM_DecodeDepthNoFilters/depthfuse", "BM_DecodeDepthNoFilters/libfreenect2_cpu");
@@ -104,11 +113,13 @@ class RatioReporter : public benchmark::ConsoleReporter {
   void ratio(const std::string& ours, const std::string& theirs) {
     const auto a = times_.find(ours), b = times_.find(theirs);
     if (a == times_.end() || b == times_.end()) return;
-    std::printf("%s vs %s: real %.2f vs %.2f ms (%.1fx), CPU %.2f vs %.2f ms (%.1fx)\n",
-                ours.c_str(), theirs.c_str(), a->second.first, b->second.first,
-                b->second.first / a->second.first, a->second.second, b->second.second,
-                b->second.second / a->second.second);
+    std::fprintf(summary_, "%s vs %s: real %.2f vs %.2f ms (%.1fx), CPU %.2f vs %.2f ms (%.1fx)\n",
+                 ours.c_str(), theirs.c_str(), a->second.first, b->second.first,
+                 b->second.first / a->second.first, a->second.second, b->second.second,
+                 b->second.second / a->second.second);
   }
+  benchmark::BenchmarkReporter* display_;
+  FILE* summary_;
   std::map<std::string, std::pair<double, double>> times_;  // real, CPU (ms)
 };
 
@@ -131,7 +142,7 @@ int main(int argc, char** argv) {
   ms(benchmark::RegisterBenchmark("BM_EncodePacket", encode));
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
-  RatioReporter reporter;
+  RatioReporter reporter;  // after Initialize: it reads --benchmark_format
   benchmark::RunSpecifiedBenchmarks(&reporter);
   benchmark::Shutdown();
   return 0;

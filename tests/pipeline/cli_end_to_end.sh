@@ -7,15 +7,24 @@ T=$(mktemp -d)
 trap 'rm -rf "$T"' EXIT
 fails=0
 passes=0
-check() {  # check <name> <expected exit: 0|nonzero> <grep pattern for output> <command...>
+check() {  # check <name> <expected exit: 0|nonzero|N> <grep pattern for output> <command...>
   local name="$1" want="$2" pattern="$3"; shift 3
   "$@" >"$T/out" 2>&1
   local rc=$?
   if [[ $rc -ge 128 ]]; then echo "FAIL $name: crashed with signal $((rc - 128))"; cat "$T/out"; fails=$((fails+1)); return; fi
-  if [[ $want == 0 && $rc != 0 ]] || [[ $want != 0 && $rc == 0 ]]; then
+  if [[ $want == 0 && $rc != 0 ]] || [[ $want != 0 && $rc == 0 ]] || [[ $want =~ ^[0-9]+$ && $rc != "$want" ]]; then
     echo "FAIL $name: exit $rc"; cat "$T/out"; fails=$((fails+1)); return
   fi
   if ! grep -q -- "$pattern" "$T/out"; then echo "FAIL $name: output lacks '$pattern'"; cat "$T/out"; fails=$((fails+1)); return; fi
+  echo "ok   $name"; passes=$((passes+1))
+}
+lacks() {  # lacks <name> <grep pattern the output must not have> <command...>: exits 0 without it
+  local name="$1" pattern="$2"; shift 2
+  "$@" >"$T/out" 2>&1
+  local rc=$?
+  if [[ $rc != 0 ]] || grep -q -- "$pattern" "$T/out"; then
+    echo "FAIL $name: exit $rc, or the output has '$pattern'"; cat "$T/out"; fails=$((fails+1)); return
+  fi
   echo "ok   $name"; passes=$((passes+1))
 }
 
@@ -64,6 +73,24 @@ done
 cp -r "$T/c" "$T/rgb"; png "$T/rgb/rgb/$(ls "$T/rgb/rgb" | head -1)" 120 100 8 90
 check colour-wrong-size 0 "rgb/.* is 120x100, its depth 512x424: colour must be registered" \
   "$DF" reconstruct "$T/rgb" --track --iterations 0 -o "$T/x.ply"
+# Every subcommand starts as every program does (lib/daemon's Startup): --log-level is taken and
+# applied (the colour warning above is the TUM reader's, category Tum), and a level that is not one
+# is refused by name with the usage (exit 2) before anything is read.
+check log-level-debug 0 "colour must be registered" \
+  "$DF" reconstruct "$T/rgb" --track --iterations 0 -o "$T/x.ply" --log-level debug
+lacks log-level-applied "colour must be registered" \
+  "$DF" reconstruct "$T/rgb" --track --iterations 0 -o "$T/x.ply" --log-level Tum=error
+check synth-log-level 0 "wrote 2 frames" "$DF" synth corner "$T/l" --frames 2 --log-level debug
+check eval-log-level 0 "jaccard index" "$DF" eval "$T/c" "$T/c.ply" --out "$T/l" --log-level debug
+for cmd in inspect "export -o $T/x.ply" refine; do  # taken: what fails is the missing file
+  check "${cmd%% *}-log-level" nonzero "$T/none.dfscan: no such scan file" \
+    "$DF" $cmd "$T/none.dfscan" --log-level debug
+done
+for cmd in reconstruct export eval inspect refine synth status scan; do
+  check "$cmd-bad-log-level" 2 "depthfuse $cmd: --log-level: log level 'loud' is not one of" \
+    "$DF" $cmd --log-level loud
+done
+check offline-without-bus 2 "depthfuse synth: unknown option --lcm" "$DF" synth corner "$T/l" --lcm udpm://
 check no-such-folder nonzero "no such folder" "$DF" reconstruct "$T/nope" -o "$T/x.ply"
 check bad-method nonzero "--method must be" "$DF" reconstruct "$T/c" --method best -o "$T/x.ply"
 check bad-iterations nonzero "expects an integer" "$DF" reconstruct "$T/c" --iterations many -o "$T/x.ply"

@@ -12,7 +12,8 @@ depth frames' timestamps (camera-to-world).
 
 --offset-ms: each frame's pose is the ground truth's at the frame's stamp + MS, interpolated, not
 the nearest sample: the motion capture's clock is not the depth stamps' (fr1/xyz: -25 ms, see
-docs/results.md). With --sigma-m 0 --sigma-deg 0 that is the truth on the depth frames' clock.
+docs/history/results-sessions-1-33.md). With --sigma-m 0 --sigma-deg 0 that is the truth on the
+depth frames' clock.
 --poses: perturb FILE's poses (a TUM trajectory, e.g. a refined one) at its own stamps instead.
 """
 import argparse

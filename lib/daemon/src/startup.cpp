@@ -12,13 +12,26 @@ DF_LOG_CATEGORY(Startup)
 namespace depthfuse::daemon {
 namespace {
 
-const char* const kCommonOptions[] = {"config", "lcm", "key-file", "log-level"};
-
-constexpr const char* kCommonUsage =
+constexpr const char* kKeyFileUsage =
     "  --key-file FILE   the rig key that signs and verifies LCM messages (default: the config's\n"
-    "                    lcm.key_file, /etc/depthfuse/rig.key); \"\" for none\n"
+    "                    lcm.key_file, /etc/depthfuse/rig.key); \"\" for none\n";
+constexpr const char* kLogLevelUsage =
     "  --log-level SPEC  which messages to show: debug, info, warning or error, also per part\n"
     "                    (\"warning,Capture=debug\"); default info, or $DEPTHFUSE_LOG\n";
+
+// The common options this program takes.
+std::vector<std::string> common_options(const Program& program) {
+  std::vector<std::string> names = {"log-level"};
+  if (program.reads_config) names.push_back("config");
+  if (program.uses_lcm) names.insert(names.end(), {"lcm", "key-file"});
+  return names;
+}
+
+void print_usage(const Program& program, FILE* out) {
+  std::fputs(program.usage.c_str(), out);
+  if (program.uses_lcm) std::fputs(kKeyFileUsage, out);
+  std::fputs(kLogLevelUsage, out);
+}
 
 }  // namespace
 
@@ -32,8 +45,7 @@ Startup::Startup(Program program, int argc, char** argv)
       args_(argc, argv, program_.flags, program_.optional_values) {
   log::set_program_name(program_.name);
   if (args_.has("help")) {
-    std::fputs(program_.usage.c_str(), stdout);
-    std::fputs(kCommonUsage, stdout);
+    print_usage(program_, stdout);
     exit_code_ = 0;
     return;
   }
@@ -44,7 +56,8 @@ Startup::Startup(Program program, int argc, char** argv)
   std::vector<std::string> known = program_.options;
   known.insert(known.end(), program_.flags.begin(), program_.flags.end());
   known.insert(known.end(), program_.optional_values.begin(), program_.optional_values.end());
-  known.insert(known.end(), std::begin(kCommonOptions), std::end(kCommonOptions));
+  const std::vector<std::string> common = common_options(program_);
+  known.insert(known.end(), common.begin(), common.end());
   if (const std::string bad = args_.unknown(known); !bad.empty()) {
     exit_code_ = usage_error("unknown option " + bad);
     return;
@@ -80,8 +93,7 @@ Startup::Startup(Program program, int argc, char** argv)
 
 int Startup::usage_error(const std::string& problem) const {
   DF_LOG(Startup, Error) << problem;
-  std::fputs(program_.usage.c_str(), stderr);
-  std::fputs(kCommonUsage, stderr);
+  print_usage(program_, stderr);
   return 2;
 }
 

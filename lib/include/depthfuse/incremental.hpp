@@ -45,7 +45,8 @@ class IncrementalReconstructor {
   // scratch, and with colour the photometric term's intensity pyramids. Most of it is kept from
   // frame to frame (the buffers are reused), so it is resident, not a peak. A bound for budgets,
   // held from both sides by a test that counts malloc's mapped blocks too
-  // (Incremental.FrameWorkStaysWithinItsBound; the figure is in docs/results.md).
+  // (Incremental.FrameWorkStaysWithinItsBound; the figure is in
+  // docs/history/results-sessions-1-33.md).
   static constexpr size_t kWorkBytesPerPixel = 288;
 
   // What the relocaliser holds at most, keyframes and the search of one frame of `pixels`.

@@ -24,7 +24,7 @@ struct CameraIntrinsics {
   // Rolling shutter: the time from the first row's exposure to the last one's, s; 0 for a global
   // shutter (the Kinect V2's time-of-flight camera). Rows are taken top to bottom; the frame's
   // stamp and pose are those of its middle row. A Kinect v1 reads its rows over about a frame
-  // period (TUM fr1: 0.03 s, docs/results.md).
+  // period (TUM fr1: 0.03 s, docs/history/results-sessions-1-33.md).
   double row_readout_s = 0.0;
 
   bool valid() const { return width > 0 && height > 0 && fx > 0 && fy > 0; }

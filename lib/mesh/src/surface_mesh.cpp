@@ -21,7 +21,7 @@ using Cloud = pcl::PointCloud<pcl::PointNormal>;
 
 // Peak bytes per input point and per octree cell holding a point (summed over the levels), fitted
 // from above to export --mesh's peak resident memory on the synthetic corner at depths 9-11
-// (docs/results.md, "Issue 21: mesh").
+// (docs/history/results-sessions-1-33.md, "Issue 21: mesh").
 constexpr double kBytesPerPoint = 1500.0;
 constexpr double kBytesPerCell = 700.0;
 // Neighbours over which a point's spacing is averaged.

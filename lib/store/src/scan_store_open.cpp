@@ -180,8 +180,9 @@ Status ScanStore::Impl::open_existing() {
   if (writable()) {
     // Debian's SQLite zeroes every freed page (SQLITE_SECURE_DELETE): a checkpoint that drops 30 s
     // of the frame log would write all of it again, into the WAL and then the file, while it holds
-    // the store (docs/results.md, session 32). A scan is not secret; FAST still clears freed b-tree
-    // cells where that costs no extra I/O, but leaves freed overflow pages as they are.
+    // the store (docs/history/results-sessions-1-33.md, session 32). A scan is not secret; FAST
+    // still clears freed b-tree cells where that costs no extra I/O, but leaves freed overflow
+    // pages as they are.
     DF_RETURN_IF_ERROR(db.exec("PRAGMA secure_delete = FAST;", "setting secure_delete"));
     DF_RETURN_IF_ERROR(enable_wal(db, path));
     DF_RETURN_IF_ERROR(recover());

@@ -1,8 +1,8 @@
 // How every program of the appliance starts, written once: the log (the program's name as the
 // prefix of its lines, --log-level), the command line (--help, unknown options and stray arguments
 // are errors), the config (--config, else the built-in defaults) and LCM (--lcm, else the config's
-// lcm.url; the transport's warnings are logged). The capture, fusion and monitor daemons and the
-// CLI's live commands (scan, status) are this plus their own options:
+// lcm.url; the transport's warnings are logged). The capture, fusion and monitor daemons and every
+// subcommand of the CLI are this plus their own options:
 //
 //   daemon::Startup startup({"depthfuse-monitor", kUsage, {"stale-after", "rate"}}, argc, argv);
 //   if (auto code = startup.exit_code()) return *code;
@@ -26,7 +26,8 @@
 
 namespace depthfuse::daemon {
 
-// A program's own part of the command line; --config, --lcm, --log-level and --help are common.
+// A program's own part of the command line; --log-level and --help are common to all, --config
+// to those that read the appliance's config file, --lcm and --key-file to those on the bus.
 struct Program {
   std::string name;   // "depthfuse-capture", "depthfuse scan": the prefix of its log lines
   std::string usage;  // the --help text, without the common options' lines
@@ -34,6 +35,10 @@ struct Program {
   std::vector<std::string> flags;            // its options that take none
   std::vector<std::string> optional_values;  // its options whose value may be left out
   size_t max_positional = 0;
+  // An offline command that reads no config file (synth, eval, export, inspect) or uses no bus
+  // (none of the offline ones) refuses those options: ignored, they would look as if they counted.
+  bool reads_config = true;
+  bool uses_lcm = true;
 };
 
 // The config --config names (after its checks), else the defaults.
