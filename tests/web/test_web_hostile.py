@@ -60,14 +60,15 @@ def wait_for(pred, timeout_s):
 
 def read_head(sock, limit=65536):
     """The response's status code and headers (lower-case names), or (0, {}) when the server closed
-    or said nothing in time."""
+    or said nothing in time. Reads no byte past the head: a WebSocket's first frames stay."""
     data = b""
     try:
-        while b"\r\n\r\n" not in data and len(data) < limit:
-            chunk = sock.recv(4096)
-            if not chunk:
+        while not data.endswith(b"\r\n\r\n") and len(data) < limit:
+            peek = sock.recv(4096, socket.MSG_PEEK)
+            if not peek:
                 break
-            data += chunk
+            end = (data[-3:] + peek).find(b"\r\n\r\n")
+            data += sock.recv(len(peek) if end < 0 else end + 4 - len(data[-3:]))
     except OSError:
         pass
     head = data.split(b"\r\n\r\n", 1)[0].decode("latin-1")
@@ -81,8 +82,8 @@ def read_head(sock, limit=65536):
     return (int(m.group(1)) if m else 0), headers
 
 
-def request(port, method, path, headers=None, body=b"", timeout=5.0):
-    """One request on its own connection: (status code, headers)."""
+def exchange(port, method, path, headers=None, body=b"", timeout=5.0):
+    """One request on its own connection: (status code, headers, body)."""
     hdrs = {"Host": "%s:%d" % (HOST, port), "Connection": "close"}
     hdrs.update(headers or {})
     if body:
@@ -90,7 +91,20 @@ def request(port, method, path, headers=None, body=b"", timeout=5.0):
     text = "%s %s HTTP/1.1\r\n" % (method, path) + "".join("%s: %s\r\n" % kv for kv in hdrs.items())
     with socket.create_connection((HOST, port), timeout=timeout) as s:
         s.sendall(text.encode() + b"\r\n" + body)
-        return read_head(s)
+        code, head = read_head(s)
+        data = b""
+        while code:
+            chunk = s.recv(65536)
+            if not chunk:
+                break
+            data += chunk
+    return code, head, data
+
+
+def request(port, method, path, headers=None, body=b"", timeout=5.0):
+    """One request on its own connection: (status code, headers)."""
+    code, head, _ = exchange(port, method, path, headers, body, timeout)
+    return code, head
 
 
 def ws_connect(port, origin="same", host=None, rcvbuf=None, timeout=5.0):
@@ -250,17 +264,8 @@ class Monitor:
     def counters(self):
         """The monitor's own heartbeat counters, from its status."""
         try:
-            with socket.create_connection((HOST, self.port), timeout=3) as s:
-                s.sendall(("GET /api/status HTTP/1.1\r\nHost: %s:%d\r\nConnection: close\r\n\r\n"
-                           % (HOST, self.port)).encode())
-                data = b""
-                while True:
-                    chunk = s.recv(65536)
-                    if not chunk:
-                        break
-                    data += chunk
-            st = json.loads(data.split(b"\r\n\r\n", 1)[1])
-        except (OSError, ValueError, IndexError):
+            st = json.loads(exchange(self.port, "GET", "/api/status", timeout=3)[2])
+        except (OSError, ValueError):
             return {}
         me = [d for d in st.get("daemons", []) if d["name"] == "monitor"]
         return me[0]["counters"] if me else {}
