@@ -30,8 +30,9 @@ int main(int argc, char** argv) {
   namespace dd = depthfuse::daemon;
   namespace monitor = depthfuse::monitor;
   return dd::run_main([&] {
-    dd::Startup startup({"depthfuse-monitor", kUsage, {"stale-after", "rate", "http", "web-root", "allow-origin"}, {}, {}, 0}, argc,
-                        argv);
+    dd::Startup startup(
+        {"depthfuse-monitor", kUsage, {"stale-after", "rate", "http", "web-root", "allow-origin"}, {}, {}, 0}, argc,
+        argv);
     if (auto code = startup.exit_code()) return *code;
     monitor::MonitorOptions options;
     options.stale_after_s = startup.config().monitor.stale_after_s;

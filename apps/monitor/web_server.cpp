@@ -185,7 +185,8 @@ class WebServer::Core final : public web::SessionHost {
     {
       std::lock_guard<std::mutex> lock(status_mutex_);
       if (status_message_version_ != status_version_) {
-        status_message_ = std::make_shared<const std::string>("{\"type\": \"status\", \"status\": " + status_json_ + "}");
+        status_message_ =
+            std::make_shared<const std::string>("{\"type\": \"status\", \"status\": " + status_json_ + "}");
         status_message_version_ = status_version_;
       }
       status = status_message_;
@@ -284,8 +285,10 @@ Result<std::unique_ptr<WebServer>> WebServer::start(const WebServerOptions& opti
                                          &server->counters_);
   auto bound = server->core_->listen(tcp::endpoint(address, static_cast<unsigned short>(port)));
   if (!bound)
-    return unavailable("cannot serve the operator's page on " + options.listen + ": " + bound.status().message());
-  server->url_ = "http://" + (host.empty() ? std::string("0.0.0.0") : host) + ":" + std::to_string(*bound) + "/";
+    return unavailable("cannot serve the operator's page on " + options.listen + ": " +
+                       bound.status().message());
+  server->url_ =
+      "http://" + (host.empty() ? std::string("0.0.0.0") : host) + ":" + std::to_string(*bound) + "/";
   server->core_->run();
   return server;
 }

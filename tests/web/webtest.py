@@ -76,8 +76,9 @@ class Browser:
         self.log = open(log_path, "w")
         self.proc = subprocess.Popen(
             [chromium, "--headless", "--no-sandbox", "--remote-debugging-pipe",
-             "--use-gl=angle", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-             "--window-size=1280,800", "--no-first-run", "--user-data-dir=" + profile]
+             "--disable-background-networking", "--use-gl=angle", "--use-angle=swiftshader",
+             "--enable-unsafe-swiftshader", "--window-size=1280,800", "--no-first-run",
+             "--user-data-dir=" + profile]
             + list(extra_args) + ["about:blank"],
             stdout=self.log, stderr=subprocess.STDOUT, pass_fds=(3, 4), preexec_fn=wire)
         os.close(to_browser_r)
