@@ -39,9 +39,10 @@ PACKAGES=(
   liblcm-dev liblcm-bin liblcm-java libglib2.0-dev default-jdk-headless
   libgtest-dev libgmock-dev libbenchmark-dev
   libtomlplusplus-dev libzstd-dev libdeflate-dev libturbojpeg0-dev libsodium-dev
-  libcivetweb-dev libjs-three node-tweetnacl  # the operator's page: HTTP + WebSocket server,
-                                              # three.js, SHA-512 for its command signatures
-  chromium                     # the page's test in a real (headless) browser
+  libboost-dev libjs-three node-tweetnacl  # the operator's page: HTTP + WebSocket server
+                                           # (Boost.Beast), three.js, SHA-512 for its command
+                                           # signatures
+  chromium openssl             # the page's tests: a real (headless) browser, a TLS proxy's key
   python3-open3d python3-numpy
   iproute2 procps dpkg-dev file udev
   clang libclang-rt-14-dev  # libFuzzer and the sanitizers for tools/fuzz.sh

@@ -126,6 +126,17 @@ void OperatorView::add_counters(depthfuse::heartbeat_t* hb) const {
   daemon::add_counter(hb, "map_preview_points", static_cast<double>(store_.point_count()));
   daemon::add_counter(hb, "page_commands_sent", static_cast<double>(commands_sent_));
   daemon::add_counter(hb, "page_commands_unacknowledged", static_cast<double>(commands_unacknowledged_));
+  // What the web server refused or dropped (web_limits.hpp).
+  const WebCounters& web = server_->counters();
+  daemon::add_counter(hb, "web_connections_refused", static_cast<double>(web.connections_refused.load()));
+  daemon::add_counter(hb, "web_connections_evicted", static_cast<double>(web.connections_evicted.load()));
+  daemon::add_counter(hb, "web_requests_timed_out", static_cast<double>(web.requests_timed_out.load()));
+  daemon::add_counter(hb, "web_requests_too_large", static_cast<double>(web.requests_too_large.load()));
+  daemon::add_counter(hb, "web_origin_refused", static_cast<double>(web.origin_refused.load()));
+  daemon::add_counter(hb, "web_pages_refused", static_cast<double>(web.pages_refused.load()));
+  daemon::add_counter(hb, "web_pages_dropped", static_cast<double>(web.pages_dropped.load()));
+  daemon::add_counter(hb, "web_client_frames_refused", static_cast<double>(web.client_frames_refused.load()));
+  daemon::add_counter(hb, "web_commands_taken", static_cast<double>(web.commands_taken.load()));
   const PageCommandAuth* auth = server_->command_auth();
   daemon::add_counter(hb, "page_commands_need_key", auth ? 1 : 0);
   if (!auth) return;

@@ -1,50 +1,248 @@
-// The operator's page server (see web_server.hpp).
+// The operator's page server (see web_server.hpp): the listening socket, the connection table, the
+// pushes to pages, and the one thread that runs them all.
 #include "web_server.hpp"
 
-#include <civetweb.h>
-
-#include <chrono>
-#include <cstring>
+#include <boost/asio/io_context.hpp>
+#include <boost/asio/ip/address.hpp>
+#include <boost/asio/post.hpp>
+#include <boost/asio/steady_timer.hpp>
+#include <cstdlib>
 #include <filesystem>
+#include <map>
+#include <mutex>
+#include <optional>
+#include <thread>
+#include <vector>
 
-#include "depthfuse/base/clock.hpp"
 #include "depthfuse/base/log.hpp"
-#include "depthfuse/daemon/status_json.hpp"
+#include "web_session.hpp"
 
 DF_LOG_CATEGORY(Web)
 
 namespace depthfuse::monitor {
 
+namespace asio = boost::asio;
+using web::Clock;
+using web::PageSession;
+using web::Session;
+using web::tcp;
+using error_code = boost::system::error_code;
+
 namespace {
 
-constexpr size_t kMaxCommandBody = 4096;       // "action=start&argument=NAME" is far smaller
-constexpr size_t kPushBytesPerRound = 1 << 20;  // per page and round, so that pages take turns
+constexpr size_t kPushBytesPerRound = 1 << 20;  // a page gets more only once it holds less than this
 constexpr auto kPushPeriod = std::chrono::milliseconds(100);
-constexpr unsigned kCivetwebWebsocketFeature = 16;  // mg_check_feature's bit for WebSocket
-
-// Loopback unless the config says otherwise: the page's buttons command the scan.
-bool loopback_host(const std::string& host) {
-  return host == "localhost" || host == "[::1]" || host.rfind("127.", 0) == 0;
-}
-
-int reply(mg_connection* conn, int code, const char* type, const std::string& body) {
-  mg_response_header_start(conn, code);
-  mg_response_header_add(conn, "Content-Type", type, -1);
-  mg_response_header_add(conn, "Cache-Control", "no-store", -1);
-  mg_response_header_add(conn, "Content-Length", std::to_string(body.size()).c_str(), -1);
-  mg_response_header_send(conn);
-  mg_write(conn, body.data(), body.size());
-  return code;
-}
-
-int json_error(mg_connection* conn, int code, const std::string& message) {
-  return reply(conn, code, "application/json",
-               "{\"error\": " + daemon::json_string(message) + "}");
-}
-
-WebServer* server_of(void* cbdata) { return static_cast<WebServer*>(cbdata); }
+constexpr auto kAcceptRetry = std::chrono::milliseconds(100);
 
 }  // namespace
+
+class WebServer::Core final : public web::SessionHost {
+ public:
+  Core(const WebServerOptions& options, bool loopback, const MapStore* store, PageCommandAuth* auth,
+       CommandFn command, WebCounters* counters)
+      : limits_(options.limits),
+        counters_(counters),
+        store_(store),
+        table_(options.limits),
+        routes_(options.web_root, OriginPolicy(loopback, options.allowed_origins), auth, std::move(command),
+                [this] { return status_json(); }, counters) {}
+
+  ~Core() override {
+    io_->stop();
+    if (thread_.joinable()) thread_.join();
+    // The handlers still pending hold the sessions, which report to this object as they end: the
+    // io_context goes (and with it they) while everything else is whole.
+    acceptor_.reset();
+    push_timer_.reset();
+    accept_retry_.reset();
+    io_.reset();
+  }
+
+  // Listens on `endpoint`; the port it got.
+  Result<int> listen(const tcp::endpoint& endpoint) {
+    acceptor_.emplace(*io_);
+    error_code ec;
+    acceptor_->open(endpoint.protocol(), ec);
+    if (!ec) acceptor_->set_option(asio::socket_base::reuse_address(true), ec);
+    if (!ec) acceptor_->bind(endpoint, ec);
+    if (!ec) acceptor_->listen(asio::socket_base::max_listen_connections, ec);
+    if (ec) return unavailable(ec.message());
+    return static_cast<int>(acceptor_->local_endpoint().port());
+  }
+
+  void run() {
+    push_timer_.emplace(*io_);
+    accept_retry_.emplace(*io_);
+    accept();
+    schedule_push();
+    thread_ = std::thread([this] {
+      try {
+        io_->run();
+      } catch (const std::exception& e) {
+        DF_LOG(Web, Error) << "the operator's page server stopped: " << e.what();
+      }
+    });
+  }
+
+  void set_status(std::string json) {
+    {
+      std::lock_guard<std::mutex> lock(status_mutex_);
+      status_json_ = std::move(json);
+      ++status_version_;
+    }
+    asio::post(*io_, [this] { push(); });
+  }
+
+  // web::SessionHost
+  const WebLimits& limits() const override { return limits_; }
+  WebCounters& counters() override { return *counters_; }
+  const PageRoutes& routes() const override { return routes_; }
+  ConnectionTable& table() override { return table_; }
+  void track(uint64_t id, const std::shared_ptr<Session>& session) override { sessions_[id] = session; }
+  void page_opened(const std::shared_ptr<PageSession>& page) override {
+    pages_[page->id()] = page;
+    push();
+  }
+  void closed(uint64_t id) override {
+    table_.remove(id);
+    sessions_.erase(id);
+    pages_.erase(id);
+  }
+
+ private:
+  std::string status_json() {
+    std::lock_guard<std::mutex> lock(status_mutex_);
+    return status_json_;
+  }
+
+  void accept() {
+    acceptor_->async_accept([this](error_code ec, tcp::socket socket) { on_accept(ec, std::move(socket)); });
+  }
+
+  void on_accept(error_code ec, tcp::socket socket) {
+    if (ec == asio::error::operation_aborted) return;
+    if (ec) {
+      // Out of descriptors (or memory): try again shortly rather than spin.
+      if (!accept_failure_logged_) {
+        accept_failure_logged_ = true;
+        DF_LOG(Web, Warning) << "cannot accept a connection: " << ec.message();
+      }
+      accept_retry_->expires_after(kAcceptRetry);
+      accept_retry_->async_wait([this](error_code e) {
+        if (!e) accept();
+      });
+      return;
+    }
+    error_code peer_ec;
+    const tcp::endpoint peer = socket.remote_endpoint(peer_ec);
+    if (!peer_ec) admit(std::move(socket), peer.address().to_string());
+    accept();
+  }
+
+  void admit(tcp::socket socket, const std::string& peer) {
+    const uint64_t id = ++next_id_;
+    const auto admission = table_.admit(id, peer, Clock::now(), [this](uint64_t candidate) {
+      const auto it = sessions_.find(candidate);
+      const auto session = it == sessions_.end() ? nullptr : it->second.lock();
+      return !session || !session->receiving();
+    });
+    if (admission.evict) {
+      ++counters_->connections_evicted;
+      const auto it = sessions_.find(admission.evict);
+      if (it != sessions_.end()) {
+        const auto evicted = it->second.lock();
+        sessions_.erase(it);
+        if (evicted) evicted->close();
+      }
+    }
+    if (!admission.admitted) {
+      if (counters_->connections_refused.fetch_add(1) == 0)
+        DF_LOG(Web, Warning) << "refused a connection from " << peer << ": " << table_.size()
+                             << " connections are busy (further refusals are only counted)";
+      error_code ignored;
+      socket.close(ignored);
+      return;
+    }
+    auto session = std::make_shared<web::HttpSession>(std::move(socket), *this, id, peer);
+    sessions_[id] = session;
+    session->start();
+  }
+
+  void schedule_push() {
+    push_timer_->expires_after(kPushPeriod);
+    push_timer_->async_wait([this](error_code ec) {
+      if (ec) return;
+      push();
+      schedule_push();
+    });
+  }
+
+  // What each page lacks, to every page that has taken what it was sent before.
+  void push() {
+    const auto now = Clock::now();
+    std::shared_ptr<const std::string> status;
+    int64_t version = 0;
+    {
+      std::lock_guard<std::mutex> lock(status_mutex_);
+      if (status_message_version_ != status_version_) {
+        status_message_ =
+            std::make_shared<const std::string>("{\"type\": \"status\", \"status\": " + status_json_ + "}");
+        status_message_version_ = status_version_;
+      }
+      status = status_message_;
+      version = status_version_;
+    }
+    std::vector<std::string> text;
+    std::vector<std::shared_ptr<const std::vector<uint8_t>>> chunks;
+    for (auto it = pages_.begin(); it != pages_.end();) {
+      const auto page = it->second.lock();
+      if (!page || !page->open()) {
+        it = pages_.erase(it);
+        continue;
+      }
+      bool ok = !page->stalled(now);
+      if (ok && page->queued_bytes() < kPushBytesPerRound) {
+        if (page->status_version != version && status) ok = page->send(status);
+        page->status_version = version;
+        text.clear();
+        chunks.clear();
+        store_->changes(&page->cursor, kPushBytesPerRound, &text, &chunks);
+        for (auto& t : text) ok = ok && page->send(std::make_shared<const std::string>(std::move(t)));
+        for (auto& c : chunks) ok = ok && page->send(c);
+      }
+      if (ok) {
+        ++it;
+        continue;
+      }
+      if (counters_->pages_dropped.fetch_add(1) == 0)
+        DF_LOG(Web, Warning) << "dropped a page at " << page->peer() << ": it took nothing for "
+                             << limits_.page_stall_timeout.count() << " ms (further drops are only counted)";
+      it = pages_.erase(it);
+      page->close();
+    }
+  }
+
+  WebLimits limits_;
+  WebCounters* counters_;
+  const MapStore* store_;
+  ConnectionTable table_;
+  PageRoutes routes_;
+
+  std::unique_ptr<asio::io_context> io_ = std::make_unique<asio::io_context>(1);
+  std::optional<tcp::acceptor> acceptor_;
+  std::optional<asio::steady_timer> push_timer_, accept_retry_;
+  std::thread thread_;
+  uint64_t next_id_ = 0;
+  bool accept_failure_logged_ = false;
+  std::map<uint64_t, std::weak_ptr<Session>> sessions_;
+  std::map<uint64_t, std::weak_ptr<PageSession>> pages_;
+
+  std::mutex status_mutex_;  // the LCM thread sets the status
+  std::string status_json_ = "{}";
+  int64_t status_version_ = 0;
+  std::shared_ptr<const std::string> status_message_;
+  int64_t status_message_version_ = 0;
+};
 
 Result<std::unique_ptr<WebServer>> WebServer::start(const WebServerOptions& options,
                                                     const MapStore* store, CommandFn command) {
@@ -52,195 +250,51 @@ Result<std::unique_ptr<WebServer>> WebServer::start(const WebServerOptions& opti
   if (colon == std::string::npos || colon + 1 >= options.listen.size())
     return invalid_argument("monitor.http: '" + options.listen + "' must be ADDR:PORT, e.g. 127.0.0.1:8080");
   const std::string host = options.listen.substr(0, colon);
-  if (!options.allow_remote && !loopback_host(host))
+  const bool loopback = is_loopback_host(host);
+  if (!options.allow_remote && !loopback)
     return invalid_argument("monitor.http: '" + options.listen +
                             "' is not a loopback address; the page commands the scan: set "
                             "monitor.http_allow_remote = true to serve it to the network");
   // On loopback, only users of this host reach the page; beyond it, anyone on the network would
   // command the rig unless commands need the key.
-  if (!loopback_host(host) && !options.key)
+  if (!loopback && !options.key)
     return invalid_argument("monitor.http: serving the page on '" + options.listen +
                             "' needs the rig key (lcm.key_file): without it, anyone who reaches "
                             "the page can command the rig");
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(std::filesystem::path(options.web_root) / "index.html", ec))
+  std::error_code fs_ec;
+  if (!std::filesystem::is_regular_file(std::filesystem::path(options.web_root) / "index.html", fs_ec))
     return not_found("the operator's page is not in '" + options.web_root +
                      "' (no index.html): set monitor.web_root or --web-root");
-  mg_init_library(0);
-  if (!mg_check_feature(kCivetwebWebsocketFeature))
-    return unavailable("this civetweb library was built without WebSocket support");
+  const std::string port_text = options.listen.substr(colon + 1);
+  char* end = nullptr;
+  const long port = std::strtol(port_text.c_str(), &end, 10);
+  if (*end != '\0' || port < 0 || port > 65535)
+    return invalid_argument("monitor.http: '" + options.listen + "': the port must be 0 to 65535");
+  std::string address_text = host.empty() ? "0.0.0.0" : host == "localhost" ? "127.0.0.1" : host;
+  if (address_text.size() > 2 && address_text.front() == '[' && address_text.back() == ']')
+    address_text = address_text.substr(1, address_text.size() - 2);
+  error_code ec;
+  const auto address = asio::ip::make_address(address_text, ec);
+  if (ec)
+    return invalid_argument("monitor.http: '" + options.listen + "': '" + host +
+                            "' is not an IP address (nor localhost)");
 
-  // civetweb takes "localhost" literally as a name it cannot bind: give it the address.
-  const std::string listen = (host == "localhost" ? "127.0.0.1" : host) + options.listen.substr(colon);
-  const char* mg_options[] = {"listening_ports", listen.c_str(),
-                              "document_root", options.web_root.c_str(),
-                              "enable_directory_listing", "no",
-                              "num_threads", "8",
-                              "request_timeout_ms", "10000",
-                              "enable_keep_alive", "no",
-                              "max_request_size", "16384",
-                              nullptr};
-  std::unique_ptr<WebServer> server(new WebServer(store, std::move(command)));
+  std::unique_ptr<WebServer> server(new WebServer());
   if (options.key) server->auth_ = std::make_unique<PageCommandAuth>(*options.key, options.max_skew_us);
-  mg_callbacks callbacks{};
-  char error_text[256] = "";
-  mg_init_data init{};
-  init.callbacks = &callbacks;
-  init.user_data = server.get();
-  init.configuration_options = mg_options;
-  mg_error_data error{};
-  error.text = error_text;
-  error.text_buffer_size = sizeof(error_text);
-  server->ctx_ = mg_start2(&init, &error);
-  if (!server->ctx_)
+  server->core_ = std::make_unique<Core>(options, loopback, store, server->auth_.get(), std::move(command),
+                                         &server->counters_);
+  auto bound = server->core_->listen(tcp::endpoint(address, static_cast<unsigned short>(port)));
+  if (!bound)
     return unavailable("cannot serve the operator's page on " + options.listen + ": " +
-                       (error_text[0] ? error_text : "civetweb failed to start"));
-  mg_server_port ports[4];
-  const int n = mg_get_server_ports(server->ctx_, 4, ports);
-  const int port = n > 0 ? ports[0].port : 0;
-  server->url_ = "http://" + (host.empty() ? std::string("0.0.0.0") : host) + ":" +
-                 std::to_string(port) + "/";
-
-  mg_set_request_handler(server->ctx_, "/api/status$",
-                         [](mg_connection* c, void* d) { return server_of(d)->handle_status(c); },
-                         server.get());
-  mg_set_request_handler(server->ctx_, "/api/auth$",
-                         [](mg_connection* c, void* d) { return server_of(d)->handle_auth(c); },
-                         server.get());
-  mg_set_request_handler(server->ctx_, "/api/command$",
-                         [](mg_connection* c, void* d) { return server_of(d)->handle_command(c); },
-                         server.get());
-  mg_set_websocket_handler(
-      server->ctx_, "/ws$", [](const mg_connection*, void*) { return 0; },
-      [](mg_connection* c, void* d) { server_of(d)->ws_ready(c); },
-      [](mg_connection*, int, char*, size_t, void*) { return 1; },  // pages only listen
-      [](const mg_connection* c, void* d) { server_of(d)->ws_closed(c); }, server.get());
-  server->pusher_ = std::thread([s = server.get()] { s->push_loop(); });
+                       bound.status().message());
+  server->url_ =
+      "http://" + (host.empty() ? std::string("0.0.0.0") : host) + ":" + std::to_string(*bound) + "/";
+  server->core_->run();
   return server;
 }
 
-WebServer::~WebServer() {
-  stopping_ = true;
-  wake_.notify_all();
-  if (pusher_.joinable()) pusher_.join();
-  if (ctx_) mg_stop(ctx_);
-}
+WebServer::~WebServer() = default;
 
-void WebServer::set_status(std::string json) {
-  {
-    std::lock_guard<std::mutex> lock(status_mutex_);
-    status_json_ = std::move(json);
-    ++status_version_;
-  }
-  wake_.notify_all();
-}
-
-int WebServer::handle_status(mg_connection* conn) {
-  const mg_request_info* req = mg_get_request_info(conn);
-  if (std::strcmp(req->request_method, "GET") != 0) return json_error(conn, 405, "GET only");
-  std::string body;
-  {
-    std::lock_guard<std::mutex> lock(status_mutex_);
-    body = status_json_;
-  }
-  return reply(conn, 200, "application/json", body);
-}
-
-int WebServer::handle_auth(mg_connection* conn) {
-  const mg_request_info* req = mg_get_request_info(conn);
-  if (std::strcmp(req->request_method, "GET") != 0) return json_error(conn, 405, "GET only");
-  // The monitor's clock, so that the page signs with the time the monitor checks against even
-  // when the browser's computer keeps another.
-  const double skew_s = auth_ ? static_cast<double>(auth_->max_skew_us()) * 1e-6 : 0.0;
-  return reply(conn, 200, "application/json",
-               std::string("{\"commands_need_key\": ") + (auth_ ? "true" : "false") +
-                   ", \"channel\": " + daemon::json_string(kPageCommandChannel) +
-                   ", \"max_clock_skew_s\": " + daemon::json_number(skew_s) + ", \"utime\": " +
-                   std::to_string(now_utime()) + "}");
-}
-
-int WebServer::handle_command(mg_connection* conn) {
-  const mg_request_info* req = mg_get_request_info(conn);
-  if (std::strcmp(req->request_method, "POST") != 0) return json_error(conn, 405, "POST only");
-  // A page of another site can post a form to this address, but not with a header of its own
-  // (that needs a CORS preflight, which is never answered): the header is what makes it ours.
-  if (!mg_get_header(conn, "X-Depthfuse"))
-    return json_error(conn, 403, "missing the X-Depthfuse header (commands come from the page)");
-  if (req->content_length < 0 || static_cast<size_t>(req->content_length) > kMaxCommandBody)
-    return json_error(conn, 413, "a command is at most " + std::to_string(kMaxCommandBody) + " bytes");
-  std::string body(static_cast<size_t>(req->content_length), '\0');
-  size_t got = 0;
-  while (got < body.size()) {
-    const int r = mg_read(conn, body.data() + got, body.size() - got);
-    if (r <= 0) return json_error(conn, 400, "the request body ended early");
-    got += static_cast<size_t>(r);
-  }
-  if (auth_) {
-    const auto verdict = auth_->verify(body, mg_get_header(conn, "X-Depthfuse-Signature"), now_utime());
-    if (!verdict.ok) {
-      const std::string why = refusal_text(verdict.reason, auth_->max_skew_us());
-      // The first refusal of each kind is logged; all are counted in the monitor's heartbeat.
-      if (auth_->counters().dropped[static_cast<size_t>(verdict.reason)] == 1)
-        DF_LOG(Web, Warning) << why << " (from " << req->remote_addr << "; further ones are only counted)";
-      return reply(conn, 401, "application/json",
-                   "{\"error\": " + daemon::json_string(why) + ", \"refused\": " +
-                       daemon::json_string(lcm::to_string(verdict.reason)) + "}");
-    }
-  }
-  char action[32] = "", argument[128] = "";
-  if (mg_get_var(body.data(), body.size(), "action", action, sizeof(action)) < 0)
-    return json_error(conn, 400, "no action (action=start|stop|pause|resume|new|checkpoint)");
-  if (mg_get_var(body.data(), body.size(), "argument", argument, sizeof(argument)) < -1)
-    return json_error(conn, 400, "the argument is too long");
-  auto id = command_(action, argument);
-  if (!id) return json_error(conn, 400, id.status().message());
-  return reply(conn, 202, "application/json", "{\"command_id\": " + std::to_string(*id) + "}");
-}
-
-void WebServer::ws_ready(mg_connection* conn) {
-  {
-    std::lock_guard<std::mutex> lock(clients_mutex_);
-    clients_[conn] = Client{};
-  }
-  wake_.notify_all();
-}
-
-void WebServer::ws_closed(const mg_connection* conn) {
-  std::lock_guard<std::mutex> lock(clients_mutex_);
-  clients_.erase(const_cast<mg_connection*>(conn));
-}
-
-bool WebServer::push(mg_connection* conn, Client* client) {
-  std::vector<std::string> text;
-  std::vector<std::shared_ptr<const std::vector<uint8_t>>> chunks;
-  {
-    std::lock_guard<std::mutex> lock(status_mutex_);
-    if (client->status_version != status_version_) {
-      text.push_back("{\"type\": \"status\", \"status\": " + status_json_ + "}");
-      client->status_version = status_version_;
-    }
-  }
-  store_->changes(&client->cursor, kPushBytesPerRound, &text, &chunks);
-  for (const auto& t : text)
-    if (mg_websocket_write(conn, MG_WEBSOCKET_OPCODE_TEXT, t.data(), t.size()) <= 0) return false;
-  for (const auto& c : chunks)
-    if (mg_websocket_write(conn, MG_WEBSOCKET_OPCODE_BINARY, reinterpret_cast<const char*>(c->data()),
-                           c->size()) <= 0)
-      return false;
-  return true;
-}
-
-void WebServer::push_loop() {
-  while (!stopping_) {
-    {
-      std::unique_lock<std::mutex> lock(wake_mutex_);
-      wake_.wait_for(lock, kPushPeriod);
-    }
-    if (stopping_) break;
-    std::lock_guard<std::mutex> lock(clients_mutex_);
-    for (auto& [conn, client] : clients_)
-      if (!push(conn, &client)) DF_LOG(Web, Info) << "a page's connection failed; civetweb closes it";
-  }
-}
+void WebServer::set_status(std::string json) { core_->set_status(std::move(json)); }
 
 }  // namespace depthfuse::monitor

@@ -1,29 +1,29 @@
-// The operator's page over HTTP and WebSocket (civetweb, Debian's libcivetweb): the page's files
-// from web_root, `GET /api/status` (the JSON of `depthfuse status --json`), `POST /api/command`
-// (action=start|stop|pause|resume[&argument=NAME]: the same command_t as `depthfuse scan`; with a
-// rig key only when the page signed it, page_auth.hpp), `GET /api/auth` (whether commands need
-// the key, and the monitor's clock for the page's signatures) and the WebSocket /ws, which pushes the status and the map preview (MapStore) to every page.
-// Requests run on civetweb's threads and pushes on a thread of this server's: neither ever waits
-// on the monitor's LCM loop, and a slow page delays only the pushes.
+// The operator's page over HTTP and WebSocket (Boost.Beast on Boost.Asio, Debian's libboost-dev):
+// the page's files, GET /api/status, GET /api/auth, POST /api/command (page_routes.hpp) and the
+// WebSocket /ws, which pushes the status and the map preview (MapStore) to every page.
+//
+// One thread of the server's runs every connection, without ever waiting on one: reads and
+// writes are asynchronous, so a client that is slow, silent or never reads holds a slot of the
+// connection table (web_limits.hpp) and nothing else, and /api/status is answered at once
+// whatever the other clients do. What a client may send is bounded before it is buffered:
+// headers and body by size and time, a page's own frames by their declared length. Each page has
+// a bounded send queue and gets more of the map only when it has taken what it was sent; a page
+// that takes nothing for a while is dropped. Neither the requests nor the pushes ever wait on the
+// monitor's LCM loop.
 #pragma once
 
-#include <atomic>
-#include <condition_variable>
-#include <functional>
-#include <map>
+#include <cstdint>
 #include <memory>
-#include <mutex>
 #include <optional>
 #include <string>
-#include <thread>
+#include <vector>
 
 #include "depthfuse/lcm/message_auth.hpp"
 #include "depthfuse/status.hpp"
 #include "map_store.hpp"
 #include "page_auth.hpp"
-
-struct mg_context;
-struct mg_connection;
+#include "page_routes.hpp"
+#include "web_limits.hpp"
 
 namespace depthfuse::monitor {
 
@@ -35,13 +35,15 @@ struct WebServerOptions {
   // within max_skew_us of this host's clock; without one, every command from the page is.
   std::optional<lcm::RigKey> key;
   int64_t max_skew_us = 2000000;
+  // Origins besides the page's own whose requests are taken (origin_policy.hpp): a TLS proxy
+  // that changes the Host, e.g. "https://rig.example".
+  std::vector<std::string> allowed_origins;
+  WebLimits limits;
 };
 
 class WebServer {
  public:
-  // Takes a command for the fusion daemon (action name, argument) and returns its id, or an
-  // error (unknown action).
-  using CommandFn = std::function<Result<int64_t>(const std::string& action, const std::string& argument)>;
+  using CommandFn = PageRoutes::CommandFn;
 
   static Result<std::unique_ptr<WebServer>> start(const WebServerOptions& options,
                                                   const MapStore* store, CommandFn command);
@@ -56,39 +58,18 @@ class WebServer {
 
   // Null without a rig key. Any thread.
   const PageCommandAuth* command_auth() const { return auth_.get(); }
+  // Any thread.
+  const WebCounters& counters() const { return counters_; }
 
-  int handle_status(mg_connection* conn);
-  int handle_auth(mg_connection* conn);
-  int handle_command(mg_connection* conn);
-  void ws_ready(mg_connection* conn);
-  void ws_closed(const mg_connection* conn);
+  class Core;  // the sockets and their thread (web_server.cpp)
 
  private:
-  struct Client {
-    MapStore::Cursor cursor;
-    int64_t status_version = 0;
-  };
-  WebServer(const MapStore* store, CommandFn command) : store_(store), command_(std::move(command)) {}
-  void push_loop();
-  // Sends what the page lacks; false when the connection failed.
-  bool push(mg_connection* conn, Client* client);
+  WebServer() = default;
 
-  const MapStore* store_;
-  CommandFn command_;
   std::unique_ptr<PageCommandAuth> auth_;
-  mg_context* ctx_ = nullptr;
+  WebCounters counters_;
   std::string url_;
-
-  std::mutex status_mutex_;
-  std::string status_json_ = "{}";
-  int64_t status_version_ = 0;
-
-  std::mutex clients_mutex_;  // held while pushing to a client, so that it cannot close meanwhile
-  std::map<mg_connection*, Client> clients_;
-  std::atomic<bool> stopping_{false};
-  std::mutex wake_mutex_;
-  std::condition_variable wake_;
-  std::thread pusher_;
+  std::unique_ptr<Core> core_;
 };
 
 }  // namespace depthfuse::monitor

@@ -6,7 +6,7 @@
 
 const state = window.dfState = {
   connected: false, points: 0, chunks: 0, status: null, pose: null, commands: [], errors: [],
-  needKey: null,
+  needKey: null, wsUrl: null,
 };
 
 // ------------------------------------------------------------------ the 3-D view
@@ -231,7 +231,9 @@ function onStatus(st) {
 
 // ------------------------------------------------------------------ the connection
 function connect() {
-  const ws = new WebSocket(`ws://${location.host}/ws`);
+  // Over https (a TLS proxy in front of the monitor) the browser allows only a secure WebSocket.
+  state.wsUrl = `${location.protocol === 'https:' ? 'wss' : 'ws'}://${location.host}/ws`;
+  const ws = new WebSocket(state.wsUrl);
   ws.binaryType = 'arraybuffer';
   const shown = document.getElementById('connection');
   ws.onopen = () => {
@@ -275,6 +277,8 @@ async function loadAuth() {
   a.offset_us = a.utime - 1000 * (sent + Date.now()) / 2;
   auth = a;
   state.needKey = a.commands_need_key;
+  // A rig without a key takes the page's commands from anyone who reaches the page: say so.
+  document.getElementById('no-key').hidden = a.commands_need_key;
   showKeyForm();
   return a;
 }
