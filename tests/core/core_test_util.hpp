@@ -73,6 +73,13 @@ inline Frame render_corner(const Pose& T_world_cam,
   return f;
 }
 
+// Frame i taken at i / 30 s, as a live camera's frames are stamped: the motion model predicts
+// from the frames' times (IncrementalReconstructor::constant_velocity_prediction).
+inline void stamp_at_30hz(std::vector<Frame>* frames) {
+  for (size_t i = 0; i < frames->size(); ++i)
+    (*frames)[i].utime = static_cast<int64_t>(i) * 1000000 / 30;
+}
+
 // The corner as a rolling-shutter camera (K.row_readout_s) moving at v_world_m_s takes it: row v
 // when the camera is at T_world_cam moved by v_world_m_s times the row's time from the middle row's.
 inline Frame render_corner_rolling(const Pose& T_world_cam, const Eigen::Vector3d& v_world_m_s,

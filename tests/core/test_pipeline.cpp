@@ -230,6 +230,7 @@ TEST(Sequence, CountsTheLostFramesAndPredictsOnlyFromFusedOnes) {
   }
   // track_sequence starts at the identity: express the truth in the first camera's frame.
   const Pose T_0_world = truth[0].inverse();
+  test::stamp_at_30hz(&frames);
   auto r = track_sequence(frames, ReconstructionConfig{});
   ASSERT_TRUE(r.is_ok()) << r.status().to_string();
   EXPECT_EQ(r->lost, 1u);
@@ -252,6 +253,7 @@ TEST(Sequence, AFrameWithoutDepthMidSequenceIsLostNotTheEnd) {
                                                        {0.3, 0.3, 0.3})));
   }
   std::fill(frames[2].depth.depth_m.begin(), frames[2].depth.depth_m.end(), 0.0f);
+  test::stamp_at_30hz(&frames);
   auto r = track_sequence(frames, ReconstructionConfig{});
   ASSERT_TRUE(r.is_ok()) << r.status().to_string();
   EXPECT_EQ(r->lost, 1u);
@@ -410,6 +412,7 @@ TEST(Sequence, AlongAWallTheMotionModelCarriesWhatTheWallDoesNotConstrain) {
     frames.push_back(test::render_corner(truth.back()));
   }
   const Pose T_0_world = truth[0].inverse();
+  test::stamp_at_30hz(&frames);
   auto r = track_sequence(frames, ReconstructionConfig{});
   ASSERT_TRUE(r.is_ok()) << r.status().to_string();
   EXPECT_EQ(r->lost, 0u);
