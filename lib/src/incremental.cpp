@@ -34,7 +34,8 @@ IncrementalReconstructor::IncrementalReconstructor(const ReconstructionConfig& c
       map_(std::make_unique<PointMap>(config.fusion.chunk_size_m)),
       fuser_(config_.sensor, config_.fusion),
       registrar_(config_.registration),
-      relocaliser_(std::make_unique<Relocaliser>(config_.relocalisation)) {}
+      relocaliser_(std::make_unique<Relocaliser>(config_.relocalisation)),
+      motion_error_sq_(initial_motion_error_sq()) {}
 
 IncrementalReconstructor::~IncrementalReconstructor() = default;
 
@@ -139,18 +140,23 @@ void IncrementalReconstructor::register_frame(const Frame& frame,
                                               Pose* T_world_cam, FrameReport* report) {
   const Pose T = *T_world_cam;
   const bool hint = frame.T_world_cam_hint.has_value();
-  // Without a hint: the tracking of a moving camera. The directions the view does not constrain
-  // keep the value the motion model gives them, that of the pose the track starts from.
+  // Without a hint: the tracking of a moving camera. From a prediction, a MAP estimate with the
+  // motion model's prior; without one (the first frames, after a loss), the directions the view
+  // does not constrain keep the value of the pose the track starts from.
+  const std::optional<MotionPrior> prior =
+      hint ? std::nullopt : motion_prior(frame.utime, prediction);
   const std::optional<Pose> held = hint ? std::nullopt : std::optional<Pose>(T);
+  auto track = [&](const auto& model, const Pose& start) {
+    return prior ? registrar_.track(scratch_, model, start, *prior)
+                 : registrar_.track(scratch_, model, start, held);
+  };
   const SurfaceView& last = registrar_.model();
   if (may_reuse(config_.registration, frames_since_model_, last, T)) {
-    report->registration = hint ? registrar_.refine(scratch_, last, T)
-                                : registrar_.track(scratch_, last, T, held);
+    report->registration = hint ? registrar_.refine(scratch_, last, T) : track(last, T);
     ++frames_since_model_;
     report->model_reused = true;
   } else {
-    report->registration = hint ? registrar_.refine(scratch_, *map_, T)
-                                : registrar_.track(scratch_, *map_, T, held);
+    report->registration = hint ? registrar_.refine(scratch_, *map_, T) : track(*map_, T);
     frames_since_model_ = 1;
   }
   const double reference = model_fitness_reference();
@@ -158,7 +164,7 @@ void IncrementalReconstructor::register_frame(const Frame& frame,
       (report->registration.fitness < config_.registration.tracking_retry_fitness ||
        classify_tracking(report->registration, config_.registration, reference) ==
            TrackingState::kLost))
-    retry_from_last_pose(report);
+    retry_from_last_pose(prior ? &*prior : nullptr, report);
   report->registered = report->registration.converged;
   if (!hint)
     report->tracking = classify_tracking(report->registration, config_.registration, reference);
@@ -166,17 +172,23 @@ void IncrementalReconstructor::register_frame(const Frame& frame,
     report->tracking = TrackingState::kUncertain;
   if (report->tracking == TrackingState::kLost && !hint) relocalise(report);
   if (report->registered) *T_world_cam = report->registration.T_world_cam;
+  if (prior && report->registered && !report->relocalised &&
+      report->tracking != TrackingState::kLost)
+    learn_motion(*prior, report->registration);
 }
 
 // A constant-velocity prediction overshoots where the camera stops or turns back. Of two local
 // minima the one with the lower robust cost over all sampled measurements explains more of the
 // frame, and better: fitness alone would prefer many loose pairs, the residual alone few tight
-// ones. A direction held for want of information is no reason to start again: the two starts
-// would differ only there, where the cost cannot tell them apart, and the track would jump between
-// the motion model and a standstill.
-void IncrementalReconstructor::retry_from_last_pose(FrameReport* report) {
+// ones. With the motion prior the second start keeps the same prior: only where the track starts
+// differs, so that in a direction the view does not constrain both end where the motion model
+// puts the camera. (Without it, that direction is held where each starts, and the track would jump
+// between the motion model and a standstill.)
+void IncrementalReconstructor::retry_from_last_pose(const MotionPrior* prior,
+                                                    FrameReport* report) {
   const RegistrationResult second =
-      registrar_.track(scratch_, *map_, *last_T_world_cam_, *last_T_world_cam_);
+      prior ? registrar_.track(scratch_, *map_, *last_T_world_cam_, *prior)
+            : registrar_.track(scratch_, *map_, *last_T_world_cam_, *last_T_world_cam_);
   frames_since_model_ = 1;
   if (second.converged &&
       (!report->registration.converged || second.mean_cost < report->registration.mean_cost)) {
@@ -184,6 +196,46 @@ void IncrementalReconstructor::retry_from_last_pose(FrameReport* report) {
     report->model_reused = false;  // the second track rendered the map
   }
   report->tracking_retried = true;
+}
+
+std::optional<MotionPrior> IncrementalReconstructor::motion_prior(
+    int64_t utime, const std::optional<Pose>& prediction) const {
+  const RegistrationConfig& c = config_.registration;
+  if (!c.motion_prior || !prediction || !fused_before_last_ || !fused_last_) return std::nullopt;
+  const double min_rad = c.motion_prior_min_deg * M_PI / 180.0;
+  Vector6d sigma;
+  for (int k = 0; k < 6; ++k)
+    sigma(k) = std::max(k < 3 ? min_rad : c.motion_prior_min_m, std::sqrt(motion_error_sq_(k)));
+  // The prediction is the last step stretched to this frame's time: after dropped frames its error
+  // grows with the stretch.
+  const double period = static_cast<double>(fused_last_->utime - fused_before_last_->utime);
+  const double stretch = period > 0 ? static_cast<double>(utime - fused_last_->utime) / period : 1.0;
+  sigma *= std::max(1.0, stretch);
+  MotionPrior prior;
+  prior.T_world_cam = *prediction;
+  prior.information = sigma.cwiseAbs2().cwiseInverse().asDiagonal();
+  return prior;
+}
+
+void IncrementalReconstructor::learn_motion(const MotionPrior& prior, const RegistrationResult& r) {
+  // How much of each axis the depth decided: the diagonal of covariance * information (1 - that of
+  // the prior). An axis the motion model decided says nothing of the model's error.
+  const Matrix6d share = r.covariance * r.information;
+  const Vector6d error = pose_delta(prior.T_world_cam, r.T_world_cam);
+  constexpr double kMinShare = 0.8;
+  constexpr double kWeight = 0.1;  // a running mean over about ten frames
+  for (int k = 0; k < 6; ++k) {
+    if (share(k, k) < kMinShare) continue;
+    motion_error_sq_(k) = (1 - kWeight) * motion_error_sq_(k) + kWeight * error(k) * error(k);
+  }
+}
+
+Vector6d IncrementalReconstructor::initial_motion_error_sq() const {
+  const double rad = 5.0 * config_.registration.motion_prior_min_deg * M_PI / 180.0;
+  const double m = 5.0 * config_.registration.motion_prior_min_m;
+  Vector6d v;
+  v << rad * rad, rad * rad, rad * rad, m * m, m * m, m * m;
+  return v;
 }
 
 std::optional<CameraVelocity> IncrementalReconstructor::camera_velocity_through_next(
@@ -256,6 +308,7 @@ void IncrementalReconstructor::reset(std::unique_ptr<PointMap> map, uint32_t nex
   frames_since_model_ = 0;
   relocaliser_->clear();
   recent_model_fitness_count_ = 0;
+  motion_error_sq_ = initial_motion_error_sq();
   next_frame_id_ = std::max<uint32_t>(1, next_frame_id);
   last_T_world_cam_ = last_T_world_cam;
   fused_before_last_.reset();

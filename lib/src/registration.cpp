@@ -45,6 +45,7 @@ struct NormalEquations {
   double sq_residual = 0;
   double cost = 0;         // sum of the pairs' Huber costs
   double sq_lever_m2 = 0;  // sum of |p - c|^2: the rotations' lever arm
+  double weight_sum = 0;   // sum of the pairs' Huber weights
   size_t inliers = 0;
 
   inline void add(const Eigen::Vector3f& p_rel, const Eigen::Vector3f& n, float r, float w,
@@ -59,6 +60,7 @@ struct NormalEquations {
     }
     sq_residual += static_cast<double>(r) * r;
     cost += rho;
+    weight_sum += w;
     ++inliers;
   }
 
@@ -68,6 +70,7 @@ struct NormalEquations {
     sq_residual += o.sq_residual;
     cost += o.cost;
     sq_lever_m2 += o.sq_lever_m2;
+    weight_sum += o.weight_sum;
     inliers += o.inliers;
   }
 };
@@ -85,34 +88,93 @@ inline Eigen::Matrix<double, 6, 1> twist_between(const Pose& T, const Pose& A, c
   return xi;
 }
 
+// The normal equations with the rotations scaled by the pairs' RMS lever arm, so that both halves
+// are in metres of point motion, in their eigenbasis.
+struct ScaledEquations {
+  Eigen::Matrix<double, 6, 1> scale;  // twist = scale .* (twist in metres)
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eigen;
+  Eigen::Matrix<double, 6, 1> bs;
+  // The smallest eigenvalue over the largest.
+  double conditioning() const {
+    const auto& lambda = eigen.eigenvalues();  // ascending
+    return lambda(5) > 0 ? std::max(0.0, lambda(0)) / lambda(5) : 0.0;
+  }
+};
+
+inline ScaledEquations scaled(const NormalEquations& eq) {
+  ScaledEquations s;
+  const Eigen::Matrix<double, 6, 6> H = eq.H.selfadjointView<Eigen::Upper>();
+  const double lever_m = std::sqrt(eq.sq_lever_m2 / std::max<size_t>(1, eq.inliers));
+  const double inv_lever = lever_m > 1e-6 ? 1.0 / lever_m : 1.0;
+  s.scale << inv_lever, inv_lever, inv_lever, 1.0, 1.0, 1.0;
+  s.eigen.compute(s.scale.asDiagonal() * H * s.scale.asDiagonal());
+  s.bs = s.scale.asDiagonal() * eq.b;
+  return s;
+}
+
 // The Gauss-Newton step of the normal equations, in the directions the pairs constrain. A view of
 // one wall constrains three of the six directions, a wall and a floor five: in a direction with
 // (almost) no information the solution follows the noise and the pose slides. The step is solved in
-// the eigenbasis of H with the rotations scaled by the pairs' RMS lever arm (so that both halves
-// are in metres of point motion), and directions whose eigenvalue is below `degenerate_ratio`
-// times the largest take the value of `to_anchor`, the step to the pose they are held at (0: the
-// current value; degenerate_ratio 0: solve in all six). *conditioning: the smallest eigenvalue
-// over the largest.
-inline Eigen::Matrix<double, 6, 1> solve_step(const NormalEquations& eq, double degenerate_ratio,
-                                              const Eigen::Matrix<double, 6, 1>& to_anchor,
-                                              double* conditioning) {
-  const Eigen::Matrix<double, 6, 6> H = eq.H.selfadjointView<Eigen::Upper>();
-  const double lever_m = std::sqrt(eq.sq_lever_m2 / std::max<size_t>(1, eq.inliers));
-  Eigen::Matrix<double, 6, 1> scale;  // twist = scale .* (twist in metres)
-  const double inv_lever = lever_m > 1e-6 ? 1.0 / lever_m : 1.0;
-  scale << inv_lever, inv_lever, inv_lever, 1.0, 1.0, 1.0;
-  const Eigen::Matrix<double, 6, 6> Hs = scale.asDiagonal() * H * scale.asDiagonal();
-  const Eigen::Matrix<double, 6, 1> bs = scale.asDiagonal() * eq.b;
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> es(Hs);
-  const Eigen::Matrix<double, 6, 1>& lambda = es.eigenvalues();  // ascending
-  *conditioning = lambda(5) > 0 ? std::max(0.0, lambda(0)) / lambda(5) : 0.0;
+// the scaled eigenbasis, and directions whose eigenvalue is below `degenerate_ratio` times the
+// largest take the value of `to_anchor`, the step to the pose they are held at (0: the current
+// value; degenerate_ratio 0: solve in all six).
+inline Eigen::Matrix<double, 6, 1> solve_step(const ScaledEquations& eq, double degenerate_ratio,
+                                              const Eigen::Matrix<double, 6, 1>& to_anchor) {
+  const Eigen::Matrix<double, 6, 1>& lambda = eq.eigen.eigenvalues();  // ascending
   const double floor = std::max(degenerate_ratio * lambda(5), 1e-12 * lambda(5) + 1e-30);
-  const Eigen::Matrix<double, 6, 1> coeff_data = es.eigenvectors().transpose() * (-bs);
+  const Eigen::Matrix<double, 6, 1> coeff_data = eq.eigen.eigenvectors().transpose() * (-eq.bs);
   const Eigen::Matrix<double, 6, 1> coeff_anchor =
-      es.eigenvectors().transpose() * scale.cwiseInverse().asDiagonal() * to_anchor;
+      eq.eigen.eigenvectors().transpose() * eq.scale.cwiseInverse().asDiagonal() * to_anchor;
   Eigen::Matrix<double, 6, 1> coeff;
   for (int k = 0; k < 6; ++k) coeff(k) = lambda(k) > floor ? coeff_data(k) / lambda(k) : coeff_anchor(k);
-  return scale.asDiagonal() * (es.eigenvectors() * coeff);
+  return eq.scale.asDiagonal() * (eq.eigen.eigenvectors() * coeff);
+}
+
+// The step in world axes about the camera centre (solve_step's twist) is the camera frame's delta
+// (pose_delta.hpp) turned by the camera's rotation, exactly: xi = B * delta, B = diag(R, R).
+inline Matrix6d delta_to_twist(const Pose& T) {
+  Matrix6d B = Matrix6d::Zero();
+  B.topLeftCorner<3, 3>() = T.linear();
+  B.bottomRightCorner<3, 3>() = T.linear();
+  return B;
+}
+
+// The normal equations as an information matrix of the pose: the unweighted point-to-plane sums
+// divided by the variance of what a pair measures. That is the residual's noise, and the map's own
+// error along the surface normal, which does not average out over the pairs: a direction that only
+// slightly tilted normals constrain is measured no better than that error over their tilt.
+inline double data_scale(const NormalEquations& eq, double model_error_m) {
+  const double noise2 = std::max(eq.sq_residual / std::max<size_t>(1, eq.inliers), 2.5e-7);
+  return 1.0 / (noise2 + model_error_m * model_error_m * eq.weight_sum);
+}
+
+// The MAP step: the depth's normal equations (scaled to information) with the motion prior's.
+// The prior is centred on its prediction, `to_prior` away from the current pose (world twist).
+inline Eigen::Matrix<double, 6, 1> solve_map_step(const Eigen::Matrix<double, 6, 6>& H_data,
+                                                  const Eigen::Matrix<double, 6, 1>& b_data,
+                                                  const Eigen::Matrix<double, 6, 6>& prior_twist,
+                                                  const Eigen::Matrix<double, 6, 1>& to_prior) {
+  const Eigen::Matrix<double, 6, 6> H = H_data + prior_twist;
+  return H.ldlt().solve(-b_data + prior_twist * to_prior);
+}
+
+// What the depth's information and the prior's make of the estimate: the covariance, and the
+// depth's smallest share over all directions (the generalised eigenvalues mu of the information
+// against the prior's, in whatever units: a share mu / (1 + mu)).
+void posterior(RegistrationResult* r, const Matrix6d& prior_information) {
+  const Matrix6d I = 0.5 * (r->information + r->information.transpose());
+  r->covariance = (I + prior_information).inverse();
+  const Eigen::GeneralizedSelfAdjointEigenSolver<Matrix6d> ges(I, prior_information);
+  const double mu = std::max(0.0, ges.eigenvalues()(0));
+  r->data_share = mu / (1.0 + mu);
+}
+
+// The covariance of the information alone, a direction without any capped at 1 m or 1 rad.
+Matrix6d capped_inverse(const Matrix6d& information) {
+  const Eigen::SelfAdjointEigenSolver<Matrix6d> es(0.5 * (information + information.transpose()));
+  Eigen::Matrix<double, 6, 1> inv = es.eigenvalues();
+  for (int k = 0; k < 6; ++k) inv(k) = 1.0 / std::max(inv(k), 1.0);
+  return es.eigenvectors() * inv.asDiagonal() * es.eigenvectors().transpose();
 }
 
 }  // namespace
@@ -233,11 +295,21 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
     if (eq.inliers < min_pairs) break;
     if (photometric_level >= 0)
       photometric_->add_to(m, T, centre, photometric_level, step, max_d, &eq.H, &eq.b);
-    const Eigen::Matrix<double, 6, 1> to_anchor =
-        hold.anchor ? twist_between(T, *hold.anchor, centre.cast<double>())
-                    : Eigen::Matrix<double, 6, 1>::Zero();
-    const Eigen::Matrix<double, 6, 1> xi =
-        solve_step(eq, hold.degenerate_ratio, to_anchor, &result.conditioning);
+    const ScaledEquations scaled_eq = scaled(eq);
+    result.conditioning = scaled_eq.conditioning();
+    Eigen::Matrix<double, 6, 1> xi;
+    if (hold.prior) {
+      const Matrix6d B = delta_to_twist(T);
+      const double alpha = data_scale(eq, config_.model_error_m);
+      const Matrix6d H = eq.H.selfadjointView<Eigen::Upper>();
+      xi = solve_map_step(alpha * H, alpha * eq.b, B * hold.prior->information * B.transpose(),
+                          B * pose_delta(T, hold.prior->T_world_cam));
+    } else {
+      const Eigen::Matrix<double, 6, 1> to_anchor =
+          hold.anchor ? twist_between(T, *hold.anchor, centre.cast<double>())
+                      : Eigen::Matrix<double, 6, 1>::Zero();
+      xi = solve_step(scaled_eq, hold.degenerate_ratio, to_anchor);
+    }
     if (!xi.allFinite()) break;
     // The twist is about `centre`: T' = Tc * exp(xi) * Tc^-1 * T.
     Pose Tc = Pose::Identity();
@@ -255,7 +327,17 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
   result.mean_cost = sampled ? (eq.cost + unpaired) / sampled : 0.0;
   result.rmse_m = eq.inliers ? std::sqrt(eq.sq_residual / eq.inliers) : 0.0;
   result.converged = eq.inliers >= min_pairs;
-  if (result.converged) result.T_world_cam = T;
+  if (result.converged) {
+    result.T_world_cam = T;
+    const Matrix6d B = delta_to_twist(T);
+    const Matrix6d H = eq.H.selfadjointView<Eigen::Upper>();
+    result.information = data_scale(eq, config_.model_error_m) * (B.transpose() * H * B);
+  }
+  result.motion_prior = hold.prior != nullptr;
+  if (hold.prior)
+    posterior(&result, hold.prior->information);
+  else
+    result.covariance = capped_inverse(result.information);
   return result;
 }
 
@@ -277,6 +359,19 @@ RegistrationResult Registrar::refine(const MeasurementImage& m, const SurfaceVie
                                      const Pose& T_world_cam_initial) {
   return run(m, model, T_world_cam_initial, hold_for(std::nullopt), config_.subsample_px,
              config_.iterations, config_.max_correspondence_m, min_pairs(0));
+}
+
+RegistrationResult Registrar::track(const MeasurementImage& m, const PointMap& map,
+                                    const Pose& T_world_cam_initial, const MotionPrior& prior) {
+  const int levels = std::max(1, config_.tracking_levels);
+  render_model(m, map, T_world_cam_initial, config_.tracking_model_band_m,
+               config_.max_correspondence_m * (1 << (levels - 1)));
+  return track(m, view_, T_world_cam_initial, prior);
+}
+
+RegistrationResult Registrar::track(const MeasurementImage& m, const SurfaceView& model,
+                                    const Pose& T_world_cam_initial, const MotionPrior& prior) {
+  return coarse_to_fine(m, model, T_world_cam_initial, Hold{nullptr, 0.0, &prior});
 }
 
 Registrar::Hold Registrar::hold_for(const std::optional<Pose>& T_world_cam_held) const {
@@ -349,8 +444,9 @@ TrackingState classify_tracking(const RegistrationResult& r, const RegistrationC
   if (r.fitness < c.tracking_retry_fitness &&
       r.model_fitness < c.tracking_lost_model_fitness * model_fitness_reference)
     return TrackingState::kLost;
-  if (r.fitness < c.tracking_retry_fitness || r.conditioning < c.tracking_degenerate_ratio)
-    return TrackingState::kUncertain;
+  const bool held = r.motion_prior ? r.data_share < c.tracking_min_data_share
+                                   : r.conditioning < c.tracking_degenerate_ratio;
+  if (r.fitness < c.tracking_retry_fitness || held) return TrackingState::kUncertain;
   return TrackingState::kTracked;
 }
 

@@ -126,6 +126,11 @@ void read_registration(TableReader& r, RegistrationConfig* g) {
   r.read("photometric_weight", &g->photometric_weight, non_negative());
   r.read("tracking_retry_fitness", &g->tracking_retry_fitness, closed(0.0, 1.0));
   r.read("tracking_degenerate_ratio", &g->tracking_degenerate_ratio, closed(0.0, 1.0));
+  r.read("motion_prior", &g->motion_prior);
+  r.read("model_error_m", &g->model_error_m, closed(0.0, 0.1));
+  r.read("motion_prior_min_m", &g->motion_prior_min_m, open_closed(0.0, 1.0));
+  r.read("motion_prior_min_deg", &g->motion_prior_min_deg, open_closed(0.0, 90.0));
+  r.read("tracking_min_data_share", &g->tracking_min_data_share, closed(0.0, 1.0));
   r.read("tracking_lost_fitness", &g->tracking_lost_fitness, closed(0.0, 1.0));
   r.read("tracking_lost_rmse_m", &g->tracking_lost_rmse_m, positive());
   r.read("tracking_lost_model_fitness", &g->tracking_lost_model_fitness, closed(0.0, 1.0));

@@ -88,9 +88,25 @@ struct RegistrationConfig {
   // this fraction of the best-constrained one's keep the value of the pose the track starts from
   // (see Registrar::track).
   double tracking_degenerate_ratio = 3e-3;
+  // Tracking from the motion model's prediction is a MAP estimate (Registrar::track with a
+  // MotionPrior): the depth's normal equations and a Gaussian prior at the prediction. false:
+  // directions below tracking_degenerate_ratio are held at the prediction instead.
+  bool motion_prior = true;
+  // The depth's information is limited by the map's own error along a surface's normal, which does
+  // not average out over the pairs (registration.cpp, data_scale).
+  double model_error_m = 2e-4;
+  // The prediction's uncertainty per frame period: the spread of the prediction errors of the last
+  // frames that measured the motion themselves, in the camera frame, each axis at least these. A
+  // frame after a gap scales it by the gap.
+  double motion_prior_min_m = 1e-3;
+  double motion_prior_min_deg = 0.1;
+  // A frame tracked with the prior is uncertain when the depth had less than this share of the
+  // estimate in some direction (RegistrationResult::data_share).
+  double tracking_min_data_share = 0.5;
   // A tracked frame is lost (not fused) when its fitness is below this or its residual above that;
-  // uncertain when its fitness is below tracking_retry_fitness or its conditioning below
-  // tracking_degenerate_ratio (classify_tracking()).
+  // uncertain when its fitness is below tracking_retry_fitness, or the motion model decided a
+  // direction (tracking_min_data_share; without a prior, its conditioning below
+  // tracking_degenerate_ratio; classify_tracking()).
   double tracking_lost_fitness = 0.3;
   double tracking_lost_rmse_m = 0.02;
   // A frame whose fitness is below tracking_retry_fitness is lost, not uncertain, when fewer than

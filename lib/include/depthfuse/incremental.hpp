@@ -123,9 +123,16 @@ class IncrementalReconstructor {
   // from the last pose after a poor track, and the relocaliser after a loss), refinement with one.
   void register_frame(const Frame& frame, const std::optional<Pose>& prediction, Pose* T_world_cam,
                       FrameReport* report);
-  // A poor track from the prediction starts again from the last refined pose; the start with the
-  // lower mean cost is kept.
-  void retry_from_last_pose(FrameReport* report);
+  // A poor track from the prediction starts again from the last refined pose (with the same motion
+  // prior, if any); the start with the lower mean cost is kept.
+  void retry_from_last_pose(const MotionPrior* prior, FrameReport* report);
+  // The motion model's prior for a frame at `utime` predicted at `prediction`
+  // (registration.motion_prior), none without a prediction.
+  std::optional<MotionPrior> motion_prior(int64_t utime,
+                                          const std::optional<Pose>& prediction) const;
+  // After a frame tracked with the prior: its prediction error, in the directions its depth
+  // measured itself, updates the spread of the motion model's errors.
+  void learn_motion(const MotionPrior& prior, const RegistrationResult& r);
   // The keyframes' candidates for a lost frame, each tracked against the map; the first that
   // tracks well is the frame's pose.
   void relocalise(FrameReport* report);
@@ -151,6 +158,11 @@ class IncrementalReconstructor {
   };
   std::optional<StampedPose> fused_before_last_, fused_last_;
   uint32_t next_frame_id_ = 1;
+  // The motion model's squared prediction error per frame period, per axis of the camera frame
+  // (pose_delta.hpp), a running mean over the last frames that measured it; before any, a loose
+  // five times the floor (initial_motion_error_sq()).
+  Vector6d initial_motion_error_sq() const;
+  Vector6d motion_error_sq_;
   // The model fitness of the last tracked frames (a ring; model_fitness_reference()).
   std::array<float, 8> recent_model_fitness_{};
   size_t recent_model_fitness_count_ = 0;

@@ -7,6 +7,7 @@
 #include "depthfuse/config.hpp"
 #include "depthfuse/measurement.hpp"
 #include "depthfuse/point_map.hpp"
+#include "depthfuse/pose_delta.hpp"
 
 namespace depthfuse {
 
@@ -27,6 +28,29 @@ struct RegistrationResult {
   // pairs' lever arm), at the last iteration: near 0, some direction of the pose is unconstrained.
   double conditioning = 0.0;
   int iterations = 0;
+  // What the depth said of the pose, in the camera frame (pose_delta.hpp: rotation first): the
+  // normal equations of the last iteration as an information matrix, weighted by the residuals'
+  // noise and registration.model_error_m. A direction the view does not constrain has (almost)
+  // none. Zero when not converged.
+  Matrix6d information = Matrix6d::Zero();
+  // The pose's covariance, same frame: of the information and the motion prior's together, or of
+  // the information alone (directions without any capped at 1 m / 1 rad).
+  Matrix6d covariance = Matrix6d::Identity();
+  // Tracked with a motion prior: the depth's smallest share of the estimate over all directions (1:
+  // the depth alone decided, 0: the motion model alone), 1 without one.
+  bool motion_prior = false;
+  double data_share = 1.0;
+};
+
+// The motion model's prediction of a frame's pose and how far to trust it: a Gaussian prior on the
+// pose in tracking's normal equations, so that the estimate is a MAP one. Where the depth does not
+// constrain a direction (a camera sliding along a long sofa), the pose follows the motion model
+// there; where it does, the depth decides.
+struct MotionPrior {
+  Pose T_world_cam = Pose::Identity();  // the prediction
+  // Of the pose about the prediction, in its camera frame (pose_delta.hpp), 1/rad^2 and 1/m^2.
+  // Positive definite.
+  Matrix6d information = Matrix6d::Identity();
 };
 
 // How far a frame's tracked pose can be trusted (registration.tracking_* in config/depthfuse.toml).
@@ -87,6 +111,10 @@ class Registrar {
   RegistrationResult track(const MeasurementImage& m, const PointMap& map,
                            const Pose& T_world_cam_initial,
                            const std::optional<Pose>& T_world_cam_held = std::nullopt);
+  // The MAP track of a moving camera: the depth's normal equations with the motion prior's, from
+  // `T_world_cam_initial` (the prediction, or another start such as the last pose).
+  RegistrationResult track(const MeasurementImage& m, const PointMap& map,
+                           const Pose& T_world_cam_initial, const MotionPrior& prior);
 
   // The same against a view of the map made before, e.g. model() for the next frame.
   // Associations go through the view's camera, whatever the current estimate.
@@ -95,6 +123,8 @@ class Registrar {
   RegistrationResult track(const MeasurementImage& m, const SurfaceView& model,
                            const Pose& T_world_cam_initial,
                            const std::optional<Pose>& T_world_cam_held = std::nullopt);
+  RegistrationResult track(const MeasurementImage& m, const SurfaceView& model,
+                           const Pose& T_world_cam_initial, const MotionPrior& prior);
 
   // The model the last refine() or track() against the map rendered (empty before any).
   const SurfaceView& model() const { return view_; }
@@ -113,10 +143,12 @@ class Registrar {
   void render_model(const MeasurementImage& m, const PointMap& map, const Pose& T_world_cam,
                     double band_m, double max_corr_m);
   // Where the directions ICP cannot determine are held: at `anchor` (nullptr: their current
-  // value), below `degenerate_ratio` (see solve_step() in registration.cpp).
+  // value), below `degenerate_ratio` (see solve_step() in registration.cpp); or, with a motion
+  // prior, none are held: the prior's normal equations join the depth's.
   struct Hold {
     const Pose* anchor;
     double degenerate_ratio;
+    const MotionPrior* prior = nullptr;
   };
   Hold hold_for(const std::optional<Pose>& T_world_cam_held) const;
   // ICP against `model`, from `initial`, on every `subsample`-th pixel. Fewer than `min_pairs`
