@@ -35,6 +35,7 @@ LIBFREENECT2_UPSTREAM=https://github.com/OpenKinect/libfreenect2.git
 PACKAGES=(
   build-essential cmake ninja-build pkg-config git
   libeigen3-dev libpcl-dev libopencv-dev libusb-1.0-0-dev
+  libceres-dev                 # the pose graph optimiser (loop closure)
   libsqlite3-dev sqlite3 libsystemd-dev systemd
   liblcm-dev liblcm-bin liblcm-java libglib2.0-dev default-jdk-headless
   libgtest-dev libgmock-dev libbenchmark-dev
