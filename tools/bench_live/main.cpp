@@ -125,9 +125,9 @@ int run(int argc, char** argv) {
   a.fusion = args.get("fusion", a.fusion);
   a.color = !args.has("no-color");
   a.hint = !args.has("no-hint");
-  // By default a private loopback port, so that a running appliance is not disturbed.
-  if (args.get("lcm").empty())
-    startup.config().lcm.url = lcm::loopback_test_url(static_cast<int>(::getpid()));
+  // By default a private loopback port (from 20000 on, by process id), so that a running
+  // appliance is not disturbed.
+  if (args.get("lcm").empty()) startup.config().lcm.url = lcm::udpm_url(20000 + ::getpid() % 40000);
   a.lcm_url = startup.config().lcm.url;
 
   auto spec = depthfuse::synthetic::parse_synthetic_spec(

@@ -83,7 +83,7 @@ Startup::Startup(Program program, int argc, char** argv)
   if (args_.has("lcm")) {
     // An empty URL would quietly become liblcm's default bus, another one than the rig's.
     if (args_.get("lcm").empty()) {
-      exit_code_ = usage_error("--lcm needs a URL, e.g. udpm://239.255.76.67:7667?ttl=0");
+      exit_code_ = usage_error("--lcm needs a URL, e.g. " + lcm::default_lcm_url());
       return;
     }
     config_.lcm.url = args_.get("lcm");
