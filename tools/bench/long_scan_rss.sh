@@ -41,14 +41,14 @@ cleanup() {
 }
 trap cleanup EXIT
 
-"$bin/depthfuse-monitor" --lcm "$lcm_url" >"$work/monitor.log" 2>&1 &
+"$bin/depthfuse-monitor" --lcm "$lcm_url" --key-file "" >"$work/monitor.log" 2>&1 &
 pids+=($!)
-"$bin/depthfuse-fusion" --lcm "$lcm_url" --scan-dir "$work/scans" --autostart long-scan \
+"$bin/depthfuse-fusion" --lcm "$lcm_url" --key-file "" --scan-dir "$work/scans" --autostart long-scan \
   >"$work/fusion.log" 2>&1 &
 fusion_pid=$!
 pids+=($fusion_pid)
 sleep 1
-"$bin/depthfuse-capture" --lcm "$lcm_url" --source "synthetic:room?frames=$frames" --rate 30 --loop \
+"$bin/depthfuse-capture" --lcm "$lcm_url" --key-file "" --source "synthetic:room?frames=$frames" --rate 30 --loop \
   >"$work/capture.log" 2>&1 &
 pids+=($!)
 
