@@ -140,12 +140,16 @@ Status LcmLogSource::index() {
     if (channel == options_.depth_channel) {
       const auto r = lcm::decode_message(ev->data, payload_size(ev), &depth_msg);
       Frame probe;
-      const Status decoded = r == lcm::DecodeResult::kOk
-                                 ? lcm::decode_depth_frame(depth_msg, &probe, options_.limits)
-                                 : Status::ok();
+      lcm::DepthFrameNotes notes;
+      const Status decoded =
+          r == lcm::DecodeResult::kOk
+              ? lcm::decode_depth_frame(depth_msg, &probe, options_.limits, nullptr, &notes)
+              : Status::ok();
       if (r == lcm::DecodeResult::kOk && decoded.is_ok()) {
         depth_.push_back({event_offset, ev->timestamp});
         ++stats_.depth_frames;
+        if (!notes.pose_hint_refused.empty() && !stats_.pose_hints_refused++)
+          stats_.first_pose_hint_refused = notes.pose_hint_refused;
       } else if (r == lcm::DecodeResult::kOk) {
         if (!stats_.malformed++) stats_.first_problem = decoded.message();
       } else if (r == lcm::DecodeResult::kForeign) {
@@ -221,6 +225,9 @@ std::string LcmLogSource::describe() const {
     d += ", " + std::to_string(stats_.malformed + stats_.foreign + stats_.bad_version) +
          " unusable events";
   if (stats_.truncated) d += ", truncated";
+  if (stats_.pose_hints_refused)
+    d += ", " + std::to_string(stats_.pose_hints_refused) +
+         " without their pose hint: " + stats_.first_pose_hint_refused;
   return d + ")";
 }
 
@@ -237,6 +244,7 @@ Result<std::unique_ptr<FrameSource>> open_lcmlog_source(const std::string& arg,
   LcmLogSource::Options options;
   options.limits.max_width = config.fusion.max_frame_width;
   options.limits.max_height = config.fusion.max_frame_height;
+  options.limits.max_pose_hint_m = config.fusion.workspace_radius_m;
   if (const auto q = arg.find('?'); q != std::string::npos) {
     path = arg.substr(0, q);
     const std::string query = arg.substr(q + 1);

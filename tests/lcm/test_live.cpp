@@ -601,6 +601,47 @@ TEST_F(LiveAppliance, HostileInputIsCountedAndSurvived) {
   EXPECT_TRUE(monitor->running()) << monitor->log();
 }
 
+// Issue 36, without a key: one frame with the sequence + 2^31 made frames_lost read two billion
+// for good, and a frame hinted at 999 m was fused there (the map 1 km wide). The jump and the way
+// back are restarts, nothing lost; the far hint is left out and counted, its frame tracked near the
+// others.
+TEST_F(LiveAppliance, ASequenceJumpAndAFarPoseHintPoisonNothing) {
+  auto fusion = start_fusion({"--autostart", "bounds", "--queue", "64"});
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.scan_id == "bounds"; },
+                                        seconds(10)));
+  std::vector<depthfuse::depth_frame_t> frames = {small_frame(10), small_frame(11),
+                                                  small_frame(11 + (int64_t{1} << 31)),
+                                                  small_frame(12), small_frame(13), small_frame(14)};
+  frames[3].hint_position_m[0] = 999.0;
+  for (const auto& msg : frames) {
+    ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kDepthChannel, msg).is_ok());
+    std::this_thread::sleep_for(milliseconds(20));
+  }
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) {
+    return hb.frames_in == 6 && hb.queue_depth == 0;
+  }, seconds(60))) << fusion->log();
+  const auto hb = *observer_->heartbeat("fusion");
+  EXPECT_EQ(daemon::counter_value(hb, "pose_hints_refused"), 1);
+  EXPECT_EQ(hb.frames_lost, 0);
+  EXPECT_EQ(hb.frames_out_of_order, 0);
+  EXPECT_EQ(daemon::counter_value(hb, "sequence_restarts"), 2);
+  EXPECT_EQ(hb.messages_malformed, 0);
+  EXPECT_NE(hb.last_error.find("beyond the workspace (100 m, fusion_daemon.workspace_radius_m)"),
+            std::string::npos)
+      << hb.last_error;
+  std::string out;
+  ASSERT_EQ(scan({"stop"}, &out), 0) << out;
+  auto cloud = read_ply(dir_ + "/scans/bounds.ply");
+  ASSERT_TRUE(cloud.is_ok()) << cloud.status().to_string();
+  ASSERT_GT(cloud->size(), 0u);
+  float extent_m = 0;
+  for (size_t i = 0; i < cloud->size(); ++i)
+    extent_m = std::max(extent_m, cloud->position(i).cwiseAbs().maxCoeff());
+  std::printf("map: %zu points, at most %.2f m from the origin\n", cloud->size(), extent_m);
+  EXPECT_LT(extent_m, 5.0f) << "a point of the map lies " << extent_m << " m from the origin";
+  EXPECT_TRUE(fusion->running()) << fusion->log();
+}
+
 // `scan new` from the network cannot fill the disk: scans start at most once per
 // min_scan_interval_s, and not at all below min_free_disk_mib (issue 22: 199 commands at 20/s made
 // 199 scans and 574 MB in 10 s).

@@ -55,6 +55,10 @@ struct FusionDaemonConfig {
   // The largest depth image the daemon takes, px: frames beyond it are refused before decoding.
   int max_frame_width = 640;
   int max_frame_height = 480;
+  // The site, m from the world origin: a frame whose pose hint lies beyond it (or is not finite)
+  // is tracked without the hint (counted: pose_hints_refused), so that a wrong or forged hint
+  // cannot stretch the map.
+  double workspace_radius_m = 100.0;
   // A scan starts only with this much free space where scans go, and at most once per
   // min_scan_interval_s: a burst of `scan new` commands must not fill the disk.
   double min_free_disk_mib = 512.0;
