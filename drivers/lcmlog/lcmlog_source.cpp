@@ -1,7 +1,6 @@
 #include "depthfuse/lcmlog/lcmlog_source.hpp"
 
 #include <lcm/eventlog.h>
-#include <sys/stat.h>
 
 #include <cerrno>
 #include <cstdio>
@@ -9,6 +8,7 @@
 #include "depthfuse/base/errno_text.hpp"
 #include "depthfuse/color_frame_t.hpp"
 #include "depthfuse/depth_frame_t.hpp"
+#include "depthfuse/input_file.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/lcm/frame_codec.hpp"
 #include "depthfuse/lcm/message_auth.hpp"
@@ -79,10 +79,7 @@ LcmLogSource::~LcmLogSource() {
 
 Result<std::unique_ptr<LcmLogSource>> LcmLogSource::open(const std::string& path,
                                                         const Options& options) {
-  struct stat st {};
-  if (::stat(path.c_str(), &st) != 0)
-    return not_found("LCM log '" + path + "': " + errno_text());
-  if (!S_ISREG(st.st_mode)) return invalid_argument("LCM log '" + path + "' is not a file");
+  DF_RETURN_IF_ERROR(check_input_file(path, "LCM log"));
   lcm_eventlog_t* log = lcm_eventlog_create(path.c_str(), "r");
   if (!log) return io_error("cannot open LCM log '" + path + "': " + errno_text());
   std::unique_ptr<LcmLogSource> src(new LcmLogSource());

@@ -3,17 +3,12 @@
 // its file, line and key, and an unknown key is an error too (a typo must not be silently ignored).
 #include "depthfuse/app_config.hpp"
 
-#include <sys/stat.h>
-
-#include <cerrno>
 #include <cmath>
 #include <exception>
-#include <fstream>
-#include <sstream>
 
 #include "app_config_reader.hpp"
 #include "app_config_trace.hpp"
-#include "depthfuse/base/errno_text.hpp"
+#include "depthfuse/input_file.hpp"
 
 namespace depthfuse {
 namespace {
@@ -33,7 +28,7 @@ using app_config_detail::StringRule;
 using app_config_detail::TableReader;
 
 // A config file is a few kilobytes; anything this large is not one.
-constexpr std::streamoff kMaxConfigBytes = 1 << 20;
+constexpr size_t kMaxConfigBytes = 1 << 20;
 // No depth sensor's image has a side this long (Kinect V2: 512 px, TUM's Kinect v1: 640).
 constexpr int kMaxFrameSidePx = 4096;
 
@@ -415,25 +410,9 @@ Result<AppConfig> parse_app_config(const std::string& toml_text, const std::stri
 }
 
 Result<AppConfig> load_app_config(const std::string& path) {
-  struct stat st {};
-  if (::stat(path.c_str(), &st) != 0) {
-    const int err = errno;
-    const std::string why = errno_text(err);
-    if (err == ENOENT) return not_found("cannot read config " + path + ": " + why);
-    return io_error("cannot read config " + path + ": " + why);
-  }
-  if (!S_ISREG(st.st_mode)) return invalid_argument("config " + path + " is not a regular file");
-  if (st.st_size > kMaxConfigBytes) {
-    return invalid_argument("config " + path + " is " + std::to_string(st.st_size) +
-                            " bytes; a config file is at most " + std::to_string(kMaxConfigBytes));
-  }
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return io_error("cannot open config " + path + ": " + errno_text());
-  std::ostringstream text;
-  text << in.rdbuf();
-  if (in.bad()) return io_error("reading config " + path + " failed");
-
-  Result<AppConfig> config = parse_app_config(text.str(), path);
+  auto text = read_input_file(path, "config", kMaxConfigBytes);
+  if (!text) return text.status();
+  Result<AppConfig> config = parse_app_config(*text, path);
   if (config.is_ok()) config->source_path = path;
   return config;
 }
