@@ -55,7 +55,7 @@ pids+=($!)
 rss_mib() { awk '/^VmRSS:/ { printf "%.1f", $2 / 1024 }' "/proc/$1/status"; }
 # "frames_out output_rate_hz" of the fusion daemon, from one status of the monitor.
 fused() {
-  "$bin/depthfuse" status --json --lcm "$lcm_url" --timeout 3 2>/dev/null |
+  "$bin/depthfuse" status --json --lcm "$lcm_url" --key-file "" --timeout 3 2>/dev/null |
     python3 -c 'import json, sys
 s = json.loads(sys.stdin.readline())
 d = [d for d in s["daemons"] if d["name"] == "fusion"]
