@@ -7,9 +7,9 @@ BUILD=${BUILD:-build}; B=$BUILD/bin; W=$(mktemp -d)
 URL="udpm://239.255.76.67:7793?ttl=0&recv_buf_size=4194304"
 for preview in true false; do
   printf '[map_preview]\nenabled = %s\n' $preview > $W/cfg-$preview.toml
-  $B/depthfuse-fusion --lcm "$URL" --config $W/cfg-$preview.toml --scan-dir $W/scans-$preview --autostart p$preview > $W/fus-$preview.log 2>&1 & F=$!
+  $B/depthfuse-fusion --lcm "$URL" --key-file "" --config $W/cfg-$preview.toml --scan-dir $W/scans-$preview --autostart p$preview > $W/fus-$preview.log 2>&1 & F=$!
   sleep 1
-  $B/depthfuse-capture --lcm "$URL" --source synthetic:room --rate 30 --loop > $W/cap-$preview.log 2>&1 & C=$!
+  $B/depthfuse-capture --lcm "$URL" --key-file "" --source synthetic:room --rate 30 --loop > $W/cap-$preview.log 2>&1 & C=$!
   sleep ${SECS:-40}
   python3 tools/lcm/watch.py --lcm "$URL" --python-dir $BUILD/python --channel DEPTHFUSE_HEARTBEAT --count 6 --timeout 5 > $W/hb-$preview.jsonl
   kill $C; kill $F; wait $F

@@ -9,6 +9,7 @@
 #include "command.hpp"
 #include "error_curve.hpp"
 #include "depthfuse/evaluation.hpp"
+#include "depthfuse/input_file.hpp"
 #include "depthfuse/measurement.hpp"
 #include "depthfuse/ply.hpp"
 #include "depthfuse/replay/tum_source.hpp"
@@ -130,12 +131,11 @@ struct Truth {
 
 // A synthetic scan's analytic surfaces (its scene.toml), and the noise-free points of its frames.
 Result<Truth> analytic_truth(const std::string& folder, const PointArrays& cloud) {
-  std::ifstream in(folder + "/scene.toml");
-  std::stringstream text;
-  text << in.rdbuf();
-  auto scene = synthetic::Scene::parse_toml(text.str(), folder + "/scene.toml");
+  auto text = read_input_file(folder + "/scene.toml", "scene file", size_t{16} << 20);
+  if (!text) return text.status();
+  auto scene = synthetic::Scene::parse_toml(*text, folder + "/scene.toml");
   if (!scene) return scene.status();
-  auto gen = synthetic::parse_synthetic_config_toml(text.str(), folder + "/scene.toml");
+  auto gen = synthetic::parse_synthetic_config_toml(*text, folder + "/scene.toml");
   if (!gen) return gen.status();
   std::vector<double> d(cloud.size());
   for (size_t i = 0; i < cloud.size(); ++i) d[i] = scene->distance_m(cloud.position(i).cast<double>());

@@ -35,7 +35,15 @@ void print_table(const depthfuse::status_t& st) {
   if (st.messages_malformed + st.messages_bad_version + st.messages_foreign)
     std::printf(" (heartbeats unreadable: %" PRId64 " malformed, %" PRId64 " unknown version, %" PRId64
                 " foreign)", st.messages_malformed, st.messages_bad_version, st.messages_foreign);
-  std::printf("\n%-10s %-6s %-9s %-16s %8s %8s %8s %8s %8s %6s %10s %8s  %s\n", "daemon", "alive",
+  std::printf("\n");
+  if (const auto open = daemon::unsigned_daemons(st); !open.empty()) {
+    std::string names;
+    for (const auto& name : open) names += (names.empty() ? "" : ", ") + name;
+    std::printf("NO RIG KEY: %s sign and check nothing; anyone who reaches the LCM bus can send "
+                "them frames and commands (lcm.key_file; docs/protocol.md, \"Authentication\")\n",
+                names.c_str());
+  }
+  std::printf("%-10s %-6s %-9s %-16s %8s %8s %8s %8s %8s %6s %10s %8s  %s\n", "daemon", "alive",
               "state", "host:pid", "in Hz", "out Hz", "dropped", "lost", "bad msg", "queue",
               "points", "RSS MiB", "scan / last error");
   for (const auto& d : st.daemons) {

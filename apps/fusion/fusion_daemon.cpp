@@ -67,6 +67,7 @@ FusionDaemon::FusionDaemon(const AppConfig& config, const DaemonOptions& options
       session_(config_, *sink_) {
   frame_limits_.max_width = config.fusion.max_frame_width;
   frame_limits_.max_height = config.fusion.max_frame_height;
+  frame_limits_.max_pose_hint_m = config.fusion.workspace_radius_m;
   lcm_->subscribe(lcm::kDepthChannel, [this](const std::string&, const uint8_t* d, size_t n,
                                                int64_t) { on_depth(d, n); });
   lcm_->subscribe(lcm::kColorChannel, [this](const std::string&, const uint8_t* d, size_t n,
@@ -121,21 +122,24 @@ void FusionDaemon::on_depth(const uint8_t* data, size_t size) {
     return;
   }
   QueuedFrame item;
-  if (auto st = lcm::decode_depth_frame(msg, &item.frame, frame_limits_); !st.is_ok()) {
+  lcm::DepthFrameNotes notes;
+  if (auto st = lcm::decode_depth_frame(msg, &item.frame, frame_limits_, nullptr, &notes);
+      !st.is_ok()) {
     ++counters_.malformed;
     set_error(st.message());
     return;
+  }
+  if (!notes.pose_hint_refused.empty()) {
+    ++counters_.pose_hints_refused;  // the frame goes on without it
+    set_error(notes.pose_hint_refused);
   }
   // Per publisher, so that two captures on one channel do not look like chaos to each other.
   const std::string publisher = msg.source + "|" + msg.sensor_serial;
   if (sequences_.size() >= kMaxPublishers && !sequences_.count(publisher)) sequences_.clear();
   const auto seen = sequences_[publisher].observe(msg.sequence);
-  if (seen.verdict == lcm::SequenceTracker::Verdict::kOutOfOrder) {
-    // A late frame: its pose would be predicted from a newer one. Counted, not fused.
-    ++counters_.out_of_order;
-    return;
-  }
-  counters_.lost += seen.lost;
+  counters_.count(seen);
+  // A late frame: its pose would be predicted from a newer one. Counted, not fused.
+  if (seen.verdict == lcm::SequenceTracker::Verdict::kOutOfOrder) return;
   ++counters_.received;
   ++frames_in_;
   in_rate_.add();
@@ -491,6 +495,8 @@ void FusionDaemon::publish_heartbeat() {
     daemon::add_counter(&hb, "frames_lost_tracking", static_cast<double>(frames_lost_tracking_.load()));
     // Frames whose tracking was lost and that were found among the keyframes (counted as tracked).
     daemon::add_counter(&hb, "relocalisations", static_cast<double>(relocalisations_.load()));
+    daemon::add_counter(&hb, "sequence_restarts", static_cast<double>(counters_.sequence_restarts));
+    daemon::add_counter(&hb, "pose_hints_refused", static_cast<double>(counters_.pose_hints_refused));
     for (const auto& [counter, value] : sink_counters_) daemon::add_counter(&hb, counter, value);
     daemon::add_receive_counters(*lcm_, &hb);
   }

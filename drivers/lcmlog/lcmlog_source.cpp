@@ -1,7 +1,6 @@
 #include "depthfuse/lcmlog/lcmlog_source.hpp"
 
 #include <lcm/eventlog.h>
-#include <sys/stat.h>
 
 #include <cerrno>
 #include <cstdio>
@@ -9,6 +8,7 @@
 #include "depthfuse/base/errno_text.hpp"
 #include "depthfuse/color_frame_t.hpp"
 #include "depthfuse/depth_frame_t.hpp"
+#include "depthfuse/input_file.hpp"
 #include "depthfuse/lcm/codec.hpp"
 #include "depthfuse/lcm/frame_codec.hpp"
 #include "depthfuse/lcm/message_auth.hpp"
@@ -79,10 +79,7 @@ LcmLogSource::~LcmLogSource() {
 
 Result<std::unique_ptr<LcmLogSource>> LcmLogSource::open(const std::string& path,
                                                         const Options& options) {
-  struct stat st {};
-  if (::stat(path.c_str(), &st) != 0)
-    return not_found("LCM log '" + path + "': " + errno_text());
-  if (!S_ISREG(st.st_mode)) return invalid_argument("LCM log '" + path + "' is not a file");
+  DF_RETURN_IF_ERROR(check_input_file(path, "LCM log"));
   lcm_eventlog_t* log = lcm_eventlog_create(path.c_str(), "r");
   if (!log) return io_error("cannot open LCM log '" + path + "': " + errno_text());
   std::unique_ptr<LcmLogSource> src(new LcmLogSource());
@@ -140,12 +137,16 @@ Status LcmLogSource::index() {
     if (channel == options_.depth_channel) {
       const auto r = lcm::decode_message(ev->data, payload_size(ev), &depth_msg);
       Frame probe;
-      const Status decoded = r == lcm::DecodeResult::kOk
-                                 ? lcm::decode_depth_frame(depth_msg, &probe, options_.limits)
-                                 : Status::ok();
+      lcm::DepthFrameNotes notes;
+      const Status decoded =
+          r == lcm::DecodeResult::kOk
+              ? lcm::decode_depth_frame(depth_msg, &probe, options_.limits, nullptr, &notes)
+              : Status::ok();
       if (r == lcm::DecodeResult::kOk && decoded.is_ok()) {
         depth_.push_back({event_offset, ev->timestamp});
         ++stats_.depth_frames;
+        if (!notes.pose_hint_refused.empty() && !stats_.pose_hints_refused++)
+          stats_.first_pose_hint_refused = notes.pose_hint_refused;
       } else if (r == lcm::DecodeResult::kOk) {
         if (!stats_.malformed++) stats_.first_problem = decoded.message();
       } else if (r == lcm::DecodeResult::kForeign) {
@@ -221,6 +222,9 @@ std::string LcmLogSource::describe() const {
     d += ", " + std::to_string(stats_.malformed + stats_.foreign + stats_.bad_version) +
          " unusable events";
   if (stats_.truncated) d += ", truncated";
+  if (stats_.pose_hints_refused)
+    d += ", " + std::to_string(stats_.pose_hints_refused) +
+         " without their pose hint: " + stats_.first_pose_hint_refused;
   return d + ")";
 }
 
@@ -237,6 +241,7 @@ Result<std::unique_ptr<FrameSource>> open_lcmlog_source(const std::string& arg,
   LcmLogSource::Options options;
   options.limits.max_width = config.fusion.max_frame_width;
   options.limits.max_height = config.fusion.max_frame_height;
+  options.limits.max_pose_hint_m = config.fusion.workspace_radius_m;
   if (const auto q = arg.find('?'); q != std::string::npos) {
     path = arg.substr(0, q);
     const std::string query = arg.substr(q + 1);

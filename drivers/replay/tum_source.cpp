@@ -3,15 +3,16 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <numeric>
 #include <sstream>
 
-#include <opencv2/imgcodecs.hpp>
+#include <opencv2/core.hpp>
 #include <toml++/toml.h>
 
 #include "depthfuse/base/log.hpp"
+#include "depthfuse/input_file.hpp"
 #include "depthfuse/trajectory.hpp"
+#include "image_file.hpp"
 
 DF_LOG_CATEGORY(Tum)
 
@@ -32,8 +33,10 @@ struct ListEntry {
 
 // "timestamp path" lines; '#' comments.
 Result<std::vector<ListEntry>> read_list(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) return not_found("cannot open " + path);
+  // fr1/xyz's lists are 30 KB; an hour at 30 Hz about 2 MB.
+  auto text = read_input_file(path, "list", size_t{256} << 20);
+  if (!text) return text.status();
+  std::istringstream in(*text);
   std::vector<ListEntry> out;
   std::string line;
   size_t n = 0;
@@ -73,49 +76,14 @@ long nearest(const std::vector<ListEntry>& v, double t, double max_dt) {
   return best;
 }
 
-// A PNG's width and height, from its IHDR chunk (the first after the signature), without decoding.
-Result<std::pair<int, int>> png_size(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return not_found("missing image " + path);
-  unsigned char h[24];
-  static const unsigned char kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
-  if (!in.read(reinterpret_cast<char*>(h), sizeof h) || std::memcmp(h, kSignature, 8) != 0 ||
-      std::memcmp(h + 12, "IHDR", 4) != 0)
-    return corrupt("cannot decode " + path + ": not a PNG");
-  auto be32 = [](const unsigned char* p) {
-    return (uint32_t{p[0]} << 24) | (uint32_t{p[1]} << 16) | (uint32_t{p[2]} << 8) | p[3];
-  };
-  const uint32_t w = be32(h + 16), ht = be32(h + 20);
-  if (w == 0 || ht == 0 || w > INT32_MAX || ht > INT32_MAX)
-    return corrupt(path + ": PNG size " + std::to_string(w) + "x" + std::to_string(ht) + " is invalid");
-  return std::make_pair(static_cast<int>(w), static_cast<int>(ht));
-}
-
-// Decodes a PNG no larger than max_width x max_height: the size its header declares is checked
-// first, so that a small file claiming a huge image is refused before OpenCV allocates for it.
-Result<cv::Mat> read_png(const std::string& path, int flags, int max_width, int max_height) {
-  auto size = png_size(path);
-  if (!size) return size.status();
-  if (size->first > max_width || size->second > max_height)
-    return corrupt(path + " declares " + std::to_string(size->first) + "x" +
-                   std::to_string(size->second) + " pixels, more than the " +
-                   std::to_string(max_width) + "x" + std::to_string(max_height) + " expected");
-  cv::Mat img;
-  try {
-    img = cv::imread(path, flags);
-  } catch (const cv::Exception& e) {
-    return corrupt("cannot decode " + path + ": " + e.what());
-  }
-  if (img.empty()) return corrupt("cannot decode " + path + " (corrupt or not an image)");
-  return img;
-}
-
 }  // namespace
 
 Result<CameraFile> read_camera_file(const std::string& path) {
+  auto text = read_input_file(path, "camera file", size_t{1} << 20);
+  if (!text) return text.status();
   toml::table t;
   try {
-    t = toml::parse_file(path);
+    t = toml::parse(*text, path);
   } catch (const toml::parse_error& e) {
     std::ostringstream m;
     m << path << ":" << e.source().begin.line << ": " << e.description();
@@ -243,8 +211,9 @@ Result<std::unique_ptr<TumSource>> TumSource::open(const std::string& folder,
     src->intrinsics_origin_ = "camera.toml";
     distortion = cam->distortion;
   } else {
-    auto first = read_png(src->entries_.front().depth_path, cv::IMREAD_UNCHANGED,
-                          kMaxUncalibratedSide, kMaxUncalibratedSide);
+    auto file = read_image_file(src->entries_.front().depth_path);
+    if (!file) return file.status();
+    auto first = decode_depth_image(*file, kMaxUncalibratedSide, kMaxUncalibratedSide);
     if (!first) return first.status();
     const int w = first->cols, h = first->rows;
     if (w == 640 && h == 480) {
@@ -278,10 +247,10 @@ Result<std::unique_ptr<TumSource>> TumSource::open(const std::string& folder,
 Result<Frame> TumSource::load(size_t i) const {
   if (i >= entries_.size()) return end_of_stream();
   const Entry& e = entries_[i];
-  auto img = read_png(e.depth_path, cv::IMREAD_UNCHANGED, intrinsics_.width, intrinsics_.height);
+  auto file = read_image_file(e.depth_path);
+  if (!file) return file.status();
+  auto img = decode_depth_image(*file, intrinsics_.width, intrinsics_.height);
   if (!img) return img.status();
-  if (img->type() != CV_16UC1)
-    return corrupt(e.depth_path + ": depth must be a 16-bit single-channel PNG");
   if (img->cols != intrinsics_.width || img->rows != intrinsics_.height)
     return invalid_argument(e.depth_path + " is " + std::to_string(img->cols) + "x" +
                             std::to_string(img->rows) + " but the camera is " +
@@ -294,25 +263,25 @@ Result<Frame> TumSource::load(size_t i) const {
   f.intrinsics = intrinsics_;
   f.depth = DepthImage(img->cols, img->rows);
   const float inv_scale = static_cast<float>(1.0 / depth_scale_);
-  // The lookup is the camera's size (checked above), and imread's images are continuous.
+  // The lookup is the camera's size (checked above), and decoded images are continuous.
   const uint16_t* in = img->ptr<uint16_t>(0);
   const std::vector<int32_t>& from = pixel_source_;
   for (size_t i = 0; i < from.size(); ++i)
     f.depth.depth_m[i] = from[i] == Undistorter::kOutside ? 0.0f : in[from[i]] * inv_scale;
   if (!e.rgb_path.empty()) {
-    // Colour is used only where it is registered to depth pixel for pixel (the same size); other
-    // colour images are not decoded.
-    auto rgb_size = png_size(e.rgb_path);
-    if (!rgb_size) return rgb_size.status();
-    if (*rgb_size != std::make_pair(img->cols, img->rows)) {
+    // Colour (PNG or JPEG) is used only where it is registered to depth pixel for pixel (the same
+    // size); other colour images are not decoded.
+    auto rgb_file = read_image_file(e.rgb_path);
+    if (!rgb_file) return rgb_file.status();
+    if (rgb_file->width != img->cols || rgb_file->height != img->rows) {
       // Depth alone is still good: fused without colour. Said once per sequence.
       if (!warned_color_size_.exchange(true))
-        DF_LOG(Tum, Warning) << e.rgb_path << " is " << rgb_size->first << "x" << rgb_size->second
+        DF_LOG(Tum, Warning) << e.rgb_path << " is " << rgb_file->width << "x" << rgb_file->height
                              << ", its depth " << img->cols << "x" << img->rows
                              << ": colour must be registered to depth pixel for pixel; frames whose "
                                 "colour is another size are used without it";
     } else {
-      auto rgb = read_png(e.rgb_path, cv::IMREAD_COLOR, img->cols, img->rows);
+      auto rgb = decode_color_image(*rgb_file, img->cols, img->rows);
       if (!rgb) return rgb.status();
       f.color.width = rgb->cols;
       f.color.height = rgb->rows;

@@ -7,6 +7,8 @@
 #include <fstream>
 #include <sstream>
 
+#include "depthfuse/input_file.hpp"
+
 namespace depthfuse {
 
 Status write_ply(const std::string& path, const PointArrays& points, const PlyOptions& options) {
@@ -43,6 +45,7 @@ double read_scalar(const char* p, const std::string& t) {
 }  // namespace
 
 Result<PointArrays> read_ply(const std::string& path) {
+  DF_RETURN_IF_ERROR(check_input_file(path, "cloud"));
   std::ifstream in(path, std::ios::binary);
   if (!in) return not_found("cannot open " + path);
   std::string line;

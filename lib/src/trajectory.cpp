@@ -5,16 +5,19 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
-#include <fstream>
 #include <sstream>
 
 #include <Eigen/Geometry>
 
+#include "depthfuse/input_file.hpp"
+
 namespace depthfuse {
 
 Result<std::vector<StampedPose>> read_tum_trajectory(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) return not_found("cannot open trajectory " + path + ": " + std::strerror(errno));
+  // An hour at 30 Hz is about 10 MB of text.
+  auto text = read_input_file(path, "trajectory", size_t{256} << 20);
+  if (!text) return text.status();
+  std::istringstream in(*text);
   std::vector<StampedPose> poses;
   std::string line;
   size_t line_no = 0;

@@ -398,7 +398,7 @@ TEST(AppConfig, OutOfRangeValuesAreErrors) {
   const std::vector<Case> cases = {
       {"fusion_daemon", "memory_budget_mib", "-5", "must be > 0, got -5"},
       {"fusion_daemon", "memory_budget_mib", "0", "must be > 0, got 0"},
-      {"fusion_daemon", "queue_capacity_frames", "0", "must be >= 1, got 0"},
+      {"fusion_daemon", "queue_capacity_frames", "0", "must be in [1, 256], got 0"},
       {"fusion_daemon", "scan_dir", "\"\"", "must not be empty"},
       {"fusion_daemon", "checkpoint_interval_s", "0.0", "must be > 0, got 0"},
       {"fusion_daemon", "evict_distance_m", "-1", "must be > 0, got -1"},
@@ -450,8 +450,20 @@ TEST(AppConfig, OutOfRangeValuesAreErrors) {
       {"capture", "kinect2_pipeline", "\"vulkan\"", "must be one of \"cpu\", \"opengl\""},
       {"capture", "kinect2_min_depth_m", "0", "must be > 0, got 0"},
       {"capture", "kinect2_stall_timeout_s", "0", "must be > 0, got 0"},
-      {"monitor", "stale_after_s", "0", "must be > 0, got 0"},
+      {"monitor", "stale_after_s", "0", "must be in (0, 600], got 0"},
       {"monitor", "publish_rate_hz", "-1", "must be > 0, got -1"},
+      // Issue 36: what a stranger's traffic reaches is bounded on both sides.
+      {"lcm", "max_clock_skew_s", "1e7", "must be in [0.1, 120], got 10000000"},
+      {"lcm", "max_clock_skew_s", "1e30", "must be in [0.1, 120], got 1e+30"},
+      {"lcm", "max_clock_skew_s", "0.01", "must be in [0.1, 120], got 0.01"},
+      {"fusion_daemon", "queue_capacity_frames", "100000", "must be in [1, 256], got 100000"},
+      {"fusion_daemon", "max_frame_width", "65535", "must be in [1, 4096], got 65535"},
+      {"fusion_daemon", "max_frame_height", "0", "must be in [1, 4096], got 0"},
+      {"fusion_daemon", "workspace_radius_m", "0", "must be in (0, 1000], got 0"},
+      {"fusion_daemon", "workspace_radius_m", "1e6", "must be in (0, 1000], got 1000000"},
+      {"fusion_daemon", "min_scan_interval_s", "1e9", "must be in [0, 3600], got 1000000000"},
+      {"monitor", "stale_after_s", "1e9", "must be in (0, 600], got 1000000000"},
+      {"map_preview", "max_bytes_per_s", "1e12", "must be in (0, 125000000], got 1e+12"},
   };
   for (const Case& c : cases) {
     const std::string text = "# a comment\n[" + c.section + "]\n" + c.key + " = " + c.value + "\n";

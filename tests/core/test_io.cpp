@@ -1,6 +1,8 @@
 // File formats and bad input: PLY, TUM trajectories, TUM folders.
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 
+#include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -8,6 +10,7 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "depthfuse/input_file.hpp"
 #include "depthfuse/ply.hpp"
 #include "depthfuse/replay/tum_source.hpp"
 #include "depthfuse/trajectory.hpp"
@@ -99,6 +102,34 @@ TEST(Ply, ImpossibleVertexCountIsReportedBeforeAllocating) {
   auto b = read_ply(d / "c.ply");
   ASSERT_TRUE(b.is_ok()) << b.status().to_string();
   EXPECT_EQ(b->size(), 3u);
+}
+
+// Issue 36: inputs are opened only when they are regular files; a FIFO (which would block the
+// open until a writer comes), a directory or a device is refused with a message naming it.
+TEST(InputFile, OnlyARegularFileIsOpened) {
+  TempDir d;
+  write_text(d / "ok.txt", "hello\n");
+  auto text = read_input_file(d / "ok.txt", "list", 100);
+  ASSERT_TRUE(text.is_ok()) << text.status().to_string();
+  EXPECT_EQ(*text, "hello\n");
+  auto large = read_input_file(d / "ok.txt", "list", 5);
+  EXPECT_EQ(large.status().message(), "list " + (d / "ok.txt") + " is 6 bytes; a list is at most 5");
+  EXPECT_EQ(read_input_file(d / "none", "list", 100).status().code(), StatusCode::kNotFound);
+
+  ASSERT_EQ(::mkfifo((d / "fifo").c_str(), 0600), 0);
+  const auto started = std::chrono::steady_clock::now();
+  for (const auto& [path, kind] : {std::pair{d / "fifo", "a FIFO"}, std::pair{d.path.string(), "a directory"},
+                                   std::pair{std::string("/dev/null"), "a character device"}}) {
+    const Status st = check_input_file(path, "cloud");
+    EXPECT_EQ(st.code(), StatusCode::kInvalidArgument);
+    EXPECT_EQ(st.message(), "cloud " + path + " is " + kind + ", not a regular file");
+    EXPECT_EQ(read_input_file(path, "trajectory", 100).status().message(),
+              "trajectory " + path + " is " + kind + ", not a regular file");
+  }
+  // The readers of each format go through it.
+  EXPECT_NE(read_ply(d / "fifo").status().message().find("is a FIFO"), std::string::npos);
+  EXPECT_NE(read_tum_trajectory(d / "fifo").status().message().find("is a FIFO"), std::string::npos);
+  EXPECT_LT(std::chrono::steady_clock::now() - started, std::chrono::seconds(5));
 }
 
 TEST(Trajectory, RoundTripAndNearest) {

@@ -64,7 +64,7 @@ class FusionPaging : public ::testing::Test {
   }
   void start(DaemonRun* run) {
     run->process = std::make_unique<Process>(
-        std::vector<std::string>{bin("depthfuse-fusion"), "--config", run->config, "--lcm", url_,
+        std::vector<std::string>{bin("depthfuse-fusion"), "--key-file", "", "--config", run->config, "--lcm", url_,
                                  "--name", run->name, "--scan-db", run->db, "--queue",
                                  std::to_string(kQueue), "--autostart", "paging"},
         run->dir + "/fusion.log");
@@ -118,7 +118,7 @@ TEST_F(FusionPaging, TinyBudgetEvictsReloadsAndGivesTheUnboundedCloud) {
   };
   ASSERT_TRUE(eventually([&] { return running(bounded) && running(unbounded); }, seconds(20)))
       << bounded.process->log() << unbounded.process->log();
-  Process capture({bin("depthfuse-capture"), "--source", kSource, "--lcm", url_, "--color", "none",
+  Process capture({bin("depthfuse-capture"), "--key-file", "", "--source", kSource, "--lcm", url_, "--color", "none",
                    "--rate", "6"},
                   dir_.file("capture.log"));
   ASSERT_TRUE(capture.wait(seconds(120))) << capture.log();

@@ -33,13 +33,13 @@ class FusionStore : public ::testing::Test {
     db_ = dir_.file("scan.db");
   }
   std::unique_ptr<Process> start_fusion(const std::string& log, std::vector<std::string> prefix = {}) {
-    std::vector<std::string> argv = {bin("depthfuse-fusion"), "--config", config_, "--lcm", url_,
+    std::vector<std::string> argv = {bin("depthfuse-fusion"), "--key-file", "", "--config", config_, "--lcm", url_,
                                      "--scan-db", db_, "--autostart", "kill-test"};
     argv.insert(argv.begin(), prefix.begin(), prefix.end());
     return std::make_unique<Process>(argv, dir_.file(log));
   }
   std::unique_ptr<Process> start_capture(const std::string& spec, std::vector<std::string> extra) {
-    std::vector<std::string> argv = {bin("depthfuse-capture"), "--source", "synthetic:" + spec,
+    std::vector<std::string> argv = {bin("depthfuse-capture"), "--key-file", "", "--source", "synthetic:" + spec,
                                      "--lcm", url_, "--color", "none"};
     argv.insert(argv.end(), extra.begin(), extra.end());
     return std::make_unique<Process>(argv, dir_.file("capture.log"));

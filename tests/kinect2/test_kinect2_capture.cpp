@@ -143,7 +143,7 @@ TEST(Kinect2Capture, WithNoKinectTheDaemonWaitsAndItsHeartbeatSaysSo) {
 
   const std::string dir = depthfuse::testing::temp_dir("k2wait");
   const auto started = std::chrono::steady_clock::now();
-  Process capture({depthfuse::testing::bin("depthfuse-capture"), "--source", "kinect2", "--lcm", url,
+  Process capture({depthfuse::testing::bin("depthfuse-capture"), "--key-file", "", "--source", "kinect2", "--lcm", url,
                    "--name", name},
                   dir + "/capture.log");
 

@@ -202,7 +202,7 @@ TEST(Kinect2SimCapture, TheCaptureDaemonPublishesTheScenesDepthOverLcm) {
   listener.start();
 
   const std::string dir = depthfuse::testing::temp_dir("k2sim");
-  depthfuse::testing::Process capture({depthfuse::testing::bin("depthfuse-capture"), "--source",
+  depthfuse::testing::Process capture({depthfuse::testing::bin("depthfuse-capture"), "--key-file", "", "--source",
                                        kSpec, "--lcm", url, "--name", name, "--linger"},
                                       dir + "/capture.log");
   // Six frames at 30 Hz, then a heartbeat that counts them.

@@ -22,14 +22,22 @@
 
 #include <gtest/gtest.h>
 
+#include "depthfuse/lcm/host_diagnosis.hpp"
 #include "depthfuse/lcm/transport.hpp"
 
 namespace depthfuse::testing {
 
 inline std::string bin(const std::string& name) { return std::string(DEPTHFUSE_BIN_DIR) + "/" + name; }
 
+// A udpm URL on this host only whose port is chosen from a number (a process id), for tests that
+// must not hear each other: ports 20000..59999, away from LCM's default 7667 and the ephemeral
+// range's usual start.
+inline std::string loopback_test_url(int seed) {
+  return lcm::udpm_url(20000 + (seed < 0 ? -seed : seed) % 40000);
+}
+
 // Each test process gets its own udpm port, so tests running side by side do not hear each other.
-inline std::string test_url() { return lcm::loopback_test_url(static_cast<int>(::getpid())); }
+inline std::string test_url() { return loopback_test_url(static_cast<int>(::getpid())); }
 
 // Fails the test with the route diagnosis when multicast cannot work on this host.
 inline void require_multicast_route(const std::string& url) {

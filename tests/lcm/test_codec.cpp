@@ -4,6 +4,7 @@
 
 #include <chrono>
 #include <cstring>
+#include <functional>
 #include <random>
 
 #include "depthfuse/color_frame_t.hpp"
@@ -160,7 +161,7 @@ TEST(DepthFrameCodec, FinerUnitKeepsTumPrecision) {
 }
 
 // A frame beyond what the receiver takes is refused on its header, before any decompression: a
-// few bytes that claim a huge image, intrinsics no camera has, or a pose hint far off.
+// few bytes that claim a huge image, or intrinsics no camera has.
 TEST(DepthFrameCodec, RefusesFramesBeyondTheLimitsBeforeDecoding) {
   depthfuse::depth_frame_t vga;
   ASSERT_TRUE(lcm::encode_depth_frame(make_frame(640, 480, 3, false), {}, &vga).is_ok());
@@ -196,10 +197,6 @@ TEST(DepthFrameCodec, RefusesFramesBeyondTheLimitsBeforeDecoding) {
   m = good;
   m.depth_unit_m = 1e-300;
   expect_refused(m, "depth_unit_m");
-  m = good;
-  m.has_pose_hint = true;
-  m.hint_position_m[0] = 1e30;
-  expect_refused(m, "pose hint");
 
   depthfuse::color_frame_t color;
   color.width = color.height = 30000;  // a 30000x30000 JPEG would decode into 2.7 GB
@@ -269,10 +266,61 @@ TEST(DepthFrameCodec, RejectsInconsistentMessages) {
   m = good;
   m.encoding = depthfuse::depth_frame_t::ENCODING_RAW_UINT16;
   expect_corrupt(m, "raw with wrong length");
+}
+
+// Issue 36: a frame with a 999 m hint was fused there, and the map's extent became 1 km. A hint
+// outside the workspace, or one that is no pose, is left out and said; the frame is kept (its
+// depth is good) as one without a hint, which tracking places.
+TEST(DepthFrameCodec, APoseHintOutsideTheWorkspaceIsLeftOutAndTheFrameKept) {
+  depthfuse::depth_frame_t good;
+  ASSERT_TRUE(lcm::encode_depth_frame(make_frame(64, 48, 4, false), {}, &good).is_ok());
+  good.has_pose_hint = true;
+  lcm::FrameLimits site;
+  site.max_pose_hint_m = 100.0;
+  auto decode = [&](const depthfuse::depth_frame_t& m, lcm::DepthFrameNotes* notes) {
+    Frame out;
+    out.T_world_cam_hint = Pose::Identity();  // whatever was there before goes
+    const Status st = lcm::decode_depth_frame(m, &out, site, nullptr, notes);
+    EXPECT_TRUE(st.is_ok()) << st.to_string();
+    EXPECT_EQ(out.depth.width, 64);
+    return out;
+  };
+  lcm::DepthFrameNotes notes;
+  auto m = good;
+  m.hint_position_m[0] = 99.0;  // inside: kept
+  Frame kept = decode(m, &notes);
+  ASSERT_TRUE(kept.T_world_cam_hint.has_value());
+  EXPECT_DOUBLE_EQ(kept.T_world_cam_hint->translation().x(), 99.0);
+  EXPECT_TRUE(notes.pose_hint_refused.empty()) << notes.pose_hint_refused;
+
+  struct Case {
+    std::string what;
+    std::function<void(depthfuse::depth_frame_t*)> spoil;
+    std::string says;
+  };
+  const std::vector<Case> cases = {
+      {"999 m", [](auto* f) { f->hint_position_m[1] = 999.0; },
+       "pose hint 999.0 m from the origin, beyond the workspace (100 m"},
+      {"1e30 m", [](auto* f) { f->hint_position_m[2] = -1e30; }, "beyond the workspace"},
+      {"NaN", [](auto* f) { f->hint_position_m[0] = std::nan(""); }, "non-finite"},
+      {"zero quaternion", [](auto* f) { for (double& q : f->hint_orientation_wxyz) q = 0; },
+       "zero quaternion"},
+  };
+  for (const Case& c : cases) {
+    m = good;
+    c.spoil(&m);
+    const Frame left = decode(m, &notes);
+    EXPECT_FALSE(left.T_world_cam_hint.has_value()) << c.what;
+    EXPECT_NE(notes.pose_hint_refused.find("depth frame " + std::to_string(m.sequence)),
+              std::string::npos)
+        << notes.pose_hint_refused;
+    EXPECT_NE(notes.pose_hint_refused.find(c.says), std::string::npos) << notes.pose_hint_refused;
+    EXPECT_NE(notes.pose_hint_refused.find("the frame is taken without it"), std::string::npos);
+  }
+  // Without notes the same frame is decoded alike.
   m = good;
-  m.has_pose_hint = true;
-  for (double& q : m.hint_orientation_wxyz) q = 0;
-  expect_corrupt(m, "zero quaternion");
+  m.hint_position_m[1] = 999.0;
+  EXPECT_FALSE(decode(m, nullptr).T_world_cam_hint.has_value());
 }
 
 TEST(ColorFrameCodec, RawAndZstdAreExactJpegIsClose) {
@@ -440,9 +488,40 @@ TEST(SequenceTracker, CountsGapsOutOfOrderAndRestarts) {
   EXPECT_EQ(t.observe(15).verdict, V::kOutOfOrder);  // a repeat
   EXPECT_EQ(t.observe(16).verdict, V::kInOrder);     // the late one did not move the reference
   EXPECT_EQ(t.observe(0).verdict, V::kOutOfOrder);   // 16 back: within the restart gap
-  EXPECT_EQ(t.observe(5000).verdict, V::kGap);
+  EXPECT_EQ(t.observe(80).lost, 63);                 // 63 ahead: within it, lost
+  const auto far = t.observe(5000);                  // far ahead: a restart, nothing lost
+  EXPECT_EQ(far.verdict, V::kRestart);
+  EXPECT_EQ(far.lost, 0);
   EXPECT_EQ(t.observe(1).verdict, V::kRestart);      // far back: the sender restarted
   EXPECT_EQ(t.observe(2).verdict, V::kInOrder);
+}
+
+// Issue 36: one frame with the sequence + 2^31 made frames_lost read 2,147,484,502 for good. A jump
+// beyond the restart gap, either way, is a restart: counted as such, never as lost frames.
+TEST(SequenceTracker, AJumpOf2To31IsTwoRestartsNotTwoBillionLostFrames) {
+  lcm::SequenceTracker t;
+  lcm::ReceiveCounters counters;
+  using V = lcm::SequenceTracker::Verdict;
+  for (int64_t s = 1; s <= 100; ++s) counters.count(t.observe(s));
+  const int64_t spoofed = 100 + (int64_t{1} << 31);
+  const auto jump = t.observe(spoofed);
+  counters.count(jump);
+  EXPECT_EQ(jump.verdict, V::kRestart);
+  const auto back = t.observe(101);  // the real stream goes on
+  counters.count(back);
+  EXPECT_EQ(back.verdict, V::kRestart);
+  for (int64_t s = 102; s <= 110; ++s) {
+    const auto seen = t.observe(s);
+    counters.count(seen);
+    EXPECT_EQ(seen.verdict, V::kInOrder) << s;
+  }
+  EXPECT_EQ(counters.lost.load(), 0);
+  EXPECT_EQ(counters.sequence_restarts.load(), 2);
+  EXPECT_EQ(counters.out_of_order.load(), 0);
+  // The largest a message may carry (uint32), far ahead of a stream at 0: a restart as well.
+  lcm::SequenceTracker u;
+  u.observe(0);
+  EXPECT_EQ(u.observe(0xFFFFFFFFll).lost, 0);
 }
 
 // One spoofed frame far ahead does not make the real stream late: three real frames in a row and

@@ -166,7 +166,7 @@ class LiveAppliance : public ::testing::Test {
     return std::make_unique<Process>(std::move(argv), dir_ + "/" + tag + ".log");
   }
   std::unique_ptr<Process> start_fusion(std::vector<std::string> extra = {}) {
-    std::vector<std::string> argv = {bin("depthfuse-fusion"), "--lcm", url_, "--scan-dir",
+    std::vector<std::string> argv = {bin("depthfuse-fusion"), "--key-file", "", "--lcm", url_, "--scan-dir",
                                      dir_ + "/scans"};
     argv.insert(argv.end(), extra.begin(), extra.end());
     auto p = start("fusion", argv);
@@ -175,13 +175,13 @@ class LiveAppliance : public ::testing::Test {
     return p;
   }
   std::unique_ptr<Process> start_capture(const std::string& source, std::vector<std::string> extra = {}) {
-    std::vector<std::string> argv = {bin("depthfuse-capture"), "--source", source, "--lcm", url_};
+    std::vector<std::string> argv = {bin("depthfuse-capture"), "--key-file", "", "--source", source, "--lcm", url_};
     argv.insert(argv.end(), extra.begin(), extra.end());
     return start("capture", argv);
   }
   // `depthfuse scan ...`; returns the exit code, output in *out.
   int scan(std::vector<std::string> args, std::string* out = nullptr) {
-    std::vector<std::string> argv = {bin("depthfuse"), "scan"};
+    std::vector<std::string> argv = {bin("depthfuse"), "scan", "--key-file", ""};
     argv.insert(argv.end(), args.begin(), args.end());
     argv.push_back("--lcm");
     argv.push_back(url_);
@@ -203,7 +203,7 @@ class LiveAppliance : public ::testing::Test {
 TEST_F(LiveAppliance, CaptureFusionMonitorEndToEnd) {
   constexpr int kFrames = 12;
   const std::string spec = "corner?frames=12&seed=3&pose_noise_m=0.01&pose_noise_deg=0.5";
-  auto monitor = start("monitor", {bin("depthfuse-monitor"), "--lcm", url_, "--stale-after", "2"});
+  auto monitor = start("monitor", {bin("depthfuse-monitor"), "--key-file", "", "--lcm", url_, "--stale-after", "2"});
   auto fusion = start_fusion({"--queue", "64"});
   std::string out;
   ASSERT_EQ(scan({"start", "e2e"}, &out), 0) << out;
@@ -249,11 +249,25 @@ TEST_F(LiveAppliance, CaptureFusionMonitorEndToEnd) {
 
   // `depthfuse status --json` prints the same from the CLI.
   std::string json;
-  ASSERT_EQ(run_command({bin("depthfuse"), "status", "--json", "--lcm", url_}, dir_ + "/status.log", &json), 0)
+  ASSERT_EQ(run_command({bin("depthfuse"), "status", "--key-file", "", "--json", "--lcm", url_},
+                        dir_ + "/status.log", &json),
+            0)
       << json;
   EXPECT_NE(json.find("\"name\": \"fusion\", \"alive\": true"), std::string::npos) << json;
   EXPECT_NE(json.find("\"point_count\": " + std::to_string(hb.point_count)), std::string::npos) << json;
   EXPECT_NE(json.find("\"name\": \"capture\", \"alive\": false"), std::string::npos) << json;
+  // A rig without a key says so (issue 36), in the JSON and in the table.
+  EXPECT_NE(json.find("\"unsigned_daemons\": [\"capture\", \"fusion\", \"monitor\"]"),
+            std::string::npos)
+      << json;
+  std::string table;
+  ASSERT_EQ(run_command({bin("depthfuse"), "status", "--key-file", "", "--lcm", url_},
+                        dir_ + "/status-table.log", &table),
+            0)
+      << table;
+  EXPECT_NE(table.find("NO RIG KEY: capture, fusion, monitor sign and check nothing"),
+            std::string::npos)
+      << table;
 
   // One refined pose per frame, published with its registration figures.
   const auto poses = observer_->poses();
@@ -366,7 +380,7 @@ depthfuse::depth_frame_t small_frame(int64_t sequence) {
 }
 
 TEST_F(LiveAppliance, OverloadDropsTheOldestFramesAndCountsThem) {
-  auto monitor = start("monitor", {bin("depthfuse-monitor"), "--lcm", url_});
+  auto monitor = start("monitor", {bin("depthfuse-monitor"), "--key-file", "", "--lcm", url_});
   auto fusion = start_fusion({"--queue", "1", "--autostart", "overload"});
   ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.scan_id == "overload"; },
                                         seconds(10)));
@@ -499,7 +513,7 @@ TEST_F(LiveAppliance, CommandsTakeEffect) {
 // Small valid frames for the robustness test: a wall 1.5 m in front of a 64x48 camera.
 
 TEST_F(LiveAppliance, HostileInputIsCountedAndSurvived) {
-  auto monitor = start("monitor", {bin("depthfuse-monitor"), "--lcm", url_});
+  auto monitor = start("monitor", {bin("depthfuse-monitor"), "--key-file", "", "--lcm", url_});
   auto fusion = start_fusion({"--autostart", "robust", "--queue", "64"});
   ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.scan_id == "robust"; },
                                         seconds(10)));
@@ -585,6 +599,47 @@ TEST_F(LiveAppliance, HostileInputIsCountedAndSurvived) {
            f->last.frames_out_of_order == 1;
   }, seconds(5)));
   EXPECT_TRUE(monitor->running()) << monitor->log();
+}
+
+// Issue 36, without a key: one frame with the sequence + 2^31 made frames_lost read two billion
+// for good, and a frame hinted at 999 m was fused there (the map 1 km wide). The jump and the way
+// back are restarts, nothing lost; the far hint is left out and counted, its frame tracked near the
+// others.
+TEST_F(LiveAppliance, ASequenceJumpAndAFarPoseHintPoisonNothing) {
+  auto fusion = start_fusion({"--autostart", "bounds", "--queue", "64"});
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.scan_id == "bounds"; },
+                                        seconds(10)));
+  std::vector<depthfuse::depth_frame_t> frames = {small_frame(10), small_frame(11),
+                                                  small_frame(11 + (int64_t{1} << 31)),
+                                                  small_frame(12), small_frame(13), small_frame(14)};
+  frames[3].hint_position_m[0] = 999.0;
+  for (const auto& msg : frames) {
+    ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kDepthChannel, msg).is_ok());
+    std::this_thread::sleep_for(milliseconds(20));
+  }
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) {
+    return hb.frames_in == 6 && hb.queue_depth == 0;
+  }, seconds(60))) << fusion->log();
+  const auto hb = *observer_->heartbeat("fusion");
+  EXPECT_EQ(daemon::counter_value(hb, "pose_hints_refused"), 1);
+  EXPECT_EQ(hb.frames_lost, 0);
+  EXPECT_EQ(hb.frames_out_of_order, 0);
+  EXPECT_EQ(daemon::counter_value(hb, "sequence_restarts"), 2);
+  EXPECT_EQ(hb.messages_malformed, 0);
+  EXPECT_NE(hb.last_error.find("beyond the workspace (100 m, fusion_daemon.workspace_radius_m)"),
+            std::string::npos)
+      << hb.last_error;
+  std::string out;
+  ASSERT_EQ(scan({"stop"}, &out), 0) << out;
+  auto cloud = read_ply(dir_ + "/scans/bounds.ply");
+  ASSERT_TRUE(cloud.is_ok()) << cloud.status().to_string();
+  ASSERT_GT(cloud->size(), 0u);
+  float extent_m = 0;
+  for (size_t i = 0; i < cloud->size(); ++i)
+    extent_m = std::max(extent_m, cloud->position(i).cwiseAbs().maxCoeff());
+  std::printf("map: %zu points, at most %.2f m from the origin\n", cloud->size(), extent_m);
+  EXPECT_LT(extent_m, 5.0f) << "a point of the map lies " << extent_m << " m from the origin";
+  EXPECT_TRUE(fusion->running()) << fusion->log();
 }
 
 // `scan new` from the network cannot fill the disk: scans start at most once per
@@ -677,7 +732,7 @@ TEST_F(LiveAppliance, FusionBudgetsThePerFrameWorkAndRefusesABudgetItFills) {
   const std::string config = dir_ + "/small-budget.toml";
   std::ofstream(config) << "[fusion_daemon]\nmemory_budget_mib = 40.0\n";
   std::string out;
-  EXPECT_EQ(run_command({bin("depthfuse-fusion"), "--config", config, "--lcm", url_, "--queue", "100"},
+  EXPECT_EQ(run_command({bin("depthfuse-fusion"), "--key-file", "", "--config", config, "--lcm", url_, "--queue", "100"},
                         dir_ + "/small-budget.log", &out),
             2);
   EXPECT_NE(out.find("memory_budget_mib = 40.0 leaves the map nothing"), std::string::npos) << out;
@@ -698,7 +753,7 @@ depthfuse::heartbeat_t stranger_heartbeat(const std::string& name, const std::st
 // goes to a new name, and a heartbeat too large to be real is refused before it is decoded
 // (issue 22: 70 forged names filled the 64-slot table for good; 1 MB heartbeats were relayed).
 TEST_F(LiveAppliance, ForgedHeartbeatsAreBoundedPerHostAndExpire) {
-  auto monitor = start("monitor", {bin("depthfuse-monitor"), "--lcm", url_, "--stale-after", "1",
+  auto monitor = start("monitor", {bin("depthfuse-monitor"), "--key-file", "", "--lcm", url_, "--stale-after", "1",
                                    "--rate", "10"});
   auto send = [&](const std::string& name, const std::string& host, size_t error_bytes = 0) {
     depthfuse::heartbeat_t hb = stranger_heartbeat(name, host);
@@ -744,9 +799,12 @@ TEST_F(LiveAppliance, ForgedHeartbeatsAreBoundedPerHostAndExpire) {
 // With a rig key, what a stranger sends is dropped before it is decoded, and counted: a spoofed
 // frame neither blinds fusion nor counts as lost, and a command needs the key (the operator token).
 TEST_F(LiveAppliance, WithARigKeyOnlySignedMessagesAreHeard) {
+  // 64 hex digits that are no byte repeated (such a key is refused as no secret).
   auto write_key = [&](const std::string& name, char digit) {
     const std::string path = dir_ + "/" + name;
-    std::ofstream(path) << std::string(64, digit) << "\n";
+    std::string hex;
+    for (int i = 0; i < 32; ++i) hex += std::string(1, digit) + "0123456789abcdef"[i % 16];
+    std::ofstream(path) << hex << "\n";
     std::filesystem::permissions(path, std::filesystem::perms::owner_read |
                                            std::filesystem::perms::owner_write);
     return path;
@@ -793,6 +851,26 @@ TEST_F(LiveAppliance, WithARigKeyOnlySignedMessagesAreHeard) {
   EXPECT_EQ(observer_->heartbeat("fusion")->scan_id, "keyed");
   ASSERT_EQ(scan({"checkpoint", "--key-file", key}, &out), 0) << out;
   EXPECT_TRUE(fusion->running()) << fusion->log();
+  // Every daemon has the key: the status says nothing of an open bus.
+  ASSERT_EQ(run_command({bin("depthfuse"), "status", "--key-file", key, "--lcm", url_},
+                        dir_ + "/status-table.log", &out),
+            0)
+      << out;
+  EXPECT_EQ(out.find("NO RIG KEY"), std::string::npos) << out;
+  ASSERT_EQ(run_command({bin("depthfuse"), "status", "--json", "--key-file", key, "--lcm", url_},
+                        dir_ + "/status-json.log", &out),
+            0)
+      << out;
+  EXPECT_NE(out.find("\"unsigned_daemons\": []"), std::string::npos) << out;
+  // A key file that is named but missing is an error at start, not an open bus (issue 36).
+  const std::string missing = dir_ + "/missing.key";
+  EXPECT_EQ(run_command({bin("depthfuse-capture"), "--lcm", url_, "--key-file", missing},
+                        dir_ + "/capture-missing-key.log", &out),
+            1)
+      << out;
+  EXPECT_NE(out.find("rig key " + missing + ": No such file or directory; make one with"),
+            std::string::npos)
+      << out;
 
   // A dead daemon stays dead on the keyed monitor, whoever sends heartbeats in its name.
   const std::string host = observer_->heartbeat("fusion")->host;
@@ -976,8 +1054,9 @@ TEST_F(LiveAppliance, DaemonsNotifySystemd) {
   ::setenv("NOTIFY_SOCKET", sock_path.c_str(), 1);
   ::setenv("WATCHDOG_USEC", "1000000", 1);  // pet at least every 0.5 s
   std::vector<std::unique_ptr<Process>> daemons;
-  daemons.push_back(start("monitor", {bin("depthfuse-monitor"), "--lcm", url_}));
-  daemons.push_back(start("fusion", {bin("depthfuse-fusion"), "--lcm", url_, "--scan-dir", dir_ + "/scans"}));
+  daemons.push_back(start("monitor", {bin("depthfuse-monitor"), "--key-file", "", "--lcm", url_}));
+  daemons.push_back(start("fusion", {bin("depthfuse-fusion"), "--key-file", "", "--lcm", url_,
+                                     "--scan-dir", dir_ + "/scans"}));
   daemons.push_back(start_capture("synthetic:corner?frames=50", {"--rate", "5", "--loop", "--color", "none"}));
   ::unsetenv("NOTIFY_SOCKET");
   ::unsetenv("WATCHDOG_USEC");
@@ -1018,7 +1097,7 @@ TEST_F(LiveAppliance, DaemonsNotifySystemd) {
 // A remote tool needs only Python 3 and the generated bindings: tools/lcm/watch.py reads the status
 // (one datagram) and full-size raw depth frames (LCM fragments) off the wire and decodes them.
 TEST_F(LiveAppliance, PythonWatcherReadsTheChannels) {
-  auto monitor = start("monitor", {bin("depthfuse-monitor"), "--lcm", url_});
+  auto monitor = start("monitor", {bin("depthfuse-monitor"), "--key-file", "", "--lcm", url_});
   auto capture = start_capture("synthetic:corner?frames=20",
                                {"--rate", "10", "--loop", "--depth-encoding", "raw", "--color", "none"});
   const std::string watch = DEPTHFUSE_TEST_DIR "/../../tools/lcm/watch.py";

@@ -121,25 +121,46 @@ TEST(RigKey, LoadsAKeyFileAndNamesWhatIsWrongWithABadOne) {
     ::chmod(path.c_str(), mode);
     return path;
   };
-  const std::string hex(64, 'a');
+  auto refusal = [](const Result<RigKey>& r) { return r.is_ok() ? "" : r.status().message(); };
+  std::string hex;
+  for (int i = 0; i < 32; ++i) hex += "a" + std::string(1, "0123456789abcdef"[i % 16]);
   auto good = RigKey::load(write("good", "  " + hex + "\n", 0640));
   ASSERT_TRUE(good.is_ok()) << good.status().to_string();
-  EXPECT_EQ(good->bytes()[0], 0xaa);
+  EXPECT_EQ(good->bytes()[0], 0xa0);
+  EXPECT_EQ(good->bytes()[31], 0xaf);
   EXPECT_EQ(good->fingerprint().size(), 16u);
   EXPECT_NE(good->fingerprint(), key_of(0).fingerprint());
 
+  // Missing: not_found, with the command that makes one.
   auto missing = RigKey::load(dir + "/none");
   EXPECT_EQ(missing.status().code(), StatusCode::kNotFound);
-  auto everyone = RigKey::load(write("everyone", hex, 0644));
-  ASSERT_FALSE(everyone.is_ok());
-  EXPECT_NE(everyone.status().message().find("readable by every user"), std::string::npos);
-  for (const std::string& bad : {std::string(63, 'a'), std::string(65, 'a'),
-                                 std::string(62, 'a') + "zz", std::string()}) {
-    auto r = RigKey::load(write("bad", bad, 0600));
-    ASSERT_FALSE(r.is_ok()) << bad;
-    EXPECT_NE(r.status().message().find("64 hexadecimal digits"), std::string::npos)
-        << r.status().to_string();
+  EXPECT_NE(refusal(missing).find("make one with: (umask 027; od"), std::string::npos)
+      << refusal(missing);
+  // Others may read or change it, or its group may change it: refused, with the fix.
+  for (const auto& [mode, why] : std::vector<std::pair<mode_t, std::string>>{
+           {0644, "readable by every user"}, {0602, "writable by every user"},
+           {0660, "writable by its group"}}) {
+    const std::string path = write("loose", hex, mode);
+    EXPECT_EQ(refusal(RigKey::load(path)),
+              "rig key " + path + " is " + why + "; restrict it with 'chmod 640 " + path + "'");
   }
+  // Not 64 hex digits.
+  for (const std::string& bad : {hex.substr(1), hex + "a", hex.substr(2) + "zz", std::string()}) {
+    auto r = RigKey::load(write("bad", bad, 0600));
+    EXPECT_NE(refusal(r).find("64 hexadecimal digits"), std::string::npos) << bad << ": " << refusal(r);
+  }
+  // No secret: all zeros, or any byte repeated.
+  for (const std::string& weak : {std::string(64, '0'), std::string(64, 'a'), std::string(64, '3')}) {
+    auto r = RigKey::load(write("weak", weak, 0600));
+    EXPECT_NE(refusal(r).find("is one byte repeated (" + weak.substr(0, 2) + "), no secret"),
+              std::string::npos)
+        << refusal(r);
+  }
+  // Not a regular file: refused before it is opened (a FIFO would block the open).
+  const std::string fifo = dir + "/fifo";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  EXPECT_EQ(refusal(RigKey::load(fifo)), "rig key " + fifo + " is a FIFO, not a regular file");
+  EXPECT_EQ(refusal(RigKey::load(dir)), "rig key " + dir + " is a directory, not a regular file");
 }
 
 // A transport on `url` that verifies with `key` when one is given.

@@ -156,7 +156,7 @@ TEST(LcmTransport, MissingMulticastRouteIsExplained) {
   const int rc = run_command(
       {"/usr/bin/unshare", "-n", "/bin/sh", "-c",
        "ip link set lo up; exec " + bin("depthfuse-capture") +
-           " --source synthetic:corner?frames=2 --lcm '" + test_url() + "'"},
+           " --key-file '' --source synthetic:corner?frames=2 --lcm '" + test_url() + "'"},
       dir + "/capture.log", &out);
   EXPECT_EQ(rc, 1) << out;
   EXPECT_NE(out.find("no route to the LCM multicast group 239.255.76.67"), std::string::npos) << out;
@@ -167,7 +167,8 @@ TEST(LcmTransport, MissingMulticastRouteIsExplained) {
   const int fixed = run_command(
       {"/usr/bin/unshare", "-n", "/bin/sh", "-c",
        "ip link set lo up && " DEPTHFUSE_TEST_DIR "/../../tools/lcm/route add && exec " +
-           bin("depthfuse-capture") + " --source synthetic:corner?frames=2 --rate max --lcm '" +
+           bin("depthfuse-capture") +
+           " --key-file '' --source synthetic:corner?frames=2 --rate max --lcm '" +
            test_url() + "'"},
       dir + "/capture-fixed.log", &out);
   EXPECT_EQ(fixed, 0) << out;

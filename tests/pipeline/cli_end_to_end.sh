@@ -113,6 +113,29 @@ check ply-claims-4e9-vertices nonzero "declares 4000000000 vertices" "$DF" eval 
 printf 'this is = = not toml\n' > "$T/bad.toml"
 check garbage-config nonzero "bad.toml" "$DF" reconstruct "$T/c" --config "$T/bad.toml" -o "$T/x.ply"
 check truncated-ply nonzero "truncated" bash -c "head -c 2000 '$T/c.ply' > '$T/t.ply' && '$DF' eval '$T/c' '$T/t.ply'"
+# Inputs that are not regular files (issue 36: a FIFO given as a scan file or an image made inspect,
+# export and reconstruct hang): each is refused, by name, before anything opens it for reading. A
+# hang would end in timeout's exit 124 without the message.
+mkfifo "$T/fifo"
+fifo_check() {  # fifo_check <name> <what is refused> <path refused> <command...>
+  local name="$1" what="$2" refused="$3"; shift 3
+  check "$name" nonzero "$what $refused is a FIFO, not a regular file" timeout 30 "$@"
+}
+fifo_check fifo-scan-inspect "scan file" "$T/fifo" "$DF" inspect "$T/fifo"
+fifo_check fifo-scan-export "scan file" "$T/fifo" "$DF" export "$T/fifo" -o "$T/x.ply"
+fifo_check fifo-poses "trajectory" "$T/fifo" "$DF" reconstruct "$T/c" --poses "$T/fifo" -o "$T/x.ply"
+fifo_check fifo-config "config" "$T/fifo" "$DF" reconstruct "$T/c" --config "$T/fifo" -o "$T/x.ply"
+fifo_check fifo-cloud "cloud" "$T/fifo" "$DF" eval "$T/c" "$T/fifo"
+fifo_check fifo-lcm-log "LCM log" "$T/fifo" "$DF" reconstruct "$T/fifo" -o "$T/x.ply"
+for file in camera.toml depth.txt "depth/$first" "rgb/$(ls "$T/c/rgb" | head -1)"; do
+  cp -r "$T/c" "$T/f"; rm "$T/f/$file"; mkfifo "$T/f/$file"
+  case "$file" in camera.toml) what="camera file" ;; depth.txt) what="list" ;; *) what="image" ;; esac
+  fifo_check "fifo-$file" "$what" "$T/f/$file" "$DF" reconstruct "$T/f" --track --iterations 0 -o "$T/x.ply"
+  rm -rf "$T/f"
+done
+check dir-as-scan nonzero "scan file $T/c is a directory, not a regular file" timeout 30 "$DF" inspect "$T/c"
+check device-as-poses nonzero "trajectory /dev/zero is a character device, not a regular file" \
+  timeout 30 "$DF" reconstruct "$T/c" --poses /dev/zero -o "$T/x.ply"
 
 echo "cli: $passes passed, $fails failed"
 exit $((fails > 0))

@@ -792,3 +792,84 @@ TEST(ScanStore, RandomDamageNeverCrashes) {
   // Most bursts land in blob payloads or b-tree pages, and they are reported.
   EXPECT_GT(detected, 40) << opened << " opened";
 }
+
+// Issue 36: a pose row of a schema-5 file whose checksum was set to NULL and whose pose was moved
+// passed `inspect` as "written before schema 3". Only rows older than the checksum column (what
+// the migration recorded, here none) may lack one: a later row without one is damage, for poses,
+// keyframes and checkpoints alike. The file is edited by the sqlite3 program; the check is the
+// CLI's.
+TEST(ScanStore, ANullChecksumInARowThatMustHaveOneIsDamage) {
+  TempDir dir;
+  const std::string path = dir.file("s.db");
+  {
+    auto s = open_or_die(path, OpenMode::kCreate);
+    ASSERT_TRUE(s);
+    for (uint32_t id : {1u, 2u}) ASSERT_TRUE(s->write_keyframe(some_keyframe(id)));
+    for (uint32_t last : {2u, 3u}) {
+      ASSERT_TRUE(s->begin_checkpoint());
+      for (uint32_t id = last - 1; id <= last; ++id) {
+        PoseRecord p;
+        p.frame_id = id;
+        p.T_world_cam = some_pose(0.1 * id);
+        ASSERT_TRUE(s->write_pose(p));
+      }
+      CheckpointInfo info;
+      info.last_frame_id = last;
+      info.frames_fused = last;
+      info.T_world_cam = some_pose(0.1 * last);
+      ASSERT_TRUE(s->commit_checkpoint(info));
+    }
+  }
+  const std::string cli = DEPTHFUSE_CLI;
+  auto run = [&](const std::string& command, std::string* out) {
+    const std::string log = dir.file("out.txt");
+    const int rc = std::system((command + " > " + log + " 2>&1").c_str());
+    std::ifstream in(log);
+    out->assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+    return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+  };
+  std::string out;
+  ASSERT_EQ(run(cli + " inspect " + path, &out), 0) << out;
+
+  struct Case {
+    const char* what;
+    const char* sql;
+    const char* says;
+  };
+  const Case cases[] = {
+      {"a pose moved, its checksum cleared",
+       "UPDATE poses SET checksum = NULL, T_world_cam = (SELECT T_world_cam FROM poses WHERE "
+       "frame_id = 1) WHERE frame_id = 2;",
+       "pose of frame 2 has no checksum, though every pose from frame 1 on carries one "
+       "(schema 3): the row was altered or damaged"},
+      {"a keyframe's checksum cleared", "UPDATE keyframes SET checksum = NULL WHERE frame_id = 2;",
+       "keyframe 2 has no checksum, though every keyframe from frame 1 on carries one (schema 4)"},
+      {"a checkpoint's checksum cleared", "UPDATE checkpoints SET checksum = NULL WHERE id = 1;",
+       "checkpoint 1 has no checksum, though every checkpoint from id 1 on carries one"},
+      // A file from before the migrations recorded where checksums start: the first row that
+      // has one says it.
+      {"the same pose in a file that does not record where checksums start",
+       "DELETE FROM meta WHERE key LIKE '%checksums_from%'; UPDATE poses SET checksum = NULL "
+       "WHERE frame_id = 2;",
+       "pose of frame 2 has no checksum, though every pose from frame 1 on carries one"},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.what);
+    const std::string bad = dir.file("bad.db");
+    std::filesystem::remove(bad);
+    std::filesystem::copy_file(path, bad);
+    ASSERT_EQ(run("sqlite3 " + bad + " \"" + c.sql + "\"", &out), 0) << out;
+    EXPECT_EQ(run(cli + " inspect " + bad, &out), 1) << out;
+    EXPECT_NE(out.find(bad + ": " + c.says), std::string::npos) << out;
+  }
+  // Rows older than the checksum (here: as a migration from schema 2 would have recorded it) are
+  // unchecked, not damage.
+  const std::string old = dir.file("old.db");
+  std::filesystem::copy_file(path, old);
+  ASSERT_EQ(run("sqlite3 " + old + " \"UPDATE poses SET checksum = NULL WHERE frame_id <= 2; "
+                "UPDATE meta SET value = '3' WHERE key = 'pose_checksums_from_frame';\"", &out),
+            0)
+      << out;
+  EXPECT_EQ(run(cli + " inspect " + old, &out), 0) << out;
+  EXPECT_NE(out.find("2 unchecked (written before schema 3"), std::string::npos) << out;
+}

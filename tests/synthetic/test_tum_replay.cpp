@@ -1,15 +1,20 @@
 // A written synthetic folder replays like recorded data through the TUM replay driver: same depth
 // (within the PNG's 0.2 mm step), colour, intrinsics (camera.toml) and pose hints.
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <iomanip>
 #include <optional>
 #include <sstream>
 #include <string>
 #include <vector>
+
+#include <opencv2/imgcodecs.hpp>
 
 #include "depthfuse/replay/tum_source.hpp"
 #include "depthfuse/synthetic/tum_writer.hpp"
@@ -51,6 +56,110 @@ TEST(TumReplay, WrittenFolderReplaysAsRecordedData) {
     EXPECT_EQ(f->color.rgb, expected.color.rgb);
     ASSERT_TRUE(f->T_world_cam_hint.has_value());
     EXPECT_TRUE(f->T_world_cam_hint->isApprox(seq->T_world_cam_perturbed(i), 1e-7));
+  }
+}
+
+// Issue 36: a TUM folder whose colour images are JPEG (as many RGB-D datasets ship them) stopped
+// the replay at the first one. JPEG colour is read like PNG colour (within JPEG's loss).
+TEST(TumReplay, JpegColourIsReadLikeThePng) {
+  testing::TempDir dir;
+  SyntheticConfig c;
+  c.scene = SceneKind::kCorner;
+  c.frames = 2;
+  auto seq = SyntheticSequence::create(c);
+  ASSERT_TRUE(seq.is_ok());
+  const std::string folder = (dir.path() / "corner").string();
+  ASSERT_TRUE(write_tum_folder(*seq, folder).is_ok());
+  // Every colour PNG becomes a JPEG, and the list names the JPEGs.
+  std::ifstream list_in(folder + "/rgb.txt");
+  std::stringstream list;
+  std::string line;
+  while (std::getline(list_in, line)) {
+    const size_t png = line.rfind(".png");
+    if (line.empty() || line[0] == '#' || png == std::string::npos) {
+      list << line << "\n";
+      continue;
+    }
+    const std::string name = line.substr(line.find(' ') + 1);
+    const std::string jpeg = name.substr(0, name.size() - 4) + ".jpg";
+    const cv::Mat image = cv::imread(folder + "/" + name, cv::IMREAD_COLOR);
+    ASSERT_FALSE(image.empty()) << name;
+    ASSERT_TRUE(cv::imwrite(folder + "/" + jpeg, image, {cv::IMWRITE_JPEG_QUALITY, 95}));
+    std::filesystem::remove(folder + "/" + name);
+    list << line.substr(0, line.find(' ') + 1) << jpeg << "\n";
+  }
+  list_in.close();
+  std::ofstream(folder + "/rgb.txt") << list.str();
+
+  auto src = replay::TumSource::open(folder, {});
+  ASSERT_TRUE(src.is_ok()) << src.status().to_string();
+  for (size_t i = 0; i < 2; ++i) {
+    auto f = (*src)->next();
+    ASSERT_TRUE(f.is_ok()) << f.status().to_string();
+    const Frame expected = seq->render(i);
+    ASSERT_EQ(f->color.width, expected.color.width);
+    ASSERT_EQ(f->color.rgb.size(), expected.color.rgb.size());
+    double sum = 0;
+    for (size_t k = 0; k < expected.color.rgb.size(); ++k)
+      sum += std::abs(int{f->color.rgb[k]} - int{expected.color.rgb[k]});
+    // Channels in the right order and places: JPEG at quality 95 is off by a level or two.
+    EXPECT_LT(sum / expected.color.rgb.size(), 3.0);
+  }
+  // A JPEG that is not one is named; the depth frame is not taken without a word.
+  const std::string first = folder + "/rgb/" +
+                            std::filesystem::directory_iterator(folder + "/rgb")->path().filename().string();
+  std::ofstream(first, std::ios::binary) << std::string("\xFF\xD8\xFF\xE0 broken", 11);
+  auto broken = replay::TumSource::open(folder, {});
+  ASSERT_TRUE(broken.is_ok()) << broken.status().to_string();
+  Status st = Status::ok();
+  for (size_t i = 0; i < 2 && st.is_ok(); ++i) st = (*broken)->load(i).status();
+  EXPECT_EQ(st.code(), StatusCode::kCorrupt) << st.to_string();
+  EXPECT_NE(st.message().find("cannot decode " + first), std::string::npos) << st.message();
+}
+
+// Issue 36: a FIFO given as an input file made the replay hang on opening it. Every file of a
+// folder is refused unless it is a regular file, before it is opened for reading.
+TEST(TumReplay, InputsThatAreNotRegularFilesAreRefused) {
+  testing::TempDir dir;
+  SyntheticConfig c;
+  c.scene = SceneKind::kCorner;
+  c.frames = 2;
+  auto seq = SyntheticSequence::create(c);
+  ASSERT_TRUE(seq.is_ok());
+  const std::string clean = (dir.path() / "clean").string();
+  ASSERT_TRUE(write_tum_folder(*seq, clean).is_ok());
+  auto first_in = [](const std::string& folder, const std::string& sub) {
+    std::vector<std::string> names;
+    for (const auto& e : std::filesystem::directory_iterator(folder + "/" + sub))
+      names.push_back(e.path().filename().string());
+    std::sort(names.begin(), names.end());
+    return sub + "/" + names.front();
+  };
+  for (const std::string& file : {std::string("depth.txt"), std::string("rgb.txt"),
+                                  std::string("camera.toml"), std::string("groundtruth.txt"),
+                                  first_in(clean, "depth"), first_in(clean, "rgb")}) {
+    for (const bool fifo : {true, false}) {
+      SCOPED_TRACE(file);
+      const std::string folder = (dir.path() / "bad").string();
+      std::filesystem::remove_all(folder);
+      std::filesystem::copy(clean, folder, std::filesystem::copy_options::recursive);
+      const std::string path = folder + "/" + file;
+      std::filesystem::remove(path);
+      if (fifo)
+        ASSERT_EQ(::mkfifo(path.c_str(), 0600), 0);
+      else
+        std::filesystem::create_directory(path);
+      replay::TumReplayConfig rc;
+      rc.use_groundtruth = true;
+      Status st = Status::ok();
+      auto src = replay::TumSource::open(folder, rc);
+      st = src.status();
+      for (size_t i = 0; src && i < 2 && st.is_ok(); ++i) st = (*src)->load(i).status();
+      EXPECT_NE(st.message().find(path + " is " + (fifo ? "a FIFO" : "a directory") +
+                                  ", not a regular file"),
+                std::string::npos)
+          << st.to_string();
+    }
   }
 }
 

@@ -117,10 +117,10 @@ TEST(MapPreviewLive, CapHeldUnderAFastScanAndALateJoinerGetsASnapshot) {
   });
   listener.start();
 
-  Process fusion({bin("depthfuse-fusion"), "--lcm", url, "--config", dir + "/depthfuse.toml",
+  Process fusion({bin("depthfuse-fusion"), "--key-file", "", "--lcm", url, "--config", dir + "/depthfuse.toml",
                   "--scan-dir", dir + "/scans", "--autostart", "preview"},
                  dir + "/fusion.log");
-  Process capture({bin("depthfuse-capture"), "--lcm", url, "--source", "synthetic:room",
+  Process capture({bin("depthfuse-capture"), "--key-file", "", "--lcm", url, "--source", "synthetic:room",
                    "--rate", "max", "--loop", "--color", "none"},
                   dir + "/capture.log");
   auto count = [&](auto pred) {

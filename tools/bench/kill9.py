@@ -130,7 +130,7 @@ class Mode:
 
     def start(self, log):
         out = open(log, "w")
-        self.proc = subprocess.Popen([self.fusion, "--config", self.cfg, "--lcm", self.args.lcm,
+        self.proc = subprocess.Popen([self.fusion, "--config", self.cfg, "--lcm", self.args.lcm, "--key-file", "",
                                       "--scan-db", self.db, "--autostart", "k9"],
                                      stdout=out, stderr=subprocess.STDOUT)
         return self.proc
@@ -256,7 +256,7 @@ def main():
     watcher = Watcher(args.lcm, args.python_dir)
     capture = subprocess.Popen(
         [os.path.join(args.bin, "depthfuse-capture"), "--source", "synthetic:%s?frames=600" % args.scene,
-         "--rate", "30", "--loop", "--lcm", args.lcm, "--color", "none"],
+         "--rate", "30", "--loop", "--lcm", args.lcm, "--key-file", "", "--color", "none"],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     modes = [Mode("log %gs/%gs" % (args.log_interval_s, args.checkpoint_interval_s), args.bin,
                   args.checkpoint_interval_s, args, args.kills, log_interval_s=args.log_interval_s),

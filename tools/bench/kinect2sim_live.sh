@@ -49,11 +49,11 @@ cpu_s() { awk -v hz="$(getconf CLK_TCK)" '{ sub(/^.*\) /, ""); print ($12 + $13)
 
 run() {
   local tag="$1" source="$2"
-  "$bin/depthfuse-fusion" --lcm "$lcm_url" "${config_args[@]}" --scan-dir "$work/scans-$tag" \
+  "$bin/depthfuse-fusion" --lcm "$lcm_url" --key-file "" "${config_args[@]}" --scan-dir "$work/scans-$tag" \
     --autostart "$tag" >"$work/fusion-$tag.log" 2>&1 &
   local fusion=$!; pids+=($fusion)
   sleep 2
-  "$bin/depthfuse-capture" --lcm "$lcm_url" "${config_args[@]}" --source "$source" --rate 30 \
+  "$bin/depthfuse-capture" --lcm "$lcm_url" --key-file "" "${config_args[@]}" --source "$source" --rate 30 \
     --loop --name capture >"$work/capture-$tag.log" 2>&1 &
   local capture=$!; pids+=($capture)
   sleep "$secs"

@@ -41,21 +41,21 @@ cleanup() {
 }
 trap cleanup EXIT
 
-"$bin/depthfuse-monitor" --lcm "$lcm_url" >"$work/monitor.log" 2>&1 &
+"$bin/depthfuse-monitor" --lcm "$lcm_url" --key-file "" >"$work/monitor.log" 2>&1 &
 pids+=($!)
-"$bin/depthfuse-fusion" --lcm "$lcm_url" --scan-dir "$work/scans" --autostart long-scan \
+"$bin/depthfuse-fusion" --lcm "$lcm_url" --key-file "" --scan-dir "$work/scans" --autostart long-scan \
   >"$work/fusion.log" 2>&1 &
 fusion_pid=$!
 pids+=($fusion_pid)
 sleep 1
-"$bin/depthfuse-capture" --lcm "$lcm_url" --source "synthetic:room?frames=$frames" --rate 30 --loop \
+"$bin/depthfuse-capture" --lcm "$lcm_url" --key-file "" --source "synthetic:room?frames=$frames" --rate 30 --loop \
   >"$work/capture.log" 2>&1 &
 pids+=($!)
 
 rss_mib() { awk '/^VmRSS:/ { printf "%.1f", $2 / 1024 }' "/proc/$1/status"; }
 # "frames_out output_rate_hz" of the fusion daemon, from one status of the monitor.
 fused() {
-  "$bin/depthfuse" status --json --lcm "$lcm_url" --timeout 3 2>/dev/null |
+  "$bin/depthfuse" status --json --lcm "$lcm_url" --key-file "" --timeout 3 2>/dev/null |
     python3 -c 'import json, sys
 s = json.loads(sys.stdin.readline())
 d = [d for d in s["daemons"] if d["name"] == "fusion"]

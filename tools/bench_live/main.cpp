@@ -69,6 +69,7 @@ constexpr const char* kUsage =
     "                  [--no-hint | --hint-noise-m X]\n"
     "  --frames N   distinct frames rendered up front; the trajectory loops over them (default 300)\n"
     "  --lcm URL    default: a private loopback port, so a running appliance is not disturbed\n"
+    "  --key-file FILE  a rig key for the bench and its daemon (default: none; its bus is its own)\n"
     "  --no-hint    frames without a pose hint, as from a Kinect: the daemon tracks each frame\n"
     "               from the last frames' motion (coarse to fine)\n"
     "  --hint-noise-m X  hints off the true pose by N(0, X) m per axis (default 0: exact)\n";
@@ -125,9 +126,11 @@ int run(int argc, char** argv) {
   a.fusion = args.get("fusion", a.fusion);
   a.color = !args.has("no-color");
   a.hint = !args.has("no-hint");
-  // By default a private loopback port, so that a running appliance is not disturbed.
-  if (args.get("lcm").empty())
-    startup.config().lcm.url = lcm::loopback_test_url(static_cast<int>(::getpid()));
+  // By default a private loopback port (from 20000 on, by process id), so that a running
+  // appliance is not disturbed.
+  if (args.get("lcm").empty()) startup.config().lcm.url = lcm::udpm_url(20000 + ::getpid() % 40000);
+  // Without a rig key unless --key-file names one: the bench's bus is its own.
+  if (!args.has("key-file")) startup.config().lcm.key_file.clear();
   a.lcm_url = startup.config().lcm.url;
 
   auto spec = depthfuse::synthetic::parse_synthetic_spec(

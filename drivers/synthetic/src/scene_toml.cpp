@@ -1,9 +1,9 @@
 // Scene <-> TOML: the analytic ground truth travels with the data it describes.
-#include <fstream>
 #include <sstream>
 #include <string>
 #include <vector>
 
+#include "depthfuse/input_file.hpp"
 #include "depthfuse/synthetic/scene.hpp"
 #include "toml_util.hpp"
 
@@ -130,12 +130,10 @@ Result<Scene> Scene::parse_toml(const std::string& text, const std::string& orig
 }
 
 Result<Scene> Scene::load_toml(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return not_found("cannot open scene file '" + path + "'");
-  std::ostringstream text;
-  text << in.rdbuf();
-  if (in.bad()) return io_error("cannot read scene file '" + path + "'");
-  return parse_toml(text.str(), path);
+  // A scene is a list of primitives: kilobytes.
+  auto text = read_input_file(path, "scene file", size_t{16} << 20);
+  if (!text) return text.status();
+  return parse_toml(*text, path);
 }
 
 }  // namespace depthfuse::synthetic

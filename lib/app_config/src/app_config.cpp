@@ -3,17 +3,12 @@
 // its file, line and key, and an unknown key is an error too (a typo must not be silently ignored).
 #include "depthfuse/app_config.hpp"
 
-#include <sys/stat.h>
-
-#include <cerrno>
 #include <cmath>
 #include <exception>
-#include <fstream>
-#include <sstream>
 
 #include "app_config_reader.hpp"
 #include "app_config_trace.hpp"
-#include "depthfuse/base/errno_text.hpp"
+#include "depthfuse/input_file.hpp"
 
 namespace depthfuse {
 namespace {
@@ -33,7 +28,9 @@ using app_config_detail::StringRule;
 using app_config_detail::TableReader;
 
 // A config file is a few kilobytes; anything this large is not one.
-constexpr std::streamoff kMaxConfigBytes = 1 << 20;
+constexpr size_t kMaxConfigBytes = 1 << 20;
+// No depth sensor's image has a side this long (Kinect V2: 512 px, TUM's Kinect v1: 640).
+constexpr int kMaxFrameSidePx = 4096;
 
 // Reports `hi_key` when it does not exceed `lo_key`.
 void require_greater(TableReader& r, const char* hi_key, double hi, const char* lo_key, double lo) {
@@ -184,7 +181,11 @@ std::optional<std::string> check_lcm_url(const std::string& url) {
 void read_lcm(TableReader& r, LcmConfig* l) {
   r.read("url", &l->url, check_lcm_url);
   r.read("key_file", &l->key_file, app_config_detail::any_string());
-  r.read("max_clock_skew_s", &l->max_clock_skew_s, positive());
+  // Below 0.1 s honest messages arrive stale from a loaded host or one whose NTP is slewing; above
+  // two minutes a recorded command stays good for long, and the receivers' replay cache
+  // (message_auth.cpp: 65,536 tags for 2 x the skew) no longer holds a rig's ~100 messages a
+  // second for that long.
+  r.read("max_clock_skew_s", &l->max_clock_skew_s, closed(0.1, 120.0));
   r.reject_unknown();
 }
 
@@ -221,7 +222,9 @@ void read_capture(TableReader& r, CaptureConfig* c) {
 }
 
 void read_fusion_daemon(TableReader& r, FusionDaemonConfig* f) {
-  r.read("queue_capacity_frames", &f->queue_capacity_frames, at_least(1));
+  // What frames and commands from the bus reach is bounded here, not only by the memory budget:
+  // a queue of seconds of frames, images of a real depth sensor, a workspace of a site.
+  r.read("queue_capacity_frames", &f->queue_capacity_frames, closed(1, 256));
   r.read("scan_dir", &f->scan_dir, non_empty());
   r.read("memory_budget_mib", &f->memory_budget_mib, positive());
   r.read("evict_distance_m", &f->evict_distance_m, positive());
@@ -230,16 +233,18 @@ void read_fusion_daemon(TableReader& r, FusionDaemonConfig* f) {
   r.read("frame_log_interval_s", &f->frame_log_interval_s, non_negative());
   r.read("keyframe_every_n_frames", &f->keyframe_every_n_frames, at_least(1));
   r.read("heartbeat_rate_hz", &f->heartbeat_rate_hz, positive());
-  r.read("max_frame_width", &f->max_frame_width, at_least(1));
-  r.read("max_frame_height", &f->max_frame_height, at_least(1));
+  r.read("max_frame_width", &f->max_frame_width, closed(1, kMaxFrameSidePx));
+  r.read("max_frame_height", &f->max_frame_height, closed(1, kMaxFrameSidePx));
+  r.read("workspace_radius_m", &f->workspace_radius_m, open_closed(0.0, 1000.0));
   r.read("min_free_disk_mib", &f->min_free_disk_mib, non_negative());
-  r.read("min_scan_interval_s", &f->min_scan_interval_s, non_negative());
+  r.read("min_scan_interval_s", &f->min_scan_interval_s, closed(0.0, 3600.0));
   r.read("capture_serial", &f->capture_serial, any_string());
   r.reject_unknown();
 }
 
 void read_monitor(TableReader& r, MonitorConfig* m) {
-  r.read("stale_after_s", &m->stale_after_s, positive());
+  // A forged heartbeat keeps a dead daemon's entry for at most this: not for days.
+  r.read("stale_after_s", &m->stale_after_s, open_closed(0.0, 600.0));
   r.read("publish_rate_hz", &m->publish_rate_hz, positive());
   r.read("http", &m->http, any_string());
   r.read("http_allow_remote", &m->http_allow_remote);
@@ -251,7 +256,8 @@ void read_map_preview(TableReader& r, MapPreviewConfig* p) {
   r.read("enabled", &p->enabled);
   r.read("rate_hz", &p->rate_hz, open_closed(0.0, 30.0));
   r.read("cell_size_m", &p->cell_size_m, open_closed(0.0, 0.5));
-  r.read("max_bytes_per_s", &p->max_bytes_per_s, positive());
+  // Viewers' snapshot requests make fusion send up to this: at most a gigabit link's worth.
+  r.read("max_bytes_per_s", &p->max_bytes_per_s, open_closed(0.0, 1.25e8));
   r.read("target_uncertainty_m", &p->target_uncertainty_m, positive());
   r.read("max_points_per_delta", &p->max_points_per_delta, at_least(1000));
   r.reject_unknown();
@@ -409,25 +415,9 @@ Result<AppConfig> parse_app_config(const std::string& toml_text, const std::stri
 }
 
 Result<AppConfig> load_app_config(const std::string& path) {
-  struct stat st {};
-  if (::stat(path.c_str(), &st) != 0) {
-    const int err = errno;
-    const std::string why = errno_text(err);
-    if (err == ENOENT) return not_found("cannot read config " + path + ": " + why);
-    return io_error("cannot read config " + path + ": " + why);
-  }
-  if (!S_ISREG(st.st_mode)) return invalid_argument("config " + path + " is not a regular file");
-  if (st.st_size > kMaxConfigBytes) {
-    return invalid_argument("config " + path + " is " + std::to_string(st.st_size) +
-                            " bytes; a config file is at most " + std::to_string(kMaxConfigBytes));
-  }
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return io_error("cannot open config " + path + ": " + errno_text());
-  std::ostringstream text;
-  text << in.rdbuf();
-  if (in.bad()) return io_error("reading config " + path + " failed");
-
-  Result<AppConfig> config = parse_app_config(text.str(), path);
+  auto text = read_input_file(path, "config", kMaxConfigBytes);
+  if (!text) return text.status();
+  Result<AppConfig> config = parse_app_config(*text, path);
   if (config.is_ok()) config->source_path = path;
   return config;
 }

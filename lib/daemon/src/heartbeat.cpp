@@ -96,6 +96,14 @@ int64_t auth_refused_total(const depthfuse::heartbeat_t& hb) {
   return total;
 }
 
+std::vector<std::string> unsigned_daemons(const depthfuse::status_t& st) {
+  std::vector<std::string> names;
+  // A heartbeat without the counter says nothing either way.
+  for (const auto& d : st.daemons)
+    if (counter_value(d.last, "signed", 1) == 0) names.push_back(d.name);
+  return names;
+}
+
 const char* state_name(int8_t state) {
   switch (state) {
     case depthfuse::heartbeat_t::STATE_STARTING: return "starting";

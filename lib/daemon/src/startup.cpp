@@ -14,7 +14,8 @@ namespace {
 
 constexpr const char* kKeyFileUsage =
     "  --key-file FILE   the rig key that signs and verifies LCM messages (default: the config's\n"
-    "                    lcm.key_file, /etc/depthfuse/rig.key); \"\" for none\n";
+    "                    lcm.key_file, /etc/depthfuse/rig.key; a missing file is an error);\n"
+    "                    \"\" for none (the bus stays on this host)\n";
 constexpr const char* kLogLevelUsage =
     "  --log-level SPEC  which messages to show: debug, info, warning or error, also per part\n"
     "                    (\"warning,Capture=debug\"); default info, or $DEPTHFUSE_LOG\n";
@@ -83,7 +84,7 @@ Startup::Startup(Program program, int argc, char** argv)
   if (args_.has("lcm")) {
     // An empty URL would quietly become liblcm's default bus, another one than the rig's.
     if (args_.get("lcm").empty()) {
-      exit_code_ = usage_error("--lcm needs a URL, e.g. udpm://239.255.76.67:7667?ttl=0");
+      exit_code_ = usage_error("--lcm needs a URL, e.g. " + lcm::default_lcm_url());
       return;
     }
     config_.lcm.url = args_.get("lcm");
@@ -100,10 +101,15 @@ int Startup::usage_error(const std::string& problem) const {
 Result<std::optional<lcm::RigKey>> Startup::rig_key() const {
   const std::string& path = config_.lcm.key_file;
   if (path.empty()) return std::optional<lcm::RigKey>();
+  // A key file that is named but missing or unusable is a broken rig, not an open one: running on
+  // without a key would open the bus to anyone, unseen.
   auto loaded = lcm::RigKey::load(path);
-  if (loaded) return std::optional<lcm::RigKey>(*loaded);
-  if (loaded.status().code() == StatusCode::kNotFound) return std::optional<lcm::RigKey>();
-  return loaded.status();
+  if (!loaded)
+    return Status(loaded.status().code(),
+                  loaded.status().message() + " (lcm.key_file, --key-file; \"\" runs without "
+                                              "a key, on this host only: docs/protocol.md, "
+                                              "\"Authentication\")");
+  return std::optional<lcm::RigKey>(*loaded);
 }
 
 std::unique_ptr<lcm::LcmTransport> Startup::open_lcm() const {
@@ -116,10 +122,9 @@ std::unique_ptr<lcm::LcmTransport> Startup::open_lcm() const {
   const std::optional<lcm::RigKey>& key = *loaded;
   std::string url = config.url;
   if (!key) {
-    const std::string why = config.key_file.empty() ? "lcm.key_file is empty"
-                                                    : config.key_file + " does not exist";
-    std::string warning = "no rig key (" + why + "): LCM messages are neither signed nor "
-                          "verified, so anyone who can reach the bus can send frames and commands";
+    std::string warning = "no rig key (lcm.key_file is empty): LCM messages are neither signed "
+                          "nor verified, so anyone who can reach the bus can send frames and "
+                          "commands";
     // Unauthenticated traffic stays on this host.
     if (auto parsed = lcm::parse_lcm_url(url); parsed && parsed->ttl > 0) {
       url = lcm::url_with_ttl0(*parsed);

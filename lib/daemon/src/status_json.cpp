@@ -110,6 +110,11 @@ std::string status_json(const depthfuse::status_t& st) {
     daemons += "}";
   }
   f.raw("daemons", daemons + "]");
+  // Those without a rig key: the operator is told the bus is open (empty when every one has it).
+  std::string open = "[";
+  for (const std::string& name : unsigned_daemons(st))
+    open += (open.size() > 1 ? ", " : "") + json_string(name);
+  f.raw("unsigned_daemons", open + "]");
   return out + "}";
 }
 

@@ -31,6 +31,8 @@ SequenceTracker::Observation SequenceTracker::observe(int64_t sequence) {
   const int64_t delta = sequence - last_;
   if (delta == 1) {
     o.verdict = Verdict::kInOrder;
+  } else if (delta > restart_gap_) {
+    o.verdict = Verdict::kRestart;
   } else if (delta > 1) {
     o.verdict = Verdict::kGap;
     o.lost = delta - 1;

@@ -4,6 +4,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <limits>
 #include <optional>
@@ -249,19 +250,30 @@ Status check_depth_header(const depthfuse::depth_frame_t& msg, const FrameLimits
     return corrupt(what + ": sequence number out of range");
   if (static_cast<size_t>(msg.data_size) != msg.data.size())
     return corrupt(what + ": data_size disagrees with the data");
-  if (msg.has_pose_hint) {
-    const double* t = msg.hint_position_m;
-    if (!finite_all(t, 3) || std::sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]) > limits.max_pose_hint_m)
-      return corrupt(what + ": pose hint is more than " + std::to_string(limits.max_pose_hint_m) +
-                     " m from the origin");
-  }
   return Status::ok();
+}
+
+// The frame's pose hint, or why it is left out: not a pose, or outside the workspace.
+Result<Pose> checked_pose_hint(const depthfuse::depth_frame_t& msg, const FrameLimits& limits,
+                               const std::string& what) {
+  auto hint = pose_from_arrays(msg.hint_position_m, msg.hint_orientation_wxyz);
+  if (!hint) return hint.status().with_context(what + ": pose hint");
+  const double distance_m = hint->translation().norm();
+  if (!(distance_m <= limits.max_pose_hint_m)) {
+    char text[160];
+    std::snprintf(text, sizeof text,
+                  ": pose hint %.1f m from the origin, beyond the workspace (%g m, "
+                  "fusion_daemon.workspace_radius_m)",
+                  distance_m, limits.max_pose_hint_m);
+    return invalid_argument(what + text);
+  }
+  return hint;
 }
 
 }  // namespace
 
 Status decode_depth_frame(const depthfuse::depth_frame_t& msg, Frame* out,
-                          const FrameLimits& limits, CodecTiming* timing) {
+                          const FrameLimits& limits, CodecTiming* timing, DepthFrameNotes* notes) {
   const auto& in = msg.intrinsics;
   const std::string what = "depth frame " + std::to_string(msg.sequence);
   DF_RETURN_IF_ERROR(check_depth_header(msg, limits, what));
@@ -293,11 +305,17 @@ Status decode_depth_frame(const depthfuse::depth_frame_t& msg, Frame* out,
   } else {
     return corrupt(what + ": unknown depth encoding " + std::to_string(msg.encoding));
   }
-  Pose hint = Pose::Identity();
+  // A hint that is no pose or lies outside the workspace is left out, and the frame is taken as
+  // one without a hint: its depth is good, and tracking places it (a stranger's 999 m hint must
+  // not stretch the map, nor cost the frame).
+  std::optional<Pose> hint;
+  if (notes) notes->pose_hint_refused.clear();
   if (msg.has_pose_hint) {
-    auto p = pose_from_arrays(msg.hint_position_m, msg.hint_orientation_wxyz);
-    if (!p) return p.status().with_context(what + ": pose hint");
-    hint = *p;
+    auto p = checked_pose_hint(msg, limits, what);
+    if (p)
+      hint = *p;
+    else if (notes)
+      notes->pose_hint_refused = p.status().message() + ": the frame is taken without it";
   }
 
   t0 = Clock::now();
@@ -319,10 +337,7 @@ Status decode_depth_frame(const depthfuse::depth_frame_t& msg, Frame* out,
     const uint16_t c = static_cast<uint16_t>(bytes[2 * i] | (bytes[2 * i + 1] << 8));
     dst[i] = count_to_depth(c, unit);
   }
-  if (msg.has_pose_hint)
-    out->T_world_cam_hint = hint;
-  else
-    out->T_world_cam_hint.reset();
+  out->T_world_cam_hint = hint;
   if (timing) timing->convert_ms += ms_since(t0);
   return Status::ok();
 }

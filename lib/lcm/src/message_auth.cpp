@@ -5,13 +5,11 @@
 #include <sodium.h>
 #include <sys/stat.h>
 
+#include <algorithm>
 #include <cctype>
-#include <cerrno>
 #include <cstring>
-#include <fstream>
-#include <sstream>
 
-#include "depthfuse/base/errno_text.hpp"
+#include "depthfuse/input_file.hpp"
 
 namespace depthfuse::lcm {
 
@@ -54,27 +52,34 @@ constexpr size_t kMaxRecentTags = size_t{1} << 16;
 
 }  // namespace
 
+std::string RigKey::how_to_make(const std::string& path) {
+  return "(umask 027; od -An -tx1 -N32 /dev/urandom | tr -d ' \\n' > " + path +
+         ") && chgrp depthfuse " + path;
+}
+
 Result<RigKey> RigKey::load(const std::string& path) {
-  struct stat st {};
-  if (::stat(path.c_str(), &st) != 0)
-    return not_found("rig key " + path + ": " + errno_text(errno));
-  if (!S_ISREG(st.st_mode)) return invalid_argument("rig key " + path + ": not a regular file");
-  // Anyone who can read the key can command the rig: a key readable by every user is refused,
-  // as ssh refuses such a private key.
-  if (st.st_mode & S_IROTH)
-    return invalid_argument("rig key " + path + " is readable by every user; restrict it with "
-                            "'chmod 640 " + path + "'");
-  std::ifstream in(path);
-  if (!in) return io_error("rig key " + path + ": " + errno_text(errno));
-  std::string text;
+  auto file = InputFile::open(path, "rig key");
+  if (!file) {
+    if (file.status().code() != StatusCode::kNotFound) return file.status();
+    return not_found(file.status().message() + "; make one with: " + how_to_make(path));
+  }
+  // Anyone who can read the key can command the rig, and anyone who can change it can lock the
+  // rig's own programs out: like ssh with a private key, a key file that others may read or
+  // write is refused. Its group (the daemons') may read it.
+  const mode_t mode = file->info().st_mode;
+  const char* loose = (mode & S_IROTH)   ? "readable by every user"
+                      : (mode & S_IWOTH) ? "writable by every user"
+                      : (mode & S_IWGRP) ? "writable by its group"
+                                         : nullptr;
+  if (loose != nullptr)
+    return invalid_argument("rig key " + path + " is " + loose + "; restrict it with 'chmod 640 " +
+                            path + "'");
   // A key file is 64 digits and a newline: anything much longer is not one.
-  text.resize(256);
-  in.read(text.data(), static_cast<std::streamsize>(text.size()));
-  text.resize(static_cast<size_t>(in.gcount()));
-  if (in.bad()) return io_error("rig key " + path + ": " + errno_text(errno));
+  auto text = file->read_all(256);
+  if (!text) return text.status();
 
   std::string hex;
-  for (char c : text)
+  for (char c : *text)
     if (!std::isspace(static_cast<unsigned char>(c))) hex.push_back(c);
   RigKey key;
   size_t bin_len = 0;
@@ -83,8 +88,12 @@ Result<RigKey> RigKey::load(const std::string& path) {
                      &bin_len, nullptr) != 0 ||
       bin_len != kRigKeyBytes)
     return invalid_argument("rig key " + path + ": expected " + std::to_string(2 * kRigKeyBytes) +
-                            " hexadecimal digits (make one with: od -An -tx1 -N32 /dev/urandom "
-                            "| tr -d ' \\n' > " + path + ")");
+                            " hexadecimal digits (make one with: " + how_to_make(path) + ")");
+  // A key of one byte repeated (all zeros: a placeholder, an image's blank) is guessed at once.
+  if (std::all_of(key.bytes_.begin(), key.bytes_.end(),
+                  [&](uint8_t b) { return b == key.bytes_[0]; }))
+    return invalid_argument("rig key " + path + " is one byte repeated (" + hex.substr(0, 2) +
+                            "), no secret: make a new one with: " + how_to_make(path));
   return key;
 }
 

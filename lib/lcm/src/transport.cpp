@@ -1,21 +1,15 @@
 #include "depthfuse/lcm/transport.hpp"
 
-#include <arpa/inet.h>
-#include <netinet/in.h>
-#include <poll.h>
-#include <sys/socket.h>
-#include <unistd.h>
-
+#include <algorithm>
 #include <cerrno>
 #include <chrono>
-#include <cstdlib>
 #include <cstring>
-#include <fstream>
 #include <lcm/lcm.h>
 #include <regex.h>
 
 #include "depthfuse/base/clock.hpp"
 #include "depthfuse/base/log.hpp"
+#include "depthfuse/lcm/host_diagnosis.hpp"
 #include "udpm_socket.hpp"
 
 DF_LOG_CATEGORY(Lcm)
@@ -35,151 +29,6 @@ struct LcmTransport::Subscription {
   }
 };
 
-namespace {
-
-constexpr const char* kRouteFix =
-    "LCM's udpm transport needs a route for the multicast group. Check it with "
-    "'ip route get %s' and 'ip route show table all'; on a host where no interface carries "
-    "multicast (a bare container, a board without a network cable) add one on loopback: "
-    "'sudo ip route add 224.0.0.0/4 dev lo' (tools/lcm/route does this; docs/live.md explains "
-    "how to make it permanent)";
-
-std::string format_route_fix(const std::string& group) {
-  char text[640];
-  std::snprintf(text, sizeof(text), kRouteFix, group.c_str());
-  return text;
-}
-
-}  // namespace
-
-std::string default_lcm_url() { return "udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304"; }
-
-std::string url_with_ttl0(const LcmUrl& url) {
-  if (url.provider != "udpm" || url.ttl == 0) return url.text;
-  const auto q = url.text.find('?');
-  if (q == std::string::npos) return url.text + "?ttl=0";
-  std::string query = "&" + url.text.substr(q + 1) + "&";
-  const auto at = query.find("&ttl=");
-  if (at == std::string::npos) return url.text + "&ttl=0";
-  const auto end = query.find('&', at + 1);
-  query.replace(at, end - at, "&ttl=0");
-  return url.text.substr(0, q + 1) + query.substr(1, query.size() - 2);
-}
-
-std::string loopback_test_url(int seed) {
-  // Ports 20000..59999, away from LCM's default 7667 and the ephemeral range's usual start.
-  const int port = 20000 + (seed < 0 ? -seed : seed) % 40000;
-  return "udpm://239.255.76.67:" + std::to_string(port) + "?ttl=0&recv_buf_size=4194304";
-}
-
-Result<LcmUrl> parse_lcm_url(const std::string& url) {
-  LcmUrl out;
-  out.text = url;
-  const auto sep = url.find("://");
-  if (sep == std::string::npos || sep == 0)
-    return invalid_argument("LCM URL '" + url +
-                            "' has no provider: expected e.g. " + default_lcm_url());
-  out.provider = url.substr(0, sep);
-  if (out.provider != "udpm") return out;
-
-  std::string rest = url.substr(sep + 3);
-  std::string query;
-  if (const auto q = rest.find('?'); q != std::string::npos) {
-    query = rest.substr(q + 1);
-    rest = rest.substr(0, q);
-  }
-  std::string host = rest;
-  out.port = 7667;
-  if (const auto colon = rest.find(':'); colon != std::string::npos) {
-    host = rest.substr(0, colon);
-    const std::string port_text = rest.substr(colon + 1);
-    char* end = nullptr;
-    const long port = std::strtol(port_text.c_str(), &end, 10);
-    if (port_text.empty() || *end != '\0' || port <= 0 || port > 65535)
-      return invalid_argument("LCM URL '" + url + "': port '" + port_text +
-                              "' is not a number in 1..65535");
-    out.port = static_cast<int>(port);
-  }
-  out.multicast_group = host.empty() ? "239.255.76.67" : host;
-  in_addr addr{};
-  if (inet_pton(AF_INET, out.multicast_group.c_str(), &addr) != 1)
-    return invalid_argument("LCM URL '" + url + "': '" + out.multicast_group +
-                            "' is not an IPv4 address");
-  const uint32_t a = ntohl(addr.s_addr);
-  if ((a >> 28) != 0xE)
-    return invalid_argument("LCM URL '" + url + "': " + out.multicast_group +
-                            " is not a multicast address (224.0.0.0/4)");
-
-  size_t pos = 0;
-  while (pos <= query.size() && !query.empty()) {
-    const auto amp = query.find('&', pos);
-    const std::string kv = query.substr(pos, amp == std::string::npos ? std::string::npos : amp - pos);
-    const auto eq = kv.find('=');
-    const std::string key = kv.substr(0, eq);
-    const std::string value = eq == std::string::npos ? std::string() : kv.substr(eq + 1);
-    char* end = nullptr;
-    if (key == "ttl") {
-      const long ttl = std::strtol(value.c_str(), &end, 10);
-      if (value.empty() || *end != '\0' || ttl < 0 || ttl > 255)
-        return invalid_argument("LCM URL '" + url + "': ttl '" + value + "' is not in 0..255");
-      out.ttl = static_cast<int>(ttl);
-    } else if (key == "recv_buf_size") {
-      const long long size = std::strtoll(value.c_str(), &end, 10);
-      if (value.empty() || *end != '\0' || size <= 0)
-        return invalid_argument("LCM URL '" + url + "': recv_buf_size '" + value +
-                                "' is not a positive number of bytes");
-      out.recv_buf_size = size;
-    }
-    if (amp == std::string::npos) break;
-    pos = amp + 1;
-  }
-  return out;
-}
-
-int64_t read_rmem_max() {
-  std::ifstream in("/proc/sys/net/core/rmem_max");
-  int64_t value = -1;
-  if (!(in >> value)) return -1;
-  return value;
-}
-
-LcmDiagnosis diagnose_lcm_url(const LcmUrl& url) {
-  LcmDiagnosis d;
-  if (url.provider != "udpm") return d;
-
-  // connect() on a UDP socket asks the kernel for a route without sending anything: ENETUNREACH
-  // is exactly the condition under which LCM's self-test fails.
-  const int fd = ::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
-  if (fd >= 0) {
-    sockaddr_in dest{};
-    dest.sin_family = AF_INET;
-    dest.sin_port = htons(static_cast<uint16_t>(url.port));
-    inet_pton(AF_INET, url.multicast_group.c_str(), &dest.sin_addr);
-    if (::connect(fd, reinterpret_cast<const sockaddr*>(&dest), sizeof(dest)) != 0) {
-      const int err = errno;
-      d.route = unavailable("no route to the LCM multicast group " + url.multicast_group + " (" +
-                            std::strerror(err) + "). " + format_route_fix(url.multicast_group));
-    }
-    ::close(fd);
-  }
-
-  const int64_t rmem_max = read_rmem_max();
-  if (url.recv_buf_size < 0) {
-    d.warnings.push_back(
-        "LCM URL '" + url.text + "' sets no recv_buf_size: with the kernel's default receive "
-        "buffer most 512x424 depth frames (7-14 UDP fragments each) are lost. Add "
-        "'recv_buf_size=4194304' to the URL, e.g. " + default_lcm_url());
-  } else if (rmem_max >= 0 && rmem_max < url.recv_buf_size) {
-    d.warnings.push_back(
-        "net.core.rmem_max is " + std::to_string(rmem_max) + " bytes, smaller than the " +
-        std::to_string(url.recv_buf_size) + " the LCM URL asks for: the kernel caps the receive "
-        "buffer and large frames will be lost. Raise it with 'sudo sysctl -w "
-        "net.core.rmem_max=" + std::to_string(url.recv_buf_size) + "' and make it permanent with "
-        "the sysctl drop-in (tools/lcm/sysctl-check --install, see docs/live.md)");
-  }
-  return d;
-}
-
 Result<std::unique_ptr<LcmTransport>> LcmTransport::open(const std::string& url,
                                                         std::vector<std::string>* warnings) {
   auto parsed = parse_lcm_url(url);
@@ -197,7 +46,7 @@ Result<std::unique_ptr<LcmTransport>> LcmTransport::open(const std::string& url,
              " exists. Check that the interface of that route has MULTICAST set and is up "
              "('ip link show'), that no firewall drops UDP to port " +
              std::to_string(parsed->port) + ", or use a route on loopback: " +
-             format_route_fix(parsed->multicast_group);
+             route_fix(parsed->multicast_group);
     } else {
       why += ": check the provider name and its options (see lcm_create's documentation)";
     }
@@ -384,6 +233,5 @@ Status LcmTransport::handle_for(int budget_ms) {
     if (!r) return r.status();
   }
 }
-
 
 }  // namespace depthfuse::lcm

@@ -1,8 +1,12 @@
 // Checking a scan file: SQLite's own integrity check, the stored frame numbers against each other,
-// then every chunk, keyframe and pose decoded and checksummed (poses written before schema 3 have
-// no checksum: counted as unchecked), and every chunk's row checked against its points. Finds all problems
-// rather than stopping at the first. Runs in the CLI (depthfuse inspect) and the tests, on a
-// reader.
+// then every chunk, keyframe and pose decoded and checksummed, and every chunk's row checked
+// against its points. Rows written before their table had a checksum (poses before schema 3,
+// keyframes and checkpoints before 4) are counted as unchecked; a later row without one is damage.
+// Finds all problems rather than stopping at the first. Runs in the CLI (depthfuse inspect) and
+// the tests, on a reader.
+#include <cstdint>
+#include <cstdlib>
+
 #include "scan_store_internal.hpp"
 
 namespace depthfuse::store {
@@ -25,6 +29,33 @@ bool check_rows(sql::Database& db, const std::string& sql, const std::string& co
   }
   if (!st->status()) rep->problems.push_back(st->status().message());
   return true;
+}
+
+// Where the rows of `table` start to carry a checksum, by `key` (a frame id, a checkpoint id):
+// what the migration that added the column recorded in meta `meta_key`; in a file from before it
+// recorded that, the first row that has one. A row from there on without one was altered.
+Result<int64_t> checksums_from(ScanStore::Impl& s, const std::string& table, const std::string& key,
+                               const std::string& meta_key) {
+  auto recorded = s.get_meta(meta_key);
+  if (!recorded) return recorded.status();
+  if (*recorded) {
+    char* end = nullptr;
+    const long long from = std::strtoll((*recorded)->c_str(), &end, 10);
+    if (end == (*recorded)->c_str() || *end != '\0' || from < 1)
+      return corrupt(s.path + ": meta " + meta_key + " '" + **recorded + "' is not a row id");
+    return static_cast<int64_t>(from);
+  }
+  return s.db.query_int("SELECT COALESCE(MIN(" + key + "), " + std::to_string(INT64_MAX) +
+                            ") FROM " + table + " WHERE checksum IS NOT NULL;",
+                        "finding the first checksummed row of " + table);
+}
+
+// "<path>: pose of frame 7 has no checksum, though every pose from frame 1 on carries one ..."
+std::string no_checksum(const std::string& path, const std::string& row, const std::string& rows,
+                        int64_t from, int schema) {
+  return path + ": " + row + " has no checksum, though every " + rows + " " +
+         std::to_string(from) + " on carries one (schema " + std::to_string(schema) +
+         "): the row was altered or damaged";
 }
 
 }  // namespace
@@ -118,24 +149,55 @@ Result<IntegrityReport> ScanStore::integrity_check(bool check_blobs) {
     auto k = read_keyframe(id);
     if (!k) rep.problems.push_back(k.status().message());
   }
-  // Keyframe and checkpoint rows written before schema 4 have no checksum: read above, counted here.
-  for (auto [table, n] : {std::pair{"keyframes", &rep.keyframes_unchecked},
-                          std::pair{"checkpoints", &rep.checkpoints_unchecked}}) {
-    auto unchecked = s.db.query_int(std::string("SELECT COUNT(*) FROM ") + table +
-                                        " WHERE checksum IS NULL;",
-                                    std::string("counting unchecked ") + table);
-    if (unchecked) *n = static_cast<size_t>(*unchecked);
-    else rep.problems.push_back(unchecked.status().message());
+  // Keyframe and checkpoint rows without a checksum (read above): written before schema 4, or
+  // altered.
+  struct Unchecked {
+    const char* table;
+    const char* key;
+    const char* meta_key;
+    const char* row;   // "keyframe" 12
+    const char* rows;  // "keyframe from frame" 1
+    size_t* count;
+  };
+  for (const Unchecked& u :
+       {Unchecked{"keyframes", "frame_id", "keyframe_checksums_from_frame", "keyframe",
+                  "keyframe from frame", &rep.keyframes_unchecked},
+        Unchecked{"checkpoints", "id", "checkpoint_checksums_from_id", "checkpoint",
+                  "checkpoint from id", &rep.checkpoints_unchecked}}) {
+    auto from = checksums_from(s, u.table, u.key, u.meta_key);
+    if (!from) {
+      rep.problems.push_back(from.status().message());
+      continue;
+    }
+    check_rows(
+        s.db, std::string("SELECT ") + u.key + " FROM " + u.table + " WHERE checksum IS NULL;",
+        std::string("listing unchecked ") + u.table,
+        [&](const sql::Row& row) {
+          if (row.int64(0) < *from) {
+            ++*u.count;
+            return Status::ok();
+          }
+          return corrupt(no_checksum(s.path, u.row + (" " + std::to_string(row.int64(0))),
+                                     u.rows, *from, 4));
+        },
+        &rep);
   }
   // Every pose row: its checksum (schema 3), then its pose. Rows written before have none.
+  auto poses_from = checksums_from(s, "poses", "frame_id", "pose_checksums_from_frame");
+  if (!poses_from) rep.problems.push_back(poses_from.status().message());
   check_rows(
       s.db, std::string("SELECT ") + kPoseColumns + " FROM poses ORDER BY frame_id;", "reading poses",
       [&](const sql::Row& row) -> Status {
         ++rep.poses_checked;
         bool checked = false;
         auto p = s.pose_of(row, &checked);
-        if (!checked) ++rep.poses_unchecked;
-        return p.status();
+        if (checked || !poses_from) return p.status();
+        if (row.int64(0) < *poses_from) {
+          ++rep.poses_unchecked;
+          return p.status();
+        }
+        return corrupt(no_checksum(s.path, "pose of frame " + std::to_string(row.int64(0)),
+                                   "pose from frame", *poses_from, 3));
       },
       &rep);
   // The frame redo log after the last checkpoint: every record checked, as a resume reads it.

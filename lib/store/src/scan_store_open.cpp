@@ -13,6 +13,7 @@
 
 #include "depthfuse/base/clock.hpp"
 #include "depthfuse/base/errno_text.hpp"
+#include "depthfuse/input_file.hpp"
 #include "scan_store_internal.hpp"
 #include "schema.hpp"
 
@@ -23,17 +24,15 @@ namespace {
 // Checks that `path` looks like an SQLite file before SQLite sees it, so that an empty, foreign or
 // truncated file gets an error naming the problem.
 Status check_file_header(const std::string& path) {
-  struct stat st {};
-  if (::stat(path.c_str(), &st) != 0) {
-    if (errno == ENOENT) return not_found(path + ": no such scan file");
-    return io_error(path + ": " + errno_text());
+  // Only a regular file: a FIFO given as a scan file would block the open, and SQLite after it.
+  auto file = InputFile::open(path, "scan file");
+  if (!file) {
+    if (file.status().code() == StatusCode::kNotFound) return not_found(path + ": no such scan file");
+    return file.status();
   }
-  if (S_ISDIR(st.st_mode)) return invalid_argument(path + ": is a directory, not a scan file");
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) return io_error(path + ": cannot open: " + errno_text());
+  const struct stat& st = file->info();
   unsigned char h[100];
-  const ssize_t n = ::pread(fd, h, sizeof(h), 0);
-  ::close(fd);
+  const ssize_t n = ::pread(file->fd(), h, sizeof(h), 0);
   if (n < 0) return io_error(path + ": cannot read: " + errno_text());
   if (n == 0) return corrupt(path + ": the file is empty, not a scan file");
   if (n < static_cast<ssize_t>(sizeof(h)) || std::memcmp(h, "SQLite format 3", 16) != 0)

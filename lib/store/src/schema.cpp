@@ -132,10 +132,13 @@ PRAGMA user_version = 2;
 
 // Schema 2 -> 3: pose rows carry a CRC-32 of their values (blob_codec.hpp,
 // pose_record_checksum). Rows written before have none (NULL): readers cannot check them and
-// `inspect` says so; their values are not guessed at.
+// `inspect` says so; their values are not guessed at. Where those rows end is recorded (meta
+// pose_checksums_from_frame), so that a NULL checksum in a later row is damage, not history.
 Status migrate_2_to_3(sql::Database& db) {
   return db.exec(R"sql(
 ALTER TABLE poses ADD COLUMN checksum INTEGER;
+INSERT OR REPLACE INTO meta (key, value)
+  SELECT 'pose_checksums_from_frame', COALESCE(MAX(frame_id), 0) + 1 FROM poses;
 PRAGMA user_version = 3;
 )sql", "migrating schema 2 to 3");
 }
@@ -143,7 +146,8 @@ PRAGMA user_version = 3;
 // Schema 3 -> 4: the poses stored with keyframes and checkpoints carry a CRC-32 of their row as
 // pose rows do (scan_store_internal.hpp). The keyframes table is rebuilt so that the checksum
 // sits before the images (a column after a big blob would be read through its overflow pages).
-// Rows written before keep NULL: unchecked, not guessed at.
+// Rows written before keep NULL: unchecked, not guessed at; where they end is recorded as for
+// poses (meta keyframe_checksums_from_frame, checkpoint_checksums_from_id).
 Status migrate_3_to_4(sql::Database& db) {
   const std::string ctx = "migrating schema 3 to 4";
   DF_RETURN_IF_ERROR(db.exec("ALTER TABLE keyframes RENAME TO keyframes_v3;", ctx));
@@ -156,6 +160,10 @@ SELECT frame_id, utime, sensor_serial, width, height, fx, fy, cx, cy, T_world_ca
 FROM keyframes_v3;
 DROP TABLE keyframes_v3;
 ALTER TABLE checkpoints ADD COLUMN checksum INTEGER;
+INSERT OR REPLACE INTO meta (key, value)
+  SELECT 'keyframe_checksums_from_frame', COALESCE(MAX(frame_id), 0) + 1 FROM keyframes;
+INSERT OR REPLACE INTO meta (key, value)
+  SELECT 'checkpoint_checksums_from_id', COALESCE(MAX(id), 0) + 1 FROM checkpoints;
 PRAGMA user_version = 4;
 )sql", ctx);
 }

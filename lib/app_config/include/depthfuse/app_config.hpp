@@ -16,10 +16,11 @@ namespace depthfuse {
 struct LcmConfig {
   // ttl=0 keeps traffic on this host; recv_buf_size is needed for 512x424 frames (7-14 fragments).
   std::string url = "udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304";
-  // The rig key that signs and verifies every message (lcm/message_auth.hpp). Empty, or a file
-  // that does not exist: no authentication, and the URL is kept on ttl=0.
+  // The rig key that signs and verifies every message (lcm/message_auth.hpp). A file named here
+  // that is missing or unusable is an error at start; empty is the explicit choice of no
+  // authentication, and the URL is then kept on ttl=0.
   std::string key_file = "/etc/depthfuse/rig.key";
-  // How far a signed message's time may lie from the receiver's clock, s.
+  // How far a signed message's time may lie from the receiver's clock, s, in [0.1, 120].
   double max_clock_skew_s = 2.0;
 };
 
@@ -54,6 +55,10 @@ struct FusionDaemonConfig {
   // The largest depth image the daemon takes, px: frames beyond it are refused before decoding.
   int max_frame_width = 640;
   int max_frame_height = 480;
+  // The site, m from the world origin: a frame whose pose hint lies beyond it (or is not finite)
+  // is tracked without the hint (counted: pose_hints_refused), so that a wrong or forged hint
+  // cannot stretch the map.
+  double workspace_radius_m = 100.0;
   // A scan starts only with this much free space where scans go, and at most once per
   // min_scan_interval_s: a burst of `scan new` commands must not fill the disk.
   double min_free_disk_mib = 512.0;

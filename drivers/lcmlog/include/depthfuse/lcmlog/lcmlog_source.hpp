@@ -28,6 +28,10 @@ struct LcmLogStats {
   size_t foreign = 0;            // another type on a depthfuse channel
   size_t corrupt_regions = 0;    // damaged event headers skipped
   bool truncated = false;        // the last event was cut off
+  // Frames whose pose hint was left out (outside limits.max_pose_hint_m, or no pose): replayed
+  // without it, as the fusion daemon takes them from the bus. And why the first was.
+  size_t pose_hints_refused = 0;
+  std::string first_pose_hint_refused;
 };
 
 class LcmLogSource : public FrameSource {
@@ -36,7 +40,8 @@ class LcmLogSource : public FrameSource {
     std::string depth_channel = "DEPTHFUSE_DEPTH";
     std::string color_channel = "DEPTHFUSE_COLOR";
     // Frames beyond them are refused on their header, as the fusion daemon refuses them on the
-    // bus; open_lcmlog_source takes fusion_daemon.max_frame_width/height.
+    // bus; open_lcmlog_source takes fusion_daemon.max_frame_width/height and its
+    // workspace_radius_m (a hint beyond it is left out).
     lcm::FrameLimits limits;
   };
   static Result<std::unique_ptr<LcmLogSource>> open(const std::string& path, const Options& options);

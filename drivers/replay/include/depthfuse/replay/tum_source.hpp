@@ -1,5 +1,6 @@
-// Replays a TUM RGB-D folder: depth.txt / rgb.txt, 16-bit PNG depth, an optional trajectory as the
-// pose source, and the camera from camera.toml, the caller, or the image size.
+// Replays a TUM RGB-D folder: depth.txt / rgb.txt, 16-bit PNG depth, PNG or JPEG colour, an
+// optional trajectory as the pose source, and the camera from camera.toml, the caller, or the
+// image size. Every file is read only if it is a regular file (input_file.hpp).
 #pragma once
 
 #include <atomic>

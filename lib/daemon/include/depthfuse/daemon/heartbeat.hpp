@@ -3,11 +3,13 @@
 #pragma once
 
 #include <string>
+#include <vector>
 
 #include "depthfuse/daemon/process_info.hpp"
 #include "depthfuse/frame_source.hpp"
 #include "depthfuse/heartbeat_t.hpp"
 #include "depthfuse/lcm/transport.hpp"
+#include "depthfuse/status_t.hpp"
 
 namespace depthfuse::daemon {
 
@@ -47,6 +49,10 @@ void add_receive_counters(const lcm::LcmTransport& transport, depthfuse::heartbe
 // bad_signature"), from its heartbeat; empty when none. And their number.
 std::string auth_refusals(const depthfuse::heartbeat_t& hb);
 int64_t auth_refused_total(const depthfuse::heartbeat_t& hb);
+
+// The daemons in a status whose heartbeat says they run without a rig key ("signed" 0): their
+// messages are neither signed nor verified. In the order of the status.
+std::vector<std::string> unsigned_daemons(const depthfuse::status_t& st);
 
 const char* state_name(int8_t state);
 

@@ -65,9 +65,10 @@ class Startup {
   // (route, URL syntax, ...), when it cannot.
   std::unique_ptr<lcm::LcmTransport> open_lcm() const;
 
-  // The rig key at config().lcm.key_file: none when the setting is empty or no file is there, an
-  // error when a file is there but unusable (a broken rig, not an open one). open_lcm() uses it;
-  // so does the monitor, which checks the page's commands with it.
+  // The rig key at config().lcm.key_file: none when the setting is empty (the explicit choice of
+  // an open bus), an error naming the file and the fix when it is missing or unusable (a broken
+  // rig, not an open one). open_lcm() uses it; so does the monitor, which checks the page's
+  // commands with it.
   Result<std::optional<lcm::RigKey>> rig_key() const;
 
  private:

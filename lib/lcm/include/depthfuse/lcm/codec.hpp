@@ -49,28 +49,13 @@ std::vector<uint8_t> encode_message(const Msg& msg) {
   return buf;
 }
 
-// What a receiver could not use, by reason. Thread-safe; copied into heartbeats.
-struct ReceiveCounters {
-  std::atomic<int64_t> received{0};      // decoded and accepted
-  std::atomic<int64_t> malformed{0};
-  std::atomic<int64_t> bad_version{0};
-  std::atomic<int64_t> foreign{0};
-  std::atomic<int64_t> lost{0};          // sequence gaps
-  std::atomic<int64_t> out_of_order{0};  // sequence went back (or repeated)
-
-  void count(DecodeResult r) {
-    switch (r) {
-      case DecodeResult::kOk: ++received; break;
-      case DecodeResult::kMalformed: ++malformed; break;
-      case DecodeResult::kBadVersion: ++bad_version; break;
-      case DecodeResult::kForeign: ++foreign; break;
-    }
-  }
-};
-
 // Follows a stream's sequence numbers: a jump forward by n means n-1 frames were lost; going back
 // (or a repeat) is out of order. A jump back by more than `restart_gap` is taken as the sender
-// restarting (e.g. --loop, a new capture process) and resynchronises instead of counting forever.
+// restarting (e.g. --loop, a new capture process) and resynchronises instead of counting forever;
+// so is a jump forward by more than `restart_gap`: a counter of lost frames must not read two
+// billion because one frame (a stranger's, or a sender that restarted with another numbering)
+// carried the sequence + 2^31. An outage longer than the gap (1000 frames, 33 s at 30 Hz) is then
+// counted as a restart too, not as its frames.
 // One jump is not trusted either: kResyncAfter frames in a row, each one after the other but
 // behind the reference, are the stream, and the reference follows them (kResync). Without that, one
 // spoofed frame with the sequence +1000 had the next 1000 real frames rejected as late.
@@ -99,6 +84,37 @@ class SequenceTracker {
   // Frames in a row behind the reference, each one after the other: the first and the last.
   int64_t behind_first_ = 0, behind_last_ = 0;
   int behind_run_ = 0;
+};
+
+// What a receiver could not use, by reason. Thread-safe; copied into heartbeats.
+struct ReceiveCounters {
+  std::atomic<int64_t> received{0};      // decoded and accepted
+  std::atomic<int64_t> malformed{0};
+  std::atomic<int64_t> bad_version{0};
+  std::atomic<int64_t> foreign{0};
+  std::atomic<int64_t> lost{0};          // sequence gaps
+  std::atomic<int64_t> out_of_order{0};  // sequence went back (or repeated)
+  // The sequence jumped by more than the restart gap either way: a sender restarted, or a frame
+  // carried a number from elsewhere; never counted as lost frames.
+  std::atomic<int64_t> sequence_restarts{0};
+  // Frames taken without their pose hint: it lay outside FrameLimits (the workspace) or was not
+  // a pose (frame_codec.hpp, DepthFrameNotes).
+  std::atomic<int64_t> pose_hints_refused{0};
+
+  void count(DecodeResult r) {
+    switch (r) {
+      case DecodeResult::kOk: ++received; break;
+      case DecodeResult::kMalformed: ++malformed; break;
+      case DecodeResult::kBadVersion: ++bad_version; break;
+      case DecodeResult::kForeign: ++foreign; break;
+    }
+  }
+  // A frame's place in its stream: its lost frames, out of order, a restart.
+  void count(const SequenceTracker::Observation& seen) {
+    lost += seen.lost;
+    if (seen.verdict == SequenceTracker::Verdict::kOutOfOrder) ++out_of_order;
+    if (seen.verdict == SequenceTracker::Verdict::kRestart) ++sequence_restarts;
+  }
 };
 
 }  // namespace depthfuse::lcm

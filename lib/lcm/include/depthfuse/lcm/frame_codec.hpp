@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <string>
 
 #include "depthfuse/color_frame_t.hpp"
 #include "depthfuse/depth_frame_t.hpp"
@@ -36,15 +37,23 @@ struct CodecTiming {
 
 // What a receiver accepts of a frame. Checked on the message's header before anything is
 // decompressed or allocated, so that a few bytes claiming a huge image cost nothing: the image no
-// larger than the sensors the receiver was configured for, intrinsics of a real camera, a pose hint
-// within the scanned site. A frame outside them is refused with a message naming the field.
+// larger than the sensors the receiver was configured for, intrinsics of a real camera. A frame
+// outside them is refused with a message naming the field. A pose hint outside the scanned site
+// (or no pose at all) costs only the hint (DepthFrameNotes).
 struct FrameLimits {
   int max_width = 640;    // px; Kinect V2 depth is 512 x 424, TUM's Kinect v1 640 x 480
   int max_height = 480;
   // The intrinsics must be a camera's: CameraIntrinsics::physical_problem().
-  double max_pose_hint_m = 1000.0;        // distance of a pose hint from the world origin
+  double max_pose_hint_m = 100.0;  // distance of a pose hint from the origin (workspace_radius_m)
   double min_depth_unit_m = 1e-6;         // one count of depth: 1 um ... 1 m
   double max_depth_unit_m = 1.0;
+};
+
+// What decode_depth_frame left out of a frame it took.
+struct DepthFrameNotes {
+  // Why the frame's pose hint was left out (beyond FrameLimits::max_pose_hint_m, not finite, not
+  // a rotation); empty when it was kept or there was none. The frame is then one without a hint.
+  std::string pose_hint_refused;
 };
 
 // Depth in metres -> counts: round(d / unit); depth <= 0, NaN or beyond 65535 counts becomes 0.
@@ -53,9 +62,11 @@ Status encode_depth_frame(const Frame& frame, const DepthEncodeOptions& options,
                           depthfuse::depth_frame_t* out, CodecTiming* timing = nullptr);
 
 // Checks the message against `limits` first, then its encoding and decompressed length, and fills
-// the frame's utime, sequence, serial, intrinsics, depth and pose hint. Colour is left untouched.
+// the frame's utime, sequence, serial, intrinsics, depth and pose hint (left out, and said in
+// *notes, when it is not a pose within the limits). Colour is left untouched.
 Status decode_depth_frame(const depthfuse::depth_frame_t& msg, Frame* out,
-                          const FrameLimits& limits = {}, CodecTiming* timing = nullptr);
+                          const FrameLimits& limits = {}, CodecTiming* timing = nullptr,
+                          DepthFrameNotes* notes = nullptr);
 
 // Fails on a frame without colour or whose colour size differs from its depth size.
 Status encode_color_frame(const Frame& frame, const ColorEncodeOptions& options,

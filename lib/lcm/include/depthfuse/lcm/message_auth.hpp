@@ -44,9 +44,12 @@ constexpr size_t kSignatureBytes = 4 + 8 + kSignatureTagBytes;
 // is allowed), readable by root and the daemons' group only.
 class RigKey {
  public:
-  // Reads a key file. Errors name the file and the problem (missing, unreadable, not 64 hex
-  // digits, readable by everyone).
+  // Reads a key file. Errors name the file, the problem and the fix: missing (not_found),
+  // unreadable, not a regular file, not 64 hex digits, readable or writable by every user or
+  // writable by its group, one byte repeated (all zeros).
   static Result<RigKey> load(const std::string& path);
+  // The shell command that makes a key file at `path`, as the package does.
+  static std::string how_to_make(const std::string& path);
   static RigKey from_bytes(const std::array<uint8_t, kRigKeyBytes>& bytes);
 
   const std::array<uint8_t, kRigKeyBytes>& bytes() const { return bytes_; }

@@ -1,6 +1,6 @@
-// Opening LCM with a diagnosis instead of LCM's bare self-test failure, publishing and receiving
-// raw messages. One LcmTransport per process is typical; publish() may be called from any thread,
-// handle() from one thread at a time.
+// Opening LCM with a diagnosis instead of LCM's bare self-test failure (host_diagnosis.hpp),
+// publishing and receiving raw messages. One LcmTransport per process is typical; publish() may
+// be called from any thread, handle() from one thread at a time.
 #pragma once
 
 #include <cstddef>
@@ -14,6 +14,7 @@
 
 #include "depthfuse/lcm/message_auth.hpp"
 #include "depthfuse/lcm/udpm.hpp"
+#include "depthfuse/lcm/url.hpp"
 #include "depthfuse/status.hpp"
 
 typedef struct _lcm_t lcm_t;
@@ -21,42 +22,6 @@ typedef struct _lcm_t lcm_t;
 namespace depthfuse::lcm {
 
 class UdpmSocket;
-
-// The parts of an LCM URL that matter for the diagnosis. Only udpm is inspected; other providers
-// (memq, file, tcpq) are passed to LCM unchanged.
-struct LcmUrl {
-  std::string text;              // as given
-  std::string provider;          // "udpm", "memq", ...
-  std::string multicast_group;   // udpm: "239.255.76.67"
-  int port = 0;                  // udpm: 7667
-  int ttl = 0;                   // udpm: 0 keeps traffic on this host
-  int64_t recv_buf_size = -1;    // udpm: bytes asked for in the URL, -1 when absent
-};
-
-Result<LcmUrl> parse_lcm_url(const std::string& url);
-
-// The default URL of the appliance (same as LcmConfig::url).
-std::string default_lcm_url();
-
-// The URL with its udpm ttl set to 0 (traffic stays on this host); other URLs unchanged.
-std::string url_with_ttl0(const LcmUrl& url);
-
-// The URL with a udpm port chosen from a number (a process id), for tests that must not hear each
-// other: "udpm://239.255.76.67:<port>?ttl=0&recv_buf_size=4194304".
-std::string loopback_test_url(int seed);
-
-// net.core.rmem_max in bytes (/proc/sys/net/core/rmem_max), -1 when it cannot be read.
-int64_t read_rmem_max();
-
-// What udpm needs from the host, checked before LCM is asked:
-//  - a route to the multicast group (`ip route get <group>`): without one LCM's self-test fails;
-//  - net.core.rmem_max at least the recv_buf_size of the URL, else the kernel caps the buffer and
-//    large frames (7-14 UDP fragments each) are lost.
-struct LcmDiagnosis {
-  Status route;                        // ok, or why there is none and how to add one
-  std::vector<std::string> warnings;   // receive buffer problems
-};
-LcmDiagnosis diagnose_lcm_url(const LcmUrl& url);
 
 // Publishing goes through liblcm. Receiving on an udpm URL goes through depthfuse's own udpm
 // receiver (udpm.hpp says why), with every datagram checked before it is used; other providers
