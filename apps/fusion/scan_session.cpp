@@ -106,8 +106,11 @@ Result<std::string> ScanSession::start(const std::string& requested_name) {
     return corrupt("the scan file for '" + name + "' holds the scan id '" + scan_.scan_id +
                    "', which is not a scan name: not resumed");
   reconstructor_ = std::move(reconstructor);
-  path_ = std::make_unique<FramePath>(*reconstructor_, &sink_);
+  // Loop closure on a thread of its own: the fusion thread never waits for the optimiser.
+  path_ = std::make_unique<FramePath>(*reconstructor_, &sink_, /*background_loop_closure=*/true);
   trajectory_ = std::move(trajectory);
+  // A resumed scan's stored poses are before the graph's first keyframe: no closure moves them.
+  trajectory_frames_.assign(trajectory_.size(), 0);
   last_checkpoint_ = Clock::now();
   const uint32_t next = reconstructor_->next_frame_id();
   const std::string message = "scan " + scan_.scan_id +
@@ -120,8 +123,16 @@ Result<std::string> ScanSession::start(const std::string& requested_name) {
 Result<FrameOutcome> ScanSession::process(const Frame& frame) {
   if (!active()) return invalid_argument("no scan is running");
   Result<FrameOutcome> outcome = path_->run(frame);
-  if (outcome && outcome->report.fused())
+  if (!outcome) return outcome;
+  if (outcome->correction) {
+    for (size_t i = 0; i < trajectory_.size(); ++i)
+      trajectory_[i].T_world_cam = outcome->correction->motion_of(trajectory_frames_[i]) *
+                                   trajectory_[i].T_world_cam;
+  }
+  if (outcome->report.fused()) {
     trajectory_.push_back({frame.utime * 1e-6, outcome->report.T_world_cam});
+    trajectory_frames_.push_back(outcome->report.frame_id);
+  }
   return outcome;
 }
 
@@ -141,6 +152,11 @@ Status ScanSession::checkpoint(const std::string& reason, const FusionProgress& 
 Result<ScanSession::Saved> ScanSession::stop(const std::string& reason,
                                              const FusionProgress& progress) {
   if (!active()) return invalid_argument("no scan is running");
+  // What the loop closer has found last moves the poses and the map before they are saved.
+  if (const std::optional<AppliedCorrection> last = path_->finish()) {
+    for (size_t i = 0; i < trajectory_.size(); ++i)
+      trajectory_[i].T_world_cam = last->motion_of(trajectory_frames_[i]) * trajectory_[i].T_world_cam;
+  }
   const size_t removed = reconstructor_->finish();
   Saved saved;
   saved.store = sink_.end_scan(reason, *reconstructor_, progress);
@@ -167,6 +183,8 @@ Result<ScanSession::Saved> ScanSession::stop(const std::string& reason,
   DF_LOG(Fusion, Info) << saved.message;
   path_.reset();
   reconstructor_.reset();
+  trajectory_.clear();
+  trajectory_frames_.clear();
   return saved;
 }
 

@@ -56,6 +56,8 @@ class ScanSession {
   // Null between scans.
   const IncrementalReconstructor* reconstructor() const { return reconstructor_.get(); }
   const std::vector<StampedPose>& trajectory() const { return trajectory_; }
+  // Null between scans.
+  const FramePath* path() const { return path_.get(); }
   size_t point_count() const { return reconstructor_ ? reconstructor_->map().point_count() : 0; }
 
  private:
@@ -64,6 +66,7 @@ class ScanSession {
   std::unique_ptr<IncrementalReconstructor> reconstructor_;
   std::unique_ptr<FramePath> path_;
   std::vector<StampedPose> trajectory_;
+  std::vector<uint32_t> trajectory_frames_;  // each pose's frame id, to move it with a closure
   ScanContext scan_;
   std::chrono::steady_clock::time_point last_checkpoint_;
   std::optional<std::chrono::steady_clock::time_point> last_start_;  // min_scan_interval_s

@@ -191,30 +191,45 @@ Result<TrackedSequence> track_sequence(const std::vector<Frame>& frames,
   out.T_world_cam.reserve(frames.size());
   out.state.reserve(frames.size());
   FramePath path(rec);
+  std::vector<uint32_t> frame_ids;  // of the poses in `out`, to move them with a loop closure
+  frame_ids.reserve(frames.size());
+  auto corrected = [&](const AppliedCorrection& c) {
+    for (size_t j = 0; j < out.T_world_cam.size(); ++j)
+      if (out.state[j] != TrackingState::kLost)
+        out.T_world_cam[j] = c.motion_of(frame_ids[j]) * out.T_world_cam[j];
+    ++out.corrections;
+  };
   for (size_t i = 0; i < frames.size(); ++i) {
     Frame f = frames[i];
     f.T_world_cam_hint.reset();
     Result<FrameOutcome> outcome = path.run(f);
     if (!outcome) return outcome.status().with_context("frame " + std::to_string(i));
+    if (outcome->correction) corrected(*outcome->correction);
     const FrameReport& r = outcome->report;
     // One line a frame (DEPTHFUSE_LOG=Tracking=debug): what decided the frame's state, to be read
     // against a ground truth when a track goes wrong.
     DF_LOG(Tracking, Debug) << "frame " << i << " " << to_string(r.tracking)
                             << (r.tracking_retried ? " retried" : "")
                             << (r.relocalised ? " relocalised" : "")
+                            << (outcome->keyframe ? " keyframe" : "")
                             << " fitness " << r.registration.fitness << " model_fitness "
                             << r.registration.model_fitness << " rmse_mm "
                             << r.registration.rmse_m * 1e3 << " conditioning "
-                            << r.registration.conditioning << " reference "
+                            << r.registration.conditioning << " data_share "
+                            << r.registration.data_share << " reference "
                             << rec.model_fitness_reference() << " t "
                             << r.T_world_cam.translation().transpose();
     out.T_world_cam.push_back(r.T_world_cam);
     out.state.push_back(r.tracking);
+    frame_ids.push_back(r.frame_id);
     if (r.tracking == TrackingState::kUncertain) ++out.uncertain;
     if (!r.fused()) ++out.lost;
     if (r.relocalised) ++out.relocalised;
     if (progress) progress("tracking", i + 1, frames.size());
   }
+  if (const std::optional<AppliedCorrection> last = path.finish()) corrected(*last);
+  out.keyframes = path.graph().keyframes().size();
+  out.loops = path.graph().loops().size();
   return out;
 }
 

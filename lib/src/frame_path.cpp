@@ -1,15 +1,28 @@
 #include "depthfuse/frame_path.hpp"
 
+#include "loop_closure.hpp"
+
 namespace depthfuse {
 
+FramePath::FramePath(IncrementalReconstructor& reconstructor, FrameStore* store,
+                     bool background_loop_closure)
+    : reconstructor_(reconstructor), store_(store), graph_(reconstructor.config().loop_closure) {
+  const ReconstructionConfig& c = reconstructor.config();
+  if (c.loop_closure.enabled && c.registration.enabled)
+    closer_ = std::make_unique<LoopCloser>(c.loop_closure, c.relocalisation, background_loop_closure);
+}
+
+FramePath::~FramePath() = default;
+
 Result<FrameOutcome> FramePath::run(const Frame& frame) {
+  FrameOutcome outcome;
+  outcome.correction = apply_correction();
   // Without a hint, tracking starts where the camera's last motion puts it, scaled to the frame's
   // time: a start at the last pose is a whole step away, two or three once frames are dropped, and
   // ICP then needs more iterations per frame.
   const std::optional<Pose> prediction =
       frame.T_world_cam_hint ? std::nullopt
                              : reconstructor_.constant_velocity_prediction(frame.utime);
-  FrameOutcome outcome;
   if (store_)
     outcome.store_status = store_->prepare_frame(
         frame, reconstructor_.initial_pose(frame, prediction), reconstructor_);
@@ -20,7 +33,47 @@ Result<FrameOutcome> FramePath::run(const Frame& frame) {
     Status recorded = store_->frame_fused(frame, outcome.report, reconstructor_);
     if (outcome.store_status.is_ok()) outcome.store_status = std::move(recorded);
   }
+  join_graph(frame, outcome.report, &outcome);
   return outcome;
+}
+
+void FramePath::join_graph(const Frame& frame, const FrameReport& report, FrameOutcome* outcome) {
+  if (!closer_ || frame.T_world_cam_hint || !report.fused()) return;
+  // The first frame is placed by definition; a relocalised one was found by a search, not tracked
+  // from the last: nothing is known of how it moved since.
+  Matrix6d covariance = Matrix6d::Zero();
+  if (report.relocalised)
+    covariance = Matrix6d::Identity();
+  else if (report.registered)
+    covariance = report.registration.covariance;
+  if (!graph_.frame_fused(report.frame_id, frame.utime, report.T_world_cam, covariance,
+                          reconstructor_.measurement()))
+    return;
+  outcome->keyframe = true;
+  GraphSnapshot snapshot;
+  snapshot.keyframes = graph_.keyframes();
+  snapshot.odometry = graph_.odometry();
+  snapshot.odometry_covariance = graph_.odometry_covariance();
+  closer_->submit(std::move(snapshot));
+}
+
+std::optional<AppliedCorrection> FramePath::apply_correction() {
+  if (!closer_) return std::nullopt;
+  std::optional<GraphCorrection> c = closer_->take();
+  if (!c) return std::nullopt;
+  AppliedCorrection applied = graph_.apply(*c);
+  reconstructor_.apply_correction(applied);
+  return applied;
+}
+
+std::optional<AppliedCorrection> FramePath::finish() {
+  if (!closer_) return std::nullopt;
+  closer_->wait_idle();
+  return apply_correction();
+}
+
+LoopClosureStats FramePath::loop_closure_stats() const {
+  return closer_ ? closer_->stats() : LoopClosureStats{};
 }
 
 }  // namespace depthfuse

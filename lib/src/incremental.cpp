@@ -112,7 +112,7 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   // nothing is ever relocalised.
   if (config_.registration.enabled && !frame.T_world_cam_hint &&
       report.tracking == TrackingState::kTracked) {
-    relocaliser_->frame_tracked(scratch_, T);
+    relocaliser_->frame_tracked(scratch_, T, report.frame_id);
     // The first frame, on an empty map, has nothing to agree with.
     if (report.registered)
       recent_model_fitness_[recent_model_fitness_count_++ % recent_model_fitness_.size()] =
@@ -298,6 +298,21 @@ Status IncrementalReconstructor::replay(const Frame& frame, uint32_t frame_id,
   return Status::ok();
 }
 
+void IncrementalReconstructor::apply_correction(const AppliedCorrection& c) {
+  if (c.motion.empty()) return;
+  // The last frames fused belong to the last keyframe: moved together, their step (the motion
+  // model's velocity) is the same in the corrected frame.
+  const Pose& motion = c.motion.back();
+  if (last_T_world_cam_) last_T_world_cam_ = motion * *last_T_world_cam_;
+  if (fused_last_) fused_last_->T_world_cam = motion * fused_last_->T_world_cam;
+  if (fused_before_last_) fused_before_last_->T_world_cam = motion * fused_before_last_->T_world_cam;
+  relocaliser_->move_keyframes(
+      [&](uint32_t frame_id, const Pose& T) { return c.motion_of(frame_id) * T; });
+  // The last rendered model and the photometric reference are of the map as it was.
+  frames_since_model_ = 0;
+  registrar_.forget_photometric_reference();
+}
+
 size_t IncrementalReconstructor::finish() {
   return config_.postfilter.enabled ? postfilter(map_.get()) : 0;
 }
@@ -326,13 +341,14 @@ bool IncrementalReconstructor::keyframe_wanted(const Pose& T_world_cam) const {
   return keeps_keyframes() && relocaliser_->wants(T_world_cam);
 }
 
-Result<bool> IncrementalReconstructor::restore_keyframe(const Frame& frame, const Pose& T_world_cam) {
+Result<bool> IncrementalReconstructor::restore_keyframe(const Frame& frame, const Pose& T_world_cam,
+                                                       uint32_t frame_id) {
   if (!keyframe_wanted(T_world_cam)) return false;
   // The same measurement a live frame gets: the keyframe's thumbnail and points are what they
   // would have been had this process tracked the frame. scratch_ is the next frame's anyway.
   Result<size_t> removed = measure_frame(frame, config_, &scratch_);
   if (!removed) return removed.status();
-  return relocaliser_->add_older_keyframe(scratch_, T_world_cam);
+  return relocaliser_->add_older_keyframe(scratch_, T_world_cam, frame_id);
 }
 
 size_t IncrementalReconstructor::keyframe_count() const { return relocaliser_->keyframe_count(); }

@@ -15,65 +15,15 @@
 #include <numeric>
 #include <optional>
 
+#include "depthfuse/scan_graph.hpp"
+#include "thumbnail.hpp"
+
 namespace depthfuse {
 
 namespace {
 
 using Cloud = pcl::PointCloud<pcl::PointNormal>;
 using Features = pcl::PointCloud<pcl::FPFHSignature33>;
-
-// The global descriptor that ranks keyframes: the frame's depth averaged over a coarse grid (a
-// "small blurry image", as PTAM's relocaliser uses). Cheap to compare against every keyframe on
-// every lost frame; it only orders the candidates, sample consensus and ICP decide.
-constexpr int kThumbW = 16, kThumbH = 12;
-using Thumbnail = std::array<float, kThumbW * kThumbH>;  // mean depth, m; 0: no measurement
-
-Thumbnail make_thumbnail(const MeasurementImage& m) {
-  std::array<float, kThumbW * kThumbH> sum{};
-  std::array<int, kThumbW * kThumbH> count{};
-  constexpr int kStep = 4;  // every 4th pixel in u and v is plenty for a 16 x 12 average
-  for (int v = 0; v < m.height; v += kStep) {
-    const int tv = v * kThumbH / m.height;
-    for (int u = 0; u < m.width; u += kStep) {
-      const size_t i = static_cast<size_t>(v) * m.width + u;
-      if (!m.valid[i]) continue;
-      const int t = tv * kThumbW + u * kThumbW / m.width;
-      sum[t] += m.z[i];
-      ++count[t];
-    }
-  }
-  Thumbnail out{};
-  for (size_t t = 0; t < out.size(); ++t) out[t] = count[t] ? sum[t] / count[t] : 0.0f;
-  return out;
-}
-
-// Zero-mean normalised cross-correlation of the cells both thumbnails have, times the share of
-// cells either has that both have: in [-1, 1], higher is more alike.
-double similarity(const Thumbnail& a, const Thumbnail& b) {
-  double ma = 0, mb = 0;
-  int both = 0, either = 0;
-  for (size_t t = 0; t < a.size(); ++t) {
-    either += (a[t] > 0) || (b[t] > 0);
-    if (a[t] > 0 && b[t] > 0) {
-      ma += a[t];
-      mb += b[t];
-      ++both;
-    }
-  }
-  if (both < 8) return -1.0;
-  ma /= both;
-  mb /= both;
-  double sab = 0, saa = 0, sbb = 0;
-  for (size_t t = 0; t < a.size(); ++t) {
-    if (!(a[t] > 0 && b[t] > 0)) continue;
-    const double da = a[t] - ma, db = b[t] - mb;
-    sab += da * db;
-    saa += da * da;
-    sbb += db * db;
-  }
-  const double ncc = saa > 0 && sbb > 0 ? sab / std::sqrt(saa * sbb) : 0.0;
-  return ncc * both / either;
-}
 
 // The frame's valid measurements with normals (every 2nd pixel in u and v), averaged in cubes of
 // voxel_m, then thinned evenly to max_points.
@@ -152,10 +102,64 @@ bool within_spacing(const RelocalisationConfig& c, const Pose& a, const Pose& b)
 // Fewer points than this carry no shape worth matching (a wall, or nothing).
 constexpr size_t kMinPoints = 50;
 
+// PCL's prerejective sample consensus of source to target by their features: the pose of source in
+// target's frame, or nothing.
+std::optional<Pose> sample_consensus(const Cloud::Ptr& source, const Features::Ptr& source_features,
+                                     const Cloud::Ptr& target, const Features::Ptr& target_features,
+                                     const RelocalisationConfig& config, unsigned seed) {
+  pcl::SampleConsensusPrerejective<pcl::PointNormal, pcl::PointNormal, pcl::FPFHSignature33> sac;
+  sac.setInputSource(source);
+  sac.setSourceFeatures(source_features);
+  sac.setInputTarget(target);
+  sac.setTargetFeatures(target_features);
+  sac.setMaximumIterations(config.sac_iterations);
+  sac.setNumberOfSamples(3);
+  sac.setCorrespondenceRandomness(2);  // one of the 2 nearest features, not always the nearest
+  sac.setSimilarityThreshold(0.9f);    // the sample's edge lengths must agree to 10 %
+  sac.setMaxCorrespondenceDistance(config.sac_inlier_m);
+  sac.setInlierFraction(static_cast<float>(config.sac_inlier_fraction));
+  // PCL draws its samples with rand(): seeded here so that a run can be repeated.
+  std::srand(seed);
+  Cloud aligned;
+  sac.align(aligned);
+  if (!sac.hasConverged()) return std::nullopt;
+  Pose T_target_source = Pose::Identity();
+  T_target_source.matrix() = sac.getFinalTransformation().cast<double>();
+  return T_target_source;
+}
+
+// A keyframe's points as PCL's cloud.
+Cloud::Ptr to_cloud(const KeyframeCloud& k) {
+  Cloud::Ptr cloud(new Cloud);
+  cloud->reserve(k.size());
+  for (size_t i = 0; i < k.size(); ++i) {
+    pcl::PointNormal p;
+    p.getVector3fMap() = k.position_m[i];
+    p.getNormalVector3fMap() = k.normal[i];
+    p.curvature = 0.0f;
+    cloud->push_back(p);
+  }
+  return cloud;
+}
+
+}  // namespace
+
+std::optional<Pose> align_by_features(const KeyframeCloud& source, const KeyframeCloud& target,
+                                      const RelocalisationConfig& config, unsigned seed) {
+  Cloud::Ptr s = to_cloud(source), t = to_cloud(target);
+  const Features::Ptr fs = describe(&s, config.feature_radius_m);
+  const Features::Ptr ft = describe(&t, config.feature_radius_m);
+  if (s->size() < kMinPoints || t->size() < kMinPoints) return std::nullopt;
+  return sample_consensus(s, fs, t, ft, config, seed);
+}
+
+namespace {
+
 }  // namespace
 
 struct Relocaliser::Keyframe {
   Pose T_world_cam;
+  uint32_t frame_id = 0;
   Thumbnail thumbnail;
   Cloud::Ptr cloud;           // camera frame
   Features::Ptr features;     // computed when first searched
@@ -189,29 +193,37 @@ bool Relocaliser::wants(const Pose& T_world_cam) const {
 
 // A keyframe of the frame, or nothing when its points carry too little shape.
 std::unique_ptr<Relocaliser::Keyframe> Relocaliser::make_keyframe(const MeasurementImage& m,
-                                                                  const Pose& T_world_cam) const {
+                                                                  const Pose& T_world_cam,
+                                                                  uint32_t frame_id) const {
   auto k = std::make_unique<Keyframe>();
   k->T_world_cam = T_world_cam;
+  k->frame_id = frame_id;
   k->thumbnail = make_thumbnail(m);
   k->cloud = downsample(m, config_);
   if (k->cloud->size() < kMinPoints) return nullptr;
   return k;
 }
 
-bool Relocaliser::add_older_keyframe(const MeasurementImage& m, const Pose& T_world_cam) {
+bool Relocaliser::add_older_keyframe(const MeasurementImage& m, const Pose& T_world_cam,
+                                     uint32_t frame_id) {
   if (!wants(T_world_cam)) return false;
-  std::unique_ptr<Keyframe> k = make_keyframe(m, T_world_cam);
+  std::unique_ptr<Keyframe> k = make_keyframe(m, T_world_cam, frame_id);
   if (!k) return false;
   keyframes_.insert(keyframes_.begin(), std::move(k));
   return true;
 }
 
-void Relocaliser::frame_tracked(const MeasurementImage& m, const Pose& T_world_cam) {
+void Relocaliser::move_keyframes(const std::function<Pose(uint32_t, const Pose&)>& moved) {
+  for (auto& k : keyframes_) k->T_world_cam = moved(k->frame_id, k->T_world_cam);
+}
+
+void Relocaliser::frame_tracked(const MeasurementImage& m, const Pose& T_world_cam,
+                                uint32_t frame_id) {
   lost_frames_ = 0;
   if (!config_.enabled || config_.max_keyframes <= 0) return;
   for (const auto& k : keyframes_)
     if (within_spacing(config_, k->T_world_cam, T_world_cam)) return;
-  std::unique_ptr<Keyframe> k = make_keyframe(m, T_world_cam);
+  std::unique_ptr<Keyframe> k = make_keyframe(m, T_world_cam, frame_id);
   if (!k) return;
   keyframes_.push_back(std::move(k));
   if (keyframes_.size() <= static_cast<size_t>(config_.max_keyframes)) return;
@@ -270,25 +282,10 @@ std::optional<Pose> Relocaliser::search(const MeasurementImage& m,
     }
     if (!k.features) k.features = describe(&k.cloud, config_.feature_radius_m);
     if (k.cloud->size() < kMinPoints) continue;
-    pcl::SampleConsensusPrerejective<pcl::PointNormal, pcl::PointNormal, pcl::FPFHSignature33> sac;
-    sac.setInputSource(cloud);
-    sac.setSourceFeatures(features);
-    sac.setInputTarget(k.cloud);
-    sac.setTargetFeatures(k.features);
-    sac.setMaximumIterations(config_.sac_iterations);
-    sac.setNumberOfSamples(3);
-    sac.setCorrespondenceRandomness(2);  // one of the 2 nearest features, not always the nearest
-    sac.setSimilarityThreshold(0.9f);    // the sample's edge lengths must agree to 10 %
-    sac.setMaxCorrespondenceDistance(config_.sac_inlier_m);
-    sac.setInlierFraction(static_cast<float>(config_.sac_inlier_fraction));
-    // PCL draws its samples with rand(): seeded here so that a run can be repeated.
-    std::srand(static_cast<unsigned>(attempt) + 1u);
-    Cloud aligned;
-    sac.align(aligned);
-    if (!sac.hasConverged()) continue;
-    Pose T_kf_cam = Pose::Identity();
-    T_kf_cam.matrix() = sac.getFinalTransformation().cast<double>();
-    const Pose T_world_cam = k.T_world_cam * T_kf_cam;
+    const std::optional<Pose> T_kf_cam = sample_consensus(cloud, features, k.cloud, k.features,
+                                                          config_, static_cast<unsigned>(attempt) + 1u);
+    if (!T_kf_cam) continue;
+    const Pose T_world_cam = k.T_world_cam * *T_kf_cam;
     if (verify(T_world_cam)) return T_world_cam;
   }
   return std::nullopt;

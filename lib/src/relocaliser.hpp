@@ -14,6 +14,14 @@
 
 namespace depthfuse {
 
+struct KeyframeCloud;
+
+// The place search of the loop closer, with the relocaliser's machinery: FPFH features of both
+// keyframes' points and PCL's prerejective sample consensus (config's sac_* settings). The pose of
+// `source` in `target`'s frame, or nothing. `seed` makes a run repeatable.
+std::optional<Pose> align_by_features(const KeyframeCloud& source, const KeyframeCloud& target,
+                                      const RelocalisationConfig& config, unsigned seed);
+
 class Relocaliser {
  public:
   explicit Relocaliser(const RelocalisationConfig& config);
@@ -25,7 +33,7 @@ class Relocaliser {
   // depth and its downsampled points with normals, in its camera frame) when no keyframe is within
   // keyframe_spacing_m and keyframe_spacing_deg of it. Past max_keyframes the keyframe closest to
   // another one goes. Also ends a search: the camera is tracked again.
-  void frame_tracked(const MeasurementImage& m, const Pose& T_world_cam);
+  void frame_tracked(const MeasurementImage& m, const Pose& T_world_cam, uint32_t frame_id);
 
   // Keyframes from stored frames (a resumed scan), walking back from the newest stored one:
   //  - wants: whether a frame at T_world_cam would become a keyframe by frame_tracked()'s spacing
@@ -34,7 +42,9 @@ class Relocaliser {
   //    and the rule that drops a keyframe when full drops the older of the two nearest). True
   //    when kept (false: too few points, near one held, or full).
   bool wants(const Pose& T_world_cam) const;
-  bool add_older_keyframe(const MeasurementImage& m, const Pose& T_world_cam);
+  bool add_older_keyframe(const MeasurementImage& m, const Pose& T_world_cam, uint32_t frame_id);
+  // A loop closure moved the frames: each keyframe to moved(its frame id, its pose).
+  void move_keyframes(const std::function<Pose(uint32_t frame_id, const Pose&)>& moved);
 
   // For a lost frame: where the camera is, or nothing. At most candidates_per_frame keyframes are
   // tried, on every every_n_lost_frames-th lost frame in a row. Keyframes are ranked by how alike
@@ -52,7 +62,8 @@ class Relocaliser {
 
  private:
   struct Keyframe;
-  std::unique_ptr<Keyframe> make_keyframe(const MeasurementImage& m, const Pose& T_world_cam) const;
+  std::unique_ptr<Keyframe> make_keyframe(const MeasurementImage& m, const Pose& T_world_cam,
+                                          uint32_t frame_id) const;
   RelocalisationConfig config_;
   std::vector<std::unique_ptr<Keyframe>> keyframes_;
   int lost_frames_ = 0;  // in a row, since the last tracked frame

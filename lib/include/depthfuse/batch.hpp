@@ -81,10 +81,13 @@ struct TrackedSequence {
   std::vector<TrackingState> state;    // one per frame
   size_t uncertain = 0, lost = 0;      // frames in those states
   size_t relocalised = 0;              // frames found among the keyframes after a loss
+  size_t keyframes = 0, loops = 0;     // the pose graph's
+  size_t corrections = 0;              // loop closures that moved the poses
 };
 
 // Poses for a sequence without any: frame-to-model tracking from the first frame (at identity),
-// every frame through the rig's own per-frame path (FramePath, without a store), its hint ignored.
+// every frame through the rig's own per-frame path (FramePath, without a store), its hint ignored,
+// loops closed as they are found and once more at the end: the poses are the pose graph's.
 Result<TrackedSequence> track_sequence(const std::vector<Frame>& frames,
                                        const ReconstructionConfig& config,
                                        const ProgressFn& progress = nullptr);

@@ -147,6 +147,48 @@ struct RelocalisationConfig {
   double sac_inlier_fraction = 0.3;
 };
 
+// Keyframes, the pose graph and loop closure (frames tracked without pose hints; see ScanGraph in
+// scan_graph.hpp and config/depthfuse.toml [loop_closure]).
+struct LoopClosureConfig {
+  bool enabled = true;
+  // A frame becomes a keyframe (a node of the pose graph) when the camera has moved this far, or
+  // turned this much, since the last keyframe.
+  double keyframe_spacing_m = 0.2;
+  double keyframe_spacing_deg = 15.0;
+  // A keyframe's points for verification: valid measurements averaged in cubes of voxel_m, at most
+  // max_points of them, in its camera frame.
+  double voxel_m = 0.03;
+  int max_points = 1500;
+  // Candidates for a new keyframe: older keyframes at least min_keyframes_back keyframes and
+  // min_path_m of camera path before it, whose camera lies within search_radius_m of it (or three
+  // times the position uncertainty the odometry has accumulated between them, if more) and looks
+  // within max_view_angle_deg of its direction; at most candidates_per_keyframe, nearest first.
+  int min_keyframes_back = 10;
+  double min_path_m = 1.0;
+  double search_radius_m = 0.5;
+  double max_view_angle_deg = 45.0;
+  int candidates_per_keyframe = 2;
+  // The place search (the relocaliser's FPFH and sample consensus, relocalisation.*) on every
+  // place_search_every_n_keyframes-th keyframe: the older keyframe whose depth thumbnail is most
+  // alike; 0 = never.
+  int place_search_every_n_keyframes = 4;
+  // A candidate is believed when ICP of the keyframe's points against the candidate's pairs this
+  // share of them within max_correspondence_m (the points are cubes' means: nearest neighbours of
+  // two views lie up to a cube apart) with residual at most max_rmse_m, and its correction
+  // of the graph is within the odometry's uncertainty (chi-square below gate_chi2, six degrees of
+  // freedom, the odometry's covariance inflated by gate_inflation squared).
+  double min_overlap = 0.4;
+  double max_correspondence_m = 0.05;
+  double max_rmse_m = 0.008;
+  double gate_chi2 = 22.5;
+  double gate_inflation = 3.0;
+  // The map's error in a loop edge's information, as registration.model_error_m in the odometry's.
+  double model_error_m = 1e-3;
+  // The optimiser (optimise_pose_graph): its robust loss scale and rejection threshold for loops.
+  double loop_loss_scale = 4.0;
+  double loop_chi2_reject = 16.8;
+};
+
 enum class Method { kKyostila13, kYlimaki17, kFull };
 const char* to_string(Method m);
 bool parse_method(const std::string& text, Method* out);
@@ -165,6 +207,7 @@ struct ReconstructionConfig {
   PostfilterConfig postfilter;
   RegistrationConfig registration;
   RelocalisationConfig relocalisation;
+  LoopClosureConfig loop_closure;
   PipelineConfig pipeline;
 
   // The stages the method switch turns on: kyostila13 = fusion only, ylimaki17 = + pre/post

@@ -7,13 +7,20 @@
 //             evicted chunks there)
 //   process   IncrementalReconstructor::process from that prediction: measure, register, fuse
 //   record    a fused frame's pose, keyframes and paging (the scan file)
+//   graph     a frame tracked without a hint joins the pose graph (ScanGraph): a keyframe when the
+//             camera has moved far enough, which the loop closer then searches; a correction the
+//             loop closer found is applied before the next frame is predicted (the keyframes, the
+//             camera's last poses and the map move with it)
 //
-// The caller publishes what it needs of the report.
+// The caller publishes what it needs of the report, and moves its own copies of past poses with a
+// correction (FrameOutcome::correction).
 #pragma once
 
+#include <memory>
 #include <optional>
 
 #include "depthfuse/incremental.hpp"
+#include "depthfuse/scan_graph.hpp"
 #include "depthfuse/status.hpp"
 #include "depthfuse/types.hpp"
 
@@ -38,21 +45,40 @@ struct FrameOutcome {
   // The first failure of the store's calls: the frame was processed all the same (a full disk
   // must not stop the scan), and the caller reports it.
   Status store_status;
+  bool keyframe = false;  // the frame became a keyframe of the pose graph
+  // A loop closure applied before this frame: every earlier frame's pose moves with its keyframe
+  // (AppliedCorrection::motion_of), the report's pose is already in the corrected frame.
+  std::optional<AppliedCorrection> correction;
 };
+
+class LoopCloser;
 
 class FramePath {
  public:
-  // `store` may be null: nothing is paged or recorded.
-  FramePath(IncrementalReconstructor& reconstructor, FrameStore* store = nullptr)
-      : reconstructor_(reconstructor), store_(store) {}
+  // `store` may be null: nothing is paged or recorded. Loop closure (loop_closure.enabled, frames
+  // without hints) runs on a thread of its own with `background_loop_closure` (the fusion daemon:
+  // the fusion thread never waits for it), otherwise within run() (offline: repeatable).
+  FramePath(IncrementalReconstructor& reconstructor, FrameStore* store = nullptr,
+            bool background_loop_closure = false);
+  ~FramePath();
 
   // A failure of process() itself (a frame that cannot be measured) is the error; the store's are
   // in the outcome.
   Result<FrameOutcome> run(const Frame& frame);
+  // The end of a scan or sequence: waits for the loop closer and applies what it found last.
+  std::optional<AppliedCorrection> finish();
+
+  const ScanGraph& graph() const { return graph_; }
+  LoopClosureStats loop_closure_stats() const;
 
  private:
+  std::optional<AppliedCorrection> apply_correction();
+  void join_graph(const Frame& frame, const FrameReport& report, FrameOutcome* outcome);
+
   IncrementalReconstructor& reconstructor_;
   FrameStore* store_;
+  ScanGraph graph_;
+  std::unique_ptr<LoopCloser> closer_;  // null without loop closure
 };
 
 }  // namespace depthfuse

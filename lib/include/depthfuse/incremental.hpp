@@ -12,6 +12,7 @@
 #include "depthfuse/measurement.hpp"
 #include "depthfuse/point_map.hpp"
 #include "depthfuse/registration.hpp"
+#include "depthfuse/scan_graph.hpp"
 #include "depthfuse/status.hpp"
 
 namespace depthfuse {
@@ -86,6 +87,13 @@ class IncrementalReconstructor {
   // and the next frame renders its own model.
   Status replay(const Frame& frame, uint32_t frame_id, const Pose& T_world_cam);
 
+  // A loop closure moved the keyframes: the camera's last poses (and so the motion model's
+  // prediction, in the corrected frame), the relocaliser's keyframes and the map move with them,
+  // and the next frame renders its model anew.
+  void apply_correction(const AppliedCorrection& correction);
+  // The last frame's measurements (back-projected, normals, pre-filtered): a keyframe's points.
+  const MeasurementImage& measurement() const { return scratch_; }
+
   // Post-filter the whole map (end of scan).
   size_t finish();
 
@@ -108,7 +116,7 @@ class IncrementalReconstructor {
   //    False when it is not kept (not wanted, or too few points); an error only when the frame
   //    cannot be measured.
   bool keyframe_wanted(const Pose& T_world_cam) const;
-  Result<bool> restore_keyframe(const Frame& frame, const Pose& T_world_cam);
+  Result<bool> restore_keyframe(const Frame& frame, const Pose& T_world_cam, uint32_t frame_id);
   size_t keyframe_count() const;
   uint32_t next_frame_id() const { return next_frame_id_; }
   const ReconstructionConfig& config() const { return config_; }

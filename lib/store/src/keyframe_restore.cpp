@@ -55,7 +55,7 @@ Result<KeyframeRestoreReport> ScanRecorder::restore_keyframes(IncrementalReconst
     }
     Frame frame = k->to_frame();
     frame.T_world_cam_hint.reset();
-    Result<bool> kept = reconstructor.restore_keyframe(frame, k->T_world_cam);
+    Result<bool> kept = reconstructor.restore_keyframe(frame, k->T_world_cam, k->frame_id);
     if (!kept) {
       report.skipped.push_back(
           kept.status().with_context(store_->path() + ": keyframe " + std::to_string(k->frame_id))
