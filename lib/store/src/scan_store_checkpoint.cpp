@@ -1,8 +1,8 @@
 // Writing a scan file: checkpoints (begin, write chunks and poses, commit with a full sync or roll
 // back whole), keyframes, the metadata and configuration, the pager's staged chunks, and returning
-// freed pages. Runs on the fusion daemon's worker thread (through ScanRecorder and MapPager) or the
-// recorder's checkpoint writer thread, one at a time, or on
-// the CLI's main thread for `depthfuse refine` and `inspect --upgrade`.
+// freed pages. Runs on the thread that owns the connection: the fusion daemon's worker thread
+// (through ScanRecorder and MapPager) or the recorder's checkpoint writer thread, each on its own,
+// or the CLI's main thread for `depthfuse refine` and `inspect --upgrade`.
 #include <cstdio>
 
 #include "depthfuse/base/clock.hpp"

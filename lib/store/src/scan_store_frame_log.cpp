@@ -1,7 +1,7 @@
 // The frame redo log of a scan file (table frame_log, docs/checkpoint-format.md): appending the
 // records of fused frames, reading back those after the last checkpoint in frame order with every
-// checksum checked, and dropping them. Records are encoded on the recorder's frame log thread
-// (encode_frame_log_record) and appended under the store's mutex; resume, export and inspect read
+// checksum checked, and dropping them. Records are encoded and appended on the recorder's frame
+// log thread (encode_frame_log_record), on its own connection; resume, export and inspect read
 // them.
 #include "scan_store_internal.hpp"
 

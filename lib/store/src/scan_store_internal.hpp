@@ -9,10 +9,10 @@
 //   scan_store_read.cpp        reading: snapshots, chunks, poses, keyframes, checkpoints, summary
 //   scan_store_integrity.cpp   checking every table and blob
 //   scan_store_frame_log.cpp   the frame redo log: appending, reading, dropping records
-// A ScanStore is used by one thread at a time: the fusion daemon's worker thread owns the writer
-// (through ScanRecorder, whose background checkpoint thread takes it under the recorder's mutex);
-// readers are other processes (depthfuse export and inspect), each with its own
-// connection.
+// A ScanStore is one connection and belongs to one thread: the fusion daemon's worker thread owns
+// the writer (through ScanRecorder), whose background checkpoint and frame log threads write on
+// connections of their own (ScanStore::another_connection); readers are other processes
+// (depthfuse export and inspect), each with its own connection.
 #pragma once
 
 #include <sys/stat.h>
