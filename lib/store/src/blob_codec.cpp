@@ -14,6 +14,7 @@
 #include <iterator>
 #include <cstddef>
 
+#include "depthfuse/base/delta16.hpp"
 #include "depthfuse/store/checksum.hpp"
 
 namespace depthfuse::store {
@@ -54,6 +55,10 @@ constexpr size_t header::size(size_t columns) {
 }
 
 enum Transform : uint8_t { kNone = 0, kBytePlanes = 1, kDelta16Planes = 2 };
+
+// Transform 2 runs through the whole column, without zigzag (lib/lcm's wire format predicts each
+// row on its own and zigzags: the same transform, other parameters).
+Delta16Layout whole_image(size_t count) { return Delta16Layout{count, false}; }
 
 template <typename T>
 void put(uint8_t* p, T v) { std::memcpy(p, &v, sizeof(T)); }
@@ -279,16 +284,7 @@ Status BlobCodec::encode(BlobKind kind, uint32_t count, uint32_t width, uint32_t
       to_planes(src, count, c.element_size, dst);
     } else if (c.transform == kDelta16Planes) {
       // Difference to the previous element (wrapping), then planes: smooth depth becomes small.
-      uint16_t prev = 0;
-      uint8_t* low = dst;
-      uint8_t* high = dst + count;
-      for (size_t i = 0; i < count; ++i) {
-        const uint16_t v = get<uint16_t>(src + 2 * i);
-        const auto e = static_cast<uint16_t>(v - prev);
-        low[i] = static_cast<uint8_t>(e);
-        high[i] = static_cast<uint8_t>(e >> 8);
-        prev = v;
-      }
+      delta16_to_planes(static_cast<const uint16_t*>(c.data), count, whole_image(count), dst);
     } else if (bytes) {
       std::memcpy(dst, src, bytes);
     }
@@ -350,12 +346,7 @@ Status BlobCodec::decode(const void* blob, size_t /*size*/, const std::string& w
       from_planes(src, count, c.element_size, dst);
     } else if (c.transform == kDelta16Planes) {
       if (c.element_size != 2) return corrupt(what + ": delta transform on a non-16-bit column");
-      from_planes(src, count, 2, dst);
-      uint16_t prev = 0;
-      for (size_t i = 0; i < count; ++i) {
-        prev = static_cast<uint16_t>(prev + get<uint16_t>(dst + 2 * i));
-        put<uint16_t>(dst + 2 * i, prev);
-      }
+      delta16_from_planes(src, count, whole_image(count), static_cast<uint16_t*>(c.out));
     } else if (bytes) {
       std::memcpy(dst, src, bytes);
     }
