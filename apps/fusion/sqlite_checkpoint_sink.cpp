@@ -271,6 +271,9 @@ void SqliteCheckpointSink::add_counters(std::vector<std::pair<std::string, doubl
   counters->emplace_back("frame_log_last_frame", static_cast<double>(s.frame_log.last_logged_frame));
   counters->emplace_back("frame_log_waiting", static_cast<double>(s.frame_log.frames_waiting));
   counters->emplace_back("frame_log_failures", static_cast<double>(s.frame_log.failures));
+  // Frames not logged: after failures beyond its memory bound the log stops until a checkpoint
+  // holds every frame it dropped (a crash before then loses them).
+  counters->emplace_back("frame_log_dropped", static_cast<double>(s.frame_log.frames_dropped));
   counters->emplace_back("frame_log_encode_s", s.frame_log.encode_seconds);
   counters->emplace_back("frame_log_write_s", s.frame_log.write_seconds);
   counters->emplace_back("frame_log_cpu_s", s.frame_log.cpu_seconds);

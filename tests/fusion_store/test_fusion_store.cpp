@@ -2,8 +2,9 @@
 // LCM. (a) a recorded scan passes `depthfuse inspect` and `depthfuse export` writes its cloud;
 // (b) the fusion daemon killed with SIGKILL at random moments, 20+ times, resumes each time from
 // the file's last checkpoint (the next frame id follows it), the file passes its integrity check
-// after every kill, and the final file holds every frame id exactly once; (c) with the default
-// one-second checkpoints, a kill at any moment loses at most 30 frames of a 30 Hz capture; (d)
+// after every kill, and the final file holds every frame id exactly once; (c) with the frame redo
+// log's defaults, a kill at any moment loses at most 30 frames of a 30 Hz capture, also with both
+// cores busy; (d)
 // checkpoint commands every 0.15 s and then a stop, round after round: every command is answered
 // and every stop saves its scan.
 #include <cstdlib>
@@ -78,6 +79,7 @@ class FusionStore : public ::testing::Test {
     }
     return checkpointed;
   }
+  void kill_at_random_moments(int kills, const std::string& tag);
   // Frames of the file's redo log after its last checkpoint.
   size_t logged_frames() {
     auto store = store::ScanStore::open(db_, store::OpenMode::kReadOnly);
@@ -243,17 +245,16 @@ TEST_F(FusionStore, KilledTwentyTimesResumesFromTheLastCheckpoint) {
   EXPECT_GT(ply_vertex_count(ply), 10000);
 }
 
-// Incremental checkpoints, about every second in the background: a kill -9 at any moment, the
-// first second of a (resumed) scan included, loses at most 30 frames of a 30 Hz capture (frames
-// lost: fused, their pose published, but not in the file's last checkpoint), and the file is
-// always sound for `depthfuse inspect`.
-TEST_F(FusionStore, KilledAtRandomMomentsLosesAtMostOneSecondOfFrames) {
-  constexpr int kKills = 12;
+// The frame redo log with the defaults (committed at least every second, full checkpoints every 30
+// s): `kills` kill -9s at random moments of a 30 Hz capture, a third within the first second of the
+// scan or its resume, each losing at most 30 fused frames (frames lost: fused, their pose
+// published, but neither in the file's last checkpoint nor in its log), with nothing fused more
+// than 2 s before the kill missing, `depthfuse inspect` passing after each, each resume continuing
+// after the last frame the file holds, and `export` of a killed file folding the logged frames in.
+void FusionStore::kill_at_random_moments(int kills, const std::string& tag) {
   constexpr int64_t kMaxLost = 30;
   // A frame log commit every second, plus the time it takes to write on a loaded machine.
   constexpr milliseconds kOld(2000);
-  // The defaults: full checkpoints every 30 s, so nearly every frame the file holds after a kill
-  // is in the frame redo log.
   std::ofstream(config_) << "[fusion_daemon]\nscan_dir = \"" << dir_.file("scans") << "\"\n";
   // Arrival times of the current round's poses.
   std::mutex mutex;
@@ -272,9 +273,9 @@ TEST_F(FusionStore, KilledAtRandomMomentsLosesAtMostOneSecondOfFrames) {
   uint32_t checkpoint_frame = 0;
   int64_t most_lost = 0, total_fused = 0;
   int exports_folded = 0;
-  for (int round = 0; round < kKills; ++round) {
-    SCOPED_TRACE("round " + std::to_string(round));
-    const std::string log = "fusion-k" + std::to_string(round) + ".log";
+  for (int round = 0; round < kills; ++round) {
+    SCOPED_TRACE(tag + " round " + std::to_string(round));
+    const std::string log = "fusion-" + tag + std::to_string(round) + ".log";
     {
       std::lock_guard<std::mutex> lock(mutex);
       poses.clear();
@@ -283,7 +284,7 @@ TEST_F(FusionStore, KilledAtRandomMomentsLosesAtMostOneSecondOfFrames) {
     const std::string started = checkpoint_frame == 0
         ? "scan kill-test started"
         : "scan kill-test resumed at frame " + std::to_string(checkpoint_frame + 1);
-    ASSERT_TRUE(eventually([&] { return fusion->log().find(started) != std::string::npos; }, seconds(30)))
+    ASSERT_TRUE(eventually([&] { return fusion->log().find(started) != std::string::npos; }, seconds(60)))
         << "expected '" << started << "':\n" << fusion->log();
     // A third of the kills within the first second of the scan.
     std::this_thread::sleep_for(milliseconds(round % 3 == 0 ? early_ms(rng) : any_ms(rng)));
@@ -321,10 +322,32 @@ TEST_F(FusionStore, KilledAtRandomMomentsLosesAtMostOneSecondOfFrames) {
   }
   capture->signal(SIGTERM);
   listener.stop();
-  EXPECT_GT(exports_folded, 0) << "no export of a killed file had logged frames to fold in";
-  std::printf("%d kills: at most %lld frames lost of %lld fused, %u frames in the file\n", kKills,
-              static_cast<long long>(most_lost), static_cast<long long>(total_fused), checkpoint_frame);
-  EXPECT_GT(checkpoint_frame, static_cast<uint32_t>(kKills)) << "the scan hardly advanced";
+  if (kills >= 8) {  // exports every 4th round, of a file with a log
+    EXPECT_GT(exports_folded, 0) << "no export of a killed file had logged frames to fold in";
+  }
+  std::printf("%s: %d kills: at most %lld frames lost of %lld fused, %u frames in the file\n", tag.c_str(),
+              kills, static_cast<long long>(most_lost), static_cast<long long>(total_fused), checkpoint_frame);
+  EXPECT_GT(checkpoint_frame, static_cast<uint32_t>(kills)) << "the scan hardly advanced";
+}
+
+TEST_F(FusionStore, KilledAtRandomMomentsLosesAtMostOneSecondOfFrames) {
+  kill_at_random_moments(12, "k");
+}
+
+// The same with both cores taken by busy loops beside the daemons (issue 36: the frame log's
+// thread, niced, waited for a core most of the time, and 8 of 20 kills lost more than 30 frames).
+// The daemon now waits for the log rather than let it fall a second behind.
+TEST_F(FusionStore, KilledUnderLoadLosesAtMostOneSecondOfFrames) {
+  std::atomic<bool> busy{true};
+  std::vector<std::thread> loops;
+  for (int i = 0; i < 2; ++i)
+    loops.emplace_back([&] {
+      volatile uint64_t spin = 0;
+      while (busy.load(std::memory_order_relaxed)) ++spin;
+    });
+  kill_at_random_moments(5, "load");
+  busy = false;
+  for (std::thread& t : loops) t.join();
 }
 
 // Checkpoint commands every 0.15 s while frames are fused, then a stop, round after round: every
@@ -428,7 +451,7 @@ TEST_F(FusionStore, FullDiskIsReportedAndTheLastGoodCheckpointKept) {
   // periodic checkpoint call that once reported it came up to checkpoint_interval_s later).
   std::ofstream(config_, std::ios::app) << "heartbeat_rate_hz = 20\n";
   std::mutex mutex;
-  std::optional<depthfuse::heartbeat_t> last_hb, first_failed;
+  std::optional<depthfuse::heartbeat_t> last_hb, first_failed, first_log_failed;
   Listener listener(url_);
   ASSERT_TRUE(listener.error().empty()) << listener.error();
   listener.subscribe(lcm::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n,
@@ -438,6 +461,7 @@ TEST_F(FusionStore, FullDiskIsReportedAndTheLastGoodCheckpointKept) {
     std::lock_guard<std::mutex> lock(mutex);
     last_hb = hb;
     if (!first_failed && daemon::counter_value(hb, "checkpoint_failures") > 0) first_failed = hb;
+    if (!first_log_failed && daemon::counter_value(hb, "frame_log_failures") > 0) first_log_failed = hb;
   });
   listener.start();
   auto hb = [&] {
@@ -465,6 +489,20 @@ TEST_F(FusionStore, FullDiskIsReportedAndTheLastGoodCheckpointKept) {
   EXPECT_GT(daemon::counter_value(failed, "checkpoints_written"), 0) << fusion->log();
   // Fusion goes on.
   EXPECT_TRUE(eventually([&] { return hb()->frames_out > failed.frames_out + 2; }, seconds(30)))
+      << fusion->log();
+  // The frame log's appends fail too once its file cannot grow: counted, and the heartbeat that
+  // first counts one says why (issue 36: the log stopped with frame_log_failures still 0). Its
+  // failures hold nothing up: fusion goes on.
+  ASSERT_TRUE(eventually([&] {
+    std::lock_guard<std::mutex> lock(mutex);
+    return first_log_failed.has_value();
+  }, seconds(90))) << fusion->log();
+  const auto log_failed = [&] {
+    std::lock_guard<std::mutex> lock(mutex);
+    return *first_log_failed;
+  }();
+  EXPECT_NE(log_failed.last_error.find("frame log"), std::string::npos) << log_failed.last_error;
+  EXPECT_TRUE(eventually([&] { return hb()->frames_out > log_failed.frames_out + 5; }, seconds(30)))
       << fusion->log();
   EXPECT_TRUE(fusion->running()) << fusion->log();
   fusion->signal(SIGKILL);

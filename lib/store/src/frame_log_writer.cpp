@@ -224,7 +224,11 @@ void FrameLogWriter::run() {
   std::unique_lock<std::mutex> lock(mu_);
   for (;;) {
     if (stop_) return;
-    if (!raw_.empty() && encoded_bytes_ < 2 * config_.commit_bytes) {
+    // Encoding stops at twice commit_bytes while the log is healthy (a locked file), so that the
+    // raw frames hold up fusion; while its appends fail it goes on, up to the bound that drops the
+    // records and stops logging, so that a failing log never holds fusion up.
+    const bool failing = retry_after_ns_ != 0;
+    if (!raw_.empty() && (encoded_bytes_ < 2 * config_.commit_bytes || failing)) {
       encode_one(lock);
       continue;
     }
@@ -243,7 +247,7 @@ void FrameLogWriter::run() {
     // Due at half the lag bound (or at commit_bytes): the commit's own time and a busy machine's
     // scheduling fit in the other half before push() would have to wait.
     const int64_t due = std::max(encoded_.front().pushed_ns + to_ns(config_.max_lag_s) / 2, retry_after_ns_);
-    if (!flushing && now < due && encoded_bytes_ < config_.commit_bytes) {
+    if (!flushing && now < due && (encoded_bytes_ < config_.commit_bytes || now < retry_after_ns_)) {
       cv_.wait_for(lock, std::chrono::nanoseconds(due - now));
       continue;
     }
