@@ -380,11 +380,7 @@ bool ScanRecorder::checkpoint_in_background(PointMap* map, const std::string& re
   if (!writer_) {
     auto connection = store_->another_connection(config_.store);
     if (!connection) {
-      // Nothing of it was written: everything stays pending for the next checkpoint.
-      pending_poses_.insert(pending_poses_.begin(), job.poses.begin(), job.poses.end());
-      status_.pending_poses = pending_poses_.size();
-      (void)checkpoint_failed(connection.status().with_context("opening the checkpoint writer's connection"),
-                              job.info.last_frame_id);
+      not_written(job, connection.status().with_context("opening the checkpoint writer's connection"));
       return true;
     }
     writer_ = std::make_unique<CheckpointWriter>(std::move(connection).value(),
@@ -405,11 +401,7 @@ void ScanRecorder::collect_background(PointMap* map, bool clear_dirty) {
   status_.total_encode_seconds += out->encode_seconds;
   status_.total_write_seconds += out->write_seconds;
   if (!out->record) {
-    // Nothing of it was written: its poses are pending again, its chunks are still dirty (or were
-    // staged dirty since), and the removed ones are found again from the last checkpoint's keys.
-    pending_poses_.insert(pending_poses_.begin(), job.poses.begin(), job.poses.end());
-    status_.pending_poses = pending_poses_.size();
-    (void)checkpoint_failed(out->record.status(), job.info.last_frame_id);
+    not_written(job, out->record.status());
     return;
   }
   // A chunk a later frame touched has changes the checkpoint does not hold: it stays dirty.
@@ -420,6 +412,14 @@ void ScanRecorder::collect_background(PointMap* map, bool clear_dirty) {
   status_.last_checkpoint_chunks = job.written.size();
   status_.last_checkpoint_seconds = static_cast<double>(steady_ns() - job.snapshot_ns) * 1e-9;
   checkpoint_committed(*out->record, std::move(job.resident));
+}
+
+// Nothing of the job was written: its poses are pending again, its chunks are still dirty (or were
+// staged dirty since), and the removed ones are found again from the last checkpoint's keys.
+void ScanRecorder::not_written(const CheckpointJob& job, const Status& why) {
+  pending_poses_.insert(pending_poses_.begin(), job.poses.begin(), job.poses.end());
+  status_.pending_poses = pending_poses_.size();
+  (void)checkpoint_failed(why, job.info.last_frame_id);
 }
 
 Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std::string& reason,

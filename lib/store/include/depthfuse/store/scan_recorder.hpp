@@ -23,6 +23,7 @@
 namespace depthfuse::store {
 
 class CheckpointWriter;
+struct CheckpointJob;
 class FrameLogWriter;
 
 // The frame redo log's thread: what it has done (RecorderStatus::frame_log).
@@ -228,6 +229,8 @@ class ScanRecorder {
   // `last_frame_id`: the failed checkpoint's, which its error names.
   Status checkpoint_failed(const Status& error, uint32_t last_frame_id);
   void checkpoint_committed(const CheckpointRecord& rec, std::vector<ChunkKey> resident);
+  // A background checkpoint that wrote nothing: what it held is pending again.
+  void not_written(const CheckpointJob& job, const Status& why);
   // With the mutex held: applies a finished background checkpoint's outcome to the map and status.
   // `clear_dirty`: the chunks it wrote and no later frame touched are clean. Not when the map may
   // have changed outside fusion since (the end of scan's post-filter touches no frame).
