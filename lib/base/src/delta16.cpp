@@ -49,13 +49,15 @@ void from_planes(const uint8_t* low, const uint8_t* high, size_t n, size_t run, 
 
 }  // namespace
 
-void delta16_to_planes(const uint16_t* values, size_t n, const Delta16Layout& layout, uint8_t* planes) {
+void delta16_to_planes(const uint16_t* values, size_t n, const Delta16Layout& layout,
+                       uint8_t* planes) {
   const size_t run = std::max<size_t>(1, layout.run);
   if (layout.zigzag) to_planes<true>(values, n, run, planes, planes + n);
   else to_planes<false>(values, n, run, planes, planes + n);
 }
 
-void delta16_from_planes(const uint8_t* planes, size_t n, const Delta16Layout& layout, uint16_t* values) {
+void delta16_from_planes(const uint8_t* planes, size_t n, const Delta16Layout& layout,
+                         uint16_t* values) {
   const size_t run = std::max<size_t>(1, layout.run);
   if (layout.zigzag) from_planes<true>(planes, planes + n, n, run, values);
   else from_planes<false>(planes, planes + n, n, run, values);

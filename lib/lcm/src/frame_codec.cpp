@@ -43,7 +43,8 @@ void store_le16(const std::vector<uint16_t>& in, uint8_t* out) {
 }
 
 // The row predictor of ENCODING_ZSTD_DELTA_UINT16 (see depth_frame_t.lcm): each row on its own,
-// zigzagged, into byte planes (the scan file's depth blobs share the transform, over the whole image).
+// zigzagged, into byte planes (the scan file's depth blobs share the transform, over the whole
+// image).
 Delta16Layout row_predictor(int width) { return Delta16Layout{static_cast<size_t>(width), true}; }
 
 Status zstd_compress(const uint8_t* src, size_t size, int level, std::vector<uint8_t>* out) {

@@ -149,6 +149,14 @@ void FrameLogWriter::encode_one(std::unique_lock<std::mutex>& lock) {
   }
 }
 
+void FrameLogWriter::put_back(std::vector<FrameLogRecord>& batch, const std::vector<int64_t>& pushed) {
+  // (Those a checkpoint covered meanwhile need not be written any more.)
+  for (size_t i = batch.size(); i-- > 0 && batch[i].pose.frame_id > covered_up_to_;) {
+    encoded_bytes_ += batch[i].depth.size() + batch[i].color.size();
+    encoded_.push_front(Encoded{std::move(batch[i]), pushed[i]});
+  }
+}
+
 bool FrameLogWriter::commit(std::unique_lock<std::mutex>& lock) {
   std::vector<FrameLogRecord> batch;
   batch.reserve(encoded_.size());
@@ -180,13 +188,13 @@ bool FrameLogWriter::commit(std::unique_lock<std::mutex>& lock) {
     ++stats_.commits;
     stats_.frames_logged += batch.size();
     stats_.last_logged_frame = batch.back().pose.frame_id;
-    stats_.max_lag_seconds = std::max(stats_.max_lag_seconds, static_cast<double>(t1 - pushed.front()) * 1e-9);
+    stats_.max_lag_seconds =
+        std::max(stats_.max_lag_seconds, static_cast<double>(t1 - pushed.front()) * 1e-9);
     settled_up_to(batch.back().pose.frame_id);
     retry_after_ns_ = 0;
     locked_since_ns_ = 0;
   } else if (locked && !give_up) {
-    for (size_t i = batch.size(); i-- > 0;) encoded_.push_front(Encoded{std::move(batch[i]), pushed[i]});
-    encoded_bytes_ += bytes;
+    put_back(batch, pushed);
     return false;
   } else {
     ++stats_.failures;
@@ -204,8 +212,7 @@ bool FrameLogWriter::commit(std::unique_lock<std::mutex>& lock) {
       encoded_bytes_ = 0;
       uncommitted_.clear();
     } else {
-      for (size_t i = batch.size(); i-- > 0;) encoded_.push_front(Encoded{std::move(batch[i]), pushed[i]});
-      encoded_bytes_ += bytes;
+      put_back(batch, pushed);
     }
   }
   if (flush_requests_ > flushes_done_ && raw_.empty() && (encoded_.empty() || !st)) {
@@ -246,7 +253,8 @@ void FrameLogWriter::run() {
     const int64_t now = steady_ns();
     // Due at half the lag bound (or at commit_bytes): the commit's own time and a busy machine's
     // scheduling fit in the other half before push() would have to wait.
-    const int64_t due = std::max(encoded_.front().pushed_ns + to_ns(config_.max_lag_s) / 2, retry_after_ns_);
+    const int64_t due =
+        std::max(encoded_.front().pushed_ns + to_ns(config_.max_lag_s) / 2, retry_after_ns_);
     if (!flushing && now < due && (encoded_bytes_ < config_.commit_bytes || now < retry_after_ns_)) {
       cv_.wait_for(lock, std::chrono::nanoseconds(due - now));
       continue;

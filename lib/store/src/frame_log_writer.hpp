@@ -81,6 +81,8 @@ class FrameLogWriter {
   // With mu_ held: appends every encoded frame in one transaction (mu_ released meanwhile). False
   // when another connection has the file's write lock: the frames wait for the next try.
   bool commit(std::unique_lock<std::mutex>& lock);
+  // With mu_ held: a batch that was not committed goes back before what was encoded meanwhile.
+  void put_back(std::vector<FrameLogRecord>& batch, const std::vector<int64_t>& pushed);
   // With mu_ held: drops encoded and raw frames up to `frame_id`.
   void drop_up_to(uint32_t frame_id);
   // With mu_ held: frames up to `frame_id` are committed or need not be.
