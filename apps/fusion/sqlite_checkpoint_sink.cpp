@@ -272,8 +272,19 @@ void SqliteCheckpointSink::add_counters(std::vector<std::pair<std::string, doubl
   counters->emplace_back("frame_log_last_frame", static_cast<double>(s.frame_log.last_logged_frame));
   counters->emplace_back("frame_log_waiting", static_cast<double>(s.frame_log.frames_waiting));
   counters->emplace_back("frame_log_failures", static_cast<double>(s.frame_log.failures));
+  // Frames not logged: after failures beyond its memory bound the log stops until a checkpoint
+  // holds every frame it dropped (a crash before then loses them).
+  counters->emplace_back("frame_log_dropped", static_cast<double>(s.frame_log.frames_dropped));
   counters->emplace_back("frame_log_encode_s", s.frame_log.encode_seconds);
   counters->emplace_back("frame_log_write_s", s.frame_log.write_seconds);
+  counters->emplace_back("frame_log_cpu_s", s.frame_log.cpu_seconds);
+  // How far behind the log is (the oldest frame not committed, now; the most a committed frame
+  // waited), and what keeping it within frame_log_interval_s cost fusion: the time the worker
+  // waited for it, and how often it waited because the log was that far behind.
+  counters->emplace_back("frame_log_lag_ms", s.frame_log.lag_seconds * 1e3);
+  counters->emplace_back("frame_log_max_lag_ms", s.frame_log.max_lag_seconds * 1e3);
+  counters->emplace_back("frame_log_wait_s", s.frame_log.waited_seconds);
+  counters->emplace_back("frame_log_lag_waits", static_cast<double>(s.frame_log.lag_waits));
   // The checkpoint writer's thread time so far, comparable with the log's.
   counters->emplace_back("checkpoint_encode_s", s.total_encode_seconds);
   counters->emplace_back("checkpoint_write_s", s.total_write_seconds);

@@ -2,10 +2,15 @@
 // LCM. (a) a recorded scan passes `depthfuse inspect` and `depthfuse export` writes its cloud;
 // (b) the fusion daemon killed with SIGKILL at random moments, 20+ times, resumes each time from
 // the file's last checkpoint (the next frame id follows it), the file passes its integrity check
-// after every kill, and the final file holds every frame id exactly once; (c) with the default
-// one-second checkpoints, a kill at any moment loses at most 30 frames of a 30 Hz capture.
+// after every kill, and the final file holds every frame id exactly once; (c) with the frame redo
+// log's defaults, a kill at any moment loses at most 30 frames of a 30 Hz capture, also with both
+// cores busy; (d)
+// checkpoint commands every 0.15 s and then a stop, round after round: every command is answered
+// and every stop saves its scan.
+#include <cstdlib>
 #include <random>
 
+#include "depthfuse/command_t.hpp"
 #include "depthfuse/daemon/heartbeat.hpp"
 #include "depthfuse/heartbeat_t.hpp"
 #include "depthfuse/lcm/channels.hpp"
@@ -74,6 +79,7 @@ class FusionStore : public ::testing::Test {
     }
     return checkpointed;
   }
+  void kill_at_random_moments(int kills, const std::string& tag);
   // Frames of the file's redo log after its last checkpoint.
   size_t logged_frames() {
     auto store = store::ScanStore::open(db_, store::OpenMode::kReadOnly);
@@ -239,17 +245,16 @@ TEST_F(FusionStore, KilledTwentyTimesResumesFromTheLastCheckpoint) {
   EXPECT_GT(ply_vertex_count(ply), 10000);
 }
 
-// Incremental checkpoints, about every second in the background: a kill -9 at any moment, the
-// first second of a (resumed) scan included, loses at most 30 frames of a 30 Hz capture (frames
-// lost: fused, their pose published, but not in the file's last checkpoint), and the file is
-// always sound for `depthfuse inspect`.
-TEST_F(FusionStore, KilledAtRandomMomentsLosesAtMostOneSecondOfFrames) {
-  constexpr int kKills = 12;
+// The frame redo log with the defaults (committed at least every second, full checkpoints every 30
+// s): `kills` kill -9s at random moments of a 30 Hz capture, a third within the first second of the
+// scan or its resume, each losing at most 30 fused frames (frames lost: fused, their pose
+// published, but neither in the file's last checkpoint nor in its log), with nothing fused more
+// than 2 s before the kill missing, `depthfuse inspect` passing after each, each resume continuing
+// after the last frame the file holds, and `export` of a killed file folding the logged frames in.
+void FusionStore::kill_at_random_moments(int kills, const std::string& tag) {
   constexpr int64_t kMaxLost = 30;
   // A frame log commit every second, plus the time it takes to write on a loaded machine.
   constexpr milliseconds kOld(2000);
-  // The defaults: full checkpoints every 30 s, so nearly every frame the file holds after a kill
-  // is in the frame redo log.
   std::ofstream(config_) << "[fusion_daemon]\nscan_dir = \"" << dir_.file("scans") << "\"\n";
   // Arrival times of the current round's poses.
   std::mutex mutex;
@@ -268,9 +273,9 @@ TEST_F(FusionStore, KilledAtRandomMomentsLosesAtMostOneSecondOfFrames) {
   uint32_t checkpoint_frame = 0;
   int64_t most_lost = 0, total_fused = 0;
   int exports_folded = 0;
-  for (int round = 0; round < kKills; ++round) {
-    SCOPED_TRACE("round " + std::to_string(round));
-    const std::string log = "fusion-k" + std::to_string(round) + ".log";
+  for (int round = 0; round < kills; ++round) {
+    SCOPED_TRACE(tag + " round " + std::to_string(round));
+    const std::string log = "fusion-" + tag + std::to_string(round) + ".log";
     {
       std::lock_guard<std::mutex> lock(mutex);
       poses.clear();
@@ -279,7 +284,7 @@ TEST_F(FusionStore, KilledAtRandomMomentsLosesAtMostOneSecondOfFrames) {
     const std::string started = checkpoint_frame == 0
         ? "scan kill-test started"
         : "scan kill-test resumed at frame " + std::to_string(checkpoint_frame + 1);
-    ASSERT_TRUE(eventually([&] { return fusion->log().find(started) != std::string::npos; }, seconds(30)))
+    ASSERT_TRUE(eventually([&] { return fusion->log().find(started) != std::string::npos; }, seconds(60)))
         << "expected '" << started << "':\n" << fusion->log();
     // A third of the kills within the first second of the scan.
     std::this_thread::sleep_for(milliseconds(round % 3 == 0 ? early_ms(rng) : any_ms(rng)));
@@ -317,10 +322,127 @@ TEST_F(FusionStore, KilledAtRandomMomentsLosesAtMostOneSecondOfFrames) {
   }
   capture->signal(SIGTERM);
   listener.stop();
-  EXPECT_GT(exports_folded, 0) << "no export of a killed file had logged frames to fold in";
-  std::printf("%d kills: at most %lld frames lost of %lld fused, %u frames in the file\n", kKills,
-              static_cast<long long>(most_lost), static_cast<long long>(total_fused), checkpoint_frame);
-  EXPECT_GT(checkpoint_frame, static_cast<uint32_t>(kKills)) << "the scan hardly advanced";
+  if (kills >= 8) {  // exports every 4th round, of a file with a log
+    EXPECT_GT(exports_folded, 0) << "no export of a killed file had logged frames to fold in";
+  }
+  std::printf("%s: %d kills: at most %lld frames lost of %lld fused, %u frames in the file\n", tag.c_str(),
+              kills, static_cast<long long>(most_lost), static_cast<long long>(total_fused), checkpoint_frame);
+  EXPECT_GT(checkpoint_frame, static_cast<uint32_t>(kills)) << "the scan hardly advanced";
+}
+
+TEST_F(FusionStore, KilledAtRandomMomentsLosesAtMostOneSecondOfFrames) {
+  kill_at_random_moments(12, "k");
+}
+
+// The same with both cores taken by busy loops beside the daemons (issue 36: the frame log's
+// thread, niced, waited for a core most of the time, and 8 of 20 kills lost more than 30 frames).
+// The daemon now waits for the log rather than let it fall a second behind.
+TEST_F(FusionStore, KilledUnderLoadLosesAtMostOneSecondOfFrames) {
+  std::atomic<bool> busy{true};
+  std::vector<std::thread> loops;
+  for (int i = 0; i < 2; ++i)
+    loops.emplace_back([&] {
+      volatile uint64_t spin = 0;
+      while (busy.load(std::memory_order_relaxed)) ++spin;
+    });
+  kill_at_random_moments(5, "load");
+  busy = false;
+  for (std::thread& t : loops) t.join();
+}
+
+// Checkpoint commands every 0.15 s while frames are fused, then a stop, round after round: every
+// command is answered (accepted), and every stop saves its scan. The daemon's threads once shared
+// one SQLite connection, and the export at a stop read it while the frame log's thread committed a
+// record on it: stops failed with "cannot start a transaction within a transaction", and once the
+// daemon answered nothing for 90 s (issue 36). DEPTHFUSE_RACE_ROUNDS sets the rounds
+// (tools/bench/checkpoint_race.py runs 100 with the command-line client).
+TEST_F(FusionStore, CheckpointCommandsThenStopEveryRound) {
+  const char* env = std::getenv("DEPTHFUSE_RACE_ROUNDS");
+  const int rounds = env ? std::atoi(env) : 6;
+  constexpr int kCommands = 8;
+  // Heartbeats at 20 Hz repeat each acknowledgement until the next command, should one be missed.
+  std::ofstream(config_) << "[lcm]\nkey_file = \"\"\n[fusion_daemon]\nscan_dir = \""
+                         << dir_.file("scans") << "\"\nmin_scan_interval_s = 0\nheartbeat_rate_hz = 20\n";
+  struct Ack {
+    int8_t result;
+    std::string message;
+  };
+  std::mutex mutex;
+  std::map<int64_t, Ack> acks;
+  int64_t frames_out = -1;  // no heartbeat yet
+  Listener listener(url_);
+  ASSERT_TRUE(listener.error().empty()) << listener.error();
+  listener.subscribe(lcm::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n, int64_t) {
+    depthfuse::heartbeat_t hb;
+    if (lcm::decode_message(d, n, &hb) != lcm::DecodeResult::kOk || hb.name != "fusion") return;
+    std::lock_guard<std::mutex> lock(mutex);
+    frames_out = hb.frames_out;
+    if (hb.last_command_id > 0) acks.emplace(hb.last_command_id, Ack{hb.last_command_result, hb.last_command_message});
+  });
+  listener.start();
+  auto fusion = std::make_unique<Process>(
+      std::vector<std::string>{bin("depthfuse-fusion"), "--config", config_, "--lcm", url_},
+      dir_.file("fusion-race.log"));
+  auto capture = start_capture("corner?frames=60&seed=9", {"--rate", "30", "--loop"});
+  int64_t next_id = 1000;
+  auto send = [&](int8_t action, const std::string& argument = "") {
+    depthfuse::command_t cmd{};
+    cmd.protocol_version = depthfuse::command_t::PROTOCOL_VERSION;
+    cmd.command_id = next_id++;
+    cmd.target = "fusion";
+    cmd.action = action;
+    cmd.argument = argument;
+    cmd.sender = "race-test";
+    EXPECT_TRUE(listener.lcm()->publish_message(lcm::kCommandChannel, cmd).is_ok());
+    return cmd.command_id;
+  };
+  // The command's acknowledgement, or nothing after `timeout`.
+  auto answer = [&](int64_t id, seconds timeout) -> std::optional<Ack> {
+    const bool answered = eventually([&] {
+      std::lock_guard<std::mutex> lock(mutex);
+      return acks.count(id) > 0;
+    }, timeout, milliseconds(10));
+    if (!answered) return std::nullopt;
+    std::lock_guard<std::mutex> lock(mutex);
+    return acks.at(id);
+  };
+  auto fused = [&] {
+    std::lock_guard<std::mutex> lock(mutex);
+    return frames_out;
+  };
+  ASSERT_TRUE(eventually([&] { return fused() >= 0; }, seconds(20))) << "no heartbeat:\n" << fusion->log();
+  for (int round = 0; round < rounds; ++round) {
+    SCOPED_TRACE("round " + std::to_string(round));
+    const auto started = answer(send(depthfuse::command_t::ACTION_START, "race" + std::to_string(round)),
+                                seconds(20));
+    ASSERT_TRUE(started) << "start not answered:\n" << fusion->log();
+    ASSERT_EQ(started->result, depthfuse::heartbeat_t::COMMAND_RESULT_OK) << started->message;
+    const int64_t before = fused();
+    ASSERT_TRUE(eventually([&] { return fused() > before + 2; }, seconds(20))) << fusion->log();
+    std::vector<int64_t> ids;
+    for (int k = 0; k < kCommands; ++k) {
+      ids.push_back(send(depthfuse::command_t::ACTION_CHECKPOINT_NOW));
+      std::this_thread::sleep_for(milliseconds(150));
+    }
+    const int64_t stop_id = send(depthfuse::command_t::ACTION_STOP);
+    for (const int64_t id : ids) {
+      const auto a = answer(id, seconds(30));
+      ASSERT_TRUE(a) << "checkpoint command " << id << " not answered:\n" << fusion->log();
+      EXPECT_EQ(a->result, depthfuse::heartbeat_t::COMMAND_RESULT_OK) << a->message;
+    }
+    const auto stopped = answer(stop_id, seconds(60));
+    ASSERT_TRUE(stopped) << "stop not answered:\n" << fusion->log();
+    EXPECT_EQ(stopped->result, depthfuse::heartbeat_t::COMMAND_RESULT_OK) << stopped->message;
+    EXPECT_NE(stopped->message.find(" saved: "), std::string::npos) << stopped->message;
+    if (HasFatalFailure()) return;
+  }
+  capture->signal(SIGTERM);
+  fusion->signal(SIGTERM);
+  ASSERT_TRUE(fusion->wait(seconds(60)));
+  EXPECT_EQ(fusion->exit_code(), 0) << fusion->log();
+  listener.stop();
+  std::string out;
+  EXPECT_EQ(cli({"inspect", dir_.file("scans/race0.dfscan")}, &out), 0) << out;
 }
 
 TEST_F(FusionStore, FullDiskIsReportedAndTheLastGoodCheckpointKept) {
@@ -329,7 +451,7 @@ TEST_F(FusionStore, FullDiskIsReportedAndTheLastGoodCheckpointKept) {
   // periodic checkpoint call that once reported it came up to checkpoint_interval_s later).
   std::ofstream(config_, std::ios::app) << "heartbeat_rate_hz = 20\n";
   std::mutex mutex;
-  std::optional<depthfuse::heartbeat_t> last_hb, first_failed;
+  std::optional<depthfuse::heartbeat_t> last_hb, first_failed, first_log_failed;
   Listener listener(url_);
   ASSERT_TRUE(listener.error().empty()) << listener.error();
   listener.subscribe(lcm::kHeartbeatChannel, [&](const std::string&, const uint8_t* d, size_t n,
@@ -339,6 +461,7 @@ TEST_F(FusionStore, FullDiskIsReportedAndTheLastGoodCheckpointKept) {
     std::lock_guard<std::mutex> lock(mutex);
     last_hb = hb;
     if (!first_failed && daemon::counter_value(hb, "checkpoint_failures") > 0) first_failed = hb;
+    if (!first_log_failed && daemon::counter_value(hb, "frame_log_failures") > 0) first_log_failed = hb;
   });
   listener.start();
   auto hb = [&] {
@@ -366,6 +489,20 @@ TEST_F(FusionStore, FullDiskIsReportedAndTheLastGoodCheckpointKept) {
   EXPECT_GT(daemon::counter_value(failed, "checkpoints_written"), 0) << fusion->log();
   // Fusion goes on.
   EXPECT_TRUE(eventually([&] { return hb()->frames_out > failed.frames_out + 2; }, seconds(30)))
+      << fusion->log();
+  // The frame log's appends fail too once its file cannot grow: counted, and the heartbeat that
+  // first counts one says why (issue 36: the log stopped with frame_log_failures still 0). Its
+  // failures hold nothing up: fusion goes on.
+  ASSERT_TRUE(eventually([&] {
+    std::lock_guard<std::mutex> lock(mutex);
+    return first_log_failed.has_value();
+  }, seconds(90))) << fusion->log();
+  const auto log_failed = [&] {
+    std::lock_guard<std::mutex> lock(mutex);
+    return *first_log_failed;
+  }();
+  EXPECT_NE(log_failed.last_error.find("frame log"), std::string::npos) << log_failed.last_error;
+  EXPECT_TRUE(eventually([&] { return hb()->frames_out > log_failed.frames_out + 5; }, seconds(30)))
       << fusion->log();
   EXPECT_TRUE(fusion->running()) << fusion->log();
   fusion->signal(SIGKILL);

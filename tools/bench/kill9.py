@@ -10,6 +10,10 @@ published - 1) - the newest frame the file holds after the kill. Then steady run
 (alternating between the modes) give the fused rate and the writers' cost (the fusion daemon's
 heartbeat counters): the CPU seconds its checkpoint and frame log threads spend per second.
 
+--load N runs N busy loops (`yes > /dev/null`) beside the daemons for the whole run: with 2 on
+this two-core machine, fusion, the capture and the writers' threads compete for cores that are
+already taken (the frame log's commits are late, and what a kill loses depends on how late).
+
 The modes run side by side in one invocation: the frame log (this build, committed every
 --log-interval-s, full checkpoints every 30 s), this build without the log and 30 s checkpoints
 (steady runs only: the fused rate without incremental durability), and --baseline-bin (the
@@ -19,8 +23,8 @@ their configuration has no frame log key).
   tools/bench/kill9.py [--kills 100] [--bin build/bin] [--baseline-bin DIR]
                        [--baseline-interval-s 30] [--baseline-kills N] [--steady-s 30]
                        [--log-interval-s 1] [--checkpoint-interval-s 30]
-                       [--steady-runs 2] [--min-s 0.1] [--max-s 6] [--scene room] [--lcm URL]
-                       [--workdir DIR]
+                       [--steady-runs 2] [--min-s 0.1] [--max-s 6] [--scene room] [--load N]
+                       [--lcm URL] [--workdir DIR]
 """
 import argparse
 import json
@@ -37,6 +41,8 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))
+sys.path.insert(0, HERE)
+import busy_load  # noqa: E402
 
 
 class Watcher:
@@ -118,14 +124,14 @@ class Mode:
         os.makedirs(self.work)
         self.cfg = os.path.join(self.work, "depthfuse.toml")
         with open(self.cfg, "w") as f:
-            f.write("[fusion_daemon]\ncheckpoint_interval_s = %g\nscan_dir = \"%s\"\n" %
+            f.write("[lcm]\nkey_file = \"\"\n[fusion_daemon]\ncheckpoint_interval_s = %g\nscan_dir = \"%s\"\n" %
                     (interval_s, os.path.join(self.work, "scans")))
             if log_interval_s is not None:  # builds before the frame log do not know the key
                 f.write("frame_log_interval_s = %g\n" % log_interval_s)
         self.db = os.path.join(self.work, "scan.db")
         self.fusion = os.path.join(bin_dir, "depthfuse-fusion")
         self.cli = os.path.join(bin_dir, "depthfuse")  # inspect of the schema these binaries write
-        self.rates, self.heartbeats, self.writer_cpu = [], [], []
+        self.rates, self.heartbeats, self.writer_cpu, self.log_wait = [], [], [], []
         self.proc = None
 
     def start(self, log):
@@ -141,54 +147,72 @@ class Mode:
                 os.remove(self.db + suffix)
 
 
-def kill_rounds(mode, args, watcher):
-    name, db, start, cli = mode.name, mode.db, mode.start, mode.cli
-    work = mode.work
-    lost, inspect_ok, rounds, problems = [], 0, 0, []
-    expected_start = 1
-    for i in range(mode.kills):
-        log = os.path.join(work, "fusion-%d.log" % i)
-        t_start = time.monotonic()
-        proc = start(log)
-        m = wait_for_line(log, r"scan k9 (started|resumed at frame (\d+))", 60)
-        if not m:
-            proc.kill()
-            proc.wait()
-            problems.append("round %d: the daemon did not start its scan (%s)" % (i, log))
-            continue
-        first = int(m.group(2)) if m.group(2) else 1
-        if first != expected_start:
-            problems.append("round %d: resumed at frame %d, the file's last checkpoint says %d" %
-                            (i, first, expected_start))
-        # The random moment counts from the round's first fused frame: resuming a big map on a
-        # loaded machine takes a while, and a kill before fusion restarts would lose nothing.
-        deadline = time.monotonic() + 60
-        while not watcher.poses_between(t_start, time.monotonic()) and time.monotonic() < deadline:
-            time.sleep(0.01)
-        time.sleep(random.uniform(args.min_s, args.max_s))
-        proc.send_signal(signal.SIGKILL)
-        proc.wait()
-        t_kill = time.monotonic()
-        time.sleep(0.3)  # poses already on the wire
-        fused = len(watcher.poses_between(t_start, t_kill + 0.3))
-        code, last, out = inspect(cli, db)
-        rounds += 1
-        if code == 0:
-            inspect_ok += 1
-        else:
-            problems.append("round %d: inspect exit %d:\n%s" % (i, code, out))
-        last_fused = first + fused - 1
-        lost.append(max(0, last_fused - last))
-        expected_start = last + 1
-        print("%-14s kill %3d: frames %d-%d fused, file at frame %d: %d lost, inspect %s" %
-              (name, i + 1, first, last_fused, last, lost[-1], "ok" if code == 0 else "FAILED"),
-              flush=True)
+class Kills:
+    """One mode's kill rounds so far."""
 
-    return {
-        "mode": name, "kills": rounds, "inspect_ok": inspect_ok,
-        "lost_max": max(lost) if lost else 0, "lost_mean": statistics.mean(lost) if lost else 0,
-        "lost_over_30": sum(1 for x in lost if x > 30), "problems": problems,
-    }
+    def __init__(self, mode):
+        self.mode = mode
+        self.lost, self.inspect_ok, self.rounds, self.problems = [], 0, 0, []
+        self.expected_start = 1
+
+    def result(self):
+        lost = self.lost
+        return {
+            "mode": self.mode.name, "kills": self.rounds, "inspect_ok": self.inspect_ok, "lost": lost,
+            "lost_max": max(lost) if lost else 0, "lost_mean": statistics.mean(lost) if lost else 0,
+            "lost_over_30": sum(1 for x in lost if x > 30), "problems": self.problems,
+        }
+
+
+def kill_round(k, i, args, watcher):
+    """Round i of a mode: start the daemon on its file, kill it at a random moment, inspect."""
+    mode = k.mode
+    log = os.path.join(mode.work, "fusion-%d.log" % i)
+    t_start = time.monotonic()
+    proc = mode.start(log)
+    m = wait_for_line(log, r"scan k9 (started|resumed at frame (\d+))", 60)
+    if not m:
+        proc.kill()
+        proc.wait()
+        k.problems.append("round %d: the daemon did not start its scan (%s)" % (i, log))
+        return
+    first = int(m.group(2)) if m.group(2) else 1
+    if first != k.expected_start:
+        k.problems.append("round %d: resumed at frame %d, the file's last checkpoint says %d" %
+                          (i, first, k.expected_start))
+    # The random moment counts from the round's first fused frame: resuming a big map on a
+    # loaded machine takes a while, and a kill before fusion restarts would lose nothing.
+    deadline = time.monotonic() + 60
+    while not watcher.poses_between(t_start, time.monotonic()) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(random.uniform(args.min_s, args.max_s))
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    t_kill = time.monotonic()
+    time.sleep(0.3)  # poses already on the wire
+    fused = len(watcher.poses_between(t_start, t_kill + 0.3))
+    code, last, out = inspect(mode.cli, mode.db)
+    k.rounds += 1
+    if code == 0:
+        k.inspect_ok += 1
+    else:
+        k.problems.append("round %d: inspect exit %d:\n%s" % (i, code, out))
+    last_fused = first + fused - 1
+    k.lost.append(max(0, last_fused - last))
+    k.expected_start = last + 1
+    print("%-14s kill %3d: frames %d-%d fused, file at frame %d: %d lost, inspect %s" %
+          (mode.name, i + 1, first, last_fused, last, k.lost[-1], "ok" if code == 0 else "FAILED"),
+          flush=True)
+
+
+def distribution(lost):
+    """Kills by frames lost, in bins of 5 (the last: over 30)."""
+    if not lost:
+        return "-"
+    bins = [(0, 5), (6, 10), (11, 15), (16, 20), (21, 25), (26, 30)]
+    parts = ["%d-%d: %d" % (a, b, sum(1 for x in lost if a <= x <= b)) for a, b in bins]
+    parts.append("> 30: %d" % sum(1 for x in lost if x > 30))
+    return ", ".join(parts)
 
 
 def steady(mode, args, watcher, run):
@@ -206,6 +230,9 @@ def steady(mode, args, watcher, run):
     hbs = watcher.heartbeats_between(t0, t1)
     mode.heartbeats += [m for _, m in hbs]
     mode.writer_cpu.append(writer_cpu(hbs))
+    if len(hbs) >= 2:
+        (ta, a), (tb, b) = hbs[0], hbs[-1]
+        mode.log_wait.append(((counter(b, "frame_log_wait_s") or 0) - (counter(a, "frame_log_wait_s") or 0)) / (tb - ta))
     print("%-14s steady run %d: %.1f frames fused per second, writer threads %.0f ms CPU per second, "
           "load average %s" % (mode.name, run + 1, mode.rates[-1], 1e3 * mode.writer_cpu[-1],
                                 " ".join("%.2f" % x for x in os.getloadavg())), flush=True)
@@ -247,6 +274,7 @@ def main():
     ap.add_argument("--min-s", type=float, default=0.1, help="earliest kill after the round's first fused frame")
     ap.add_argument("--max-s", type=float, default=6.0, help="latest kill after the round's first fused frame")
     ap.add_argument("--scene", default="room")
+    ap.add_argument("--load", type=int, default=0, help="busy loops beside the daemons (2: both cores)")
     ap.add_argument("--lcm", default="udpm://239.255.76.67:%d?ttl=0&recv_buf_size=4194304" % (7700 + os.getpid() % 200))
     ap.add_argument("--workdir", default="/tmp/depthfuse-kill9")
     ap.add_argument("--seed", type=int, default=1)
@@ -266,25 +294,31 @@ def main():
         modes.append(Mode("baseline %gs" % args.baseline_interval_s, args.baseline_bin,
                           args.baseline_interval_s, args,
                           args.kills if args.baseline_kills < 0 else args.baseline_kills))
-    results = []
+    kills = [Kills(m) for m in modes]
+    load = busy_load.BusyLoad(args.load)
     try:
-        for m in modes:
-            results.append(kill_rounds(m, args, watcher))
+        # The modes' rounds alternate, so that a shared machine's load weighs on them alike.
+        for i in range(max(m.kills for m in modes)):
+            for k in kills:
+                if i < k.mode.kills:
+                    kill_round(k, i, args, watcher)
         # Alternating, so that the load of a shared machine weighs on both alike.
         for run in range(args.steady_runs):
             for m in modes:
                 steady(m, args, watcher, run)
     finally:
+        load.stop()
         for m in modes:
             if m.proc and m.proc.poll() is None:
                 m.proc.kill()
         capture.terminate()
         capture.wait()
         watcher.stop()
+    results = [k.result() for k in kills]
 
     print("\nkills at random moments %.1f-%.1f s after each round's first fused frame; capture 30 Hz "
-          "synthetic %s; load average at the end %s" % (args.min_s, args.max_s, args.scene,
-                                                       " ".join("%.2f" % x for x in os.getloadavg())))
+          "synthetic %s; %d busy loops beside; load average at the end %s" %
+          (args.min_s, args.max_s, args.scene, args.load, " ".join("%.2f" % x for x in os.getloadavg())))
     print("| mode | kills | inspect ok | frames lost max | mean | kills losing > 30 | fused rate "
           "(%d x %.0f s, alternating) | writer threads' CPU per second | checkpoint on the fusion "
           "thread (mean / max) | encode | write |" % (args.steady_runs, args.steady_s))
@@ -296,6 +330,15 @@ def main():
               (r["mode"], r["kills"], r["inspect_ok"], r["lost_max"], r["lost_mean"], r["lost_over_30"], rates, cpu,
                *figures(m, "checkpoint_snapshot_ms"), *figures(m, "checkpoint_encode_ms"),
                *figures(m, "checkpoint_write_ms")))
+    for r in results:
+        if r["kills"]:
+            print("%s: frames lost per kill: %s" % (r["mode"], distribution(r["lost"])))
+    for m in modes:
+        lag = [counter(h, "frame_log_max_lag_ms") for h in m.heartbeats]
+        lag = [v for v in lag if v is not None]
+        if lag:  # builds before issue 36 do not count it
+            print("%s: steady runs: the frame log's most waited frame %.0f ms; fusion waited for the "
+                  "log %.0f ms per second" % (m.name, max(lag), 1e3 * (statistics.mean(m.log_wait) if m.log_wait else 0)))
     for r in results:
         for p in r["problems"]:
             print("%s: %s" % (r["mode"], p))

@@ -13,6 +13,8 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "depthfuse/base/delta16.hpp"
+
 namespace depthfuse::lcm {
 
 namespace {
@@ -41,38 +43,10 @@ void store_le16(const std::vector<uint16_t>& in, uint8_t* out) {
   }
 }
 
-// The row predictor of ENCODING_ZSTD_DELTA_UINT16 (see depth_frame_t.lcm), into byte planes.
-void predict_rows(const std::vector<uint16_t>& counts, int width, int height, uint8_t* out) {
-  const size_t n = counts.size();
-  for (int v = 0; v < height; ++v) {
-    uint16_t prev = 0;
-    const size_t row = static_cast<size_t>(v) * width;
-    for (int u = 0; u < width; ++u) {
-      const uint16_t c = counts[row + u];
-      const int16_t e = static_cast<int16_t>(static_cast<uint16_t>(c - prev));
-      const uint16_t z = static_cast<uint16_t>((static_cast<uint16_t>(e) << 1) ^
-                                               static_cast<uint16_t>(e >> 15));
-      out[row + u] = static_cast<uint8_t>(z & 0xff);
-      out[n + row + u] = static_cast<uint8_t>(z >> 8);
-      prev = c;
-    }
-  }
-}
-
-void unpredict_rows(const uint8_t* in, int width, int height, std::vector<uint16_t>* counts) {
-  const size_t n = static_cast<size_t>(width) * height;
-  counts->resize(n);
-  for (int v = 0; v < height; ++v) {
-    uint16_t prev = 0;
-    const size_t row = static_cast<size_t>(v) * width;
-    for (int u = 0; u < width; ++u) {
-      const uint16_t z = static_cast<uint16_t>(in[row + u] | (in[n + row + u] << 8));
-      const uint16_t e = static_cast<uint16_t>((z >> 1) ^ static_cast<uint16_t>(-(z & 1)));
-      prev = static_cast<uint16_t>(prev + e);
-      (*counts)[row + u] = prev;
-    }
-  }
-}
+// The row predictor of ENCODING_ZSTD_DELTA_UINT16 (see depth_frame_t.lcm): each row on its own,
+// zigzagged, into byte planes (the scan file's depth blobs share the transform, over the whole
+// image).
+Delta16Layout row_predictor(int width) { return Delta16Layout{static_cast<size_t>(width), true}; }
 
 Status zstd_compress(const uint8_t* src, size_t size, int level, std::vector<uint8_t>* out) {
   out->resize(ZSTD_compressBound(size));
@@ -166,7 +140,7 @@ Status encode_depth_frame(const Frame& frame, const DepthEncodeOptions& options,
   if (options.compress) {
     raw.resize(2 * n);
     if (options.predict_rows) {
-      predict_rows(counts, d.width, d.height, raw.data());
+      delta16_to_planes(counts.data(), n, row_predictor(d.width), raw.data());
       out->encoding = depthfuse::depth_frame_t::ENCODING_ZSTD_DELTA_UINT16;
     } else {
       store_le16(counts, raw.data());
@@ -297,7 +271,8 @@ Status decode_depth_frame(const depthfuse::depth_frame_t& msg, Frame* out,
     DF_RETURN_IF_ERROR(zstd_decompress(msg.data.data(), msg.data.size(), 2 * n, &inflated,
                                        what.c_str()));
     thread_local std::vector<uint16_t> counts;
-    unpredict_rows(inflated.data(), in.width, in.height, &counts);
+    counts.resize(n);
+    delta16_from_planes(inflated.data(), n, row_predictor(in.width), counts.data());
     inflated.resize(2 * n);
     store_le16(counts, inflated.data());
     bytes = inflated.data();

@@ -14,6 +14,7 @@
 #include <iterator>
 #include <cstddef>
 
+#include "depthfuse/base/delta16.hpp"
 #include "depthfuse/store/checksum.hpp"
 
 namespace depthfuse::store {
@@ -24,10 +25,40 @@ static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__,
 namespace {
 
 constexpr char kMagic[4] = {'D', 'F', 'B', '1'};
-constexpr size_t kFixedHeader = 28;   // up to the column table
-constexpr size_t kColumnEntry = 8;
+// The header's fields by byte offset (docs/checkpoint-format.md, "Blob encoding"), the column
+// table's entries, and the header's CRC after the table.
+namespace header {
+constexpr size_t kMagic = 0;            // 4 bytes
+constexpr size_t kKind = 4;             // u8 BlobKind
+constexpr size_t kColumnCount = 5;      // u8
+constexpr size_t kReserved = 6;         // u16, 0
+constexpr size_t kElementCount = 8;     // u32
+constexpr size_t kWidth = 12;           // u32 (images)
+constexpr size_t kHeight = 16;          // u32 (images)
+constexpr size_t kRawBytes = 20;        // u32
+constexpr size_t kCompressedBytes = 24; // u32
+constexpr size_t kColumnTable = 28;     // column_count entries
+constexpr size_t kCrcBytes = 4;         // u32 CRC-32 of everything before it
+// Bytes of a header with `columns` entries, its CRC included.
+constexpr size_t size(size_t columns);
+}  // namespace header
+namespace column_entry {
+constexpr size_t kId = 0;               // u8
+constexpr size_t kElementSize = 1;      // u8
+constexpr size_t kTransform = 2;        // u8 Transform
+constexpr size_t kReserved = 3;         // u8, 0
+constexpr size_t kCrc = 4;              // u32 CRC-32 of the column's raw bytes
+constexpr size_t kSize = 8;
+}  // namespace column_entry
+constexpr size_t header::size(size_t columns) {
+  return kColumnTable + columns * column_entry::kSize + kCrcBytes;
+}
 
 enum Transform : uint8_t { kNone = 0, kBytePlanes = 1, kDelta16Planes = 2 };
+
+// Transform 2 runs through the whole column, without zigzag (lib/lcm's wire format predicts each
+// row on its own and zigzags: the same transform, other parameters).
+Delta16Layout whole_image(size_t count) { return Delta16Layout{count, false}; }
 
 template <typename T>
 void put(uint8_t* p, T v) { std::memcpy(p, &v, sizeof(T)); }
@@ -185,27 +216,28 @@ BlobCodec::~BlobCodec() {
 
 Result<BlobHeader> BlobCodec::read_header(const void* blob, size_t size, const std::string& what) {
   const auto* p = static_cast<const uint8_t*>(blob);
-  if (size < kFixedHeader + 4)
+  if (size < header::size(0))
     return corrupt(what + ": blob too short for a header (" + std::to_string(size) + " bytes)");
-  if (std::memcmp(p, kMagic, 4) != 0) return corrupt(what + ": not a depthfuse blob (bad magic)");
-  const size_t columns = p[5];
-  const size_t header_bytes = kFixedHeader + columns * kColumnEntry + 4;
+  if (std::memcmp(p + header::kMagic, kMagic, 4) != 0)
+    return corrupt(what + ": not a depthfuse blob (bad magic)");
+  const size_t columns = p[header::kColumnCount];
+  const size_t header_bytes = header::size(columns);
   if (size < header_bytes)
     return corrupt(what + ": blob truncated inside its header (" + std::to_string(size) + " of " +
                    std::to_string(header_bytes) + " bytes)");
-  const uint32_t stored = get<uint32_t>(p + header_bytes - 4);
-  const uint32_t computed = crc32(p, header_bytes - 4);
+  const uint32_t stored = get<uint32_t>(p + header_bytes - header::kCrcBytes);
+  const uint32_t computed = crc32(p, header_bytes - header::kCrcBytes);
   if (stored != computed)
     return corrupt(what + ": blob header checksum mismatch (stored " + hex32(stored) +
                    ", computed " + hex32(computed) + ")");
   BlobHeader h;
-  h.kind = static_cast<BlobKind>(p[4]);
-  h.element_count = get<uint32_t>(p + 8);
-  h.width = get<uint32_t>(p + 12);
-  h.height = get<uint32_t>(p + 16);
-  h.raw_bytes = get<uint32_t>(p + 20);
-  h.compressed_bytes = get<uint32_t>(p + 24);
-  h.first_column_id = columns > 0 ? p[kFixedHeader] : 0;
+  h.kind = static_cast<BlobKind>(p[header::kKind]);
+  h.element_count = get<uint32_t>(p + header::kElementCount);
+  h.width = get<uint32_t>(p + header::kWidth);
+  h.height = get<uint32_t>(p + header::kHeight);
+  h.raw_bytes = get<uint32_t>(p + header::kRawBytes);
+  h.compressed_bytes = get<uint32_t>(p + header::kCompressedBytes);
+  h.first_column_id = columns > 0 ? p[header::kColumnTable + column_entry::kId] : 0;
   if (size != header_bytes + h.compressed_bytes)
     return corrupt(what + ": blob is " + std::to_string(size) + " bytes, its header announces " +
                    std::to_string(header_bytes + h.compressed_bytes) +
@@ -221,47 +253,38 @@ Status BlobCodec::encode(BlobKind kind, uint32_t count, uint32_t width, uint32_t
   for (const Column& c : columns) raw_bytes += static_cast<size_t>(count) * c.element_size;
   if (raw_bytes > UINT32_MAX) return invalid_argument("blob too large: " + std::to_string(raw_bytes));
   raw_.resize(raw_bytes);
-  const size_t header_bytes = kFixedHeader + columns.size() * kColumnEntry + 4;
+  const size_t header_bytes = header::size(columns.size());
   // Built in a reused buffer, then copied out at its final size: resizing the caller's blob to
   // the compression bound zero-filled (and, for a fresh blob, faulted in) the whole bound.
   const size_t bound = header_bytes + ZSTD_compressBound(raw_bytes);
   if (out_.size() < bound) out_.resize(bound);
   uint8_t* h = out_.data();
-  std::memcpy(h, kMagic, 4);
-  h[4] = static_cast<uint8_t>(kind);
-  h[5] = static_cast<uint8_t>(columns.size());
-  put<uint16_t>(h + 6, 0);
-  put<uint32_t>(h + 8, count);
-  put<uint32_t>(h + 12, width);
-  put<uint32_t>(h + 16, height);
-  put<uint32_t>(h + 20, static_cast<uint32_t>(raw_bytes));
+  std::memcpy(h + header::kMagic, kMagic, 4);
+  h[header::kKind] = static_cast<uint8_t>(kind);
+  h[header::kColumnCount] = static_cast<uint8_t>(columns.size());
+  put<uint16_t>(h + header::kReserved, 0);
+  put<uint32_t>(h + header::kElementCount, count);
+  put<uint32_t>(h + header::kWidth, width);
+  put<uint32_t>(h + header::kHeight, height);
+  put<uint32_t>(h + header::kRawBytes, static_cast<uint32_t>(raw_bytes));
 
   size_t offset = 0;
   for (size_t ci = 0; ci < columns.size(); ++ci) {
     const Column& c = columns[ci];
     const size_t bytes = static_cast<size_t>(count) * c.element_size;
     const auto* src = static_cast<const uint8_t*>(c.data);
-    uint8_t* e = h + kFixedHeader + ci * kColumnEntry;
-    e[0] = c.id;
-    e[1] = c.element_size;
-    e[2] = c.transform;
-    e[3] = 0;
-    put<uint32_t>(e + 4, bytes ? crc32(src, bytes) : crc32(nullptr, 0));
+    uint8_t* e = h + header::kColumnTable + ci * column_entry::kSize;
+    e[column_entry::kId] = c.id;
+    e[column_entry::kElementSize] = c.element_size;
+    e[column_entry::kTransform] = c.transform;
+    e[column_entry::kReserved] = 0;
+    put<uint32_t>(e + column_entry::kCrc, bytes ? crc32(src, bytes) : crc32(nullptr, 0));
     uint8_t* dst = raw_.data() + offset;
     if (c.transform == kBytePlanes && c.element_size > 1) {
       to_planes(src, count, c.element_size, dst);
     } else if (c.transform == kDelta16Planes) {
       // Difference to the previous element (wrapping), then planes: smooth depth becomes small.
-      uint16_t prev = 0;
-      uint8_t* low = dst;
-      uint8_t* high = dst + count;
-      for (size_t i = 0; i < count; ++i) {
-        const uint16_t v = get<uint16_t>(src + 2 * i);
-        const auto e = static_cast<uint16_t>(v - prev);
-        low[i] = static_cast<uint8_t>(e);
-        high[i] = static_cast<uint8_t>(e >> 8);
-        prev = v;
-      }
+      delta16_to_planes(static_cast<const uint16_t*>(c.data), count, whole_image(count), dst);
     } else if (bytes) {
       std::memcpy(dst, src, bytes);
     }
@@ -272,8 +295,8 @@ Status BlobCodec::encode(BlobKind kind, uint32_t count, uint32_t width, uint32_t
   if (ZSTD_isError(z)) return internal_error(std::string("zstd compression failed: ") +
                                              ZSTD_getErrorName(z));
   h = out_.data();
-  put<uint32_t>(h + 24, static_cast<uint32_t>(z));
-  put<uint32_t>(h + header_bytes - 4, crc32(h, header_bytes - 4));
+  put<uint32_t>(h + header::kCompressedBytes, static_cast<uint32_t>(z));
+  put<uint32_t>(h + header_bytes - header::kCrcBytes, crc32(h, header_bytes - header::kCrcBytes));
   blob->assign(out_.data(), out_.data() + header_bytes + z);
   return Status::ok();
 }
@@ -286,23 +309,25 @@ Status BlobCodec::decode(const void* blob, size_t /*size*/, const std::string& w
   if (header.kind != kind)
     return corrupt(what + ": expected a " + kind_name(kind) + " blob, found kind " +
                    std::to_string(static_cast<int>(header.kind)));
-  if (p[5] != columns.size())
-    return corrupt(what + ": " + std::to_string(p[5]) + " columns, expected " +
+  if (p[header::kColumnCount] != columns.size())
+    return corrupt(what + ": " + std::to_string(p[header::kColumnCount]) + " columns, expected " +
                    std::to_string(columns.size()));
   const size_t count = header.element_count;
   size_t raw_bytes = 0;
   for (size_t ci = 0; ci < columns.size(); ++ci) {
-    const uint8_t* e = p + kFixedHeader + ci * kColumnEntry;
-    if (e[0] != columns[ci].id || e[1] != columns[ci].element_size || e[2] > kDelta16Planes)
-      return corrupt(what + ": column " + std::to_string(ci) + " has id " + std::to_string(e[0]) +
-                     " size " + std::to_string(e[1]) + ", expected '" + columns[ci].name + "'");
-    columns[ci].transform = e[2];
+    const uint8_t* e = p + header::kColumnTable + ci * column_entry::kSize;
+    const uint8_t id = e[column_entry::kId], element_size = e[column_entry::kElementSize];
+    if (id != columns[ci].id || element_size != columns[ci].element_size ||
+        e[column_entry::kTransform] > kDelta16Planes)
+      return corrupt(what + ": column " + std::to_string(ci) + " has id " + std::to_string(id) +
+                     " size " + std::to_string(element_size) + ", expected '" + columns[ci].name + "'");
+    columns[ci].transform = e[column_entry::kTransform];
     raw_bytes += count * columns[ci].element_size;
   }
   if (raw_bytes != header.raw_bytes)
     return corrupt(what + ": header sizes disagree (" + std::to_string(count) + " elements but " +
                    std::to_string(header.raw_bytes) + " raw bytes)");
-  const size_t header_bytes = kFixedHeader + columns.size() * kColumnEntry + 4;
+  const size_t header_bytes = header::size(columns.size());
   raw_.resize(raw_bytes);
   const size_t n = ZSTD_decompressDCtx(dctx_, raw_.data(), raw_bytes, p + header_bytes,
                                        header.compressed_bytes);
@@ -321,16 +346,12 @@ Status BlobCodec::decode(const void* blob, size_t /*size*/, const std::string& w
       from_planes(src, count, c.element_size, dst);
     } else if (c.transform == kDelta16Planes) {
       if (c.element_size != 2) return corrupt(what + ": delta transform on a non-16-bit column");
-      from_planes(src, count, 2, dst);
-      uint16_t prev = 0;
-      for (size_t i = 0; i < count; ++i) {
-        prev = static_cast<uint16_t>(prev + get<uint16_t>(dst + 2 * i));
-        put<uint16_t>(dst + 2 * i, prev);
-      }
+      delta16_from_planes(src, count, whole_image(count), static_cast<uint16_t*>(c.out));
     } else if (bytes) {
       std::memcpy(dst, src, bytes);
     }
-    const uint32_t stored = get<uint32_t>(p + kFixedHeader + ci * kColumnEntry + 4);
+    const uint32_t stored =
+        get<uint32_t>(p + header::kColumnTable + ci * column_entry::kSize + column_entry::kCrc);
     const uint32_t computed = crc32(dst, bytes);
     if (stored != computed)
       return corrupt(what + ": column '" + c.name + "' checksum mismatch (stored " + hex32(stored) +
@@ -508,16 +529,12 @@ Status decode_pose(const void* blob, size_t size, const std::string& what, Pose*
 }
 
 uint32_t pose_record_checksum(const PoseFields& f, const void* pose_blob, size_t pose_size) {
-  uint8_t head[12], tail[21];
-  put<uint32_t>(head, f.frame_id);
-  put<int64_t>(head + 4, f.utime);
-  tail[0] = f.registered ? 1 : 0;
-  put<double>(tail + 1, f.fitness);
-  put<double>(tail + 9, f.rmse_m);
-  put<uint32_t>(tail + 17, f.correspondences);
-  uint32_t crc = crc32(head, sizeof(head));
-  crc = crc32(pose_blob, pose_size, crc);
-  return crc32(tail, sizeof(tail), crc);
+  return RowCrc()
+      .add(f.frame_id).add(f.utime)
+      .bytes(pose_blob, pose_size)
+      .add(static_cast<uint8_t>(f.registered ? 1 : 0)).add(f.fitness).add(f.rmse_m)
+      .add(f.correspondences)
+      .value();
 }
 
 }  // namespace depthfuse::store

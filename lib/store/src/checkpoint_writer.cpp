@@ -1,5 +1,5 @@
-// ScanRecorder's background checkpoints (see checkpoint_writer.hpp). The thread started here is
-// the only one besides the fusion thread that uses the scan file, always under the store's mutex.
+// ScanRecorder's background checkpoints (see checkpoint_writer.hpp). The writing thread owns the
+// connection it writes on; the fusion thread sees only the job and its outcome, under mu_.
 #include "checkpoint_writer.hpp"
 
 #include "depthfuse/base/clock.hpp"
@@ -7,19 +7,24 @@
 
 namespace depthfuse::store {
 
-CheckpointWriter::CheckpointWriter(ScanStore* store, std::mutex* mutex, int compression_level)
-    : store_(store), mutex_(mutex), codec_(compression_level), thread_([this] { run(); }) {}
+CheckpointWriter::CheckpointWriter(std::unique_ptr<ScanStore> connection, int compression_level)
+    : store_(std::move(connection)),
+      codec_(compression_level),
+      encoder_([this] { encode_loop(); }),
+      writer_([this] { write_loop(); }) {}
 
 CheckpointWriter::~CheckpointWriter() {
   {
-    std::lock_guard<std::mutex> lock(*mutex_);
+    std::lock_guard<std::mutex> lock(mu_);
     stop_ = true;
   }
   cv_.notify_all();
-  thread_.join();
+  encoder_.join();
+  writer_.join();
 }
 
 bool CheckpointWriter::start(CheckpointJob&& job) {
+  std::lock_guard<std::mutex> lock(mu_);
   if (job_) return false;
   job_ = std::move(job);
   outcome_.reset();
@@ -27,28 +32,35 @@ bool CheckpointWriter::start(CheckpointJob&& job) {
   return true;
 }
 
+bool CheckpointWriter::busy() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return job_.has_value();
+}
+
+bool CheckpointWriter::writing() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return writing_;
+}
+
 std::optional<CheckpointOutcome> CheckpointWriter::take_outcome() {
+  std::lock_guard<std::mutex> lock(mu_);
   std::optional<CheckpointOutcome> out = std::move(outcome_);
   outcome_.reset();
   return out;
 }
 
 void CheckpointWriter::wait_idle() {
-  // The caller already holds the mutex: adopt it for the wait and hand it back held.
-  std::unique_lock<std::mutex> lock(*mutex_, std::adopt_lock);
+  std::unique_lock<std::mutex> lock(mu_);
   cv_.wait(lock, [&] { return !job_; });
-  lock.release();
 }
 
-void CheckpointWriter::run() {
-  make_background_thread();  // its work has a second of slack, a frame's fusion 33 ms
-  std::unique_lock<std::mutex> lock(*mutex_);
+void CheckpointWriter::encode_loop() {
+  make_background_thread();  // its work has seconds of slack, a frame's fusion 33 ms
+  std::unique_lock<std::mutex> lock(mu_);
   for (;;) {
-    cv_.wait(lock, [&] { return job_.has_value() || stop_; });
-    if (!job_) return;  // stopping, nothing in flight
+    cv_.wait(lock, [&] { return (job_ && !encoded_) || stop_; });
+    if (!job_ || encoded_) return;  // stopping, nothing to encode
     CheckpointJob& job = *job_;
-    // Encoding is most of the work and needs nothing but the copies: the fusion thread keeps the
-    // store meanwhile (keyframes, eviction, loading).
     lock.unlock();
     const int64_t t0 = steady_ns();
     std::vector<EncodedChunk> encoded(job.chunks.size());
@@ -58,6 +70,26 @@ void CheckpointWriter::run() {
     std::vector<std::pair<ChunkKey, Chunk>>().swap(job.chunks);
     const int64_t t1 = steady_ns();
     lock.lock();
+    encoded_chunks_ = std::move(encoded);
+    encode_status_ = st;
+    encode_seconds_ = static_cast<double>(t1 - t0) * 1e-9;
+    encoded_ = true;
+    cv_.notify_all();
+  }
+}
+
+void CheckpointWriter::write_loop() {
+  std::unique_lock<std::mutex> lock(mu_);
+  for (;;) {
+    // A job being encoded when the writer stops is finished first.
+    cv_.wait(lock, [&] { return (job_ && encoded_) || (stop_ && !job_); });
+    if (!job_) return;
+    CheckpointJob& job = *job_;
+    std::vector<EncodedChunk> encoded = std::move(encoded_chunks_);
+    Status st = encode_status_;
+    writing_ = true;
+    lock.unlock();
+    const int64_t t1 = steady_ns();
     CheckpointOutcome out;
     if (st) st = store_->begin_checkpoint(job.info.last_frame_id);
     if (st) {
@@ -75,8 +107,11 @@ void CheckpointWriter::run() {
       }
     }
     if (!st) out.record = st;
-    out.encode_seconds = static_cast<double>(t1 - t0) * 1e-9;
     out.write_seconds = static_cast<double>(steady_ns() - t1) * 1e-9;
+    std::vector<EncodedChunk>().swap(encoded);
+    lock.lock();
+    out.encode_seconds = encode_seconds_;
+    writing_ = encoded_ = false;
     out.job = std::move(job);
     job_.reset();
     outcome_ = std::move(out);

@@ -1,11 +1,18 @@
 // Internal: ScanRecorder's background checkpoints. The fusion thread hands over a snapshot of what
 // changed since the last commit (copies of the changed chunks, the chunks that left the map, the
-// poses, the checkpoint's frame); the writer's own thread encodes the chunks without holding the
-// store, then takes the store's mutex for the one transaction that writes them (WAL, FULL sync).
-// One checkpoint at a time: the next snapshot waits for this one's outcome.
+// poses, the checkpoint's frame); a thread of the writer's encodes the chunks, then another writes
+// them in one transaction (WAL, FULL sync) on a connection of its own to the scan file. One
+// checkpoint at a time: the next snapshot waits for this one's outcome.
+//
+// Two threads, for their priorities: encoding is most of the work (a few hundred ms of a core) and
+// has seconds of slack, so it runs niced and takes the cores' idle time; the transaction is short
+// but holds the file's write lock, which the frame log waits for, so it runs at the fusion
+// thread's priority (niced, it waited seconds for a core on a busy machine while the log waited
+// for it: docs/results.md, "Issue 36").
 #pragma once
 
 #include <condition_variable>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <thread>
@@ -37,32 +44,40 @@ struct CheckpointOutcome {
 
 class CheckpointWriter {
  public:
-  // `mutex` guards `store`: the writer holds it only while it writes the transaction.
-  CheckpointWriter(ScanStore* store, std::mutex* mutex, int compression_level);
+  // `connection`: the writing thread's own connection to the scan file (used by nothing else).
+  CheckpointWriter(std::unique_ptr<ScanStore> connection, int compression_level);
   ~CheckpointWriter();  // finishes the checkpoint in flight, if any
   CheckpointWriter(const CheckpointWriter&) = delete;
   CheckpointWriter& operator=(const CheckpointWriter&) = delete;
 
-  // The caller holds `mutex`. False (and `job` untouched) while the previous one is in flight.
+  // False (and `job` untouched) while the previous one is in flight.
   bool start(CheckpointJob&& job);
-  // The caller holds `mutex`: a checkpoint is being encoded or written.
-  bool busy() const { return job_.has_value(); }
-  // The caller holds `mutex`: the finished checkpoint's outcome, once (empty if none finished).
+  // A checkpoint is being encoded or written.
+  bool busy() const;
+  // Its transaction is open: the file's write lock is taken until it commits.
+  bool writing() const;
+  // The finished checkpoint's outcome, once (empty if none finished).
   std::optional<CheckpointOutcome> take_outcome();
-  // The caller holds `mutex` (it is released while waiting): returns once nothing is in flight.
+  // Returns once nothing is in flight.
   void wait_idle();
 
  private:
-  void run();
+  void encode_loop();
+  void write_loop();
 
-  ScanStore* store_;
-  std::mutex* mutex_;
+  std::unique_ptr<ScanStore> store_;
   BlobCodec codec_;
+  mutable std::mutex mu_;
   std::condition_variable cv_;
   std::optional<CheckpointJob> job_;        // in flight
+  // Of job_: its chunks encoded (the encoder is done with it), its transaction open.
+  bool encoded_ = false, writing_ = false;
+  std::vector<EncodedChunk> encoded_chunks_;
+  Status encode_status_;
+  double encode_seconds_ = 0.0;
   std::optional<CheckpointOutcome> outcome_;  // finished, not yet taken
   bool stop_ = false;
-  std::thread thread_;
+  std::thread encoder_, writer_;
 };
 
 }  // namespace depthfuse::store

@@ -3,7 +3,6 @@
 // never stopped. Only the keyframes the relocaliser would keep are decoded: the choice is made on
 // the poses, which the listing reads without the images.
 #include <algorithm>
-#include <mutex>
 
 #include "depthfuse/base/clock.hpp"
 #include "depthfuse/store/scan_recorder.hpp"
@@ -14,16 +13,10 @@ Result<KeyframeRestoreReport> ScanRecorder::restore_keyframes(IncrementalReconst
                                                               bool load_views) {
   const int64_t t0_ns = steady_ns();
   KeyframeRestoreReport report;
-  // The store is only used under the mutex (a background checkpoint may share it); the pager takes
-  // the mutex itself when it loads.
-  std::vector<KeyframeInfo> stored;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    auto listed = store_->list_keyframes(
-        [&](const Status& damaged) { report.skipped.push_back(damaged.to_string()); });
-    if (!listed) return listed.status().with_context("restoring relocalisation keyframes");
-    stored = std::move(listed).value();
-  }
+  auto listed = store_->list_keyframes(
+      [&](const Status& damaged) { report.skipped.push_back(damaged.to_string()); });
+  if (!listed) return listed.status().with_context("restoring relocalisation keyframes");
+  std::vector<KeyframeInfo> stored = std::move(listed).value();
   // The listing holds the checkpoint's frames only; a keyframe at or past the reconstructor's next
   // frame would come from a future the map does not hold.
   const uint32_t next = reconstructor.next_frame_id();
@@ -45,10 +38,7 @@ Result<KeyframeRestoreReport> ScanRecorder::restore_keyframes(IncrementalReconst
   for (size_t i = stored.size(); i-- > 0 && report.chosen < max_decodes;) {
     if (!reconstructor.keyframe_wanted(stored[i].T_world_cam)) continue;
     ++report.chosen;
-    Result<Keyframe> k = [&] {
-      std::lock_guard<std::mutex> lock(mutex_);
-      return store_->read_keyframe(stored[i].frame_id);
-    }();
+    Result<Keyframe> k = store_->read_keyframe(stored[i].frame_id);
     if (!k) {
       report.skipped.push_back(k.status().to_string());
       continue;

@@ -132,8 +132,6 @@ Status MapPager::load_around(PointMap* map, const Eigen::Vector3f& p, double rad
 
 Status MapPager::load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t frame_id) {
   Status first_error;
-  std::unique_lock<std::mutex> lock;
-  if (store_mutex_ && !keys.empty()) lock = std::unique_lock<std::mutex>(*store_mutex_);
   for (const ChunkKey& k : keys) {
     auto stored = store_->read_chunk(k, config_.read_staged);
     evicted_.erase(k);
@@ -230,11 +228,8 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
     const Chunk* c = map->find(candidates_[i].key);
     if (c->dirty) writes.emplace_back(candidates_[i].key, c);
   }
-  std::unique_lock<std::mutex> lock;
-  if (store_mutex_) lock = std::unique_lock<std::mutex>(*store_mutex_);
   if (before_staging_ && !writes.empty()) before_staging_();
   Status st = store_->stage_chunks(writes);
-  if (lock) lock.unlock();
   if (!st) {
     skip_eviction_calls_ = config_.retry_after_failure_calls;
     return st.with_context("evicting " + std::to_string(n) + " chunks (they stay in memory)");

@@ -1,5 +1,7 @@
 // The fusion daemon's use of the store: owns the scan file's writer, the pager and the poses since
-// the last checkpoint. Runs on the fusion daemon's worker thread (SqliteCheckpointSink).
+// the last checkpoint. Runs on the fusion daemon's worker thread (SqliteCheckpointSink), on that
+// thread's connection; the background checkpoints and the frame log have threads and connections
+// of their own.
 #include "depthfuse/store/scan_recorder.hpp"
 
 #include <malloc.h>
@@ -19,20 +21,30 @@ ScanRecorder::ScanRecorder(std::unique_ptr<ScanStore> store, const RecorderConfi
   status_.path = store_->path();
   if (config_.bounded_memory) {
     pager_ = std::make_unique<MapPager>(config_.pager, store_.get());
-    pager_->set_store_mutex(&mutex_);
     pager_->set_before_staging([this] {
       if (writer_) writer_->wait_idle();
     });
   }
-  if (config_.frame_log_interval_s > 0) {
-    FrameLogWriterConfig lc;
-    lc.commit_interval_s = config_.frame_log_interval_s;
-    lc.queue_frames = std::max<size_t>(1, config_.frame_log_queue_frames);
-    lc.commit_bytes = config_.frame_log_commit_bytes;
-    lc.compression_level = config_.frame_log_compression_level;
-    lc.color_compression_level = config_.frame_log_color_compression_level;
-    frame_log_ = std::make_unique<FrameLogWriter>(store_.get(), &mutex_, lc);
-  }
+}
+
+Status ScanRecorder::start_frame_log() {
+  if (config_.frame_log_interval_s <= 0) return Status::ok();
+  FrameLogWriterConfig lc;
+  // A tenth of the interval is left for the frame on its way from fusion to the log (its pose is
+  // published first) and for the moment of a crash: what one loses stays within the interval.
+  lc.max_lag_s = 0.9 * config_.frame_log_interval_s;
+  lc.queue_frames = std::max<size_t>(1, config_.frame_log_queue_frames);
+  lc.commit_bytes = config_.frame_log_commit_bytes;
+  lc.compression_level = config_.frame_log_compression_level;
+  lc.color_compression_level = config_.frame_log_color_compression_level;
+  lc.locked_timeout_s = config_.store.busy_timeout_ms * 1e-3;
+  // The thread retries a locked file itself, encoding on meanwhile: no busy wait inside SQLite.
+  StoreOptions options = config_.store;
+  options.busy_timeout_ms = 0;
+  auto connection = store_->another_connection(options);
+  if (!connection) return connection.status().with_context("opening the frame log's connection");
+  frame_log_ = std::make_unique<FrameLogWriter>(std::move(connection).value(), lc);
+  return Status::ok();
 }
 
 size_t RecorderConfig::frame_log_bytes(const RecorderConfig& config, size_t pixels) {
@@ -58,13 +70,14 @@ Status ScanRecorder::write_pending_keyframes() {
   return result;
 }
 
-// The fusion thread never waits for the background writer's transaction: what needs the store
-// and can wait (the outcome, keyframes) waits for a frame where the store is free.
+// The fusion thread does not wait for another thread's transaction when it need not: keyframes
+// wait for a frame where the file is free (SQLite's write lock would hold the fusion thread for
+// the rest of that transaction), until kMaxPendingKeyframes of them are waiting.
 Status ScanRecorder::catch_up(PointMap* map) {
-  std::unique_lock<std::mutex> lock(mutex_, std::try_to_lock);
-  if (!lock && pending_keyframes_.size() < kMaxPendingKeyframes) return Status::ok();
-  if (!lock) lock.lock();
   collect_background(map);
+  if (pending_keyframes_.empty()) return Status::ok();
+  const bool file_busy = (writer_ && writer_->writing()) || (frame_log_ && frame_log_->writing());
+  if (file_busy && pending_keyframes_.size() < kMaxPendingKeyframes) return Status::ok();
   return write_pending_keyframes();
 }
 
@@ -92,7 +105,9 @@ Result<std::unique_ptr<ScanRecorder>> ScanRecorder::create(const std::string& pa
   }
   DF_RETURN_IF_ERROR((*store)->set_metadata(meta));
   DF_RETURN_IF_ERROR((*store)->set_config(config_toml, config_source));
-  return std::unique_ptr<ScanRecorder>(new ScanRecorder(std::move(store).value(), config));
+  std::unique_ptr<ScanRecorder> rec(new ScanRecorder(std::move(store).value(), config));
+  DF_RETURN_IF_ERROR(rec->start_frame_log());
+  return rec;
 }
 
 Result<std::unique_ptr<ScanRecorder>> ScanRecorder::resume(const std::string& path,
@@ -157,6 +172,7 @@ Result<std::unique_ptr<ScanRecorder>> ScanRecorder::resume(const std::string& pa
   if (!log) return log.status();
   resume->frame_log = *log;
   rec->replay_pending_ = log->count > 0;
+  DF_RETURN_IF_ERROR(rec->start_frame_log());
   return rec;
 }
 
@@ -173,16 +189,12 @@ Result<size_t> ScanRecorder::replay_log(IncrementalReconstructor& reconstructor)
   std::vector<LoggedFrame> batch;
   for (;;) {
     batch.clear();
-    Status st;
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      st = store_->for_each_logged_frame(
-          [&](LoggedFrame& f) {
-            batch.push_back(std::move(f));
-            return Status::ok();
-          },
-          after, kBatch);
-    }
+    Status st = store_->for_each_logged_frame(
+        [&](LoggedFrame& f) {
+          batch.push_back(std::move(f));
+          return Status::ok();
+        },
+        after, kBatch);
     if (!st && st.code() != StatusCode::kCorrupt) {
       // Not a damaged record but a file that cannot be read now: nothing is dropped.
       replaying_ = false;
@@ -219,7 +231,6 @@ Result<size_t> ScanRecorder::replay_log(IncrementalReconstructor& reconstructor)
     // The damaged record and those after it cannot be replayed; the next frames take their ids.
     DF_LOG(Store, Warning) << damaged.message() << ": the frame log is replayed up to frame " << after
                            << " (" << replayed << " frames); the records after it are dropped";
-    std::lock_guard<std::mutex> lock(mutex_);
     DF_RETURN_IF_ERROR(note(store_->discard_frame_log_from(after + 1)));
   }
   return replayed;
@@ -296,7 +307,6 @@ Result<CheckpointRecord> ScanRecorder::finish(PointMap* map, const FrameCounters
   auto rec = write_checkpoint(map, reason, counters, true);
   // Pages freed by rewritten and promoted chunks go back to the file system; failing here loses
   // nothing (the checkpoint is committed).
-  std::lock_guard<std::mutex> lock(mutex_);
   if (rec) (void)note(store_->compact());
   return rec;
 }
@@ -343,15 +353,10 @@ void ScanRecorder::checkpoint_committed(const CheckpointRecord& rec, std::vector
   status_.checkpoint_error_code = StatusCode::kOk;
 }
 
-bool ScanRecorder::checkpoint_in_flight() const {
-  // The writer holds the mutex while it writes: then it is in flight, and asking does not wait.
-  std::unique_lock<std::mutex> lock(mutex_, std::try_to_lock);
-  return !lock || (writer_ && writer_->busy());
-}
+bool ScanRecorder::checkpoint_in_flight() const { return writer_ && writer_->busy(); }
 
 bool ScanRecorder::checkpoint_in_background(PointMap* map, const std::string& reason,
                                             const FrameCounters& counters) {
-  std::lock_guard<std::mutex> lock(mutex_);
   collect_background(map);
   if (writer_ && writer_->busy()) return false;
   // The checkpoint's frames' keyframes go first: readers list the keyframes up to its frame.
@@ -369,9 +374,15 @@ bool ScanRecorder::checkpoint_in_background(PointMap* map, const std::string& re
   job.removed = removed_chunks(*map);
   job.poses.swap(pending_poses_);
   status_.pending_poses = 0;
-  if (!writer_)
-    writer_ = std::make_unique<CheckpointWriter>(store_.get(), &mutex_,
+  if (!writer_) {
+    auto connection = store_->another_connection(config_.store);
+    if (!connection) {
+      not_written(job, connection.status().with_context("opening the checkpoint writer's connection"));
+      return true;
+    }
+    writer_ = std::make_unique<CheckpointWriter>(std::move(connection).value(),
                                                  config_.background_compression_level);
+  }
   writer_->start(std::move(job));
   status_.last_snapshot_seconds = static_cast<double>(steady_ns() - t0_ns) * 1e-9;
   return true;
@@ -387,11 +398,7 @@ void ScanRecorder::collect_background(PointMap* map, bool clear_dirty) {
   status_.total_encode_seconds += out->encode_seconds;
   status_.total_write_seconds += out->write_seconds;
   if (!out->record) {
-    // Nothing of it was written: its poses are pending again, its chunks are still dirty (or were
-    // staged dirty since), and the removed ones are found again from the last checkpoint's keys.
-    pending_poses_.insert(pending_poses_.begin(), job.poses.begin(), job.poses.end());
-    status_.pending_poses = pending_poses_.size();
-    (void)checkpoint_failed(out->record.status(), job.info.last_frame_id);
+    not_written(job, out->record.status());
     return;
   }
   // A chunk a later frame touched has changes the checkpoint does not hold: it stays dirty.
@@ -404,10 +411,17 @@ void ScanRecorder::collect_background(PointMap* map, bool clear_dirty) {
   checkpoint_committed(*out->record, std::move(job.resident));
 }
 
+// Nothing of the job was written: its poses are pending again, its chunks are still dirty (or were
+// staged dirty since), and the removed ones are found again from the last checkpoint's keys.
+void ScanRecorder::not_written(const CheckpointJob& job, const Status& why) {
+  pending_poses_.insert(pending_poses_.begin(), job.poses.begin(), job.poses.end());
+  status_.pending_poses = pending_poses_.size();
+  (void)checkpoint_failed(why, job.info.last_frame_id);
+}
+
 Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std::string& reason,
                                                         const FrameCounters& counters,
                                                         bool postfilter_evicted) {
-  std::lock_guard<std::mutex> lock(mutex_);
   if (writer_) writer_->wait_idle();
   // This checkpoint writes every dirty chunk anyway, and finish() comes after a post-filter that
   // changed chunks without touching a frame: none is taken for clean here.

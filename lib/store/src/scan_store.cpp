@@ -5,7 +5,6 @@
 #include <unistd.h>
 
 #include <cstdio>
-#include <cstring>
 
 #include "depthfuse/store/blob_codec.hpp"
 #include "depthfuse/store/checksum.hpp"
@@ -50,16 +49,18 @@ std::string select_chunks(bool staged, const char* last) {
 
 ChunkInfo chunk_info_of(const sql::Row& row) {
   ChunkInfo info;
-  info.key = {static_cast<int32_t>(row.int64(0)), static_cast<int32_t>(row.int64(1)),
-              static_cast<int32_t>(row.int64(2))};
-  info.point_count = static_cast<uint32_t>(row.int64(3));
+  info.key = {static_cast<int32_t>(row.int64(ChunkCol::kX)), static_cast<int32_t>(row.int64(ChunkCol::kY)),
+              static_cast<int32_t>(row.int64(ChunkCol::kZ))};
+  info.point_count = static_cast<uint32_t>(row.int64(ChunkCol::kPointCount));
   info.bounds_m.setEmpty();
-  if (!row.is_null(4)) {
-    info.bounds_m.min() = Eigen::Vector3f(row.real(4), row.real(5), row.real(6));
-    info.bounds_m.max() = Eigen::Vector3f(row.real(7), row.real(8), row.real(9));
+  if (!row.is_null(ChunkCol::kMinX)) {
+    for (int i = 0; i < 3; ++i) {
+      info.bounds_m.min()[i] = static_cast<float>(row.real(ChunkCol::kMinX + i));
+      info.bounds_m.max()[i] = static_cast<float>(row.real(ChunkCol::kMaxX + i));
+    }
   }
-  info.last_touched_frame = static_cast<uint32_t>(row.int64(10));
-  info.checkpoint_id = row.int64(11);
+  info.last_touched_frame = static_cast<uint32_t>(row.int64(ChunkCol::kLastTouchedFrame));
+  info.checkpoint_id = row.int64(ChunkCol::kCheckpointId);
   return info;
 }
 
@@ -123,19 +124,19 @@ Status ScanStore::Impl::write_chunk_row(bool staged, const EncodedChunk& chunk, 
       ", data) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?);";
   auto st = db.prepare(sql, "writing chunk " + to_string(key));
   if (!st) return st.status();
-  st->bind(1, key.x).bind(2, key.y).bind(3, key.z);
-  st->bind(4, static_cast<int64_t>(chunk.point_count));
-  if (box.isEmpty()) {
-    for (int i = 5; i <= 10; ++i) st->bind_null(i);
-  } else {
-    for (int i = 0; i < 3; ++i) {
-      st->bind(5 + i, static_cast<double>(box.min()[i]));
-      st->bind(8 + i, static_cast<double>(box.max()[i]));
+  st->bind(param(ChunkCol::kX), key.x).bind(param(ChunkCol::kY), key.y).bind(param(ChunkCol::kZ), key.z);
+  st->bind(param(ChunkCol::kPointCount), static_cast<int64_t>(chunk.point_count));
+  for (int i = 0; i < 3; ++i) {
+    if (box.isEmpty()) {
+      st->bind_null(param(ChunkCol::kMinX + i)).bind_null(param(ChunkCol::kMaxX + i));
+    } else {
+      st->bind(param(ChunkCol::kMinX + i), static_cast<double>(box.min()[i]));
+      st->bind(param(ChunkCol::kMaxX + i), static_cast<double>(box.max()[i]));
     }
   }
-  st->bind(11, chunk.last_touched_frame);
-  st->bind(12, last_column);
-  st->bind_blob(13, chunk.blob);
+  st->bind(param(ChunkCol::kLastTouchedFrame), chunk.last_touched_frame);
+  st->bind(param(ChunkCol::kCheckpointId), last_column);
+  st->bind_blob(param(ChunkCol::kData), chunk.blob);
   return st->run();
 }
 
@@ -156,11 +157,11 @@ Status ScanStore::Impl::delete_chunk_rows(const ChunkKey& key, bool committed) {
 Status ScanStore::Impl::decode_chunk_row(const sql::Row& row, bool staged, StoredChunk* out) {
   ChunkInfo& info = out->info;
   info = chunk_info_of(row);
-  info.blob_bytes = row.blob_size(12);
+  info.blob_bytes = row.blob_size(ChunkCol::kData);
   const std::string what = path + ": " + (staged ? "staged chunk " : "chunk ") +
                            to_string(info.key);
-  DF_RETURN_IF_ERROR(codec.decode_points(row.blob(12), row.blob_size(12), what,
-                                         &out->chunk.points));
+  DF_RETURN_IF_ERROR(codec.decode_points(row.blob(ChunkCol::kData), row.blob_size(ChunkCol::kData),
+                                         what, &out->chunk.points));
   if (out->chunk.points.size() != info.point_count)
     return corrupt(what + ": holds " + std::to_string(out->chunk.points.size()) +
                    " points, its row says " + std::to_string(info.point_count));
@@ -168,29 +169,6 @@ Status ScanStore::Impl::decode_chunk_row(const sql::Row& row, bool staged, Store
   out->chunk.dirty = false;
   return Status::ok();
 }
-
-namespace {
-
-// Values appended little-endian to a running CRC-32.
-class RowCrc {
- public:
-  template <typename T>
-  RowCrc& add(T v) {
-    uint8_t b[sizeof(T)];
-    std::memcpy(b, &v, sizeof(T));  // little-endian hosts only (checksum.cpp)
-    return bytes(b, sizeof(T));
-  }
-  RowCrc& bytes(const void* p, size_t n) {
-    crc_ = crc32(p, n, crc_);
-    return *this;
-  }
-  uint32_t value() const { return crc_; }
-
- private:
-  uint32_t crc_ = 0;
-};
-
-}  // namespace
 
 uint32_t keyframe_row_checksum(uint32_t frame_id, int64_t utime, const CameraIntrinsics& K,
                                const void* pose_blob, size_t pose_size) {
@@ -240,42 +218,45 @@ Status check_row_checksum(const sql::Row& row, int column, uint32_t computed, co
 }
 
 Status ScanStore::Impl::keyframe_head_of(const sql::Row& row, Keyframe* k, bool* unchecked) {
-  const int64_t frame_id = row.int64(0);
+  const int64_t frame_id = row.int64(KeyframeCol::kFrameId);
   const std::string what = path + ": keyframe " + std::to_string(frame_id);
   if (frame_id < 1 || frame_id >= kAllFrames) return corrupt(what + ": the frame id is out of range");
   k->frame_id = static_cast<uint32_t>(frame_id);
-  k->utime = row.int64(1);
-  k->sensor_serial = row.text(2);
-  k->intrinsics = read_intrinsics_columns(row, 3);
+  k->utime = row.int64(KeyframeCol::kUtime);
+  k->sensor_serial = row.text(KeyframeCol::kSensorSerial);
+  k->intrinsics = read_intrinsics_columns(row, KeyframeCol::kWidth);
   if (!k->intrinsics.valid()) return corrupt(what + ": invalid intrinsics");
+  const void* pose = row.blob(KeyframeCol::kPose);
+  const size_t pose_size = row.blob_size(KeyframeCol::kPose);
   DF_RETURN_IF_ERROR(check_row_checksum(
-      row, 10,
-      keyframe_row_checksum(k->frame_id, k->utime, k->intrinsics, row.blob(9), row.blob_size(9)),
-      what, unchecked));
-  return decode_pose(row.blob(9), row.blob_size(9), what + " pose", &k->T_world_cam);
+      row, KeyframeCol::kChecksum,
+      keyframe_row_checksum(k->frame_id, k->utime, k->intrinsics, pose, pose_size), what, unchecked));
+  return decode_pose(pose, pose_size, what + " pose", &k->T_world_cam);
 }
 
 Result<CheckpointRecord> ScanStore::Impl::checkpoint_of(const sql::Row& row) {
   CheckpointRecord r;
-  r.id = row.int64(0);
-  r.utime = row.int64(1);
-  r.reason = row.text(2);
+  r.id = row.int64(CheckpointCol::kId);
+  r.utime = row.int64(CheckpointCol::kUtime);
+  r.reason = row.text(CheckpointCol::kReason);
   const std::string what = path + ": checkpoint " + std::to_string(r.id);
   // A resume continues at last_frame_id + 1, which must be a frame id too.
-  if (row.int64(3) < 0 || row.int64(3) >= kAllFrames - 1)
-    return corrupt(what + ": last frame id " + std::to_string(row.int64(3)) + " is out of range");
-  for (int col = 4; col <= 6; ++col)
+  const int64_t last_frame_id = row.int64(CheckpointCol::kLastFrameId);
+  if (last_frame_id < 0 || last_frame_id >= kAllFrames - 1)
+    return corrupt(what + ": last frame id " + std::to_string(last_frame_id) + " is out of range");
+  for (const int col : {CheckpointCol::kFramesFused, CheckpointCol::kPointCount, CheckpointCol::kChunkCount})
     if (row.int64(col) < 0) return corrupt(what + ": a negative count (" + std::to_string(row.int64(col)) + ")");
-  r.last_frame_id = static_cast<uint32_t>(row.int64(3));
-  r.frames_fused = static_cast<uint64_t>(row.int64(4));
-  r.point_count = static_cast<uint64_t>(row.int64(5));
-  r.chunk_count = static_cast<uint64_t>(row.int64(6));
-  DF_RETURN_IF_ERROR(check_row_checksum(
-      row, 8, checkpoint_row_checksum(r, row.blob(7), row.blob_size(7)), what));
-  if (!row.is_null(7)) {
+  r.last_frame_id = static_cast<uint32_t>(last_frame_id);
+  r.frames_fused = static_cast<uint64_t>(row.int64(CheckpointCol::kFramesFused));
+  r.point_count = static_cast<uint64_t>(row.int64(CheckpointCol::kPointCount));
+  r.chunk_count = static_cast<uint64_t>(row.int64(CheckpointCol::kChunkCount));
+  const void* pose = row.blob(CheckpointCol::kPose);
+  const size_t pose_size = row.blob_size(CheckpointCol::kPose);
+  DF_RETURN_IF_ERROR(check_row_checksum(row, CheckpointCol::kChecksum,
+                                        checkpoint_row_checksum(r, pose, pose_size), what));
+  if (!row.is_null(CheckpointCol::kPose)) {
     Pose T;
-    DF_RETURN_IF_ERROR(decode_pose(row.blob(7), row.blob_size(7),
-                                   path + ": checkpoint " + std::to_string(r.id), &T));
+    DF_RETURN_IF_ERROR(decode_pose(pose, pose_size, what, &T));
     r.T_world_cam = T;
   }
   return r;
@@ -293,12 +274,12 @@ PoseFields pose_fields(const PoseRecord& p) {
 }
 
 void read_pose_columns(const sql::Row& row, PoseRecord* p) {
-  p->frame_id = static_cast<uint32_t>(row.int64(0));
-  p->utime = row.int64(1);
-  p->registered = row.int64(3) != 0;
-  p->fitness = row.real(4);
-  p->rmse_m = row.real(5);
-  p->correspondences = static_cast<uint32_t>(row.int64(6));
+  p->frame_id = static_cast<uint32_t>(row.int64(PoseCol::kFrameId));
+  p->utime = row.int64(PoseCol::kUtime);
+  p->registered = row.int64(PoseCol::kRegistered) != 0;
+  p->fitness = row.real(PoseCol::kFitness);
+  p->rmse_m = row.real(PoseCol::kRmse);
+  p->correspondences = static_cast<uint32_t>(row.int64(PoseCol::kCorrespondences));
 }
 
 CameraIntrinsics read_intrinsics_columns(const sql::Row& row, int first) {
@@ -312,18 +293,26 @@ CameraIntrinsics read_intrinsics_columns(const sql::Row& row, int first) {
   return K;
 }
 
+void bind_intrinsics(sql::Statement& st, int first, const CameraIntrinsics& K) {
+  st.bind(first, K.width).bind(first + 1, K.height).bind(first + 2, K.fx).bind(first + 3, K.fy);
+  st.bind(first + 4, K.cx).bind(first + 5, K.cy);
+}
+
 Result<PoseRecord> ScanStore::Impl::pose_of(const sql::Row& row, bool* checked) {
   PoseRecord p;
-  const int64_t frame_id = row.int64(0);
+  const int64_t frame_id = row.int64(PoseCol::kFrameId);
   const std::string what = path + ": pose of frame " + std::to_string(frame_id);
   if (frame_id < 1 || frame_id >= kAllFrames)
     return corrupt(what + ": the frame id is out of range (1 to " + std::to_string(kAllFrames - 1) + ")");
   read_pose_columns(row, &p);
   bool unchecked = false;
-  DF_RETURN_IF_ERROR(check_row_checksum(
-      row, 7, pose_record_checksum(pose_fields(p), row.blob(2), row.blob_size(2)), what, &unchecked));
+  const void* pose = row.blob(PoseCol::kPose);
+  const size_t pose_size = row.blob_size(PoseCol::kPose);
+  DF_RETURN_IF_ERROR(check_row_checksum(row, PoseCol::kChecksum,
+                                        pose_record_checksum(pose_fields(p), pose, pose_size), what,
+                                        &unchecked));
   if (checked) *checked = !unchecked;
-  DF_RETURN_IF_ERROR(decode_pose(row.blob(2), row.blob_size(2), what, &p.T_world_cam));
+  DF_RETURN_IF_ERROR(decode_pose(pose, pose_size, what, &p.T_world_cam));
   return p;
 }
 

@@ -1,8 +1,8 @@
 // Writing a scan file: checkpoints (begin, write chunks and poses, commit with a full sync or roll
 // back whole), keyframes, the metadata and configuration, the pager's staged chunks, and returning
-// freed pages. Runs on the fusion daemon's worker thread (through ScanRecorder and MapPager) or the
-// recorder's checkpoint writer thread, one at a time, or on
-// the CLI's main thread for `depthfuse refine` and `inspect --upgrade`.
+// freed pages. Runs on the thread that owns the connection: the fusion daemon's worker thread
+// (through ScanRecorder and MapPager) or the recorder's checkpoint writer thread, each on its own,
+// or the CLI's main thread for `depthfuse refine` and `inspect --upgrade`.
 #include <cstdio>
 
 #include "depthfuse/base/clock.hpp"
@@ -113,9 +113,11 @@ Status ScanStore::write_pose(const PoseRecord& p) {
                                 "writing the pose of frame " + std::to_string(p.frame_id));
     if (!st) return st.status();
     const std::vector<uint8_t> pose = encode_pose(p.T_world_cam);
-    st->bind(1, p.frame_id).bind(2, p.utime).bind_blob(3, pose).bind(4, p.registered ? 1 : 0);
-    st->bind(5, p.fitness).bind(6, p.rmse_m).bind(7, p.correspondences);
-    st->bind(8, pose_record_checksum(pose_fields(p), pose.data(), pose.size()));
+    st->bind(param(PoseCol::kFrameId), p.frame_id).bind(param(PoseCol::kUtime), p.utime);
+    st->bind_blob(param(PoseCol::kPose), pose).bind(param(PoseCol::kRegistered), p.registered ? 1 : 0);
+    st->bind(param(PoseCol::kFitness), p.fitness).bind(param(PoseCol::kRmse), p.rmse_m);
+    st->bind(param(PoseCol::kCorrespondences), p.correspondences);
+    st->bind(param(PoseCol::kChecksum), pose_record_checksum(pose_fields(p), pose.data(), pose.size()));
     return st->run();
   });
 }
@@ -160,14 +162,15 @@ Status ScanStore::write_keyframe(const Keyframe& k) {
                                     ", depth, color) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?);",
                                 ctx);
     if (!st) return st.status();
-    st->bind(1, k.frame_id).bind(2, k.utime).bind(3, k.sensor_serial);
-    st->bind(4, k.intrinsics.width).bind(5, k.intrinsics.height);
-    st->bind(6, k.intrinsics.fx).bind(7, k.intrinsics.fy);
-    st->bind(8, k.intrinsics.cx).bind(9, k.intrinsics.cy);
-    st->bind_blob(10, pose);
-    st->bind(11, keyframe_row_checksum(k.frame_id, k.utime, k.intrinsics, pose.data(), pose.size()));
-    st->bind_blob(12, depth);
-    if (color.empty()) st->bind_null(13); else st->bind_blob(13, color);
+    st->bind(param(KeyframeCol::kFrameId), k.frame_id).bind(param(KeyframeCol::kUtime), k.utime);
+    st->bind(param(KeyframeCol::kSensorSerial), k.sensor_serial);
+    bind_intrinsics(*st, param(KeyframeCol::kWidth), k.intrinsics);
+    st->bind_blob(param(KeyframeCol::kPose), pose);
+    st->bind(param(KeyframeCol::kChecksum),
+             keyframe_row_checksum(k.frame_id, k.utime, k.intrinsics, pose.data(), pose.size()));
+    st->bind_blob(param(KeyframeCol::kDepth), depth);
+    if (color.empty()) st->bind_null(param(KeyframeCol::kColor));
+    else st->bind_blob(param(KeyframeCol::kColor), color);
     return st->run();
   });
 }
@@ -210,11 +213,15 @@ Result<CheckpointRecord> ScanStore::commit_checkpoint(const CheckpointInfo& info
     if (!ins) return ins.status();
     std::vector<uint8_t> pose;
     if (info.T_world_cam) pose = encode_pose(*info.T_world_cam);
-    ins->bind(1, rec.id).bind(2, rec.utime).bind(3, rec.reason).bind(4, rec.last_frame_id);
-    ins->bind(5, static_cast<int64_t>(rec.frames_fused)).bind(6, static_cast<int64_t>(rec.point_count));
-    ins->bind(7, static_cast<int64_t>(rec.chunk_count));
-    if (pose.empty()) ins->bind_null(8); else ins->bind_blob(8, pose);
-    ins->bind(9, checkpoint_row_checksum(rec, pose.data(), pose.size()));
+    ins->bind(param(CheckpointCol::kId), rec.id).bind(param(CheckpointCol::kUtime), rec.utime);
+    ins->bind(param(CheckpointCol::kReason), rec.reason);
+    ins->bind(param(CheckpointCol::kLastFrameId), rec.last_frame_id);
+    ins->bind(param(CheckpointCol::kFramesFused), static_cast<int64_t>(rec.frames_fused));
+    ins->bind(param(CheckpointCol::kPointCount), static_cast<int64_t>(rec.point_count));
+    ins->bind(param(CheckpointCol::kChunkCount), static_cast<int64_t>(rec.chunk_count));
+    if (pose.empty()) ins->bind_null(param(CheckpointCol::kPose));
+    else ins->bind_blob(param(CheckpointCol::kPose), pose);
+    ins->bind(param(CheckpointCol::kChecksum), checkpoint_row_checksum(rec, pose.data(), pose.size()));
     DF_RETURN_IF_ERROR(ins->run());
     // The redo log's records of the checkpoint's frames are in the chunks now.
     DF_RETURN_IF_ERROR(s.db.exec("DELETE FROM frame_log WHERE frame_id <= " +

@@ -1,17 +1,13 @@
 // The frame redo log of a scan file (table frame_log, docs/checkpoint-format.md): appending the
 // records of fused frames, reading back those after the last checkpoint in frame order with every
-// checksum checked, and dropping them. Records are encoded on the recorder's frame log thread
-// (encode_frame_log_record) and appended under the store's mutex; resume, export and inspect read
+// checksum checked, and dropping them. Records are encoded and appended on the recorder's frame
+// log thread (encode_frame_log_record), on its own connection; resume, export and inspect read
 // them.
 #include "scan_store_internal.hpp"
 
 namespace depthfuse::store {
 
 namespace {
-
-constexpr const char* kFrameLogColumns =
-    "frame_id, utime, T_world_cam, registered, fitness, rmse_m, correspondences, width, height, fx, "
-    "fy, cx, cy, checksum, depth, color";
 
 // The records the last checkpoint does not hold, as an SQL condition.
 std::string after_checkpoint() { return "NOT (" + kCommittedFrames + ")"; }
@@ -55,13 +51,18 @@ Status ScanStore::append_frame_log(const std::vector<FrameLogRecord>& records) {
         return invalid_argument(s.path + ": frame log record with frame id " + std::to_string(p.frame_id));
       const std::vector<uint8_t> pose = encode_pose(p.T_world_cam);
       const CameraIntrinsics& K = r.intrinsics;
-      ins->bind(1, p.frame_id).bind(2, p.utime).bind_blob(3, pose).bind(4, p.registered ? 1 : 0);
-      ins->bind(5, p.fitness).bind(6, p.rmse_m).bind(7, p.correspondences);
-      ins->bind(8, K.width).bind(9, K.height).bind(10, K.fx).bind(11, K.fy).bind(12, K.cx).bind(13, K.cy);
-      ins->bind(14, frame_log_row_checksum(p, pose.data(), pose.size(), K, r.depth.data(),
-                                           r.depth.size(), r.color.data(), r.color.size()));
-      ins->bind_blob(15, r.depth);
-      if (r.color.empty()) ins->bind_null(16); else ins->bind_blob(16, r.color);
+      ins->bind(param(FrameLogCol::kFrameId), p.frame_id).bind(param(FrameLogCol::kUtime), p.utime);
+      ins->bind_blob(param(FrameLogCol::kPose), pose);
+      ins->bind(param(FrameLogCol::kRegistered), p.registered ? 1 : 0);
+      ins->bind(param(FrameLogCol::kFitness), p.fitness).bind(param(FrameLogCol::kRmse), p.rmse_m);
+      ins->bind(param(FrameLogCol::kCorrespondences), p.correspondences);
+      bind_intrinsics(*ins, param(FrameLogCol::kWidth), K);
+      ins->bind(param(FrameLogCol::kChecksum),
+                frame_log_row_checksum(p, pose.data(), pose.size(), K, r.depth.data(), r.depth.size(),
+                                       r.color.data(), r.color.size()));
+      ins->bind_blob(param(FrameLogCol::kDepth), r.depth);
+      if (r.color.empty()) ins->bind_null(param(FrameLogCol::kColor));
+      else ins->bind_blob(param(FrameLogCol::kColor), r.color);
       DF_RETURN_IF_ERROR(ins->run("logging frame " + std::to_string(p.frame_id)));
     }
     return Status::ok();
@@ -102,27 +103,31 @@ Status ScanStore::for_each_logged_frame(const std::function<Status(LoggedFrame&)
   st->bind(1, after_frame_id);
   LoggedFrame f;
   for (const sql::Row& row : st->rows()) {
-    const int64_t frame_id = row.int64(0);
+    const int64_t frame_id = row.int64(FrameLogCol::kFrameId);
     const std::string what = s.path + ": frame log record of frame " + std::to_string(frame_id);
     if (frame_id < 1 || frame_id >= kAllFrames) return corrupt(what + ": the frame id is out of range");
     PoseRecord& p = f.pose;
     read_pose_columns(row, &p);
     CameraIntrinsics& K = f.frame.intrinsics;
-    K = read_intrinsics_columns(row, 7);
-    const bool has_color = !row.is_null(15);
+    K = read_intrinsics_columns(row, FrameLogCol::kWidth);
+    const void* pose = row.blob(FrameLogCol::kPose);
+    const size_t pose_size = row.blob_size(FrameLogCol::kPose);
+    const void* depth = row.blob(FrameLogCol::kDepth);
+    const size_t depth_size = row.blob_size(FrameLogCol::kDepth);
+    const bool has_color = !row.is_null(FrameLogCol::kColor);
+    const void* color = has_color ? row.blob(FrameLogCol::kColor) : nullptr;
+    const size_t color_size = has_color ? row.blob_size(FrameLogCol::kColor) : 0;
     DF_RETURN_IF_ERROR(check_row_checksum(
-        row, 13,
-        frame_log_row_checksum(p, row.blob(2), row.blob_size(2), K, row.blob(14), row.blob_size(14),
-                               has_color ? row.blob(15) : nullptr, has_color ? row.blob_size(15) : 0),
-        what));
-    DF_RETURN_IF_ERROR(decode_pose(row.blob(2), row.blob_size(2), what + " pose", &p.T_world_cam));
+        row, FrameLogCol::kChecksum,
+        frame_log_row_checksum(p, pose, pose_size, K, depth, depth_size, color, color_size), what));
+    DF_RETURN_IF_ERROR(decode_pose(pose, pose_size, what + " pose", &p.T_world_cam));
     if (!K.valid()) return corrupt(what + ": invalid intrinsics");
-    DF_RETURN_IF_ERROR(s.codec.decode_depth(row.blob(14), row.blob_size(14), what + " depth", &f.frame.depth));
+    DF_RETURN_IF_ERROR(s.codec.decode_depth(depth, depth_size, what + " depth", &f.frame.depth));
     if (f.frame.depth.width != K.width || f.frame.depth.height != K.height)
       return corrupt(what + ": depth size disagrees with its intrinsics");
     f.frame.color = ColorImage{};
     if (has_color) {
-      DF_RETURN_IF_ERROR(s.codec.decode_color(row.blob(15), row.blob_size(15), what + " colour", &f.frame.color));
+      DF_RETURN_IF_ERROR(s.codec.decode_color(color, color_size, what + " colour", &f.frame.color));
       if (f.frame.color.width != K.width || f.frame.color.height != K.height)
         return corrupt(what + ": colour and depth sizes differ");
     }

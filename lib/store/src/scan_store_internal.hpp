@@ -9,10 +9,10 @@
 //   scan_store_read.cpp        reading: snapshots, chunks, poses, keyframes, checkpoints, summary
 //   scan_store_integrity.cpp   checking every table and blob
 //   scan_store_frame_log.cpp   the frame redo log: appending, reading, dropping records
-// A ScanStore is used by one thread at a time: the fusion daemon's worker thread owns the writer
-// (through ScanRecorder, whose background checkpoint thread takes it under the recorder's mutex);
-// readers are other processes (depthfuse export and inspect), each with its own
-// connection.
+// A ScanStore is one connection and belongs to one thread: the fusion daemon's worker thread owns
+// the writer (through ScanRecorder), whose background checkpoint and frame log threads write on
+// connections of their own (ScanStore::another_connection); readers are other processes
+// (depthfuse export and inspect), each with its own connection.
 #pragma once
 
 #include <sys/stat.h>
@@ -20,6 +20,8 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <string_view>
+#include <initializer_list>
 #include <utility>
 #include <vector>
 
@@ -29,18 +31,140 @@
 
 namespace depthfuse::store {
 
+// The column lists of the tables' rows, each with the indices of its columns in a row read with
+// it (a statement's parameters are numbered from 1: param()). Every index is checked against its
+// list's column of that name when this compiles.
+
+// The `index`-th column of a comma-separated list; empty past the last.
+constexpr std::string_view column_at(std::string_view list, int index) {
+  size_t begin = 0;
+  for (; index > 0; --index) {
+    begin = list.find(',', begin);
+    if (begin == std::string_view::npos) return {};
+    ++begin;
+  }
+  std::string_view item = list.substr(begin, list.find(',', begin) - begin);
+  while (!item.empty() && item.front() == ' ') item.remove_prefix(1);
+  return item;
+}
+// The index of the column `name`, -1 when the list has none.
+constexpr int column_index(std::string_view list, std::string_view name) {
+  for (int i = 0; !column_at(list, i).empty(); ++i)
+    if (column_at(list, i) == name) return i;
+  return -1;
+}
+// The columns of `names` are the list's from `first` on, in that order.
+constexpr bool columns_at(std::string_view list, int first, std::string_view names) {
+  int i = 0;
+  for (; !column_at(names, i).empty(); ++i)
+    if (column_index(list, column_at(names, i)) != first + i) return false;
+  return i > 0;
+}
+// The list has `count` columns, and each named one is at its index.
+constexpr bool columns_named(std::string_view list, int count,
+                             std::initializer_list<std::pair<int, std::string_view>> named) {
+  if (!column_at(list, count).empty() || column_at(list, count - 1).empty()) return false;
+  for (const auto& [index, name] : named)
+    if (column_index(list, name) != index) return false;
+  return true;
+}
+constexpr int param(int column) { return column + 1; }
+
 // The columns of a chunk row up to the one that differs between the tables (chunks:
-// checkpoint_id; chunk_staging: staged_utime).
+// checkpoint_id; chunk_staging: staged_utime). A row of select_chunks() has them, then the
+// checkpoint id (0 when staged), then the blob or an expression on it; an INSERT names them with
+// the column that differs, then `data`.
 inline constexpr const char* kChunkColumns =
     "x, y, z, point_count, min_x, min_y, min_z, max_x, max_y, max_z, last_touched_frame";
+struct ChunkCol {
+  enum : int {
+    kX, kY, kZ, kPointCount, kMinX, kMinY, kMinZ, kMaxX, kMaxY, kMaxZ, kLastTouchedFrame,
+    kCheckpointId, kData
+  };
+};
+static_assert(columns_named(kChunkColumns, ChunkCol::kCheckpointId, {{ChunkCol::kX, "x"},
+              {ChunkCol::kY, "y"}, {ChunkCol::kZ, "z"}, {ChunkCol::kPointCount, "point_count"},
+              {ChunkCol::kMinX, "min_x"}, {ChunkCol::kMinY, "min_y"}, {ChunkCol::kMinZ, "min_z"},
+              {ChunkCol::kMaxX, "max_x"}, {ChunkCol::kMaxY, "max_y"}, {ChunkCol::kMaxZ, "max_z"},
+              {ChunkCol::kLastTouchedFrame, "last_touched_frame"}}));
+
+// A row of the poses table.
 inline constexpr const char* kPoseColumns =
     "frame_id, utime, T_world_cam, registered, fitness, rmse_m, correspondences, checksum";
+struct PoseCol {
+  enum : int {
+    kFrameId, kUtime, kPose, kRegistered, kFitness, kRmse, kCorrespondences, kChecksum
+  };
+};
+static_assert(columns_named(kPoseColumns, PoseCol::kChecksum + 1, {{PoseCol::kFrameId, "frame_id"},
+              {PoseCol::kUtime, "utime"}, {PoseCol::kPose, "T_world_cam"},
+              {PoseCol::kRegistered, "registered"}, {PoseCol::kFitness, "fitness"},
+              {PoseCol::kRmse, "rmse_m"}, {PoseCol::kCorrespondences, "correspondences"},
+              {PoseCol::kChecksum, "checksum"}}));
+
+// A row of the checkpoints table.
 inline constexpr const char* kCheckpointColumns =
-    "id, utime, reason, last_frame_id, frames_fused, point_count, chunk_count, T_world_cam, "
-    "checksum";
-// Of a keyframe up to its images.
+    "id, utime, reason, last_frame_id, frames_fused, point_count, chunk_count, "
+    "T_world_cam, checksum";
+struct CheckpointCol {
+  enum : int {
+    kId, kUtime, kReason, kLastFrameId, kFramesFused, kPointCount, kChunkCount, kPose, kChecksum
+  };
+};
+static_assert(columns_named(kCheckpointColumns, CheckpointCol::kChecksum + 1, {
+              {CheckpointCol::kId, "id"}, {CheckpointCol::kUtime, "utime"},
+              {CheckpointCol::kReason, "reason"}, {CheckpointCol::kLastFrameId, "last_frame_id"},
+              {CheckpointCol::kFramesFused, "frames_fused"},
+              {CheckpointCol::kPointCount, "point_count"},
+              {CheckpointCol::kChunkCount, "chunk_count"}, {CheckpointCol::kPose, "T_world_cam"},
+              {CheckpointCol::kChecksum, "checksum"}}));
+
+// Of a keyframe up to its images; a row read with them has the depth and the colour next (or
+// expressions on them, such as their lengths).
 inline constexpr const char* kKeyframeColumns =
     "frame_id, utime, sensor_serial, width, height, fx, fy, cx, cy, T_world_cam, checksum";
+struct KeyframeCol {
+  enum : int {
+    kFrameId, kUtime, kSensorSerial, kWidth, kHeight, kFx, kFy, kCx, kCy, kPose, kChecksum, kDepth,
+    kColor
+  };
+};
+static_assert(columns_named(kKeyframeColumns, KeyframeCol::kDepth, {
+              {KeyframeCol::kFrameId, "frame_id"}, {KeyframeCol::kUtime, "utime"},
+              {KeyframeCol::kSensorSerial, "sensor_serial"}, {KeyframeCol::kWidth, "width"},
+              {KeyframeCol::kHeight, "height"}, {KeyframeCol::kFx, "fx"}, {KeyframeCol::kFy, "fy"},
+              {KeyframeCol::kCx, "cx"}, {KeyframeCol::kCy, "cy"},
+              {KeyframeCol::kPose, "T_world_cam"}, {KeyframeCol::kChecksum, "checksum"}}));
+
+// A row of the frame redo log.
+inline constexpr const char* kFrameLogColumns =
+    "frame_id, utime, T_world_cam, registered, fitness, rmse_m, correspondences, width, "
+    "height, fx, fy, cx, cy, checksum, depth, color";
+struct FrameLogCol {
+  enum : int {
+    kFrameId, kUtime, kPose, kRegistered, kFitness, kRmse, kCorrespondences, kWidth, kHeight, kFx,
+    kFy, kCx, kCy, kChecksum, kDepth, kColor
+  };
+};
+static_assert(columns_named(kFrameLogColumns, FrameLogCol::kColor + 1, {
+              {FrameLogCol::kFrameId, "frame_id"}, {FrameLogCol::kUtime, "utime"},
+              {FrameLogCol::kPose, "T_world_cam"}, {FrameLogCol::kRegistered, "registered"},
+              {FrameLogCol::kFitness, "fitness"}, {FrameLogCol::kRmse, "rmse_m"},
+              {FrameLogCol::kCorrespondences, "correspondences"}, {FrameLogCol::kWidth, "width"},
+              {FrameLogCol::kHeight, "height"}, {FrameLogCol::kFx, "fx"}, {FrameLogCol::kFy, "fy"},
+              {FrameLogCol::kCx, "cx"}, {FrameLogCol::kCy, "cy"},
+              {FrameLogCol::kChecksum, "checksum"}, {FrameLogCol::kDepth, "depth"},
+              {FrameLogCol::kColor, "color"}}));
+
+// Poses and frame log records start with the same columns (read_pose_columns), keyframes and
+// frame log records have the intrinsics in the same order (read_intrinsics_columns).
+inline constexpr const char* kFusedFrameColumns =
+    "frame_id, utime, T_world_cam, registered, fitness, rmse_m, correspondences";
+inline constexpr const char* kIntrinsicsColumns = "width, height, fx, fy, cx, cy";
+static_assert(columns_at(kPoseColumns, PoseCol::kFrameId, kFusedFrameColumns) &&
+              columns_at(kFrameLogColumns, FrameLogCol::kFrameId, kFusedFrameColumns));
+static_assert(columns_at(kKeyframeColumns, KeyframeCol::kWidth, kIntrinsicsColumns) &&
+              columns_at(kFrameLogColumns, FrameLogCol::kWidth, kIntrinsicsColumns));
 
 // The frames the last checkpoint holds, as an SQL condition on a `frame_id` column: every frame up
 // to its last_frame_id (none before the first checkpoint). Readers show only these poses and
@@ -74,12 +198,14 @@ uint32_t checkpoint_row_checksum(const CheckpointRecord& r, const void* pose_blo
 uint32_t frame_log_row_checksum(const PoseRecord& p, const void* pose_blob, size_t pose_size,
                                 const CameraIntrinsics& K, const void* depth, size_t depth_size,
                                 const void* color, size_t color_size);
-// The columns every row of a fused frame starts with (poses, frame_log): frame_id, utime, the pose
-// blob (left to the caller, who checks the row's checksum first), registered, fitness, rmse_m,
-// correspondences. The frame id's range is the caller's to check.
+// The columns every row of a fused frame starts with (PoseCol: poses, frame_log): frame_id, utime,
+// the pose blob (left to the caller, who checks the row's checksum first), registered, fitness,
+// rmse_m, correspondences. The frame id's range is the caller's to check.
 void read_pose_columns(const sql::Row& row, PoseRecord* p);
 // Pinhole intrinsics from six columns starting at `first`: width, height, fx, fy, cx, cy.
 CameraIntrinsics read_intrinsics_columns(const sql::Row& row, int first);
+// And into six parameters starting at `first`.
+void bind_intrinsics(sql::Statement& st, int first, const CameraIntrinsics& K);
 
 // "<what>: checksum mismatch (stored 0x…, computed 0x…)"
 Status checksum_mismatch(const std::string& what, uint32_t stored, uint32_t computed);

@@ -213,6 +213,25 @@ Status ScanStore::Impl::recover() {
   });
 }
 
+Result<std::unique_ptr<ScanStore>> ScanStore::another_connection(const StoreOptions& options) const {
+  const Impl& primary = *impl_;
+  auto impl = std::make_unique<Impl>(options.compression_level);
+  impl->path = primary.path;
+  impl->mode = primary.writable() ? OpenMode::kReadWrite : OpenMode::kReadOnly;
+  impl->options = options;
+  impl->schema_version = primary.schema_version;
+  const int flags = (primary.writable() ? SQLITE_OPEN_READWRITE : SQLITE_OPEN_READONLY) |
+                    SQLITE_OPEN_NOMUTEX;
+  DF_RETURN_IF_ERROR(impl->db.open(impl->path, flags));
+  sqlite3_busy_timeout(impl->db.handle(), options.busy_timeout_ms);
+  if (impl->writable()) {
+    // Per connection, as the first one's (open_existing).
+    DF_RETURN_IF_ERROR(impl->db.exec("PRAGMA secure_delete = FAST;", "setting secure_delete"));
+    DF_RETURN_IF_ERROR(impl->set_synchronous("NORMAL"));
+  }
+  return std::unique_ptr<ScanStore>(new ScanStore(std::move(impl)));
+}
+
 Result<std::unique_ptr<ScanStore>> ScanStore::open(const std::string& path, OpenMode mode,
                                                    const StoreOptions& options) {
   auto impl = std::make_unique<Impl>(options.compression_level);

@@ -100,7 +100,7 @@ Result<std::vector<ChunkInfo>> ScanStore::list_chunks(bool include_staged) {
         staged ? "listing staged chunks" : "listing chunks",
         [](const sql::Row& row) -> Result<ChunkInfo> {
           ChunkInfo info = chunk_info_of(row);
-          info.blob_bytes = static_cast<size_t>(row.int64(12));
+          info.blob_bytes = static_cast<size_t>(row.int64(ChunkCol::kData));
           return info;
         });
     if (!rows) return rows.status();
@@ -169,8 +169,8 @@ Result<std::vector<KeyframeInfo>> ScanStore::list_keyframes(
     k.width = head.intrinsics.width;
     k.height = head.intrinsics.height;
     k.T_world_cam = head.T_world_cam;
-    k.depth_bytes = static_cast<size_t>(row.int64(11));
-    k.color_bytes = static_cast<size_t>(row.int64(12));
+    k.depth_bytes = static_cast<size_t>(row.int64(KeyframeCol::kDepth));
+    k.color_bytes = static_cast<size_t>(row.int64(KeyframeCol::kColor));
     out.push_back(std::move(k));
   }
   DF_RETURN_IF_ERROR(st->status());
@@ -191,13 +191,15 @@ Result<Keyframe> ScanStore::read_keyframe(uint32_t frame_id) {
   const sql::Row row = st->row();
   Keyframe k;
   DF_RETURN_IF_ERROR(s.keyframe_head_of(row, &k));
-  DF_RETURN_IF_ERROR(s.codec.decode_depth(row.blob(11), row.blob_size(11), what + " depth", &k.depth));
+  DF_RETURN_IF_ERROR(s.codec.decode_depth(row.blob(KeyframeCol::kDepth), row.blob_size(KeyframeCol::kDepth),
+                                          what + " depth", &k.depth));
   if (k.depth.width != k.intrinsics.width || k.depth.height != k.intrinsics.height)
     return corrupt(what + ": depth is " + std::to_string(k.depth.width) + "x" +
                    std::to_string(k.depth.height) + ", intrinsics say " +
                    std::to_string(k.intrinsics.width) + "x" + std::to_string(k.intrinsics.height));
-  if (!row.is_null(12)) {
-    DF_RETURN_IF_ERROR(s.codec.decode_color(row.blob(12), row.blob_size(12), what + " colour", &k.color));
+  if (!row.is_null(KeyframeCol::kColor)) {
+    DF_RETURN_IF_ERROR(s.codec.decode_color(row.blob(KeyframeCol::kColor),
+                                            row.blob_size(KeyframeCol::kColor), what + " colour", &k.color));
     if (k.color.width != k.depth.width || k.color.height != k.depth.height)
       return corrupt(what + ": colour and depth sizes differ");
   }

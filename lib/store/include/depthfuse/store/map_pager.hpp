@@ -15,7 +15,6 @@
 
 #include <cstdint>
 #include <functional>
-#include <mutex>
 #include <string>
 #include <unordered_map>
 #include <unordered_set>
@@ -95,10 +94,7 @@ class MapPager {
     unloadable_.erase(key);
   }
 
-  // A mutex the store is shared under (ScanRecorder's background checkpoints): the pager holds it
-  // only while it reads or stages chunks.
-  void set_store_mutex(std::mutex* mutex) { store_mutex_ = mutex; }
-  // Called, with the store's mutex held, before evicted chunks are staged. A checkpoint written in the background holds the map
+  // Called before evicted chunks are staged. A checkpoint written in the background holds the map
   // as of an earlier frame and promotes the chunks staged up to that frame: a chunk staged since
   // then could replace such a staged copy before the checkpoint took it, so the recorder waits
   // for the checkpoint here.
@@ -123,7 +119,6 @@ class MapPager {
   PagerStats stats_;
   int skip_eviction_calls_ = 0;
   std::function<void()> before_staging_;
-  std::mutex* store_mutex_ = nullptr;
   struct Candidate {
     ChunkKey key;
     uint32_t last_used_frame;

@@ -1,14 +1,15 @@
 // What the fusion daemon needs from the store, in one object: a new or resumed scan file, the pose
 // of every fused frame, a keyframe every n frames, bounded memory through the MapPager, and
 // checkpoints (periodic ones written by a thread of its own, on command, on SIGTERM, final). All
-// calls come from one thread (the fusion daemon's worker). Errors are returned and also kept in
-// status() for the heartbeat; a failed checkpoint leaves the previous one intact and everything it
-// would have written stays pending for the next attempt.
+// calls come from one thread (the fusion daemon's worker), which owns the recorder's connection to
+// the file; the recorder's two threads (background checkpoints, the frame redo log) each write on
+// a connection of their own. Errors are returned and also kept in status() for the heartbeat; a
+// failed checkpoint leaves the previous one intact and everything it would have written stays
+// pending for the next attempt.
 #pragma once
 
 #include <cstdint>
 #include <memory>
-#include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
@@ -22,6 +23,7 @@
 namespace depthfuse::store {
 
 class CheckpointWriter;
+struct CheckpointJob;
 class FrameLogWriter;
 
 // The frame redo log's thread: what it has done (RecorderStatus::frame_log).
@@ -31,7 +33,15 @@ struct FrameLogStats {
   size_t frames_waiting = 0;             // pushed, not yet committed
   uint64_t encoded_bytes_waiting = 0;
   uint64_t commits = 0, failures = 0, frames_dropped = 0;
-  double encode_seconds = 0, write_seconds = 0;  // thread time so far
+  double encode_seconds = 0, write_seconds = 0;  // the thread's wall time so far
+  double cpu_seconds = 0;                // the thread's CPU time in them
+  // How far behind the log is: the oldest frame not committed was pushed this long ago; the
+  // most a committed frame waited.
+  double lag_seconds = 0, max_lag_seconds = 0;
+  // The fusion thread's waits for the log: its time in push() (waits over 1 ms), and how often it
+  // waited because the log was a whole lag bound behind.
+  double waited_seconds = 0;
+  uint64_t lag_waits = 0;
   Status last_error;                     // the latest of `failures`, kept after later commits
 };
 
@@ -45,10 +55,10 @@ struct RecorderConfig {
   int background_compression_level = 1;
   StoreOptions store;
   // The frame redo log (docs/checkpoint-format.md): every recorded frame's pose, depth and colour,
-  // encoded and committed by a thread of the recorder at least every frame_log_interval_s, so that
-  // a crash loses about that much of the scan while full checkpoints (which rewrite every chunk
-  // changed since the last) come seldom. 0 = no log: a crash loses what came after the last
-  // checkpoint.
+  // encoded and committed by a thread of the recorder, so that a crash loses at most the frames
+  // recorded in the last frame_log_interval_s (record_frame waits when the log is that far
+  // behind), while full checkpoints (which rewrite every chunk changed since the last) come
+  // seldom. 0 = no log: a crash loses what came after the last checkpoint.
   double frame_log_interval_s = 0.0;
   // Raw frames waiting for the log's thread (then record_frame waits), and the encoded frames'
   // size at which they are committed early. Small: both count in the daemon's per-frame budget,
@@ -198,8 +208,8 @@ class ScanRecorder {
                                   const std::string& reason = "final");
 
   const RecorderStatus& status() const { return status_; }
-  // For reading while no background checkpoint can be in flight: before the first one, or after
-  // finish().
+  // The calling thread's connection to the file (the recorder's own threads have theirs): reads
+  // see the last committed transaction of any of them.
   ScanStore& store() { return *store_; }
   MapPager* pager() { return pager_.get(); }
   uint32_t last_frame_id() const { return last_frame_id_; }
@@ -208,6 +218,8 @@ class ScanRecorder {
 
  private:
   ScanRecorder(std::unique_ptr<ScanStore> store, const RecorderConfig& config);
+  // The frame log's thread on a connection of its own (with frame_log_interval_s > 0).
+  Status start_frame_log();
   Status note(Status st);
   Result<CheckpointRecord> write_checkpoint(PointMap* map, const std::string& reason,
                                             const FrameCounters& counters, bool postfilter_evicted);
@@ -217,14 +229,15 @@ class ScanRecorder {
   // `last_frame_id`: the failed checkpoint's, which its error names.
   Status checkpoint_failed(const Status& error, uint32_t last_frame_id);
   void checkpoint_committed(const CheckpointRecord& rec, std::vector<ChunkKey> resident);
+  // A background checkpoint that wrote nothing: what it held is pending again.
+  void not_written(const CheckpointJob& job, const Status& why);
   // With the mutex held: applies a finished background checkpoint's outcome to the map and status.
   // `clear_dirty`: the chunks it wrote and no later frame touched are clean. Not when the map may
   // have changed outside fusion since (the end of scan's post-filter touches no frame).
   void collect_background(PointMap* map, bool clear_dirty = true);
-  // Without waiting: when the writer is not in its transaction, collects its outcome and writes the
-  // pending keyframes (all of them, waiting if need be, once kMaxPendingKeyframes are waiting).
+  // Collects a finished background checkpoint's outcome, and writes the pending keyframes unless
+  // another thread's transaction has the file (then they wait, up to kMaxPendingKeyframes).
   Status catch_up(PointMap* map);
-  // With the mutex held.
   Status write_pending_keyframes();
 
   std::unique_ptr<ScanStore> store_;
@@ -238,8 +251,6 @@ class ScanRecorder {
   uint64_t frames_fused_ = 0;                // including those before a resume
   uint64_t frames_since_keyframe_ = 0;
   RecorderStatus status_;
-  // The store is shared with the background writer's thread: every use holds this mutex.
-  mutable std::mutex mutex_;
   std::unique_ptr<CheckpointWriter> writer_;  // created by the first background checkpoint
   std::unique_ptr<FrameLogWriter> frame_log_;  // with frame_log_interval_s > 0
   bool replay_pending_ = false;              // resumed with log records not yet replayed

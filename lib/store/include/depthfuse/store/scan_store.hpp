@@ -10,8 +10,10 @@
 // run while the daemon writes.
 //
 // One writer per file (an advisory lock, so a second writer gets kUnavailable); any number of
-// readers. A ScanStore is used by one thread at a time (ScanRecorder shares its writer between the
-// fusion thread and its background checkpoint thread under a mutex).
+// readers. A ScanStore is one SQLite connection and belongs to one thread: a writer whose work
+// runs on several threads gives each its own connection (another_connection), and SQLite orders
+// their transactions (WAL: one writer at a time, readers never wait). docs/checkpoint-format.md,
+// "Who uses the file".
 #pragma once
 
 #include <cstdint>
@@ -217,6 +219,12 @@ class ScanStore {
  public:
   static Result<std::unique_ptr<ScanStore>> open(const std::string& path, OpenMode mode,
                                                  const StoreOptions& options = {});
+  // Another connection to this store's file, for another thread of this process. It neither checks
+  // nor locks the file, nor migrates or recovers it: this store did, and its writer lock stands
+  // for both (an open and close of the file here would drop the process's locks on it). Writable
+  // when this store is. `options.busy_timeout_ms`: how long its transactions wait for the
+  // other connections' (0: kUnavailable at once).
+  Result<std::unique_ptr<ScanStore>> another_connection(const StoreOptions& options) const;
   ~ScanStore();
   ScanStore(const ScanStore&) = delete;
   ScanStore& operator=(const ScanStore&) = delete;
