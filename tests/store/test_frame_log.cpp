@@ -361,7 +361,7 @@ TEST(FrameLog, TheFusionThreadExportsAndCheckpointsWhileTheLogCommits) {
   constexpr int kFrames = 20;
   for (int i = 0; i < kFrames; ++i) {
     const Frame f = corridor.render(corridor.pose(i, kFrames), test::small_camera(), static_cast<uint32_t>(i));
-    ASSERT_TRUE((*rec)->prepare_frame(f, live));
+    ASSERT_TRUE((*rec)->prepare_frame(f, live.initial_pose(f, std::nullopt), live));
     auto rep = live.process(f);
     ASSERT_TRUE(rep) << rep.status().to_string();
     ASSERT_TRUE((*rec)->record_frame(f, *rep, &live.map()));
