@@ -64,6 +64,14 @@ void print_table(const depthfuse::status_t& st) {
               (tracking >= 2 ? "LOST" : "uncertain") + " (" +
               std::to_string(static_cast<int64_t>(daemon::counter_value(h, "frames_lost_tracking"))) +
               " frames lost so far)";
+    // The fusion daemon's loop closures: the scan's map was corrected where the camera came back.
+    if (const double loops = daemon::counter_value(h, "loop_closures"); loops > 0) {
+      char closed[128];
+      std::snprintf(closed, sizeof(closed), "%.0f loop closures, %.0f corrections (the last %.1f mm)",
+                    loops, daemon::counter_value(h, "graph_corrections"),
+                    daemon::counter_value(h, "last_correction_mm"));
+      tail += (tail.empty() ? "" : "; ") + std::string(closed);
+    }
     if (const std::string refused = daemon::auth_refusals(h); !refused.empty())
       tail += (tail.empty() ? "" : "; ") + std::string("refused unsigned: ") + refused;
     char alive[16];

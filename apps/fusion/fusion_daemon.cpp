@@ -16,6 +16,7 @@
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/lcm/frame_codec.hpp"
 #include "depthfuse/lcm/pose_messages.hpp"
+#include "depthfuse/graph_correction_t.hpp"
 #include "depthfuse/ply.hpp"
 #include "depthfuse/pose2_t.hpp"
 #include "depthfuse/pose_t.hpp"
@@ -319,6 +320,7 @@ void FusionDaemon::fuse(QueuedFrame& item) {
   }
   if (!outcome->store_status.is_ok())
     set_error("checkpoint store: " + outcome->store_status.to_string());
+  if (outcome->correction) publish_correction(*outcome->correction);
   const FrameReport& rep = outcome->report;
   count_tracking(rep);
   preview_.frame_tracked(static_cast<int8_t>(rep.tracking));
@@ -331,6 +333,18 @@ void FusionDaemon::fuse(QueuedFrame& item) {
     else if (session_.trajectory().size() > 1) ++icp_failures_;
   }
   publish_frame(item, rep);
+}
+
+// A loop closure moved the keyframes (and so every pose published before): viewers move theirs.
+void FusionDaemon::publish_correction(const AppliedCorrection& correction) {
+  const depthfuse::graph_correction_t msg = lcm::make_graph_correction(
+      correction, [this](uint32_t frame_id) { return session_.sequence_of(frame_id); },
+      options_.name, session_.scan_id(), now_utime());
+  if (auto st = lcm_->publish_message(lcm::kGraphChannel, msg); !st.is_ok()) set_error(st.message());
+  last_correction_mm_ = correction.max_translation_m * 1e3;
+  DF_LOG(Fusion, Info) << "loop closure " << correction.version << ": " << correction.loops
+                       << " loops in the pose graph, keyframes moved up to "
+                       << correction.max_translation_m * 1e3 << " mm";
 }
 
 // A lost frame's pose is unknown: it was not fused, and it has no place in the trajectory, the pose
@@ -416,6 +430,7 @@ void FusionDaemon::worker_loop() {
     preview_.tick(state_.load(), session_.active() ? session_.scan_id() : "",
                   session_.reconstructor());
     refresh_sink_counters();
+    refresh_graph_counters();
     // Full checkpoints. With the frame log (fusion_daemon.frame_log_interval_s) a crash loses only
     // the frames since its last commit, and these bound what a resume replays; without it, a crash
     // loses the frames since the last committed checkpoint's snapshot.
@@ -441,6 +456,18 @@ void FusionDaemon::worker_loop() {
       }
     }
   }
+}
+
+void FusionDaemon::refresh_graph_counters() {
+  const FramePath* path = session_.path();
+  if (!path) return;
+  const LoopClosureStats stats = path->loop_closure_stats();
+  graph_keyframes_ = static_cast<int64_t>(path->graph().keyframes().size());
+  graph_loops_ = static_cast<int64_t>(path->graph().loops().size());
+  graph_corrections_ = static_cast<int64_t>(path->graph().version());
+  loop_candidates_ = static_cast<int64_t>(stats.candidates);
+  loops_gated_ = static_cast<int64_t>(stats.gated);
+  loops_rejected_ = static_cast<int64_t>(stats.rejected);
 }
 
 // The sink belongs to the worker; the heartbeat (receive thread) reads a copy of its figures. A
@@ -508,6 +535,15 @@ void FusionDaemon::publish_heartbeat() {
   daemon::add_counter(&hb, "frames_registered", static_cast<double>(registered_.load()));
   daemon::add_counter(&hb, "icp_failures", static_cast<double>(icp_failures_.load()));
   daemon::add_counter(&hb, "process_errors", static_cast<double>(process_errors_.load()));
+  // The pose graph and its loop closer (the worker's; read here without a lock: figures that may
+  // be a frame old).
+  daemon::add_counter(&hb, "keyframes", static_cast<double>(graph_keyframes_.load()));
+  daemon::add_counter(&hb, "loop_closures", static_cast<double>(graph_loops_.load()));
+  daemon::add_counter(&hb, "graph_corrections", static_cast<double>(graph_corrections_.load()));
+  daemon::add_counter(&hb, "loop_candidates", static_cast<double>(loop_candidates_.load()));
+  daemon::add_counter(&hb, "loops_gated", static_cast<double>(loops_gated_.load()));
+  daemon::add_counter(&hb, "loops_rejected", static_cast<double>(loops_rejected_.load()));
+  daemon::add_counter(&hb, "last_correction_mm", last_correction_mm_.load());
   // fusion_daemon.memory_budget_mib as split: the per-frame work's parts, and the map's rest (its
   // use: resident_mib).
   daemon::add_counter(&hb, "budget_queue_mib", budget_.queue_mib);

@@ -74,6 +74,9 @@ class FusionDaemon {
   Status stop_scan(const std::string& reason, std::string* message);
   void fuse(QueuedFrame& item);
   void publish_frame(const QueuedFrame& item, const FrameReport& report);
+  void publish_correction(const AppliedCorrection& correction);
+  // The pose graph's figures for the heartbeat.
+  void refresh_graph_counters();
   // The daemon's counters, for checkpoints.
   FusionProgress progress() const;
   void count_tracking(const FrameReport& report);
@@ -105,6 +108,9 @@ class FusionDaemon {
   // Frames by the tracking state the worker gave them, and the last one's state.
   std::atomic<int64_t> frames_tracked_{0}, frames_uncertain_{0}, frames_lost_tracking_{0};
   std::atomic<int64_t> relocalisations_{0};
+  std::atomic<int64_t> graph_keyframes_{0}, graph_loops_{0}, graph_corrections_{0};
+  std::atomic<int64_t> loop_candidates_{0}, loops_gated_{0}, loops_rejected_{0};
+  std::atomic<double> last_correction_mm_{0.0};
   std::atomic<int> tracking_state_{0};
   std::atomic<int64_t> color_wrong_size_{0};  // colour frames not the size of their depth frame
   int64_t frames_lost_in_a_row_ = 0;  // worker thread only

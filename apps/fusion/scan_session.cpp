@@ -1,5 +1,6 @@
 #include "scan_session.hpp"
 
+#include <algorithm>
 #include <cctype>
 #include <ctime>
 #include <filesystem>
@@ -111,6 +112,7 @@ Result<std::string> ScanSession::start(const std::string& requested_name) {
   trajectory_ = std::move(trajectory);
   // A resumed scan's stored poses are before the graph's first keyframe: no closure moves them.
   trajectory_frames_.assign(trajectory_.size(), 0);
+  trajectory_sequences_.assign(trajectory_.size(), 0);
   last_checkpoint_ = Clock::now();
   const uint32_t next = reconstructor_->next_frame_id();
   const std::string message = "scan " + scan_.scan_id +
@@ -132,8 +134,15 @@ Result<FrameOutcome> ScanSession::process(const Frame& frame) {
   if (outcome->report.fused()) {
     trajectory_.push_back({frame.utime * 1e-6, outcome->report.T_world_cam});
     trajectory_frames_.push_back(outcome->report.frame_id);
+    trajectory_sequences_.push_back(frame.sequence);
   }
   return outcome;
+}
+
+int64_t ScanSession::sequence_of(uint32_t frame_id) const {
+  const auto it = std::lower_bound(trajectory_frames_.begin(), trajectory_frames_.end(), frame_id);
+  if (it == trajectory_frames_.end() || *it != frame_id) return 0;
+  return trajectory_sequences_[static_cast<size_t>(it - trajectory_frames_.begin())];
 }
 
 bool ScanSession::checkpoint_due() const {
@@ -185,6 +194,7 @@ Result<ScanSession::Saved> ScanSession::stop(const std::string& reason,
   reconstructor_.reset();
   trajectory_.clear();
   trajectory_frames_.clear();
+  trajectory_sequences_.clear();
   return saved;
 }
 

@@ -58,6 +58,8 @@ class ScanSession {
   const std::vector<StampedPose>& trajectory() const { return trajectory_; }
   // Null between scans.
   const FramePath* path() const { return path_.get(); }
+  // The sequence of a frame this scan fused (0 when it is not known: before a resume).
+  int64_t sequence_of(uint32_t frame_id) const;
   size_t point_count() const { return reconstructor_ ? reconstructor_->map().point_count() : 0; }
 
  private:
@@ -67,6 +69,7 @@ class ScanSession {
   std::unique_ptr<FramePath> path_;
   std::vector<StampedPose> trajectory_;
   std::vector<uint32_t> trajectory_frames_;  // each pose's frame id, to move it with a closure
+  std::vector<int64_t> trajectory_sequences_;  // and its frame's sequence
   ScanContext scan_;
   std::chrono::steady_clock::time_point last_checkpoint_;
   std::optional<std::chrono::steady_clock::time_point> last_start_;  // min_scan_interval_s

@@ -239,7 +239,12 @@ bool LoopCloser::believe(const GraphSnapshot& s, size_t i, size_t k, const Pose&
   const CloudAlignment a = align_clouds(*K.cloud, *I.cloud, T_i_k_initial, config_);
   std::lock_guard<std::mutex> lock(mutex_);
   ++stats_.candidates;
-  if (!a.converged || a.overlap < config_.min_overlap || a.rmse_m > config_.max_rmse_m) return false;
+  if (!a.converged || a.overlap < config_.min_overlap || a.rmse_m > config_.max_rmse_m) {
+    DF_LOG(LoopClosure, Debug) << "keyframe " << k << " to " << i << ": not aligned ("
+                               << (a.converged ? "" : "no convergence, ") << "overlap "
+                               << a.overlap << ", rmse " << a.rmse_m * 1e3 << " mm)";
+    return false;
+  }
   ++stats_.aligned;
   // The correction the loop asks of the graph, against what the odometry between the two allows
   // (inflated: the odometry's covariance is the tracking's estimate of itself) and the loop's own.
@@ -254,6 +259,9 @@ bool LoopCloser::believe(const GraphSnapshot& s, size_t i, size_t k, const Pose&
                                << " mm) but beyond the odometry's uncertainty (chi2 " << chi2 << ")";
     return false;
   }
+  DF_LOG(LoopClosure, Debug) << "keyframe " << k << " to " << i << ": a loop (overlap "
+                             << a.overlap << ", rmse " << a.rmse_m * 1e3 << " mm, chi2 " << chi2
+                             << ")";
   PoseGraphEdge edge;
   edge.from = static_cast<uint32_t>(i);
   edge.to = static_cast<uint32_t>(k);

@@ -38,4 +38,29 @@ pose2_t make_pose2(const Frame& frame, const FrameReport& report, const Pose& T_
   return pose2;
 }
 
+graph_correction_t make_graph_correction(const AppliedCorrection& c,
+                                         const std::function<int64_t(uint32_t)>& sequence_of,
+                                         const std::string& sender, const std::string& scan_id,
+                                         int64_t utime) {
+  graph_correction_t m{};
+  m.protocol_version = graph_correction_t::PROTOCOL_VERSION;
+  m.utime = utime;
+  m.sender = sender;
+  m.scan_id = scan_id;
+  m.version = static_cast<int32_t>(c.version);
+  m.loops = static_cast<int32_t>(c.loops);
+  m.max_translation_m = c.max_translation_m;
+  m.num_keyframes = static_cast<int32_t>(c.motion.size());
+  m.num_translations = 3 * m.num_keyframes;
+  m.num_rotations = 4 * m.num_keyframes;
+  m.first_sequence.reserve(c.motion.size());
+  m.motion_translation_m.resize(static_cast<size_t>(m.num_translations));
+  m.motion_orientation_wxyz.resize(static_cast<size_t>(m.num_rotations));
+  for (size_t k = 0; k < c.motion.size(); ++k) {
+    m.first_sequence.push_back(sequence_of(c.first_frame_id[k]));
+    pose_to_arrays(c.motion[k], &m.motion_translation_m[3 * k], &m.motion_orientation_wxyz[4 * k]);
+  }
+  return m;
+}
+
 }  // namespace depthfuse::lcm

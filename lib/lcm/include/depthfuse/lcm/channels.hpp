@@ -12,6 +12,7 @@ inline constexpr const char* kStatusChannel = "DEPTHFUSE_STATUS";        // stat
 inline constexpr const char* kCommandChannel = "DEPTHFUSE_COMMAND";      // command_t
 inline constexpr const char* kMapChannel = "DEPTHFUSE_MAP";              // map_delta_t
 inline constexpr const char* kMapRequestChannel = "DEPTHFUSE_MAP_REQUEST";  // map_request_t
+inline constexpr const char* kGraphChannel = "DEPTHFUSE_GRAPH";          // graph_correction_t
 
 // The protocol version every message of this build carries (the PROTOCOL_VERSION constants of the
 // message types agree with it; a test checks that).

@@ -3,9 +3,12 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <string>
 
+#include "depthfuse/graph_correction_t.hpp"
 #include "depthfuse/incremental.hpp"
+#include "depthfuse/scan_graph.hpp"
 #include "depthfuse/pose2_t.hpp"
 #include "depthfuse/pose_t.hpp"
 #include "depthfuse/types.hpp"
@@ -23,5 +26,12 @@ struct FramePublication {
 // be, and no fusion counts; pose.pose is then not to be published on DEPTHFUSE_POSE.
 pose2_t make_pose2(const Frame& frame, const FrameReport& report, const Pose& T_world_cam_last_fused,
                    const FramePublication& publication);
+
+// A loop closure applied before a frame. `sequence_of` gives the sequence of a frame id (its
+// keyframes' first frames are frames the daemon fused).
+graph_correction_t make_graph_correction(const AppliedCorrection& correction,
+                                         const std::function<int64_t(uint32_t)>& sequence_of,
+                                         const std::string& sender, const std::string& scan_id,
+                                         int64_t utime);
 
 }  // namespace depthfuse::lcm
