@@ -10,8 +10,10 @@ namespace {
 
 constexpr const char* kCmd = "synth";
 constexpr const char* kUsage =
-    "depthfuse synth <corner|room|rooms> <out-folder> [--frames N] [--seed S]\n"
-    "         [--pose-noise-m X] [--pose-noise-deg Y] [--no-noise] [--no-color]";
+    "depthfuse synth <corner|room|rooms|furnished|plain> <out-folder> [--frames N] [--seed S]\n"
+    "         [--pose-noise-m X] [--pose-noise-deg Y] [--no-noise] [--no-color]\n"
+    "  --frames: default 60; furnished and plain (laps of a handheld walk, 570 frames a lap):\n"
+    "  1200, two laps and back past the start";
 
 int run(int argc, char** argv) {
   cli::Args args(argc, argv, {"no-noise", "no-color", "help"});
@@ -25,7 +27,7 @@ int run(int argc, char** argv) {
   auto kind = synthetic::parse_scene_kind(args.positional()[0]);
   if (!kind) return cli::fail(kind.status().message());
   c.scene = *kind;
-  long frames = c.frames, seed = static_cast<long>(c.seed);
+  long frames = synthetic::default_frames(c.scene), seed = static_cast<long>(c.seed);
   std::string err;
   if (!args.get_int("frames", &frames, &err, daemon::closed(1, INT32_MAX)) ||
       !args.get_int("seed", &seed, &err, daemon::closed(0, INT64_MAX)) ||

@@ -64,6 +64,10 @@ const char* to_string(SceneKind kind) {
       return "room";
     case SceneKind::kRooms:
       return "rooms";
+    case SceneKind::kFurnished:
+      return "furnished";
+    case SceneKind::kPlain:
+      return "plain";
   }
   return "unknown";
 }
@@ -72,7 +76,10 @@ Result<SceneKind> parse_scene_kind(const std::string& text) {
   if (text == "corner") return SceneKind::kCorner;
   if (text == "room") return SceneKind::kRoom;
   if (text == "rooms") return SceneKind::kRooms;
-  return invalid_argument("unknown synthetic scene '" + text + "': expected corner, room or rooms");
+  if (text == "furnished") return SceneKind::kFurnished;
+  if (text == "plain") return SceneKind::kPlain;
+  return invalid_argument("unknown synthetic scene '" + text +
+                          "': expected corner, room, rooms, furnished or plain");
 }
 
 const char* to_string(PrimitiveKind kind) {
@@ -148,6 +155,8 @@ Result<Scene> Scene::create(std::vector<Primitive> primitives, std::string name)
     Primitive& p = primitives[i];
     Compact c{};
     c.kind = p.kind;
+    if (!(p.checker_m >= 0.0) || !std::isfinite(p.checker_m))
+      return invalid_argument(describe_primitive(i, p) + ": checker_m must be a finite length >= 0");
     if (p.kind == PrimitiveKind::kPlane) {
       if (!finite3(p.origin_m))
         return invalid_argument(describe_primitive(i, p) + ": origin_m is not finite");

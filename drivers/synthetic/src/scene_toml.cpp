@@ -30,6 +30,9 @@ std::string Scene::to_toml() const {
     if (!p.name.empty()) out << "name = " << tu::quote(p.name) << "\n";
     out << "color_rgb = [" << int{p.color_rgb[0]} << ", " << int{p.color_rgb[1]} << ", "
         << int{p.color_rgb[2]} << "]\n";
+    // Written only when it differs from the default, so older scene files read back the same.
+    if (p.checker_m != Primitive().checker_m)
+      out << "checker_m = " << tu::format_double(p.checker_m) << "\n";
     if (p.kind == PrimitiveKind::kPlane) {
       out << "origin_m = " << tu::format_vec(p.origin_m) << "\n"
           << "normal = " << tu::format_vec(p.normal) << "\n"
@@ -87,7 +90,8 @@ Result<Scene> Scene::parse_toml(const std::string& text, const std::string& orig
         p.kind = PrimitiveKind::kPlane;
         DF_RETURN_IF_ERROR(tu::check_keys(
             *t,
-            {"kind", "name", "color_rgb", "origin_m", "normal", "u_axis", "u_range_m", "v_range_m"},
+            {"kind", "name", "color_rgb", "checker_m", "origin_m", "normal", "u_axis", "u_range_m",
+             "v_range_m"},
             origin, "a plane primitive"));
         DF_RETURN_IF_ERROR(tu::read_vec3(*t, "origin_m", origin, &p.origin_m, true));
         DF_RETURN_IF_ERROR(tu::read_vec3(*t, "normal", origin, &p.normal, true));
@@ -101,7 +105,7 @@ Result<Scene> Scene::parse_toml(const std::string& text, const std::string& orig
         p.v_max_m = v[1];
       } else if (kind == "box" || kind == "room") {
         p.kind = kind == "box" ? PrimitiveKind::kBox : PrimitiveKind::kRoom;
-        DF_RETURN_IF_ERROR(tu::check_keys(*t, {"kind", "name", "color_rgb", "min_m", "max_m"},
+        DF_RETURN_IF_ERROR(tu::check_keys(*t, {"kind", "name", "color_rgb", "checker_m", "min_m", "max_m"},
                                           origin, "a " + kind + " primitive"));
         DF_RETURN_IF_ERROR(tu::read_vec3(*t, "min_m", origin, &p.min_m, true));
         DF_RETURN_IF_ERROR(tu::read_vec3(*t, "max_m", origin, &p.max_m, true));
@@ -111,6 +115,7 @@ Result<Scene> Scene::parse_toml(const std::string& text, const std::string& orig
                                 "'");
       }
       DF_RETURN_IF_ERROR(tu::read_string(*t, "name", origin, &p.name));
+      DF_RETURN_IF_ERROR(tu::read_double(*t, "checker_m", origin, &p.checker_m));
       if (t->contains("color_rgb")) {
         double c[3];
         DF_RETURN_IF_ERROR(tu::read_numbers(*t, "color_rgb", origin, 3, c, true));

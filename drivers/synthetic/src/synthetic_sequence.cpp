@@ -35,6 +35,19 @@ Status SyntheticConfig::validate() const {
   return rc.validate();
 }
 
+int default_frames(SceneKind kind) {
+  switch (kind) {
+    case SceneKind::kFurnished:
+    case SceneKind::kPlain:
+      return 1200;
+    case SceneKind::kCorner:
+    case SceneKind::kRoom:
+    case SceneKind::kRooms:
+      break;
+  }
+  return SyntheticConfig().frames;
+}
+
 Pose perturb_pose(const Pose& T_world_cam, double noise_m, double noise_deg, uint64_t key) {
   if (noise_m <= 0.0 && noise_deg <= 0.0) return T_world_cam;
   double g[8];
@@ -84,7 +97,10 @@ void SyntheticSequence::render_into(size_t i, bool with_noise, Frame* frame,
                    detail::stream_key(config_.seed, detail::kStreamPixelNoise, i), with_noise,
                    &frame->depth, with_color ? &frame->color : nullptr);
   if (!with_color) frame->color = ColorImage();
-  frame->T_world_cam_hint = T_world_cam_perturbed(i);
+  if (config_.pose_hints)
+    frame->T_world_cam_hint = T_world_cam_perturbed(i);
+  else
+    frame->T_world_cam_hint.reset();
 }
 
 Frame SyntheticSequence::render(size_t i, bool with_noise) const {
