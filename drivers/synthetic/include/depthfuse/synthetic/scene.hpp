@@ -157,15 +157,18 @@ class Scene {
   };
   struct Ray;
 
-  bool intersect(int index, const Ray& ray, double t_max, double* t, int* face) const;
-  void fill_hit(int index, int face, double t, const Ray& ray, RayHit* hit) const;
+  static void origin_terms(const Compact& c, const Eigen::Vector3d& origin_w, double* k);
+  bool hit_nearer(int index, const double* k, Ray* ray, double* best, int* face) const;
+  void fill_hit(int index, int face, double t, const Eigen::Vector3d& origin_w, const double* k,
+                const Eigen::Vector3d& dir_w, RayHit* hit) const;
   double own_concave_distance(const Eigen::Vector3d& p_w, int primitive, int face,
                               double max_distance_m) const;
   void concave_visit(int i, const Eigen::Vector3d& p_w, const Eigen::Vector3d& normal_w,
                      int primitive, double* best) const;
   static double surface_distance(const Compact& c, const Eigen::Vector3d& p, double bound,
                                  Eigen::Vector3d* q, bool* outside);
-  void traverse_grid(const Ray& ray, double* best_t, int* best_index, int* best_face) const;
+  void traverse_grid(const Eigen::Vector3d& origin_w, Ray* ray, double* best_t, int* best_index,
+                     int* best_face) const;
   void build_grid();
   template <typename Fn>
   void for_cells_in_xy_box(double x0, double y0, double x1, double y1, Fn&& fn) const;
