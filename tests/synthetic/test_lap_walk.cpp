@@ -223,6 +223,45 @@ TEST(LapWalk, ViewsOfTheSofaSayNothingAlongIt) {
   EXPECT_GT(west, 2u);
 }
 
+// The rooms are scanned with the Kinect V2's time-of-flight errors unless told otherwise: axial
+// noise, dropouts, and the multipath bias that lengthens the range near concave edges (the room's
+// corners, where furniture meets the floor).
+TEST(LapWalk, FramesHaveTheKinectV2sErrorsByDefault) {
+  const SyntheticSequence seq = make(SceneKind::kPlain, 1200);
+  const NoiseConfig& n = seq.config().noise;
+  EXPECT_TRUE(n.enabled && n.axial_enabled && n.flying_enabled && n.mpi_enabled &&
+              n.dropout_enabled && n.outlier_enabled);
+  const CameraIntrinsics& K = seq.config().intrinsics;
+  double near_edge_sum = 0.0, open_sum = 0.0;
+  size_t near_edge = 0, open = 0, dropped = 0, valid = 0;
+  for (size_t i : {size_t{40}, size_t{500}}) {  // views with the floor and a corner of the room
+    const Frame noisy = seq.render(i, true), exact = seq.render(i, false);
+    const Pose T = seq.T_world_cam_true(i);
+    for (int v = 0; v < K.height; v += 2)
+      for (int u = 0; u < K.width; u += 2) {
+        const double z = exact.depth.at(u, v), zn = noisy.depth.at(u, v);
+        if (z <= 0) continue;
+        ++valid;
+        if (zn <= 0) {
+          ++dropped;
+          continue;
+        }
+        const Vector3d d = T.linear() * Vector3d((u - K.cx) / K.fx, (v - K.cy) / K.fy, 1.0);
+        RayHit hit;
+        ASSERT_TRUE(seq.scene().raycast(T.translation(), d, 10.0, &hit));
+        const double edge_m = seq.scene().concave_edge_distance_m(
+            T.translation() + hit.t * d, hit.normal_w, hit.primitive, hit.face, 1.0);
+        if (edge_m < 0.02) near_edge_sum += zn - z, ++near_edge;
+        if (edge_m > 0.3) open_sum += zn - z, ++open;
+      }
+  }
+  EXPECT_GT(static_cast<double>(dropped) / valid, 0.001);
+  ASSERT_GT(near_edge, 100u);
+  ASSERT_GT(open, 1000u);
+  EXPECT_GT(near_edge_sum / near_edge, 0.003);    // lengthened by multipath
+  EXPECT_LT(std::fabs(open_sum / open), 0.0015);  // unbiased away from edges
+}
+
 TEST(LapWalk, TheSeedMovesTheFurnitureNotTheWalk) {
   const SyntheticSequence a = make(SceneKind::kFurnished, 1200, 5);
   const SyntheticSequence b = make(SceneKind::kFurnished, 1200, 5);
