@@ -12,7 +12,7 @@ constexpr const char* kCmd = "synth";
 constexpr const char* kUsage =
     "depthfuse synth <corner|room|rooms|furnished|plain> <out-folder> [--frames N] [--seed S]\n"
     "         [--pose-noise-m X] [--pose-noise-deg Y] [--no-noise] [--no-color]\n"
-    "  --frames: default 60; furnished and plain (laps of a handheld walk, 570 frames a lap):\n"
+    "  --frames: default 60; furnished and plain (laps of a handheld walk, 560 frames a lap):\n"
     "  1200, two laps and back past the start";
 
 int run(int argc, char** argv) {

@@ -109,8 +109,8 @@ def main():
             p = T_world_cam[:3, 3]
             out.write(f"{t:.6f} {p[0]:.6f} {p[1]:.6f} {p[2]:.6f} "
                       f"{q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}\n")
-            print(f"\rtracked {n + 1}/{len(frames)}", end="", file=sys.stderr, flush=True)
-    print(file=sys.stderr)
+            if (n + 1) % 100 == 0 or n + 1 == len(frames):
+                print(f"tracked {n + 1}/{len(frames)}", file=sys.stderr, flush=True)
     print(f"open3d frame-to-frame point-to-plane ICP: {len(frames)} frames, voxel "
           f"{a.voxel_m * 1e3:g} mm, pairs within {a.max_distance_m * 1e3:g} mm, "
           f"{a.iterations} iterations, {poor} frames with fitness < 0.3, "

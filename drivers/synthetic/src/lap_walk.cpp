@@ -2,7 +2,7 @@
 // outwards at the walls and the furniture, as an operator scans a room. Closed-form in the time,
 // so a frame's pose costs the same whatever its index (no tables).
 //
-// The walker's progress round the loop is an angle theta about the room's middle. It advances
+// The walker's progress round the loop is an angle theta about the loop's centre. It advances
 // with a speed that varies (two slow sinusoids, between 0.45 and 1.55 times the mean) and falls
 // to nothing at a short stop every kStopPeriodS; the loop's semi-axes and centre drift with theta
 // at frequencies that are not multiples of a lap, so that no lap repeats another. On top: a
