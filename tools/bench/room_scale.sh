@@ -74,9 +74,19 @@ eval_row() {
   echo "${ate:--} | ${within:-?} %"
 }
 
-# The tracking counts of a reconstruct log: "N uncertain, L lost".
+# The tracking counts of a reconstruct log: "N uncertain, L lost, R relocalised".
 track_counts() {
-  sed -n 's/.*tracked from the first frame: \([0-9]*\) frames uncertain, \([0-9]*\) lost.*/\1 uncertain, \2 lost/p' "$1"
+  sed -n 's/.*tracked from the first frame: \([0-9]*\) frames uncertain, \([0-9]*\) lost (left out), \([0-9]*\) relocalised.*/\1 uncertain, \2 lost, \3 relocalised/p' "$1"
+}
+
+# tracked_row TAG FOLDER LABEL [OPTIONS...]: `reconstruct FOLDER --track OPTIONS`, then its row.
+tracked_row() {
+  local tag=$1 folder=$2 label=$3
+  shift 3
+  run "$tag" "$DF" reconstruct "$folder" --track "$@" -o "$out/$tag.ply" \
+    --trajectory-out "$out/$tag.traj"
+  table_row "$label" "$(eval_row "$tag" "$folder" "$out/$tag.ply" "$out/$tag.traj")" \
+    "$(track_counts "$out/$tag.reconstruct.log")" "$tag"
 }
 
 # daemons TAG SCENE FOLDER: capture at 30 Hz without hints into the fusion daemon, stop, export.
@@ -163,20 +173,11 @@ for scene in $SCENES; do
       "$(eval_row "$scene-truth" "$data" "$out/$scene-truth.ply")" \
       "$FRAMES" "$scene-truth"
   fi
-  if ! skipped live; then
-    run "$scene-live" "$DF" reconstruct "$data" --track --iterations 0 -o "$out/$scene-live.ply" \
-      --trajectory-out "$out/$scene-live.traj"
-    table_row "\`reconstruct --track --iterations 0\` (the live path)" \
-      "$(eval_row "$scene-live" "$data" "$out/$scene-live.ply" "$out/$scene-live.traj")" \
-      "$(track_counts "$out/$scene-live.reconstruct.log")" "$scene-live"
-  fi
-  if ! skipped track; then
-    run "$scene-track" "$DF" reconstruct "$data" --track -o "$out/$scene-track.ply" \
-      --trajectory-out "$out/$scene-track.traj"
-    table_row "\`reconstruct --track\` (tracking, then the paper's rounds)" \
-      "$(eval_row "$scene-track" "$data" "$out/$scene-track.ply" "$out/$scene-track.traj")" \
-      "$(track_counts "$out/$scene-track.reconstruct.log")" "$scene-track"
-  fi
+  skipped live ||
+    tracked_row "$scene-live" "$data" "\`reconstruct --track --iterations 0\` (the live path)" \
+      --iterations 0
+  skipped track ||
+    tracked_row "$scene-track" "$data" "\`reconstruct --track\` (tracking, then the paper's rounds)"
   if ! skipped daemons; then
     daemons "$scene-daemons" "$scene" "$data"
     figures="failed | failed"
@@ -205,11 +206,7 @@ if ((ROOMS_FRAMES > 0)); then
     "$DF" synth rooms "$data" --frames "$ROOMS_FRAMES" --seed "$SEED" > "$out/rooms.synth.log"
   fi
   rows=()
-  run rooms-live "$DF" reconstruct "$data" --track --iterations 0 -o "$out/rooms-live.ply" \
-    --trajectory-out "$out/rooms-live.traj"
-  table_row "\`reconstruct --track --iterations 0\`" \
-    "$(eval_row rooms-live "$data" "$out/rooms-live.ply" "$out/rooms-live.traj")" \
-    "$(track_counts "$out/rooms-live.reconstruct.log")" rooms-live
+  tracked_row rooms-live "$data" "\`reconstruct --track --iterations 0\`" --iterations 0
   tables+=("$(print_table "twin rooms" "$ROOMS_FRAMES frames, seed $SEED, \`depthfuse synth rooms\`: 16 rooms alike, where a closure must be refused")")
 fi
 
