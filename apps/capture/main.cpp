@@ -15,8 +15,9 @@ constexpr const char* kUsage =
     "usage: depthfuse-capture [--source SPEC] [--rate HZ|max|recorded] [--loop] [--lcm URL]\n"
     R"(                         [--config FILE] [--name NAME] [--color zstd|raw|jpeg|none]
                          [--depth-encoding zstd|raw] [--depth-unit M] [--linger]
-  --source SPEC   tum:<folder> | synthetic:<corner|room>[?frames=N&...] | kinect2[:serial]
-                  | kinect2sim:<corner|room>[?frames=N&...] | lcmlog:<file>
+  --source SPEC   tum:<folder> | synthetic:<SCENE>[?frames=N&...&hints=0] | kinect2[:serial]
+                  | kinect2sim:<SCENE>[?frames=N&...] | lcmlog:<file>; SCENE: corner, room,
+                  rooms, furnished or plain
                   (default: the config's capture.source)
   --rate          frames per second; 'max' as fast as possible; 'recorded' the pace of the
                   frame timestamps (default for lcmlog). Default: the source's own rate,

@@ -28,8 +28,10 @@ constexpr const char* kUsage =
     "         [--out PREFIX] [--label NAME] [--no-align]";
 
 // Noise-free points of every frame at its true pose, 2 mm apart: the observed ground-truth surface.
+// Sampled a frame at a time into one set of voxels: downsampling the whole cloud again on every
+// frame made the cost grow with the square of the scan's length.
 PointArrays synthetic_truth_cloud(const synthetic::SyntheticSequence& seq) {
-  PointArrays all;
+  VoxelSampler truth(0.002);
   MeasurementImage m;
   SensorModelConfig sensor;
   for (size_t i = 0; i < seq.size(); ++i) {
@@ -43,10 +45,9 @@ PointArrays synthetic_truth_cloud(const synthetic::SyntheticSequence& seq) {
       r.position_m = (T * Eigen::Vector3d(m.x[p], m.y[p], m.z[p])).cast<float>();
       frame_pts.push_back(r);
     }
-    all.append(voxel_downsample(frame_pts, 0.002));
-    if (all.size() > 4000000) all = voxel_downsample(all, 0.002);
+    truth.add(frame_pts);
   }
-  return voxel_downsample(all, 0.002);
+  return truth.take();
 }
 
 struct Options {

@@ -10,8 +10,10 @@ namespace {
 
 constexpr const char* kCmd = "synth";
 constexpr const char* kUsage =
-    "depthfuse synth <corner|room|rooms> <out-folder> [--frames N] [--seed S]\n"
-    "         [--pose-noise-m X] [--pose-noise-deg Y] [--no-noise] [--no-color]";
+    "depthfuse synth <corner|room|rooms|furnished|plain> <out-folder> [--frames N] [--seed S]\n"
+    "         [--pose-noise-m X] [--pose-noise-deg Y] [--no-noise] [--no-color]\n"
+    "  --frames: default 60; furnished and plain (laps of a handheld walk, 560 frames a lap):\n"
+    "  1200, two laps and back past the start";
 
 // The scene and its generation as the command line gives them.
 Result<synthetic::SyntheticConfig> parse_options(const cli::Args& args) {
@@ -20,7 +22,7 @@ Result<synthetic::SyntheticConfig> parse_options(const cli::Args& args) {
   auto kind = synthetic::parse_scene_kind(args.positional()[0]);
   if (!kind) return kind.status();
   c.scene = *kind;
-  long frames = c.frames, seed = static_cast<long>(c.seed);
+  long frames = synthetic::default_frames(c.scene), seed = static_cast<long>(c.seed);
   std::string err;
   if (!args.get_int("frames", &frames, &err, daemon::closed(1, INT32_MAX)) ||
       !args.get_int("seed", &seed, &err, daemon::closed(0, INT64_MAX)) ||

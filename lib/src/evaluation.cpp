@@ -89,13 +89,24 @@ double jaccard_index(const PointArrays& rec, const PointArrays& truth, double vo
   return uni ? static_cast<double>(inter) / uni : 0.0;
 }
 
-PointArrays voxel_downsample(const PointArrays& a, double voxel_m) {
-  std::unordered_set<ChunkKey, ChunkKeyHash> seen;
-  PointArrays out;
-  const double inv = 1.0 / voxel_m;
+struct VoxelSampler::Seen {
+  std::unordered_set<ChunkKey, ChunkKeyHash> voxels;
+};
+
+VoxelSampler::VoxelSampler(double voxel_m)
+    : inv_voxel_(1.0 / voxel_m), seen_(std::make_unique<Seen>()) {}
+
+VoxelSampler::~VoxelSampler() = default;
+
+void VoxelSampler::add(const PointArrays& a) {
   for (size_t i = 0; i < a.size(); ++i)
-    if (seen.insert(voxel(a.position_m[i], inv)).second) out.push_back(a.get(i));
-  return out;
+    if (seen_->voxels.insert(voxel(a.position_m[i], inv_voxel_)).second) kept_.push_back(a.get(i));
+}
+
+PointArrays voxel_downsample(const PointArrays& a, double voxel_m) {
+  VoxelSampler sampler(voxel_m);
+  sampler.add(a);
+  return sampler.take();
 }
 
 double fraction_within(const DistanceSummary& s, double error_m) {

@@ -264,9 +264,10 @@ TEST(SceneToml, ErrorsNameTheProblem) {
         << "'" << s.status().message() << "' lacks '" << needle << "'";
   };
   expect_error("[[primitive]]\nkind = \"box\"\nmin_m = [0,0,0]\nmax_m = [1,1,1]\nsize = 3\n",
-               "bad.toml:5: unknown key 'size'");
+               "bad.toml:5: primitive[0].size: unknown key");
   expect_error("[[primitive]]\nkind = \"sphere\"\n", "sphere");
-  expect_error("[[primitive]]\nkind = \"box\"\nmin_m = [0,0,0]\n", "missing 'max_m'");
+  expect_error("[[primitive]]\nkind = \"box\"\nmin_m = [0,0,0]\n",
+               "primitive[0].max_m: missing");
   expect_error("[[primitive]]\nkind = \"box\"\nmin_m = [0,0,0]\nmax_m = [1,-1,1]\n",
                "primitive 0 (box)");
   expect_error("[[primitive]]\nkind = \"box\"\nmin_m = [0,0]\nmax_m = [1,1,1]\n",
@@ -277,7 +278,14 @@ TEST(SceneToml, ErrorsNameTheProblem) {
       "perpendicular");
   expect_error("[scene]\nname = \"x\"\nformat_version = 9\n", "format_version 9");
   expect_error("[scene\n", "bad.toml:1");
-  expect_error("stray = 1\n", "unknown key 'stray'");
+  expect_error("stray = 1\n", "bad.toml:1: stray: unknown key");
+  expect_error("[[primitive]]\nkind = \"box\"\nmin_m = [0,0,0]\nmax_m = [1,1,1]\nchecker_m = -1\n",
+               "bad.toml:5: primitive[0].checker_m: must be >= 0, got -1");
+  // Every problem of the file at once, in the order of the file.
+  expect_error("[[primitive]]\nkind = \"box\"\nmin_m = [0,0,\"x\"]\nmax_m = [1,1,1]\n"
+               "[[primitive]]\nkind = \"room\"\nmin_m = [0,0,0]\nmax_m = [1,1,1]\ncolor_rgb = [0, 0, 300]\n",
+               "bad.toml:3: primitive[0].min_m[2]: expected a number, got a string\n"
+               "bad.toml:9: primitive[1].color_rgb[2]: must be in [0, 255], got 300");
   auto missing = Scene::load_toml("/nonexistent/scene.toml");
   ASSERT_FALSE(missing.is_ok());
   EXPECT_EQ(missing.status().code(), StatusCode::kNotFound);

@@ -255,9 +255,20 @@ TEST(Sequence, GeneratorTomlRoundTrip) {
 
   auto bad = parse_synthetic_config_toml("[generator]\nscene = \"room\"\nfrmes = 3\n", "g.toml");
   ASSERT_FALSE(bad.is_ok());
-  EXPECT_NE(bad.status().message().find("g.toml:3: unknown key 'frmes'"), std::string::npos)
+  EXPECT_NE(bad.status().message().find("g.toml:3: generator.frmes: unknown key"), std::string::npos)
       << bad.status().message();
   EXPECT_FALSE(parse_synthetic_config_toml("[scene]\n").is_ok());
+  for (const char* seed : {"-3", "\"12x\"", "\"\"", "1.5"}) {
+    auto bad_seed = parse_synthetic_config_toml(std::string("[generator]\nseed = ") + seed + "\n");
+    ASSERT_FALSE(bad_seed.is_ok()) << seed;
+    EXPECT_NE(bad_seed.status().message().find("generator.seed"), std::string::npos)
+        << bad_seed.status().message();
+  }
+  auto bad_scene = parse_synthetic_config_toml("[generator]\nscene = \"kitchen\"\n", "g.toml");
+  ASSERT_FALSE(bad_scene.is_ok());
+  EXPECT_NE(bad_scene.status().message().find("g.toml:2: generator.scene: unknown synthetic scene"),
+            std::string::npos)
+      << bad_scene.status().message();
 }
 
 }  // namespace

@@ -21,7 +21,6 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kDeg = kPi / 180.0;
-constexpr double kCheckerM = 0.25;  // colour texture: checker squares of this size on every surface
 
 constexpr int kTilePx = 16;  // frustum culling granularity
 
@@ -140,7 +139,12 @@ Status RendererConfig::validate() const {
 }
 
 DepthRenderer::DepthRenderer(std::shared_ptr<const Scene> scene, RendererConfig config)
-    : scene_(std::move(scene)), config_(std::move(config)) {}
+    : scene_(std::move(scene)), config_(std::move(config)) {
+  if (!scene_) return;
+  // Checker squares per metre, once: a division per pixel costs a noticeable share of a frame.
+  for (const Primitive& p : scene_->primitives())
+    checker_per_m_.push_back(p.checker_m > 0.0 ? 1.0 / p.checker_m : 0.0);
+}
 
 void DepthRenderer::render(const Pose& T_world_cam, uint64_t noise_key, bool with_noise,
                            DepthImage* depth, ColorImage* color) const {
@@ -241,9 +245,13 @@ void DepthRenderer::render(const Pose& T_world_cam, uint64_t noise_key, bool wit
           const double c = std::fabs(hit.normal_w.dot(d)) * inv_len;
           if (color) {
             const Primitive& prim = scene_->primitives()[static_cast<size_t>(hit.primitive)];
-            const long cu = floor_to_long(hit.uv_m.x() * (1.0 / kCheckerM));
-            const long cv = floor_to_long(hit.uv_m.y() * (1.0 / kCheckerM));
-            const double f = (((cu + cv) & 1) ? 1.0 : 0.7) * (0.3 + 0.7 * c);
+            double f = 0.3 + 0.7 * c;
+            const double per_m = checker_per_m_[static_cast<size_t>(hit.primitive)];
+            if (per_m > 0.0) {
+              const long cu = floor_to_long(hit.uv_m.x() * per_m);
+              const long cv = floor_to_long(hit.uv_m.y() * per_m);
+              f = (((cu + cv) & 1) ? 1.0 : 0.7) * f;
+            }
             uint8_t* px = &color->rgb[3 * i];
             px[0] = shade(prim.color_rgb[0], f);
             px[1] = shade(prim.color_rgb[1], f);

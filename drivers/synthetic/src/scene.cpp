@@ -64,6 +64,10 @@ const char* to_string(SceneKind kind) {
       return "room";
     case SceneKind::kRooms:
       return "rooms";
+    case SceneKind::kFurnished:
+      return "furnished";
+    case SceneKind::kPlain:
+      return "plain";
   }
   return "unknown";
 }
@@ -72,7 +76,10 @@ Result<SceneKind> parse_scene_kind(const std::string& text) {
   if (text == "corner") return SceneKind::kCorner;
   if (text == "room") return SceneKind::kRoom;
   if (text == "rooms") return SceneKind::kRooms;
-  return invalid_argument("unknown synthetic scene '" + text + "': expected corner, room or rooms");
+  if (text == "furnished") return SceneKind::kFurnished;
+  if (text == "plain") return SceneKind::kPlain;
+  return invalid_argument("unknown synthetic scene '" + text +
+                          "': expected corner, room, rooms, furnished or plain");
 }
 
 const char* to_string(PrimitiveKind kind) {
@@ -120,24 +127,21 @@ Primitive Primitive::room(const Eigen::Vector3d& min_m, const Eigen::Vector3d& m
   return p;
 }
 
+// A ray's direction and, once a box needs it, 1 / direction per axis (+-infinity where it is +-0:
+// the slab test then works with IEEE infinities). Plane-only rays never divide.
 struct Scene::Ray {
-  Ray(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir) : o(origin), d(dir) {}
-  // 1 / d per axis (+-infinity where d is +-0), computed on the first box test: plane-only rays
-  // skip it.
-  const Eigen::Vector3d& inverse() const {
-    if (!inv_ready) {
-      inv = d.cwiseInverse();
-      inv_ready = true;
-    }
-    return inv;
+  explicit Ray(const Eigen::Vector3d& dir) : d{dir.x(), dir.y(), dir.z()} {}
+  void need_inverse() {
+    if (have_inverse) return;
+    inv[0] = 1.0 / d[0];
+    inv[1] = 1.0 / d[1];
+    inv[2] = 1.0 / d[2];
+    have_inverse = true;
   }
 
-  Eigen::Vector3d o;
-  Eigen::Vector3d d;
-
- private:
-  mutable Eigen::Vector3d inv;
-  mutable bool inv_ready = false;
+  double d[3];
+  double inv[3] = {0.0, 0.0, 0.0};
+  bool have_inverse = false;
 };
 
 Result<Scene> Scene::create(std::vector<Primitive> primitives, std::string name) {
@@ -148,6 +152,8 @@ Result<Scene> Scene::create(std::vector<Primitive> primitives, std::string name)
     Primitive& p = primitives[i];
     Compact c{};
     c.kind = p.kind;
+    if (!(p.checker_m >= 0.0) || !std::isfinite(p.checker_m))
+      return invalid_argument(describe_primitive(i, p) + ": checker_m must be a finite length >= 0");
     if (p.kind == PrimitiveKind::kPlane) {
       if (!finite3(p.origin_m))
         return invalid_argument(describe_primitive(i, p) + ": origin_m is not finite");
@@ -260,217 +266,150 @@ void Scene::build_grid() {
   }
 }
 
-// One primitive against one ray: the hit parameter and face when nearer than t_max. The hit's
-// normal and surface coordinates are filled once for the nearest hit (fill_hit).
-__attribute__((always_inline)) inline bool Scene::intersect(int index, const Ray& ray, double t_max,
-                                                            double* t_out, int* face_out) const {
-  const Compact& c = compact_[static_cast<size_t>(index)];
+// The terms of primitive c that depend on the ray's origin o only (prepare_view computes them
+// once per view): a plane's -n.(o - a), u.(o - a), v.(o - a); a box's min - o and max - o.
+__attribute__((always_inline)) inline void Scene::origin_terms(const Compact& c,
+                                                               const Eigen::Vector3d& o,
+                                                               double* k) {
   if (c.kind == PrimitiveKind::kPlane) {
-    // t = num / denom must lie in (kTMin, t_max] and the hit within the rectangle; every test is
+    const Eigen::Vector3d oa = o - c.a;
+    k[0] = -c.b.dot(oa);  // t = k[0] / (n . d)
+    k[1] = c.u.dot(oa);   // u coordinate of the origin
+    k[2] = c.v.dot(oa);   // v coordinate of the origin
+    k[3] = k[4] = k[5] = 0.0;
+    return;
+  }
+  for (int j = 0; j < 3; ++j) {
+    k[j] = c.a[j] - o[j];
+    k[3 + j] = c.b[j] - o[j];
+  }
+}
+
+// The one ray kernel: primitive `index`, whose origin terms are k, against the ray's direction.
+// A hit nearer than *best (a plane's at *best too) lowers *best and sets *face. The hit's normal
+// and surface coordinates are filled once, for the nearest hit (fill_hit).
+__attribute__((always_inline)) inline bool Scene::hit_nearer(int index, const double* k, Ray* ray,
+                                                             double* best, int* face) const {
+  const Compact& c = compact_[static_cast<size_t>(index)];
+  const double d0 = ray->d[0], d1 = ray->d[1], d2 = ray->d[2];
+  if (c.kind == PrimitiveKind::kPlane) {
+    // t = num / denom must lie in (kTMin, best] and the hit within the rectangle; every test is
     // done scaled by |denom|, so only an accepted hit costs a division.
-    double denom = c.b.dot(ray.d);
-    const Eigen::Vector3d oa = ray.o - c.a;
-    double num = -c.b.dot(oa);
+    double denom = c.b.x() * d0 + c.b.y() * d1 + c.b.z() * d2;
+    double num = k[0];
     if (denom < 0.0) {
       denom = -denom;
       num = -num;
     } else if (!(denom > 0.0)) {
       return false;
     }
-    if (!(num > kTMin * denom) || num > t_max * denom) return false;
+    if (!(num > kTMin * denom) || num > *best * denom) return false;
     // |denom| * (coordinate of the hit along u) = |denom| (u.(o - a)) + num (u.d), same for v.
-    const double a = denom * c.u.dot(oa) + num * c.u.dot(ray.d);
+    const double a = denom * k[1] + num * (c.u.x() * d0 + c.u.y() * d1 + c.u.z() * d2);
     if (a < c.u_min * denom || a > c.u_max * denom) return false;
-    const double b = denom * c.v.dot(oa) + num * c.v.dot(ray.d);
+    const double b = denom * k[2] + num * (c.v.x() * d0 + c.v.y() * d1 + c.v.z() * d2);
     if (b < c.v_min * denom || b > c.v_max * denom) return false;
-    *t_out = num / denom;
-    *face_out = 0;
+    *best = num / denom;
+    *face = 0;
     return true;
   }
-  // Box surface (solid box or room): the first boundary crossing after the origin. Slabs with
-  // IEEE infinities for axis-parallel rays (see Ray::inverse).
-  const Eigen::Vector3d& inv = ray.inverse();
-  const double x0 = (c.a.x() - ray.o.x()) * inv.x(), x1 = (c.b.x() - ray.o.x()) * inv.x();
-  const double y0 = (c.a.y() - ray.o.y()) * inv.y(), y1 = (c.b.y() - ray.o.y()) * inv.y();
-  const double z0 = (c.a.z() - ray.o.z()) * inv.z(), z1 = (c.b.z() - ray.o.z()) * inv.z();
+  // Box surface (solid box or room): the first boundary crossing after the origin, by slabs.
+  ray->need_inverse();
+  const double x0 = k[0] * ray->inv[0], x1 = k[3] * ray->inv[0];
+  const double y0 = k[1] * ray->inv[1], y1 = k[4] * ray->inv[1];
+  const double z0 = k[2] * ray->inv[2], z1 = k[5] * ray->inv[2];
   const double nx = std::min(x0, x1), ny = std::min(y0, y1), nz = std::min(z0, z1);
   const double fx = std::max(x0, x1), fy = std::max(y0, y1), fz = std::max(z0, z1);
   const double t_near = std::max(nx, std::max(ny, nz));
   const double t_far = std::min(fx, std::min(fy, fz));
   if (!(t_near <= t_far)) return false;  // also rejects NaN from a ray in a slab's boundary plane
-  double t;
   int axis;
   bool max_side;  // which of the axis' two faces
   if (t_near > kTMin) {
-    if (t_near > t_max) return false;
-    t = t_near;
+    if (t_near >= *best) return false;
+    *best = t_near;
     axis = t_near == nx ? 0 : (t_near == ny ? 1 : 2);
-    max_side = ray.d[axis] < 0.0;  // entering through the max face when travelling down the axis
-  } else if (t_far > kTMin && t_far <= t_max) {
-    t = t_far;
+    max_side = ray->d[axis] < 0.0;  // entering through the max face when travelling down the axis
+  } else if (t_far > kTMin && t_far < *best) {
+    *best = t_far;
     axis = t_far == fx ? 0 : (t_far == fy ? 1 : 2);
-    max_side = ray.d[axis] > 0.0;
+    max_side = ray->d[axis] > 0.0;
   } else {
     return false;
   }
-  *t_out = t;
-  *face_out = 2 * axis + (max_side ? 1 : 0);
+  *face = 2 * axis + (max_side ? 1 : 0);
   return true;
 }
 
-__attribute__((always_inline)) inline void Scene::fill_hit(int index, int face, double t,
-                                                           const Ray& ray, RayHit* hit) const {
+void Scene::fill_hit(int index, int face, double t, const Eigen::Vector3d& origin_w,
+                     const double* k, const Eigen::Vector3d& dir_w, RayHit* hit) const {
   const Compact& c = compact_[static_cast<size_t>(index)];
   hit->t = t;
   hit->primitive = index;
   hit->face = face;
-  const Eigen::Vector3d p = ray.o + t * ray.d;
   if (c.kind == PrimitiveKind::kPlane) {
-    hit->normal_w = c.b.dot(ray.d) < 0.0 ? c.b : Eigen::Vector3d(-c.b);
-    const Eigen::Vector3d w = p - c.a;
-    hit->uv_m = Eigen::Vector2d(c.u.dot(w), c.v.dot(w));
+    hit->normal_w = c.b.dot(dir_w) < 0.0 ? c.b : Eigen::Vector3d(-c.b);
+    hit->uv_m = Eigen::Vector2d(k[1] + t * c.u.dot(dir_w), k[2] + t * c.v.dot(dir_w));
     return;
   }
   const int axis = face / 2;
   hit->normal_w = Eigen::Vector3d::Zero();
-  hit->normal_w[axis] = ray.d[axis] > 0.0 ? -1.0 : 1.0;
+  hit->normal_w[axis] = dir_w[axis] > 0.0 ? -1.0 : 1.0;
+  const Eigen::Vector3d p = origin_w + t * dir_w;
   hit->uv_m = Eigen::Vector2d(p[(axis + 1) % 3], p[(axis + 2) % 3]);
 }
 
 bool Scene::raycast(const Eigen::Vector3d& origin_w, const Eigen::Vector3d& dir_w, double t_max,
                     RayHit* hit) const {
-  const Ray ray(origin_w, dir_w);
+  Ray ray(dir_w);
   double best = t_max;
   int best_index = -1, best_face = 0;
-  double t;
-  int face;
+  double k[6];
   for (int i : global_) {
-    if (intersect(i, ray, best, &t, &face)) {
-      best = t;
-      best_index = i;
-      best_face = face;
-    }
+    origin_terms(compact_[static_cast<size_t>(i)], origin_w, k);
+    if (hit_nearer(i, k, &ray, &best, &best_face)) best_index = i;
   }
-  if (nx_ != 0) traverse_grid(ray, &best, &best_index, &best_face);
+  if (nx_ != 0) traverse_grid(origin_w, &ray, &best, &best_index, &best_face);
   if (best_index < 0) return false;
-  if (hit) fill_hit(best_index, best_face, best, ray, hit);
+  if (hit) {
+    origin_terms(compact_[static_cast<size_t>(best_index)], origin_w, k);
+    fill_hit(best_index, best_face, best, origin_w, k, dir_w, hit);
+  }
   return true;
 }
 
 void Scene::prepare_view(const Eigen::Vector3d& origin_w, ViewCache* view) const {
   view->origin_w = origin_w;
   view->terms.resize(6 * compact_.size());
-  for (size_t i = 0; i < compact_.size(); ++i) {
-    const Compact& c = compact_[i];
-    double* k = &view->terms[6 * i];
-    if (c.kind == PrimitiveKind::kPlane) {
-      const Eigen::Vector3d oa = origin_w - c.a;
-      k[0] = -c.b.dot(oa);  // t = k[0] / (n . d)
-      k[1] = c.u.dot(oa);   // u coordinate of the origin
-      k[2] = c.v.dot(oa);   // v coordinate of the origin
-      k[3] = k[4] = k[5] = 0.0;
-    } else {
-      for (int j = 0; j < 3; ++j) {
-        k[j] = c.a[j] - origin_w[j];
-        k[3 + j] = c.b[j] - origin_w[j];
-      }
-    }
-  }
+  for (size_t i = 0; i < compact_.size(); ++i) origin_terms(compact_[i], origin_w, &view->terms[6 * i]);
 }
 
 bool Scene::raycast_candidates(const ViewCache& view, const Eigen::Vector3d& dir_w,
                                const int* candidates, const double* t_lower, size_t count,
                                double t_max, RayHit* hit) const {
-  const double d0 = dir_w.x(), d1 = dir_w.y(), d2 = dir_w.z();
-  double inv0 = 0.0, inv1 = 0.0, inv2 = 0.0;
-  bool have_inv = false;
+  Ray ray(dir_w);
   double best = t_max;
   int best_index = -1, best_face = 0;
   for (size_t n = 0; n < count; ++n) {
     if (t_lower[n] >= best) break;
     const int index = candidates[n];
-    const Compact& c = compact_[static_cast<size_t>(index)];
-    const double* k = &view.terms[6 * static_cast<size_t>(index)];
-    if (c.kind == PrimitiveKind::kPlane) {
-      // As in intersect(), with the origin's terms from the cache: every test scaled by |n.d|.
-      double denom = c.b.x() * d0 + c.b.y() * d1 + c.b.z() * d2;
-      double num = k[0];
-      if (denom < 0.0) {
-        denom = -denom;
-        num = -num;
-      } else if (!(denom > 0.0)) {
-        continue;
-      }
-      if (!(num > kTMin * denom) || num > best * denom) continue;
-      const double a = denom * k[1] + num * (c.u.x() * d0 + c.u.y() * d1 + c.u.z() * d2);
-      if (a < c.u_min * denom || a > c.u_max * denom) continue;
-      const double b = denom * k[2] + num * (c.v.x() * d0 + c.v.y() * d1 + c.v.z() * d2);
-      if (b < c.v_min * denom || b > c.v_max * denom) continue;
-      best = num / denom;
+    if (hit_nearer(index, &view.terms[6 * static_cast<size_t>(index)], &ray, &best, &best_face))
       best_index = index;
-      best_face = 0;
-      continue;
-    }
-    if (!have_inv) {
-      inv0 = 1.0 / d0;  // +-infinity for axis-parallel rays, as in Ray::inverse
-      inv1 = 1.0 / d1;
-      inv2 = 1.0 / d2;
-      have_inv = true;
-    }
-    const double x0 = k[0] * inv0, x1 = k[3] * inv0;
-    const double y0 = k[1] * inv1, y1 = k[4] * inv1;
-    const double z0 = k[2] * inv2, z1 = k[5] * inv2;
-    const double nx = std::min(x0, x1), ny = std::min(y0, y1), nz = std::min(z0, z1);
-    const double fx = std::max(x0, x1), fy = std::max(y0, y1), fz = std::max(z0, z1);
-    const double t_near = std::max(nx, std::max(ny, nz));
-    const double t_far = std::min(fx, std::min(fy, fz));
-    if (!(t_near <= t_far)) continue;
-    int axis;
-    bool max_side;
-    if (t_near > kTMin) {
-      if (t_near >= best) continue;
-      best = t_near;
-      axis = t_near == nx ? 0 : (t_near == ny ? 1 : 2);
-      max_side = dir_w[axis] < 0.0;
-    } else if (t_far > kTMin && t_far < best) {
-      best = t_far;
-      axis = t_far == fx ? 0 : (t_far == fy ? 1 : 2);
-      max_side = dir_w[axis] > 0.0;
-    } else {
-      continue;
-    }
-    best_index = index;
-    best_face = 2 * axis + (max_side ? 1 : 0);
   }
   if (best_index < 0) return false;
-  if (hit) {
-    hit->t = best;
-    hit->primitive = best_index;
-    hit->face = best_face;
-    const Compact& c = compact_[static_cast<size_t>(best_index)];
-    if (c.kind == PrimitiveKind::kPlane) {
-      const double* k = &view.terms[6 * static_cast<size_t>(best_index)];
-      const double dn = c.b.dot(dir_w);
-      hit->normal_w = dn < 0.0 ? c.b : Eigen::Vector3d(-c.b);
-      hit->uv_m = Eigen::Vector2d(k[1] + best * c.u.dot(dir_w), k[2] + best * c.v.dot(dir_w));
-    } else {
-      const int axis = best_face / 2;
-      hit->normal_w = Eigen::Vector3d::Zero();
-      hit->normal_w[axis] = dir_w[axis] > 0.0 ? -1.0 : 1.0;
-      const Eigen::Vector3d p = view.origin_w + best * dir_w;
-      hit->uv_m = Eigen::Vector2d(p[(axis + 1) % 3], p[(axis + 2) % 3]);
-    }
-  }
+  if (hit)
+    fill_hit(best_index, best_face, best, view.origin_w,
+             &view.terms[6 * static_cast<size_t>(best_index)], dir_w, hit);
   return true;
 }
 
-void Scene::traverse_grid(const Ray& ray, double* best_t, int* best_index, int* best_face) const {
+void Scene::traverse_grid(const Eigen::Vector3d& origin_w, Ray* ray, double* best_t,
+                          int* best_index, int* best_face) const {
   double& best = *best_t;
-  double t;
-  int face;
+  double k[6];
 
   // 2-D DDA over the grid (Amanatides & Woo), from where the ray enters the grid's rectangle.
-  const double ox = ray.o.x(), oy = ray.o.y(), dx = ray.d.x(), dy = ray.d.y();
+  const double ox = origin_w.x(), oy = origin_w.y(), dx = ray->d[0], dy = ray->d[1];
   const double gx1 = grid_x0_ + nx_ * cell_m_, gy1 = grid_y0_ + ny_ * cell_m_;
   double t_enter = kTMin, t_exit = best;
   if (dx != 0.0) {
@@ -505,12 +444,10 @@ void Scene::traverse_grid(const Ray& ray, double* best_t, int* best_index, int* 
 
   for (;;) {
     const size_t cell = static_cast<size_t>(iy) * nx_ + ix;
-    for (int k = cell_begin_[cell], end = cell_begin_[cell + 1]; k < end; ++k) {
-      if (intersect(cell_items_[k], ray, best, &t, &face)) {
-        best = t;
-        *best_index = cell_items_[k];
-        *best_face = face;
-      }
+    for (int j = cell_begin_[cell], end = cell_begin_[cell + 1]; j < end; ++j) {
+      const int i = cell_items_[j];
+      origin_terms(compact_[static_cast<size_t>(i)], origin_w, k);
+      if (hit_nearer(i, k, ray, &best, best_face)) *best_index = i;
     }
     const double cell_exit = std::min(t_next_x, t_next_y);
     if (cell_exit >= best || cell_exit >= t_exit) break;

@@ -6,26 +6,19 @@
 #include <vector>
 
 #include "depthfuse/synthetic/scene.hpp"
+#include "lap_rooms.hpp"
 #include "random.hpp"
 #include "rooms_layout.hpp"
+#include "scene_parts.hpp"
 
 namespace depthfuse::synthetic {
 
 namespace {
 
 using Eigen::Vector3d;
-
-Primitive colored(Primitive p, uint8_t r, uint8_t g, uint8_t b) {
-  p.color_rgb = {r, g, b};
-  return p;
-}
-
-// A box colour from the layout generator: saturated, never too dark for the colour image.
-Primitive random_colored(Primitive p, detail::HashRng* rng) {
-  return colored(std::move(p), static_cast<uint8_t>(rng->uniform_int(90, 240)),
-                 static_cast<uint8_t>(rng->uniform_int(90, 240)),
-                 static_cast<uint8_t>(rng->uniform_int(90, 240)));
-}
+using scene_parts::colored;
+using scene_parts::jittered_box;
+using scene_parts::random_colored;
 
 // Floor and two walls of 3 x 3 m meeting at the origin (the paper's CCorner); the free space is
 // x, y, z > 0.
@@ -43,24 +36,6 @@ std::vector<Primitive> make_corner() {
                                        3.0, 0.0, 3.0, "wall_y0"),
                       140, 180, 200));
   return p;
-}
-
-// A box of nominal footprint [x0,x1] x [y0,y1] and height h on z0, jittered by the seed: the
-// position by up to +-jitter_m (not past `limit`), each size by up to +-15 %.
-Primitive jittered_box(detail::HashRng* rng, double x0, double x1, double y0, double y1, double z0,
-                       double h, double jitter_m, const Eigen::AlignedBox2d& limit,
-                       std::string name) {
-  const double sx = (x1 - x0) * rng->uniform(0.85, 1.15);
-  const double sy = (y1 - y0) * rng->uniform(0.85, 1.15);
-  const double sz = h * rng->uniform(0.85, 1.15);
-  double cx = 0.5 * (x0 + x1) + rng->uniform(-jitter_m, jitter_m);
-  double cy = 0.5 * (y0 + y1) + rng->uniform(-jitter_m, jitter_m);
-  cx = std::fmin(std::fmax(cx, limit.min().x() + 0.5 * sx), limit.max().x() - 0.5 * sx);
-  cy = std::fmin(std::fmax(cy, limit.min().y() + 0.5 * sy), limit.max().y() - 0.5 * sy);
-  return random_colored(
-      Primitive::box(Vector3d(cx - 0.5 * sx, cy - 0.5 * sy, z0),
-                     Vector3d(cx + 0.5 * sx, cy + 0.5 * sy, z0 + sz), std::move(name)),
-      rng);
 }
 
 // A 5 x 4 x 2.6 m room with five boxes near the walls, one stacked on another. The camera loop of
@@ -213,6 +188,12 @@ Scene Scene::make(SceneKind kind, uint64_t seed) {
       break;
     case SceneKind::kRooms:
       primitives = make_rooms(seed);
+      break;
+    case SceneKind::kFurnished:
+      primitives = lap_rooms::make_furnished(seed);
+      break;
+    case SceneKind::kPlain:
+      primitives = lap_rooms::make_plain(seed);
       break;
   }
   Result<Scene> scene = create(std::move(primitives), to_string(kind));

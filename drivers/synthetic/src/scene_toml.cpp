@@ -1,15 +1,17 @@
 // Scene <-> TOML: the analytic ground truth travels with the data it describes.
 #include <sstream>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "depthfuse/input_file.hpp"
 #include "depthfuse/synthetic/scene.hpp"
-#include "toml_util.hpp"
+#include "depthfuse/toml/strict_reader.hpp"
+#include "toml_write.hpp"
 
 namespace depthfuse::synthetic {
 
-namespace tu = toml_util;
+namespace tw = toml_write;
 
 std::string Scene::to_toml() const {
   std::ostringstream out;
@@ -23,107 +25,116 @@ std::string Scene::to_toml() const {
          "[scene]\n"
          "format_version = 1\n"
          "name = "
-      << tu::quote(name_) << "\n";
+      << tw::quote(name_) << "\n";
   for (const Primitive& p : primitives_) {
     out << "\n[[primitive]]\n"
-        << "kind = " << tu::quote(to_string(p.kind)) << "\n";
-    if (!p.name.empty()) out << "name = " << tu::quote(p.name) << "\n";
+        << "kind = " << tw::quote(to_string(p.kind)) << "\n";
+    if (!p.name.empty()) out << "name = " << tw::quote(p.name) << "\n";
     out << "color_rgb = [" << int{p.color_rgb[0]} << ", " << int{p.color_rgb[1]} << ", "
         << int{p.color_rgb[2]} << "]\n";
+    // Written only when it differs from the default, so older scene files read back the same.
+    if (p.checker_m != Primitive().checker_m)
+      out << "checker_m = " << tw::format_double(p.checker_m) << "\n";
     if (p.kind == PrimitiveKind::kPlane) {
-      out << "origin_m = " << tu::format_vec(p.origin_m) << "\n"
-          << "normal = " << tu::format_vec(p.normal) << "\n"
-          << "u_axis = " << tu::format_vec(p.u_axis) << "\n"
-          << "u_range_m = [" << tu::format_double(p.u_min_m) << ", " << tu::format_double(p.u_max_m)
+      out << "origin_m = " << tw::format_vec(p.origin_m) << "\n"
+          << "normal = " << tw::format_vec(p.normal) << "\n"
+          << "u_axis = " << tw::format_vec(p.u_axis) << "\n"
+          << "u_range_m = [" << tw::format_double(p.u_min_m) << ", " << tw::format_double(p.u_max_m)
           << "]\n"
-          << "v_range_m = [" << tu::format_double(p.v_min_m) << ", " << tu::format_double(p.v_max_m)
+          << "v_range_m = [" << tw::format_double(p.v_min_m) << ", " << tw::format_double(p.v_max_m)
           << "]\n";
     } else {
-      out << "min_m = " << tu::format_vec(p.min_m) << "\n"
-          << "max_m = " << tu::format_vec(p.max_m) << "\n";
+      out << "min_m = " << tw::format_vec(p.min_m) << "\n"
+          << "max_m = " << tw::format_vec(p.max_m) << "\n";
     }
   }
   return out.str();
 }
 
+namespace {
+
+using strict_toml::TableReader;
+
+// An array of three numbers into a vector (left as it is when absent or rejected).
+void read_vec3(TableReader& r, std::string_view key, Eigen::Vector3d* v) {
+  r.require(key);
+  double xyz[3] = {v->x(), v->y(), v->z()};
+  r.read(key, xyz, 3, strict_toml::any_number());
+  *v = Eigen::Vector3d(xyz[0], xyz[1], xyz[2]);
+}
+
+// One [[primitive]] table. Its geometry is checked by Scene::create.
+Primitive read_primitive(TableReader& r) {
+  Primitive p;
+  std::string kind;
+  r.require("kind");
+  r.read("kind", &kind, strict_toml::one_of({"plane", "box", "room"}));
+  if (!r.clean()) return p;  // which keys belong depends on the kind
+  r.read("name", &p.name, strict_toml::any_string());
+  double rgb[3] = {static_cast<double>(p.color_rgb[0]), static_cast<double>(p.color_rgb[1]),
+                   static_cast<double>(p.color_rgb[2])};
+  r.read("color_rgb", rgb, 3, strict_toml::closed(0.0, 255.0));
+  for (size_t k = 0; k < 3; ++k) p.color_rgb[k] = static_cast<uint8_t>(rgb[k] + 0.5);
+  r.read("checker_m", &p.checker_m, strict_toml::non_negative());
+  if (kind == "plane") {
+    p.kind = PrimitiveKind::kPlane;
+    read_vec3(r, "origin_m", &p.origin_m);
+    read_vec3(r, "normal", &p.normal);
+    read_vec3(r, "u_axis", &p.u_axis);
+    // Infinite bounds make a half-plane, a strip or a whole plane.
+    double u[2] = {p.u_min_m, p.u_max_m}, v[2] = {p.v_min_m, p.v_max_m};
+    r.require("u_range_m");
+    r.read("u_range_m", u, 2, strict_toml::any_number_or_infinity());
+    r.require("v_range_m");
+    r.read("v_range_m", v, 2, strict_toml::any_number_or_infinity());
+    p.u_min_m = u[0];
+    p.u_max_m = u[1];
+    p.v_min_m = v[0];
+    p.v_max_m = v[1];
+  } else {
+    p.kind = kind == "box" ? PrimitiveKind::kBox : PrimitiveKind::kRoom;
+    read_vec3(r, "min_m", &p.min_m);
+    read_vec3(r, "max_m", &p.max_m);
+  }
+  r.reject_unknown();
+  return p;
+}
+
+}  // namespace
+
 Result<Scene> Scene::parse_toml(const std::string& text, const std::string& origin) {
-  Result<toml::table> parsed = tu::parse(text, origin);
+  Result<toml::table> parsed = strict_toml::parse_document(text, origin);
   if (!parsed.is_ok()) return parsed.status();
   const toml::table& root = parsed.value();
+  strict_toml::Diagnostics diagnostics(origin);
+  TableReader top(&root, "", root.source(), &diagnostics, nullptr);
 
   std::string name;
-  for (auto&& [key, node] : root) {
-    const std::string k(key.str());
-    if (k == "scene") {
-      const toml::table* t = node.as_table();
-      if (!t) return invalid_argument(tu::where(origin, node) + "'scene' must be a table");
-      DF_RETURN_IF_ERROR(tu::check_keys(*t, {"format_version", "name"}, origin, "[scene]"));
-      int64_t version = 1;
-      DF_RETURN_IF_ERROR(tu::read_int(*t, "format_version", origin, &version));
-      if (version != 1)
-        return invalid_argument(tu::where(origin, *t) + "unsupported scene format_version " +
-                                std::to_string(version) + " (this build reads version 1)");
-      DF_RETURN_IF_ERROR(tu::read_string(*t, "name", origin, &name));
-    } else if (k == "primitive") {
-      if (!node.is_array_of_tables())
-        return invalid_argument(tu::where(origin, node) +
-                                "'primitive' must be an array of tables ([[primitive]])");
-    } else if (!node.is_table()) {
-      // Other tables (e.g. [generator]) belong to other readers; stray keys are mistakes.
-      return invalid_argument(tu::where(origin, node) + "unknown key '" + k + "'");
-    }
+  if (const toml::table* t = top.table("scene")) {
+    TableReader r(t, "scene", t->source(), &diagnostics, nullptr);
+    int version = 1;
+    r.read("format_version", &version, strict_toml::any_number());
+    if (version != 1)
+      r.fail("format_version", "unsupported scene format_version " + std::to_string(version) +
+                                   " (this build reads version 1)");
+    r.read("name", &name, strict_toml::any_string());
+    r.reject_unknown();
   }
-
   std::vector<Primitive> primitives;
-  if (const toml::array* arr = root["primitive"].as_array()) {
+  if (const toml::array* arr = top.array_of_tables("primitive")) {
     for (size_t i = 0; i < arr->size(); ++i) {
       const toml::table* t = arr->get(i)->as_table();
-      if (!t)
-        return invalid_argument(tu::where(origin, *arr->get(i)) + "primitive must be a table");
-      std::string kind;
-      DF_RETURN_IF_ERROR(tu::read_string(*t, "kind", origin, &kind));
-      Primitive p;
-      if (kind == "plane") {
-        p.kind = PrimitiveKind::kPlane;
-        DF_RETURN_IF_ERROR(tu::check_keys(
-            *t,
-            {"kind", "name", "color_rgb", "origin_m", "normal", "u_axis", "u_range_m", "v_range_m"},
-            origin, "a plane primitive"));
-        DF_RETURN_IF_ERROR(tu::read_vec3(*t, "origin_m", origin, &p.origin_m, true));
-        DF_RETURN_IF_ERROR(tu::read_vec3(*t, "normal", origin, &p.normal, true));
-        DF_RETURN_IF_ERROR(tu::read_vec3(*t, "u_axis", origin, &p.u_axis, true));
-        double u[2], v[2];
-        DF_RETURN_IF_ERROR(tu::read_numbers(*t, "u_range_m", origin, 2, u, true));
-        DF_RETURN_IF_ERROR(tu::read_numbers(*t, "v_range_m", origin, 2, v, true));
-        p.u_min_m = u[0];
-        p.u_max_m = u[1];
-        p.v_min_m = v[0];
-        p.v_max_m = v[1];
-      } else if (kind == "box" || kind == "room") {
-        p.kind = kind == "box" ? PrimitiveKind::kBox : PrimitiveKind::kRoom;
-        DF_RETURN_IF_ERROR(tu::check_keys(*t, {"kind", "name", "color_rgb", "min_m", "max_m"},
-                                          origin, "a " + kind + " primitive"));
-        DF_RETURN_IF_ERROR(tu::read_vec3(*t, "min_m", origin, &p.min_m, true));
-        DF_RETURN_IF_ERROR(tu::read_vec3(*t, "max_m", origin, &p.max_m, true));
-      } else {
-        return invalid_argument(tu::where(origin, *t) + "primitive " + std::to_string(i) +
-                                ": 'kind' must be \"plane\", \"box\" or \"room\", got '" + kind +
-                                "'");
-      }
-      DF_RETURN_IF_ERROR(tu::read_string(*t, "name", origin, &p.name));
-      if (t->contains("color_rgb")) {
-        double c[3];
-        DF_RETURN_IF_ERROR(tu::read_numbers(*t, "color_rgb", origin, 3, c, true));
-        for (int k = 0; k < 3; ++k) {
-          if (!(c[k] >= 0.0 && c[k] <= 255.0))
-            return invalid_argument(tu::where(origin, *t->get("color_rgb")) +
-                                    "'color_rgb' values must be in [0, 255]");
-          p.color_rgb[static_cast<size_t>(k)] = static_cast<uint8_t>(c[k] + 0.5);
-        }
-      }
-      primitives.push_back(std::move(p));
+      TableReader r(t, "primitive[" + std::to_string(i) + "]", t->source(), &diagnostics, nullptr);
+      primitives.push_back(read_primitive(r));
     }
   }
+  // Other tables (the [generator] that write_tum_folder adds) belong to other readers; stray keys
+  // are mistakes.
+  for (auto&& [key, node] : root)
+    if (node.is_table()) top.table(key.str());
+  top.reject_unknown();
+  DF_RETURN_IF_ERROR(diagnostics.status());
+
   Result<Scene> scene = create(std::move(primitives), name);
   if (!scene.is_ok()) return scene.status().with_context(origin);
   return scene;

@@ -2,17 +2,18 @@
 
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <sstream>
-#include <stdexcept>
 #include <string>
 #include <utility>
 
 #include "random.hpp"
-#include "toml_util.hpp"
+#include "depthfuse/toml/strict_reader.hpp"
+#include "toml_write.hpp"
 
 namespace depthfuse::synthetic {
 
-namespace tu = toml_util;
+namespace tw = toml_write;
 
 namespace {
 constexpr double kPi = 3.14159265358979323846;
@@ -33,6 +34,19 @@ Status SyntheticConfig::validate() const {
     return invalid_argument("rate_hz must be finite and > 0, got " + std::to_string(rate_hz));
   RendererConfig rc{intrinsics, noise, min_depth_m, max_depth_m};
   return rc.validate();
+}
+
+int default_frames(SceneKind kind) {
+  switch (kind) {
+    case SceneKind::kFurnished:
+    case SceneKind::kPlain:
+      return 1200;
+    case SceneKind::kCorner:
+    case SceneKind::kRoom:
+    case SceneKind::kRooms:
+      break;
+  }
+  return SyntheticConfig().frames;
 }
 
 Pose perturb_pose(const Pose& T_world_cam, double noise_m, double noise_deg, uint64_t key) {
@@ -84,7 +98,10 @@ void SyntheticSequence::render_into(size_t i, bool with_noise, Frame* frame,
                    detail::stream_key(config_.seed, detail::kStreamPixelNoise, i), with_noise,
                    &frame->depth, with_color ? &frame->color : nullptr);
   if (!with_color) frame->color = ColorImage();
-  frame->T_world_cam_hint = T_world_cam_perturbed(i);
+  if (config_.pose_hints)
+    frame->T_world_cam_hint = T_world_cam_perturbed(i);
+  else
+    frame->T_world_cam_hint.reset();
 }
 
 Frame SyntheticSequence::render(size_t i, bool with_noise) const {
@@ -100,142 +117,114 @@ std::string synthetic_config_to_toml(const SyntheticConfig& c) {
   const NoiseConfig& n = c.noise;
   o << "# The settings that generated this data (depthfuse synthetic source).\n"
     << "[generator]\n"
-    << "scene = " << tu::quote(to_string(c.scene)) << "\n"
+    << "scene = " << tw::quote(to_string(c.scene)) << "\n"
     << "frames = " << c.frames << "\n";
   // TOML integers are signed 64-bit: larger seeds are written as decimal strings.
   if (c.seed <= static_cast<uint64_t>(std::numeric_limits<int64_t>::max()))
     o << "seed = " << c.seed << "\n";
   else
     o << "seed = \"" << c.seed << "\"\n";
-  o << "pose_noise_m = " << tu::format_double(c.pose_noise_m) << "\n"
-    << "pose_noise_deg = " << tu::format_double(c.pose_noise_deg) << "\n"
-    << "rate_hz = " << tu::format_double(c.rate_hz) << "\n"
-    << "min_depth_m = " << tu::format_double(c.min_depth_m) << "\n"
-    << "max_depth_m = " << tu::format_double(c.max_depth_m) << "\n"
+  o << "pose_noise_m = " << tw::format_double(c.pose_noise_m) << "\n"
+    << "pose_noise_deg = " << tw::format_double(c.pose_noise_deg) << "\n"
+    << "rate_hz = " << tw::format_double(c.rate_hz) << "\n"
+    << "min_depth_m = " << tw::format_double(c.min_depth_m) << "\n"
+    << "max_depth_m = " << tw::format_double(c.max_depth_m) << "\n"
     << "\n[generator.intrinsics]\n"
     << "width = " << c.intrinsics.width << "\n"
     << "height = " << c.intrinsics.height << "\n"
-    << "fx = " << tu::format_double(c.intrinsics.fx) << "\n"
-    << "fy = " << tu::format_double(c.intrinsics.fy) << "\n"
-    << "cx = " << tu::format_double(c.intrinsics.cx) << "\n"
-    << "cy = " << tu::format_double(c.intrinsics.cy) << "\n"
+    << "fx = " << tw::format_double(c.intrinsics.fx) << "\n"
+    << "fy = " << tw::format_double(c.intrinsics.fy) << "\n"
+    << "cx = " << tw::format_double(c.intrinsics.cx) << "\n"
+    << "cy = " << tw::format_double(c.intrinsics.cy) << "\n"
     << "\n[generator.noise]\n"
     << "enabled = " << (n.enabled ? "true" : "false") << "\n"
     << "axial_enabled = " << (n.axial_enabled ? "true" : "false") << "\n"
-    << "axial_scale = " << tu::format_double(n.axial_scale) << "\n"
-    << "axial_max_incidence_deg = " << tu::format_double(n.axial_max_incidence_deg) << "\n"
+    << "axial_scale = " << tw::format_double(n.axial_scale) << "\n"
+    << "axial_max_incidence_deg = " << tw::format_double(n.axial_max_incidence_deg) << "\n"
     << "flying_enabled = " << (n.flying_enabled ? "true" : "false") << "\n"
-    << "flying_probability = " << tu::format_double(n.flying_probability) << "\n"
-    << "flying_min_jump_m = " << tu::format_double(n.flying_min_jump_m) << "\n"
-    << "flying_min_jump_fraction = " << tu::format_double(n.flying_min_jump_fraction) << "\n"
+    << "flying_probability = " << tw::format_double(n.flying_probability) << "\n"
+    << "flying_min_jump_m = " << tw::format_double(n.flying_min_jump_m) << "\n"
+    << "flying_min_jump_fraction = " << tw::format_double(n.flying_min_jump_fraction) << "\n"
     << "mpi_enabled = " << (n.mpi_enabled ? "true" : "false") << "\n"
-    << "mpi_max_bias_m = " << tu::format_double(n.mpi_max_bias_m) << "\n"
-    << "mpi_range_m = " << tu::format_double(n.mpi_range_m) << "\n"
+    << "mpi_max_bias_m = " << tw::format_double(n.mpi_max_bias_m) << "\n"
+    << "mpi_range_m = " << tw::format_double(n.mpi_range_m) << "\n"
     << "dropout_enabled = " << (n.dropout_enabled ? "true" : "false") << "\n"
-    << "dropout_probability = " << tu::format_double(n.dropout_probability) << "\n"
-    << "dropout_grazing_start_deg = " << tu::format_double(n.dropout_grazing_start_deg) << "\n"
-    << "dropout_far_start_m = " << tu::format_double(n.dropout_far_start_m) << "\n"
-    << "dropout_far_probability = " << tu::format_double(n.dropout_far_probability) << "\n"
+    << "dropout_probability = " << tw::format_double(n.dropout_probability) << "\n"
+    << "dropout_grazing_start_deg = " << tw::format_double(n.dropout_grazing_start_deg) << "\n"
+    << "dropout_far_start_m = " << tw::format_double(n.dropout_far_start_m) << "\n"
+    << "dropout_far_probability = " << tw::format_double(n.dropout_far_probability) << "\n"
     << "outlier_enabled = " << (n.outlier_enabled ? "true" : "false") << "\n"
-    << "outlier_probability = " << tu::format_double(n.outlier_probability) << "\n";
+    << "outlier_probability = " << tw::format_double(n.outlier_probability) << "\n";
   return o.str();
 }
 
 Result<SyntheticConfig> parse_synthetic_config_toml(const std::string& text,
                                                     const std::string& origin) {
-  Result<toml::table> parsed = tu::parse(text, origin);
+  using strict_toml::any_number;
+  using strict_toml::TableReader;
+  Result<toml::table> parsed = strict_toml::parse_document(text, origin);
   if (!parsed.is_ok()) return parsed.status();
-  const toml::table* g = parsed.value()["generator"].as_table();
-  if (!g) return invalid_argument(origin + ": no [generator] table");
-  DF_RETURN_IF_ERROR(
-      tu::check_keys(*g,
-                     {"scene", "frames", "seed", "pose_noise_m", "pose_noise_deg", "rate_hz",
-                      "min_depth_m", "max_depth_m", "intrinsics", "noise"},
-                     origin, "[generator]"));
+  const toml::table& root = parsed.value();
+  strict_toml::Diagnostics diagnostics(origin);
+  // The document's other tables ([scene], [[primitive]]) are Scene::parse_toml's.
+  TableReader top(&root, "", root.source(), &diagnostics, nullptr);
+  const toml::table* g = top.table("generator");
+  if (g == nullptr) {
+    DF_RETURN_IF_ERROR(diagnostics.status());
+    return invalid_argument(origin + ": no [generator] table");
+  }
+  // Types here; the ranges are SyntheticConfig::validate's (one place for each rule).
   SyntheticConfig c;
+  TableReader r(g, "generator", g->source(), &diagnostics, nullptr);
   std::string scene = to_string(c.scene);
-  DF_RETURN_IF_ERROR(tu::read_string(*g, "scene", origin, &scene));
-  Result<SceneKind> kind = parse_scene_kind(scene);
-  if (!kind.is_ok())
-    return kind.status().with_context(tu::where(origin, *g->get("scene")) + "[generator] scene");
-  c.scene = kind.value();
-  int64_t frames = c.frames;
-  DF_RETURN_IF_ERROR(tu::read_int(*g, "frames", origin, &frames));
-  if (frames < 1 || frames > std::numeric_limits<int>::max())
-    return invalid_argument(tu::where(origin, *g->get("frames")) + "'frames' must be >= 1");
-  c.frames = static_cast<int>(frames);
-  if (const toml::node* s = g->get("seed")) {
-    if (auto v = s->value_exact<int64_t>(); v && *v >= 0) {
-      c.seed = static_cast<uint64_t>(*v);
-    } else if (auto str = s->value_exact<std::string>()) {
-      try {
-        size_t used = 0;
-        c.seed = std::stoull(*str, &used, 10);
-        if (used != str->size()) throw std::invalid_argument("trailing characters");
-      } catch (const std::exception&) {
-        return invalid_argument(tu::where(origin, *s) + "'seed' must be a non-negative integer");
-      }
-    } else {
-      return invalid_argument(tu::where(origin, *s) + "'seed' must be a non-negative integer");
-    }
+  r.read("scene", &scene, [](const std::string& s) -> std::optional<std::string> {
+    Result<SceneKind> kind = parse_scene_kind(s);
+    if (kind.is_ok()) return std::nullopt;
+    return kind.status().message();
+  });
+  r.read("frames", &c.frames, any_number());
+  r.read("seed", &c.seed);
+  r.read("pose_noise_m", &c.pose_noise_m, any_number());
+  r.read("pose_noise_deg", &c.pose_noise_deg, any_number());
+  r.read("rate_hz", &c.rate_hz, any_number());
+  r.read("min_depth_m", &c.min_depth_m, any_number());
+  r.read("max_depth_m", &c.max_depth_m, any_number());
+  if (const toml::table* t = r.table("intrinsics")) {
+    TableReader k(t, "generator.intrinsics", t->source(), &diagnostics, nullptr);
+    k.read("width", &c.intrinsics.width, strict_toml::closed(1, 65536));
+    k.read("height", &c.intrinsics.height, strict_toml::closed(1, 65536));
+    k.read("fx", &c.intrinsics.fx, any_number());
+    k.read("fy", &c.intrinsics.fy, any_number());
+    k.read("cx", &c.intrinsics.cx, any_number());
+    k.read("cy", &c.intrinsics.cy, any_number());
+    k.reject_unknown();
   }
-  DF_RETURN_IF_ERROR(tu::read_double(*g, "pose_noise_m", origin, &c.pose_noise_m));
-  DF_RETURN_IF_ERROR(tu::read_double(*g, "pose_noise_deg", origin, &c.pose_noise_deg));
-  DF_RETURN_IF_ERROR(tu::read_double(*g, "rate_hz", origin, &c.rate_hz));
-  DF_RETURN_IF_ERROR(tu::read_double(*g, "min_depth_m", origin, &c.min_depth_m));
-  DF_RETURN_IF_ERROR(tu::read_double(*g, "max_depth_m", origin, &c.max_depth_m));
-  if (const toml::node* node = g->get("intrinsics")) {
-    const toml::table* t = node->as_table();
-    if (!t) return invalid_argument(tu::where(origin, *node) + "'intrinsics' must be a table");
-    DF_RETURN_IF_ERROR(tu::check_keys(*t, {"width", "height", "fx", "fy", "cx", "cy"}, origin,
-                                      "[generator.intrinsics]"));
-    int64_t w = c.intrinsics.width, h = c.intrinsics.height;
-    DF_RETURN_IF_ERROR(tu::read_int(*t, "width", origin, &w));
-    DF_RETURN_IF_ERROR(tu::read_int(*t, "height", origin, &h));
-    if (w < 1 || h < 1 || w > 65536 || h > 65536)
-      return invalid_argument(tu::where(origin, *t) + "image size out of range");
-    c.intrinsics.width = static_cast<int>(w);
-    c.intrinsics.height = static_cast<int>(h);
-    DF_RETURN_IF_ERROR(tu::read_double(*t, "fx", origin, &c.intrinsics.fx));
-    DF_RETURN_IF_ERROR(tu::read_double(*t, "fy", origin, &c.intrinsics.fy));
-    DF_RETURN_IF_ERROR(tu::read_double(*t, "cx", origin, &c.intrinsics.cx));
-    DF_RETURN_IF_ERROR(tu::read_double(*t, "cy", origin, &c.intrinsics.cy));
-  }
-  if (const toml::node* node = g->get("noise")) {
-    const toml::table* t = node->as_table();
-    if (!t) return invalid_argument(tu::where(origin, *node) + "'noise' must be a table");
+  if (const toml::table* t = r.table("noise")) {
+    TableReader k(t, "generator.noise", t->source(), &diagnostics, nullptr);
     NoiseConfig& n = c.noise;
-    DF_RETURN_IF_ERROR(tu::check_keys(
-        *t,
-        {"enabled", "axial_enabled", "axial_scale", "axial_max_incidence_deg", "flying_enabled",
-         "flying_probability", "flying_min_jump_m", "flying_min_jump_fraction", "mpi_enabled",
-         "mpi_max_bias_m", "mpi_range_m", "dropout_enabled", "dropout_probability",
-         "dropout_grazing_start_deg", "dropout_far_start_m", "dropout_far_probability",
-         "outlier_enabled", "outlier_probability"},
-        origin, "[generator.noise]"));
-    DF_RETURN_IF_ERROR(tu::read_bool(*t, "enabled", origin, &n.enabled));
-    DF_RETURN_IF_ERROR(tu::read_bool(*t, "axial_enabled", origin, &n.axial_enabled));
-    DF_RETURN_IF_ERROR(tu::read_double(*t, "axial_scale", origin, &n.axial_scale));
-    DF_RETURN_IF_ERROR(
-        tu::read_double(*t, "axial_max_incidence_deg", origin, &n.axial_max_incidence_deg));
-    DF_RETURN_IF_ERROR(tu::read_bool(*t, "flying_enabled", origin, &n.flying_enabled));
-    DF_RETURN_IF_ERROR(tu::read_double(*t, "flying_probability", origin, &n.flying_probability));
-    DF_RETURN_IF_ERROR(tu::read_double(*t, "flying_min_jump_m", origin, &n.flying_min_jump_m));
-    DF_RETURN_IF_ERROR(
-        tu::read_double(*t, "flying_min_jump_fraction", origin, &n.flying_min_jump_fraction));
-    DF_RETURN_IF_ERROR(tu::read_bool(*t, "mpi_enabled", origin, &n.mpi_enabled));
-    DF_RETURN_IF_ERROR(tu::read_double(*t, "mpi_max_bias_m", origin, &n.mpi_max_bias_m));
-    DF_RETURN_IF_ERROR(tu::read_double(*t, "mpi_range_m", origin, &n.mpi_range_m));
-    DF_RETURN_IF_ERROR(tu::read_bool(*t, "dropout_enabled", origin, &n.dropout_enabled));
-    DF_RETURN_IF_ERROR(tu::read_double(*t, "dropout_probability", origin, &n.dropout_probability));
-    DF_RETURN_IF_ERROR(
-        tu::read_double(*t, "dropout_grazing_start_deg", origin, &n.dropout_grazing_start_deg));
-    DF_RETURN_IF_ERROR(tu::read_double(*t, "dropout_far_start_m", origin, &n.dropout_far_start_m));
-    DF_RETURN_IF_ERROR(
-        tu::read_double(*t, "dropout_far_probability", origin, &n.dropout_far_probability));
-    DF_RETURN_IF_ERROR(tu::read_bool(*t, "outlier_enabled", origin, &n.outlier_enabled));
-    DF_RETURN_IF_ERROR(tu::read_double(*t, "outlier_probability", origin, &n.outlier_probability));
+    k.read("enabled", &n.enabled);
+    k.read("axial_enabled", &n.axial_enabled);
+    k.read("axial_scale", &n.axial_scale, any_number());
+    k.read("axial_max_incidence_deg", &n.axial_max_incidence_deg, any_number());
+    k.read("flying_enabled", &n.flying_enabled);
+    k.read("flying_probability", &n.flying_probability, any_number());
+    k.read("flying_min_jump_m", &n.flying_min_jump_m, any_number());
+    k.read("flying_min_jump_fraction", &n.flying_min_jump_fraction, any_number());
+    k.read("mpi_enabled", &n.mpi_enabled);
+    k.read("mpi_max_bias_m", &n.mpi_max_bias_m, any_number());
+    k.read("mpi_range_m", &n.mpi_range_m, any_number());
+    k.read("dropout_enabled", &n.dropout_enabled);
+    k.read("dropout_probability", &n.dropout_probability, any_number());
+    k.read("dropout_grazing_start_deg", &n.dropout_grazing_start_deg, any_number());
+    k.read("dropout_far_start_m", &n.dropout_far_start_m, any_number());
+    k.read("dropout_far_probability", &n.dropout_far_probability, any_number());
+    k.read("outlier_enabled", &n.outlier_enabled);
+    k.read("outlier_probability", &n.outlier_probability, any_number());
+    k.reject_unknown();
   }
+  r.reject_unknown();
+  DF_RETURN_IF_ERROR(diagnostics.status());
+  c.scene = parse_scene_kind(scene).value();
   Status st = c.validate();
   if (!st.is_ok()) return st.with_context(origin + ": [generator]");
   return c;

@@ -30,6 +30,7 @@ std::string SyntheticSource::describe() const {
     s += buf;
   }
   if (!with_noise_ || !c.noise.enabled) s += ", no sensor noise";
+  if (!c.pose_hints) s += ", no pose hints";
   return s + ")";
 }
 
@@ -58,6 +59,9 @@ Result<SyntheticConfig> parse_synthetic_spec(const std::string& arg, const Synth
   if (!kind.is_ok()) return kind.status().with_context(context);
   SyntheticConfig config = base;
   config.scene = kind.value();
+  // A lap walk is made for its own length; the others keep the caller's.
+  if (config.scene == SceneKind::kFurnished || config.scene == SceneKind::kPlain)
+    config.frames = default_frames(config.scene);
 
   if (q != std::string::npos) {
     std::string_view query(arg);
@@ -91,18 +95,18 @@ Result<SyntheticConfig> parse_synthetic_spec(const std::string& arg, const Synth
       } else if (key == "rate_hz") {
         if (!parse_number(value, &config.rate_hz) || !(config.rate_hz > 0.0))
           return bad("a number > 0");
-      } else if (key == "noise") {
+      } else if (key == "noise" || key == "hints") {
+        bool on = false;
         if (value == "1" || value == "true" || value == "on") {
-          config.noise.enabled = true;
-        } else if (value == "0" || value == "false" || value == "off") {
-          config.noise.enabled = false;
-        } else {
+          on = true;
+        } else if (!(value == "0" || value == "false" || value == "off")) {
           return bad("0 or 1");
         }
+        (key == "noise" ? config.noise.enabled : config.pose_hints) = on;
       } else {
         return invalid_argument(context + ": unknown key '" + key +
-                                "' (expected frames, seed, pose_noise_m, pose_noise_deg, rate_hz "
-                                "or noise)");
+                                "' (expected frames, seed, pose_noise_m, pose_noise_deg, rate_hz, "
+                                "noise or hints)");
       }
     }
   }

@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 
+#include "lap_rooms.hpp"
 #include "rooms_layout.hpp"
 
 namespace depthfuse::synthetic {
@@ -169,6 +170,9 @@ Pose Trajectory::T_world_cam(size_t i) const {
       return room_pose(i, frames_);
     case SceneKind::kRooms:
       return rooms_pose(i, rate_hz_);
+    case SceneKind::kFurnished:
+    case SceneKind::kPlain:
+      return lap_rooms::lap_walk_pose(i, rate_hz_);
   }
   return Pose::Identity();
 }

@@ -11,7 +11,7 @@
 #include <string>
 #include <system_error>
 
-#include "toml_util.hpp"
+#include "toml_write.hpp"
 
 namespace depthfuse::synthetic {
 
@@ -157,14 +157,14 @@ Status write_tum_folder(const SyntheticSequence& sequence, const std::string& fo
   DF_RETURN_IF_ERROR(write_text(root / "groundtruth.txt", truth));
   DF_RETURN_IF_ERROR(write_text(root / "poses_perturbed.txt", perturbed));
 
-  namespace tu = toml_util;
+  namespace tw = toml_write;
   const std::string camera_text =
       "# Pinhole intrinsics of the depth images (undistorted); depth_scale = PNG value per metre.\n"
       "[camera]\nwidth = " +
       std::to_string(K.width) + "\nheight = " + std::to_string(K.height) +
-      "\nfx = " + tu::format_double(K.fx) + "\nfy = " + tu::format_double(K.fy) +
-      "\ncx = " + tu::format_double(K.cx) + "\ncy = " + tu::format_double(K.cy) +
-      "\ndepth_scale = " + tu::format_double(kTumDepthScale) + "\n";
+      "\nfx = " + tw::format_double(K.fx) + "\nfy = " + tw::format_double(K.fy) +
+      "\ncx = " + tw::format_double(K.cx) + "\ncy = " + tw::format_double(K.cy) +
+      "\ndepth_scale = " + tw::format_double(kTumDepthScale) + "\n";
   DF_RETURN_IF_ERROR(write_text(root / "camera.toml", camera_text));
   DF_RETURN_IF_ERROR(
       write_text(root / "scene.toml",

@@ -6,26 +6,28 @@
 #include <cmath>
 #include <exception>
 
-#include "app_config_reader.hpp"
 #include "app_config_trace.hpp"
+#include "depthfuse/base/errno_text.hpp"
 #include "depthfuse/input_file.hpp"
+#include "depthfuse/toml/strict_reader.hpp"
 
 namespace depthfuse {
 namespace {
 
-using app_config_detail::any_string;
-using app_config_detail::at_least;
-using app_config_detail::closed;
-using app_config_detail::Diagnostics;
-using app_config_detail::format_number;
-using app_config_detail::KeyTrace;
-using app_config_detail::non_empty;
-using app_config_detail::non_negative;
-using app_config_detail::one_of;
-using app_config_detail::open_closed;
-using app_config_detail::positive;
-using app_config_detail::StringRule;
-using app_config_detail::TableReader;
+using strict_toml::any_number;
+using strict_toml::any_string;
+using strict_toml::at_least;
+using strict_toml::closed;
+using strict_toml::Diagnostics;
+using strict_toml::format_number;
+using strict_toml::KeyTrace;
+using strict_toml::non_empty;
+using strict_toml::non_negative;
+using strict_toml::one_of;
+using strict_toml::open_closed;
+using strict_toml::positive;
+using strict_toml::StringRule;
+using strict_toml::TableReader;
 
 // A config file is a few kilobytes; anything this large is not one.
 constexpr size_t kMaxConfigBytes = 1 << 20;
@@ -45,9 +47,9 @@ void read_sensor(TableReader& r, SensorModelConfig* s) {
   r.read("lambda2", &s->lambda2, positive());
   r.read("beta_x_rad", &s->beta_x_rad, non_negative());
   r.read("beta_y_rad", &s->beta_y_rad, non_negative());
-  r.read("alpha0_m", &s->alpha0_m, app_config_detail::any_number());
-  r.read("alpha1", &s->alpha1, app_config_detail::any_number());
-  r.read("alpha2_per_m", &s->alpha2_per_m, app_config_detail::any_number());
+  r.read("alpha0_m", &s->alpha0_m, any_number());
+  r.read("alpha1", &s->alpha1, any_number());
+  r.read("alpha2_per_m", &s->alpha2_per_m, any_number());
   r.read("min_depth_m", &s->min_depth_m, positive());
   r.read("max_depth_m", &s->max_depth_m, positive());
   r.read("row_readout_s", &s->row_readout_s, non_negative());
@@ -180,7 +182,7 @@ std::optional<std::string> check_lcm_url(const std::string& url) {
 
 void read_lcm(TableReader& r, LcmConfig* l) {
   r.read("url", &l->url, check_lcm_url);
-  r.read("key_file", &l->key_file, app_config_detail::any_string());
+  r.read("key_file", &l->key_file, any_string());
   // Below 0.1 s honest messages arrive stale from a loaded host or one whose NTP is slewing; above
   // two minutes a recorded command stays good for long, and the receivers' replay cache
   // (message_auth.cpp: 65,536 tags for 2 x the skew) no longer holds a rig's ~100 messages a
@@ -313,30 +315,11 @@ void read_devices(TableReader& top, AppConfig* config) {
   }
 }
 
-Status syntax_error(const std::string& origin, const toml::source_region& where,
-                    std::string_view description) {
-  std::string m = origin;
-  if (where.begin.line > 0) m += ":" + std::to_string(where.begin.line);
-  m += ": TOML syntax error";
-  if (where.begin.column > 0) m += " at column " + std::to_string(where.begin.column);
-  m += ": " + std::string(description);
-  return invalid_argument(m);
-}
-
 Result<AppConfig> parse(const std::string& text, const std::string& origin,
                         std::vector<KeyTrace>* trace) {
-  toml::table doc;
-#if TOML_EXCEPTIONS
-  try {
-    doc = toml::parse(text, origin);
-  } catch (const toml::parse_error& e) {
-    return syntax_error(origin, e.source(), e.description());
-  }
-#else
-  toml::parse_result parsed = toml::parse(text, origin);
-  if (!parsed) return syntax_error(origin, parsed.error().source(), parsed.error().description());
-  doc = std::move(parsed).table();
-#endif
+  Result<toml::table> parsed = strict_toml::parse_document(text, origin);
+  if (!parsed.is_ok()) return parsed.status();
+  const toml::table& doc = parsed.value();
 
   AppConfig config;
   Diagnostics diagnostics(origin);

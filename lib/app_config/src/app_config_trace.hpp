@@ -7,15 +7,11 @@
 #include <vector>
 
 #include "depthfuse/app_config.hpp"
+#include "depthfuse/toml/key_trace.hpp"
 
 namespace depthfuse::app_config_detail {
 
-// One key the loader looked up, with the value it ended with.
-struct KeyTrace {
-  std::string key;        // full dotted key, e.g. "fusion_daemon.memory_budget_mib"
-  std::string value;      // exact text of the final value (doubles with 17 significant digits)
-  bool from_file = false;  // false: the key was absent and kept its default
-};
+using strict_toml::KeyTrace;
 
 // parse_app_config, also listing every key the loader read (in reading order).
 Result<AppConfig> parse_app_config_traced(const std::string& toml_text, const std::string& origin,

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <functional>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -30,6 +31,26 @@ double jaccard_index(const PointArrays& reconstruction, const PointArrays& truth
 
 // Keeps one point per voxel (the first): for sampling a ground-truth surface at a fixed density.
 PointArrays voxel_downsample(const PointArrays& points, double voxel_m);
+
+// voxel_downsample of a concatenation, built a part at a time, in time linear in the points: a
+// ground truth sampled from every frame of a long scan. Keeps each voxel's first point, in order.
+class VoxelSampler {
+ public:
+  explicit VoxelSampler(double voxel_m);
+  ~VoxelSampler();
+  VoxelSampler(const VoxelSampler&) = delete;
+  VoxelSampler& operator=(const VoxelSampler&) = delete;
+
+  void add(const PointArrays& points);
+  size_t size() const { return kept_.size(); }
+  PointArrays take() { return std::move(kept_); }
+
+ private:
+  struct Seen;  // the occupied voxels
+  double inv_voxel_;
+  std::unique_ptr<Seen> seen_;
+  PointArrays kept_;
+};
 
 // The share of the summarised points whose error is at most error_m: the cumulative curve.
 double fraction_within(const DistanceSummary& s, double error_m);

@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <deque>
 #include <mutex>
+#include <optional>
 #include <thread>
 #include <vector>
 
@@ -47,7 +48,7 @@ libfreenect2::Freenect2Device::ColorCameraParams color_params() {
 // A frame's packet with the pose it was rendered from.
 struct Packet {
   std::vector<uint8_t> bytes;
-  Pose T_world_cam_hint = Pose::Identity();
+  std::optional<Pose> T_world_cam_hint;  // none when the spec says hints=0
 };
 
 // One packet made ahead: its own, or one of the cache.
@@ -226,7 +227,7 @@ class Kinect2SimSource final : public FrameSource {
         const int64_t rendered_ns = thread_cpu_ns();
         // The images are the right size by construction: encode() cannot refuse them.
         (void)encoder_->encode(depth, ir, &packet->bytes);
-        packet->T_world_cam_hint = *rendered.T_world_cam_hint;
+        packet->T_world_cam_hint = rendered.T_world_cam_hint;
         render_ms = (rendered_ns - start_ns) * 1e-6;
         encode_ms = (thread_cpu_ns() - rendered_ns) * 1e-6;
         slot->packet = packet;

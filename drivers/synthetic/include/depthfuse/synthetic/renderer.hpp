@@ -6,6 +6,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <vector>
 
 #include "depthfuse/synthetic/noise_model.hpp"
 #include "depthfuse/synthetic/scene.hpp"
@@ -29,8 +30,8 @@ class DepthRenderer {
   DepthRenderer(std::shared_ptr<const Scene> scene, RendererConfig config);
 
   // Fills depth (metres, 0 = none) and, when `color` is not null, an RGB image registered to it:
-  // a checker texture on each surface, in its colour, shaded by the incidence angle (black where
-  // nothing was hit). The images are resized to the intrinsics.
+  // each surface in its colour with its checker texture (Primitive::checker_m), shaded by the
+  // incidence angle (black where nothing was hit). The images are resized to the intrinsics.
   void render(const Pose& T_world_cam, uint64_t noise_key, bool with_noise, DepthImage* depth,
               ColorImage* color) const;
 
@@ -40,6 +41,7 @@ class DepthRenderer {
  private:
   std::shared_ptr<const Scene> scene_;
   RendererConfig config_;
+  std::vector<double> checker_per_m_;  // per primitive: 1 / checker_m, 0 = plain
 };
 
 }  // namespace depthfuse::synthetic

@@ -18,8 +18,8 @@
 
 namespace depthfuse::synthetic {
 
-enum class SceneKind { kCorner, kRoom, kRooms };
-const char* to_string(SceneKind kind);  // "corner", "room", "rooms"
+enum class SceneKind { kCorner, kRoom, kRooms, kFurnished, kPlain };
+const char* to_string(SceneKind kind);  // "corner", "room", "rooms", "furnished", "plain"
 Result<SceneKind> parse_scene_kind(const std::string& text);
 
 enum class PrimitiveKind {
@@ -34,6 +34,9 @@ struct Primitive {
   PrimitiveKind kind = PrimitiveKind::kBox;
   std::string name;  // optional label ("floor", "box3"), kept in TOML
   std::array<uint8_t, 3> color_rgb = {180, 180, 180};  // albedo for the rendered colour image
+  // The colour image's texture: checker squares of this side (alternately full and 70 % albedo);
+  // 0 = one plain colour (a painted wall, upholstery: no texture for the colour term to use).
+  double checker_m = 0.25;
 
   // kPlane: points origin_m + a u_axis + b v_axis with a in [u_min_m, u_max_m], b in
   // [v_min_m, v_max_m], where v_axis = normal x u_axis. `normal` points to the free side (it
@@ -83,6 +86,10 @@ class Scene {
   //  room:   a 5 x 4 x 2.6 m room [0,5]x[0,4]x[0,2.6] with five boxes, one stacked on another.
   //  rooms:  a 4 x 4 grid of 5 x 5 m rooms ([0,20]x[0,20], 2.6 m high) with 0.1 m thick walls,
   //          1.2 m doorways between all neighbours and two or three boxes per room.
+  //  furnished: a 5 x 4 x 2.6 m living room [0,5]x[0,4]x[0,2.6]: a 2.3 m sofa along the wall
+  //          y = 4, a bookshelf with books, a door, a desk with a monitor, a cabinet with a lamp,
+  //          a side table, a floor lamp and three pictures a few cm proud of the walls.
+  //  plain:  the same room with bare walls and one low box.
   static Scene make(SceneKind kind, uint64_t seed);
 
   // Nearest hit with t in (0, t_max]. `dir_w` need not be unit: t is in multiples of it (the
@@ -150,15 +157,18 @@ class Scene {
   };
   struct Ray;
 
-  bool intersect(int index, const Ray& ray, double t_max, double* t, int* face) const;
-  void fill_hit(int index, int face, double t, const Ray& ray, RayHit* hit) const;
+  static void origin_terms(const Compact& c, const Eigen::Vector3d& origin_w, double* k);
+  bool hit_nearer(int index, const double* k, Ray* ray, double* best, int* face) const;
+  void fill_hit(int index, int face, double t, const Eigen::Vector3d& origin_w, const double* k,
+                const Eigen::Vector3d& dir_w, RayHit* hit) const;
   double own_concave_distance(const Eigen::Vector3d& p_w, int primitive, int face,
                               double max_distance_m) const;
   void concave_visit(int i, const Eigen::Vector3d& p_w, const Eigen::Vector3d& normal_w,
                      int primitive, double* best) const;
   static double surface_distance(const Compact& c, const Eigen::Vector3d& p, double bound,
                                  Eigen::Vector3d* q, bool* outside);
-  void traverse_grid(const Ray& ray, double* best_t, int* best_index, int* best_face) const;
+  void traverse_grid(const Eigen::Vector3d& origin_w, Ray* ray, double* best_t, int* best_index,
+                     int* best_face) const;
   void build_grid();
   template <typename Fn>
   void for_cells_in_xy_box(double x0, double y0, double x1, double y1, Fn&& fn) const;

@@ -32,9 +32,16 @@ struct SyntheticConfig {
   double rate_hz = 30.0;
   double min_depth_m = 0.5;  // sensor range (Kinect V2)
   double max_depth_m = 4.5;
+  // Whether frames carry the perturbed pose as T_world_cam_hint; without, a consumer tracks them
+  // as it does a Kinect's. Not part of the [generator] table: the written folder has the poses.
+  bool pose_hints = true;
 
   Status validate() const;
 };
+
+// The length a scene's walk is made for, when none is asked: 60 frames; for the lap walks
+// (furnished, plain) 1,200, two laps and back past the start.
+int default_frames(SceneKind kind);
 
 // The [generator] table that write_tum_folder puts in scene.toml, and back.
 std::string synthetic_config_to_toml(const SyntheticConfig& config);
@@ -57,7 +64,8 @@ class SyntheticSequence {
 
   // Frame i (i < size()): utime, sequence = i, sensor_serial "synthetic", intrinsics, depth in
   // metres, a colour image registered to it, and T_world_cam_hint = the perturbed pose. with_noise
-  // = false gives the exact depth (still gated to the sensor range). Thread-safe.
+  // = false gives the exact depth (still gated to the sensor range). No hint when
+  // config().pose_hints is false. Thread-safe.
   Frame render(size_t i, bool with_noise = true) const;
   // The same into an existing frame, reusing its buffers (benchmarks at 30 Hz).
   void render_into(size_t i, bool with_noise, Frame* frame, bool with_color = true) const;

@@ -1,5 +1,6 @@
 // The synthetic driver as a FrameSource: streams a SyntheticSequence, every frame carrying the
-// perturbed pose as T_world_cam_hint (the true pose when the pose noise is 0).
+// perturbed pose as T_world_cam_hint (the true pose when the pose noise is 0), unless the
+// configuration's pose_hints is off.
 #pragma once
 
 #include <memory>
@@ -31,9 +32,10 @@ class SyntheticSource : public FrameSource {
   size_t next_index_ = 0;
 };
 
-// Parses "corner", "room" or "rooms", optionally followed by
-// "?frames=N&seed=S&pose_noise_m=X&pose_noise_deg=Y&rate_hz=R&noise=0|1" into `base` (whose other
-// fields are kept). Unknown keys and bad numbers are invalid_argument errors naming them.
+// Parses a scene ("corner", "room", "rooms", "furnished", "plain"), optionally followed by
+// "?frames=N&seed=S&pose_noise_m=X&pose_noise_deg=Y&rate_hz=R&noise=0|1&hints=0|1" into `base`
+// (whose other fields are kept; the lap walks' frames default to default_frames()). hints=0: no
+// pose hints, as a Kinect. Unknown keys and bad numbers are invalid_argument errors naming them.
 Result<SyntheticConfig> parse_synthetic_spec(const std::string& arg,
                                              const SyntheticConfig& base = SyntheticConfig());
 

@@ -1,12 +1,13 @@
-#include "app_config_reader.hpp"
+#include "depthfuse/toml/strict_reader.hpp"
 
 #include <algorithm>
+#include <charconv>
 #include <climits>
 #include <cmath>
 #include <cstdio>
 #include <utility>
 
-namespace depthfuse::app_config_detail {
+namespace depthfuse::strict_toml {
 namespace {
 
 const char* type_name(toml::node_type t) {
@@ -49,7 +50,31 @@ size_t edit_distance(std::string_view a, std::string_view b) {
   return row[b.size()];
 }
 
+Status syntax_error(const std::string& origin, const toml::source_region& where,
+                    std::string_view description) {
+  std::string m = origin;
+  if (where.begin.line > 0) m += ":" + std::to_string(where.begin.line);
+  m += ": TOML syntax error";
+  if (where.begin.column > 0) m += " at column " + std::to_string(where.begin.column);
+  m += ": " + std::string(description);
+  return invalid_argument(m);
+}
+
 }  // namespace
+
+Result<toml::table> parse_document(const std::string& text, const std::string& origin) {
+#if TOML_EXCEPTIONS
+  try {
+    return toml::parse(text, origin);
+  } catch (const toml::parse_error& e) {
+    return syntax_error(origin, e.source(), e.description());
+  }
+#else
+  toml::parse_result parsed = toml::parse(text, origin);
+  if (!parsed) return syntax_error(origin, parsed.error().source(), parsed.error().description());
+  return std::move(parsed).table();
+#endif
+}
 
 void Diagnostics::add(const toml::source_region& where, const std::string& key,
                       const std::string& problem) {
@@ -89,6 +114,7 @@ std::string Bounds::rule() const {
 }
 
 bool Bounds::contains(double v) const {
+  if (finite_only && !std::isfinite(v)) return false;
   if (min && (min_exclusive ? !(v > *min) : !(v >= *min))) return false;
   if (max && (max_exclusive ? !(v < *max) : !(v <= *max))) return false;
   return true;
@@ -154,29 +180,92 @@ void TableReader::fail(std::string_view key, const std::string& problem) {
   diagnostics_->add(where(key), full_key(key), problem);
 }
 
+std::optional<double> TableReader::number(std::string_view key, const toml::node& node,
+                                          const Bounds& bounds) {
+  double v = 0.0;
+  if (const auto* f = node.as_floating_point()) {
+    v = f->get();
+  } else if (const auto* i = node.as_integer()) {
+    v = static_cast<double>(i->get());
+  } else {
+    wrong_type(key, node, "a number");
+    return std::nullopt;
+  }
+  if (bounds.finite_only && !std::isfinite(v)) {
+    diagnostics_->add(node.source(), full_key(key), "must be a finite number, got " + format_number(v));
+    return std::nullopt;
+  }
+  if (!bounds.contains(v)) {
+    diagnostics_->add(node.source(), full_key(key), bounds.rule() + ", got " + format_number(v));
+    return std::nullopt;
+  }
+  return v;
+}
+
 void TableReader::read(std::string_view key, double* out, const Bounds& bounds) {
   const toml::node* node = lookup(key);
   if (node != nullptr) {
-    double v = 0.0;
-    if (const auto* f = node->as_floating_point()) {
-      v = f->get();
-    } else if (const auto* i = node->as_integer()) {
-      v = static_cast<double>(i->get());
+    const std::optional<double> v = number(key, *node, bounds);
+    if (!v) return;
+    *out = *v;
+  }
+  record(key, exact(*out), node != nullptr);
+}
+
+void TableReader::read(std::string_view key, double* out, size_t count, const Bounds& bounds) {
+  const toml::node* node = lookup(key);
+  if (node != nullptr) {
+    const toml::array* a = node->as_array();
+    const std::string expected = "an array of " + std::to_string(count) + " numbers";
+    if (a == nullptr) {
+      wrong_type(key, *node, expected.c_str());
+      return;
+    }
+    if (a->size() != count) {
+      diagnostics_->add(node->source(), full_key(key),
+                        "expected " + expected + ", got " + std::to_string(a->size()) + " values");
+      return;
+    }
+    std::vector<double> values(count);
+    for (size_t k = 0; k < count; ++k) {
+      const std::string element = std::string(key) + "[" + std::to_string(k) + "]";
+      const std::optional<double> v = number(element, *a->get(k), bounds);
+      if (!v) return;
+      values[k] = *v;
+    }
+    std::copy(values.begin(), values.end(), out);
+  }
+  std::string text = "[";
+  for (size_t k = 0; k < count; ++k) text += (k ? ", " : "") + exact(out[k]);
+  record(key, text + "]", node != nullptr);
+}
+
+void TableReader::read(std::string_view key, uint64_t* out) {
+  const toml::node* node = lookup(key);
+  if (node != nullptr) {
+    const char* rule = "must be a non-negative integer (a string of digits beyond 2^63 - 1)";
+    uint64_t v = 0;
+    if (const auto* i = node->as_integer()) {
+      if (i->get() < 0) {
+        diagnostics_->add(node->source(), full_key(key),
+                          std::string(rule) + ", got " + std::to_string(i->get()));
+        return;
+      }
+      v = static_cast<uint64_t>(i->get());
+    } else if (const auto* s = node->as_string()) {
+      const std::string& text = s->get();
+      const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
+      if (text.empty() || ec != std::errc() || end != text.data() + text.size()) {
+        diagnostics_->add(node->source(), full_key(key), std::string(rule) + ", got " + quoted(text));
+        return;
+      }
     } else {
-      wrong_type(key, *node, "a number");
-      return;
-    }
-    if (!std::isfinite(v)) {
-      diagnostics_->add(node->source(), full_key(key), "must be a finite number, got " + format_number(v));
-      return;
-    }
-    if (!bounds.contains(v)) {
-      diagnostics_->add(node->source(), full_key(key), bounds.rule() + ", got " + format_number(v));
+      wrong_type(key, *node, "a non-negative integer");
       return;
     }
     *out = v;
   }
-  record(key, exact(*out), node != nullptr);
+  record(key, std::to_string(*out), node != nullptr);
 }
 
 void TableReader::read(std::string_view key, int* out, const Bounds& bounds) {
@@ -280,4 +369,4 @@ void TableReader::reject_unknown() {
   }
 }
 
-}  // namespace depthfuse::app_config_detail
+}  // namespace depthfuse::strict_toml

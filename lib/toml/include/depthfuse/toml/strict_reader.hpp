@@ -1,6 +1,7 @@
-// Internal: reads one TOML table of the config, checking the type and the range of every value and
-// reporting problems as "<origin>:<line>: <section.key>: <problem>". An unknown key is a problem.
-// Keeps toml++ out of the public headers.
+// The one strict TOML reader of depthfuse (the appliance's config file, the synthetic scenes'
+// ground truth): reads a table, checking the type and the range of every value, and reports every
+// problem of a file at once as "<origin>:<line>: <section.key>: <problem>". An unknown key is a
+// problem. Only for libraries that already depend on toml++: this header includes it.
 #pragma once
 
 #include <cstdint>
@@ -13,10 +14,14 @@
 
 #include <toml++/toml.h>
 
-#include "app_config_trace.hpp"
 #include "depthfuse/status.hpp"
+#include "depthfuse/toml/key_trace.hpp"
 
-namespace depthfuse::app_config_detail {
+namespace depthfuse::strict_toml {
+
+// Parses a document; a syntax error comes back as invalid_argument with the origin, line and
+// column.
+Result<toml::table> parse_document(const std::string& text, const std::string& origin);
 
 // Every problem of one file, so that a user can fix them all in one go.
 class Diagnostics {
@@ -37,11 +42,13 @@ class Diagnostics {
 };
 
 // Allowed range of a number; a missing side is unbounded. Checked on ints and doubles alike.
+// Infinities are refused unless `finite_only` is off (a half-plane's bounds).
 struct Bounds {
   std::optional<double> min;
   bool min_exclusive = false;
   std::optional<double> max;
   bool max_exclusive = false;
+  bool finite_only = true;
 
   // The rule text, e.g. "must be > 0", "must be in (0, 180]"; empty when unbounded.
   std::string rule() const;
@@ -51,6 +58,7 @@ inline Bounds positive() { return {0.0, true, std::nullopt, false}; }
 inline Bounds non_negative() { return {0.0, false, std::nullopt, false}; }
 inline Bounds at_least(double lo) { return {lo, false, std::nullopt, false}; }
 inline Bounds any_number() { return {}; }
+inline Bounds any_number_or_infinity() { return {std::nullopt, false, std::nullopt, false, false}; }
 inline Bounds closed(double lo, double hi) { return {lo, false, hi, false}; }
 inline Bounds open_closed(double lo, double hi) { return {lo, true, hi, false}; }
 
@@ -76,6 +84,12 @@ class TableReader {
   void read(std::string_view key, int* out, const Bounds& bounds);
   void read(std::string_view key, bool* out);
   void read(std::string_view key, std::string* out, const StringRule& rule);
+  // A non-negative 64-bit integer (a seed): an integer, or beyond TOML's signed 64 bits a string
+  // of decimal digits.
+  void read(std::string_view key, uint64_t* out);
+  // An array of exactly `count` numbers, each within `bounds`; out[0..count) is left unchanged
+  // unless all of them pass.
+  void read(std::string_view key, double* out, size_t count, const Bounds& bounds);
   // A key that must be present (e.g. a device's serial): reported at the table's line otherwise.
   void require(std::string_view key);
 
@@ -104,6 +118,9 @@ class TableReader {
   const toml::node* lookup(std::string_view key);
   void record(std::string_view key, std::string value, bool from_file);
   void wrong_type(std::string_view key, const toml::node& node, const char* expected);
+  // The number of `node` within `bounds`, or nothing after reporting why not.
+  std::optional<double> number(std::string_view key, const toml::node& node,
+                               const Bounds& bounds);
 
   const toml::table* table_;
   std::string path_;
@@ -114,4 +131,4 @@ class TableReader {
   size_t errors_before_;
 };
 
-}  // namespace depthfuse::app_config_detail
+}  // namespace depthfuse::strict_toml
