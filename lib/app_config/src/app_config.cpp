@@ -155,6 +155,29 @@ void read_relocalisation(TableReader& r, RelocalisationConfig* c) {
   r.reject_unknown();
 }
 
+void read_loop_closure(TableReader& r, LoopClosureConfig* c) {
+  r.read("enabled", &c->enabled);
+  r.read("keyframe_spacing_m", &c->keyframe_spacing_m, open_closed(0.0, 10.0));
+  r.read("keyframe_spacing_deg", &c->keyframe_spacing_deg, open_closed(0.0, 180.0));
+  r.read("voxel_m", &c->voxel_m, closed(0.005, 0.5));
+  r.read("max_points", &c->max_points, closed(50, 100000));  // fewer carry no shape to match
+  r.read("min_keyframes_back", &c->min_keyframes_back, closed(1, 100000));
+  r.read("min_path_m", &c->min_path_m, non_negative());
+  r.read("search_radius_m", &c->search_radius_m, positive());
+  r.read("max_view_angle_deg", &c->max_view_angle_deg, closed(0.0, 180.0));
+  r.read("candidates_per_keyframe", &c->candidates_per_keyframe, closed(0, 64));
+  r.read("place_search_every_n_keyframes", &c->place_search_every_n_keyframes, closed(0, 100000));
+  r.read("min_overlap", &c->min_overlap, closed(0.0, 1.0));
+  r.read("max_correspondence_m", &c->max_correspondence_m, positive());
+  r.read("max_rmse_m", &c->max_rmse_m, positive());
+  r.read("gate_chi2", &c->gate_chi2, positive());
+  r.read("gate_inflation", &c->gate_inflation, closed(1.0, 100.0));
+  r.read("model_error_m", &c->model_error_m, closed(0.0, 0.1));
+  r.read("loop_loss_scale", &c->loop_loss_scale, positive());
+  r.read("loop_chi2_reject", &c->loop_chi2_reject, positive());
+  r.reject_unknown();
+}
+
 void read_pipeline(TableReader& r, PipelineConfig* p) {
   std::string method = to_string(p->method);
   r.read("method", &method, [](const std::string& s) -> std::optional<std::string> {
@@ -337,6 +360,7 @@ Result<AppConfig> parse(const std::string& text, const std::string& origin,
   section("postfilter", [&](TableReader& r) { read_postfilter(r, &rc.postfilter); });
   section("registration", [&](TableReader& r) { read_registration(r, &rc.registration); });
   section("relocalisation", [&](TableReader& r) { read_relocalisation(r, &rc.relocalisation); });
+  section("loop_closure", [&](TableReader& r) { read_loop_closure(r, &rc.loop_closure); });
   section("pipeline", [&](TableReader& r) { read_pipeline(r, &rc.pipeline); });
   section("lcm", [&](TableReader& r) { read_lcm(r, &config.lcm); });
   section("capture", [&](TableReader& r) { read_capture(r, &config.capture); });
