@@ -308,10 +308,12 @@ Result<PoseRecord> ScanStore::Impl::pose_of(const sql::Row& row, bool* checked) 
   bool unchecked = false;
   const void* pose = row.blob(PoseCol::kPose);
   const size_t pose_size = row.blob_size(PoseCol::kPose);
-  DF_RETURN_IF_ERROR(check_row_checksum(row, PoseCol::kChecksum,
+  // `checked` is set before a mismatch returns: a row with a wrong checksum still has one.
+  const Status sum = check_row_checksum(row, PoseCol::kChecksum,
                                         pose_record_checksum(pose_fields(p), pose, pose_size), what,
-                                        &unchecked));
+                                        &unchecked);
   if (checked) *checked = !unchecked;
+  DF_RETURN_IF_ERROR(sum);
   DF_RETURN_IF_ERROR(decode_pose(pose, pose_size, what, &p.T_world_cam));
   return p;
 }
