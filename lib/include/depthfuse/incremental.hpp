@@ -9,6 +9,7 @@
 
 #include "depthfuse/config.hpp"
 #include "depthfuse/fusion.hpp"
+#include "depthfuse/map_deformation.hpp"
 #include "depthfuse/measurement.hpp"
 #include "depthfuse/point_map.hpp"
 #include "depthfuse/registration.hpp"
@@ -34,6 +35,9 @@ struct FrameReport {
   size_t prefiltered = 0;                // measurements the pre-filter removed
   double prefilter_ms = 0, registration_ms = 0, fusion_ms = 0;
   double relocalisation_ms = 0;          // the keyframe search, part of registration_ms
+  // Bringing chunks up to date after a loop closure (MapDeformation): those the frame sees, before
+  // registration and before fusion, and the sweep after it.
+  double deformation_ms = 0;
 };
 
 class Relocaliser;
@@ -86,8 +90,17 @@ class IncrementalReconstructor {
   // and the next frame renders its own model.
   Status replay(const Frame& frame, uint32_t frame_id, const Pose& T_world_cam);
 
-  // Post-filter the whole map (end of scan).
+  // Post-filter the whole map (end of scan), after bringing it up to date.
   size_t finish();
+
+  // How the map follows the pose graph: keyframes are added to it and loop closures correct it
+  // (MapDeformation). process() brings the chunks a frame sees up to date before it is registered
+  // and fused, and after fusion sweeps fusion.deform_points_per_frame points of the others.
+  MapDeformation& deformation() { return deformation_; }
+  const MapDeformation& deformation() const { return deformation_; }
+  // The whole map in the current version (export, evaluation): what map() users that need every
+  // chunk consistent call first. Returns the points brought up to date.
+  size_t bring_all_up_to_date() { return deformation_.bring_all_up_to_date(map_.get()); }
 
   PointMap& map() { return *map_; }
   const PointMap& map() const { return *map_; }
@@ -144,6 +157,7 @@ class IncrementalReconstructor {
 
   ReconstructionConfig config_;
   std::unique_ptr<PointMap> map_;
+  MapDeformation deformation_;
   Fuser fuser_;
   Registrar registrar_;
   std::unique_ptr<Relocaliser> relocaliser_;
