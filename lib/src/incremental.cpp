@@ -103,6 +103,11 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
     report.deformation_ms += ms_since(t);
   };
   deform([&] { deformation_.update_visible(map_.get(), scratch_, T); });
+  // The model rendered for an earlier frame shows the map before the last correction.
+  if (model_version_ != deformation_.version()) {
+    model_version_ = deformation_.version();
+    frames_since_model_ = 0;
+  }
   t0 = Clock::now();
   registrar_.set_frame_color(frame.color, scratch_);
   if (config_.registration.enabled && map_->point_count() > 0)
@@ -129,15 +134,15 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
           static_cast<float>(report.registration.model_fitness);
   }
 
-  // Registration may have moved the pose (a relocalisation, far): fusion must touch no chunk that
-  // has not followed the last correction yet.
-  deform([&] { deformation_.update_visible(map_.get(), scratch_, T); });
+  // Registration may have moved the pose far (a relocalisation).
+  deform([&] { deformation_.update_visible_if_moved(map_.get(), scratch_, T); });
   t0 = Clock::now();
   report.fusion = fuser_.fuse(scratch_, &frame.color, T, next_frame_id_, map_.get());
   report.fusion_ms = ms_since(t0);
   deform([&] {
-    deformation_.sweep(map_.get(), T.translation(),
-                       static_cast<size_t>(std::max(1, config_.fusion.deform_points_per_frame)));
+    report.swept_points = deformation_.sweep(
+        map_.get(), T.translation(),
+        static_cast<size_t>(std::max(1, config_.fusion.deform_points_per_frame)));
   });
   fused_at(frame.utime, T);
   registrar_.keep_frame_as_photometric_reference(scratch_, T);
@@ -324,6 +329,7 @@ void IncrementalReconstructor::reset(std::unique_ptr<PointMap> map, uint32_t nex
                                      const std::optional<Pose>& last_T_world_cam) {
   map_ = map ? std::move(map) : std::make_unique<PointMap>(config_.fusion.chunk_size_m);
   deformation_.clear();
+  model_version_ = 0;
   frames_since_model_ = 0;
   relocaliser_->clear();
   recent_model_fitness_count_ = 0;

@@ -18,10 +18,20 @@ namespace depthfuse {
 
 namespace {
 
-// Where fusion and registration look for the map around a frame (Fuser::fuse()'s margin, the
-// default sampling of frame_chunk_keys()).
-constexpr float kVisibleMarginM = 0.1f;
+// The chunks a frame sees, sampled as fusion samples them (frame_chunk_keys()'s default), with a
+// margin at the faces (update_visible_now()). Not the stretch of the rays in front of the surface:
+// fusion only counts violations on points there, it neither merges into them nor adds any.
 constexpr int kVisibleStride = 8;
+constexpr double kFusionMarginM = 0.1;  // Fuser::fuse()'s select_chunks() margin
+// How far registration may move a frame's pose before fusion, at the view's farthest point,
+// before the chunks around the view are listed again: ICP moves it by millimetres.
+constexpr double kPoseSlackM = 0.05;
+// Two keyframes whose motions differ by less than this at a place moved their points there as one:
+// far less than a fused point's uncertainty (a millimetre or more), so what fusion left apart there
+// stays apart. The merge pass pairs no such points, and skips a chunk whose keyframes all moved so.
+// (Without it, a rigid move of a fused wall merged 0.13 % of its points: young neighbours of two
+// keyframes, which fusion never compares.)
+constexpr double kRigidM = 0.5e-3;
 
 Status check_pose(const Pose& T, const std::string& what) {
   const Eigen::Matrix3d R = T.linear();
@@ -72,8 +82,9 @@ class SegmentCursor {
 }  // namespace
 
 // The keyframes' motions from one version to the current one, worked out as points need them
-// (a chunk's points come from a few keyframes of the scan's many), and the merge pass.
-struct MapDeformation::Scratch {
+// (a chunk's points come from a few keyframes of the scan's many); the merge pass, for which it
+// says whether the correction moved two keyframes apart at a point.
+struct MapDeformation::Scratch : PairGate {
   struct Motion {
     RigidMotionF m;
     bool identity = false;  // the keyframe did not move: its points are left untouched
@@ -82,9 +93,39 @@ struct MapDeformation::Scratch {
   std::vector<uint32_t> stamp;
   uint32_t current = 0;
   uint32_t from = ~0u, to = ~0u;  // the motions' versions
+  const std::vector<StoredPose>* before = nullptr;  // the poses at `from` and now
+  const std::vector<StoredPose>* now = nullptr;
+  // The keyframes the points of the chunk being merged came from, each once (seen[k] == chunk).
+  std::vector<uint32_t> present;
+  std::vector<uint32_t> seen;
+  uint32_t chunk = 0;
   std::vector<uint8_t> keep;
   std::vector<uint32_t> segment;
   ChunkMerger merger;
+
+  const Motion& motion_of(uint32_t k) {
+    Motion& m = motion[k];
+    if (stamp[k] == current) return m;
+    stamp[k] = current;
+    // A keyframe that did not exist at that version has no points of it (they were fused later,
+    // in a chunk already up to date); one whose pose is the same did not move.
+    m.identity = k >= before->size() ||
+                 std::memcmp(&(*before)[k], &(*now)[k], sizeof(StoredPose)) == 0;
+    if (!m.identity) {
+      const Pose M = load((*now)[k]) * load((*before)[k]).inverse();
+      m.m.R = M.linear().cast<float>();
+      m.m.t = M.translation().cast<float>();
+    }
+    return m;
+  }
+  Eigen::Vector3d apply(uint32_t k, const Eigen::Vector3d& x) {
+    const Motion& m = motion_of(k);
+    return m.identity ? x : (m.m.R.cast<double>() * x + m.m.t.cast<double>()).eval();
+  }
+  bool moved_apart(uint32_t a, uint32_t b, const Eigen::Vector3f& p) override {
+    const Eigen::Vector3d x = p.cast<double>();
+    return (apply(a, x) - apply(b, x)).norm() > kRigidM;
+  }
 };
 
 MapDeformation::MapDeformation(double point_range_m)
@@ -192,6 +233,8 @@ void MapDeformation::prepare_motions(uint32_t from) {
   if (s.from == from && s.to == version_ && s.motion.size() == K) return;
   s.from = from;
   s.to = version_;
+  s.before = &poses_at(from);
+  s.now = &poses_at(version_);
   s.motion.resize(K);
   s.stamp.resize(K, 0);
   if (++s.current == 0) {  // wrapped: every stamp is stale again
@@ -202,24 +245,9 @@ void MapDeformation::prepare_motions(uint32_t from) {
 
 void MapDeformation::move_points(PointArrays* a, size_t begin, size_t end) {
   Scratch& s = *scratch_;
-  const std::vector<StoredPose>& before = poses_at(s.from);
-  const std::vector<StoredPose>& now = poses_at(version_);
   SegmentCursor segment(first_frame_);
   for (size_t i = begin; i < end; ++i) {
-    const uint32_t k = segment(a->state[i].last_frame);
-    Scratch::Motion& m = s.motion[k];
-    if (s.stamp[k] != s.current) {
-      s.stamp[k] = s.current;
-      // A keyframe that did not exist at that version has no points of it (they were fused
-      // later, in a chunk already up to date); one whose pose is the same did not move.
-      m.identity = k >= before.size() ||
-                   std::memcmp(&before[k], &now[k], sizeof(StoredPose)) == 0;
-      if (!m.identity) {
-        const Pose M = load(now[k]) * load(before[k]).inverse();
-        m.m.R = M.linear().cast<float>();
-        m.m.t = M.translation().cast<float>();
-      }
-    }
+    const Scratch::Motion& m = s.motion_of(segment(a->state[i].last_frame));
     if (!m.identity) move_point(*a, i, m.m);
   }
 }
@@ -247,6 +275,7 @@ void MapDeformation::send(PointMap* map, const ChunkKey& key, const PointArrays&
 
 size_t MapDeformation::move_chunk(PointMap* map, const ChunkKey& key, Chunk* chunk) {
   PointArrays& a = chunk->points;
+  const uint32_t from = chunk->version;
   size_t updated = 0;
   // Its own points, then those it was sent while it was not up to date, each from its version.
   const auto move_from = [&](uint32_t from, PointArrays* points) {
@@ -272,6 +301,14 @@ size_t MapDeformation::move_chunk(PointMap* map, const ChunkKey& key, Chunk* chu
     }
     pending_.erase(pending);
   }
+  // A merge still queued for it joins this one (merge_updated()): its points move and some leave,
+  // so it is merged whole, for the corrections since the older of the two versions.
+  uint32_t merge_from = from;
+  auto queued = merge_queue_.find(key);
+  if (queued != merge_queue_.end()) {
+    merge_from = std::min(merge_from, queued->second.from);
+    merge_queue_.erase(queued);
+  }
   chunk->version = version_;
   chunk->dirty = true;
   // Points now in another chunk go there.
@@ -288,41 +325,111 @@ size_t MapDeformation::move_chunk(PointMap* map, const ChunkKey& key, Chunk* chu
   if (left) a.compact(keep);
   ++stats_.chunks_updated;
   stats_.points_updated += updated;
-  updated_.push_back(key);
+  updated_.push_back({key, merge_from});
   return updated;
 }
 
-void MapDeformation::merge_updated(PointMap* map) {
+bool MapDeformation::moved_rigidly(const PointArrays& a, const Eigen::Vector3f& origin_m,
+                                   float size_m) {
+  // The keyframes present against the first one, at the chunk's corners: a rigid motion's
+  // difference is largest at one of them.
   Scratch& s = *scratch_;
-  std::sort(updated_.begin(), updated_.end(), key_less);
-  const auto merge = [&](Chunk* c, size_t first) {
-    PointArrays& a = c->points;
-    s.segment.resize(a.size());
-    SegmentCursor segment(first_frame_);
-    for (size_t i = 0; i < a.size(); ++i) s.segment[i] = segment(a.state[i].last_frame);
-    const size_t merged = s.merger.merge(&a, first, &s.segment);
-    stats_.points_merged += merged;
-    if (merged > 0) c->dirty = true;
+  if (++s.chunk == 0) {  // wrapped
+    std::fill(s.seen.begin(), s.seen.end(), 0);
+    s.chunk = 1;
+  }
+  s.seen.resize(first_frame_.size(), 0);
+  s.present.clear();
+  uint32_t last = ~0u;
+  for (size_t i = 0; i < a.size(); ++i) {
+    const uint32_t k = s.segment[i];
+    if (k != last && s.seen[k] != s.chunk) {
+      s.seen[k] = s.chunk;
+      s.present.push_back(k);
+    }
+    last = k;
+  }
+  for (int c = 0; c < 8; ++c) {
+    const Eigen::Vector3f x = origin_m + size_m * Eigen::Vector3f(c & 1, (c >> 1) & 1, (c >> 2) & 1);
+    for (size_t p = 1; p < s.present.size(); ++p)
+      if (s.moved_apart(s.present[0], s.present[p], x)) return false;
+  }
+  return true;
+}
+
+void MapDeformation::merge_updated(PointMap* map, bool defer) {
+  const auto by_key = [](const UpdatedChunk& a, const UpdatedChunk& b) { return key_less(a.key, b.key); };
+  std::sort(updated_.begin(), updated_.end(), by_key);
+  const auto job = [&](const MergeJob& j) {
+    // One merge per chunk: a job still queued for it joins this one.
+    MergeJob merged = j;
+    auto queued = merge_queue_.find(j.key);
+    if (queued != merge_queue_.end()) {
+      merged.first = std::min(merged.first, queued->second.first);
+      merged.from = std::min(merged.from, queued->second.from);
+      merge_queue_.erase(queued);
+    }
+    if (!defer) {
+      run_merge(map, merged);
+    } else {
+      merge_queue_.emplace(merged.key, merged);
+      merge_fifo_.push_back(merged.key);
+    }
   };
-  for (const ChunkKey& k : updated_)
-    if (Chunk* c = map->find(k)) merge(c, 0);
-  // Chunks up to date that took points in: the points taken in against all of theirs. (An updated
-  // chunk was merged whole.)
+  for (const UpdatedChunk& u : updated_) job({u.key, 0, u.from});
+  // Chunks up to date before that took points in: the points taken in against all of theirs, for
+  // the last correction.
   std::sort(touched_.begin(), touched_.end(), [](const auto& a, const auto& b) {
     return key_less(a.first, b.first) || (a.first == b.first && a.second < b.second);
   });
   for (size_t t = 0; t < touched_.size(); ++t) {
     const ChunkKey& k = touched_[t].first;
     if (t > 0 && touched_[t - 1].first == k) continue;  // the first has the lowest index
-    if (std::binary_search(updated_.begin(), updated_.end(), k, key_less)) continue;
-    if (Chunk* c = map->find(k)) merge(c, touched_[t].second);
+    const auto u = std::lower_bound(updated_.begin(), updated_.end(), UpdatedChunk{k, 0}, by_key);
+    if (u != updated_.end() && u->key == k) continue;  // merged whole
+    job({k, touched_[t].second, std::max(oldest_version_, version_ - 1)});
   }
   updated_.clear();
   touched_.clear();
 }
 
+size_t MapDeformation::run_merge(PointMap* map, const MergeJob& job) {
+  Chunk* c = map->find(job.key);
+  if (!c) return 0;  // evicted since: its surfaces stay as they are
+  Scratch& s = *scratch_;
+  PointArrays& a = c->points;
+  s.segment.resize(a.size());
+  SegmentCursor segment(first_frame_);
+  for (size_t i = 0; i < a.size(); ++i) s.segment[i] = segment(a.state[i].last_frame);
+  // Pairs whose keyframes the corrections since `from` moved apart: none if they all moved the
+  // chunk alike (most chunks a closure moves: those one stretch of the walk saw).
+  prepare_motions(job.from);
+  if (moved_rigidly(a, map->chunk_origin_m(job.key), static_cast<float>(map->chunk_size_m())))
+    return a.size();
+  const size_t merged = s.merger.merge(&a, job.first, &s.segment, &s);
+  stats_.points_merged += merged;
+  if (merged > 0) c->dirty = true;
+  return a.size() + merged;
+}
+
+size_t MapDeformation::run_queued_merges(PointMap* map, size_t max_points) {
+  size_t points = 0;
+  while (merge_fifo_head_ < merge_fifo_.size() && points < max_points) {
+    auto queued = merge_queue_.find(merge_fifo_[merge_fifo_head_++]);
+    if (queued == merge_queue_.end()) continue;  // merged since, with its chunk
+    const MergeJob job = queued->second;
+    merge_queue_.erase(queued);
+    points += run_merge(map, job);
+  }
+  if (merge_fifo_head_ >= merge_fifo_.size()) {
+    merge_fifo_.clear();
+    merge_fifo_head_ = 0;
+  }
+  return points;
+}
+
 size_t MapDeformation::update_range(PointMap* map, const ChunkKey* keys, size_t count,
-                                    size_t max_points, size_t* updated) {
+                                    size_t max_points, bool defer_merges, size_t* updated) {
   map->set_version(version_);
   size_t i = 0;
   for (; i < count && *updated < max_points; ++i) {
@@ -331,37 +438,59 @@ size_t MapDeformation::update_range(PointMap* map, const ChunkKey* keys, size_t 
     if (c->version == version_ && (pending_.empty() || !pending_.count(keys[i]))) continue;
     *updated += move_chunk(map, keys[i], c);
   }
-  merge_updated(map);
+  merge_updated(map, defer_merges);
   return i;
 }
 
 size_t MapDeformation::update(PointMap* map, const std::vector<ChunkKey>& keys) {
   size_t updated = 0;
-  update_range(map, keys.data(), keys.size(), std::numeric_limits<size_t>::max(), &updated);
+  update_range(map, keys.data(), keys.size(), std::numeric_limits<size_t>::max(), false, &updated);
   return updated;
 }
 
 void MapDeformation::update_visible_now(PointMap* map, const MeasurementImage& m,
                                         const Pose& T_world_cam) {
-  frame_chunk_keys(*map, m, T_world_cam, kVisibleMarginM, kVisibleStride, &keys_, &near_);
-  // A stale point within reach of the view may move into it.
-  const int r = std::max(1, static_cast<int>(std::ceil(reach_m() / map->chunk_size_m())));
-  near_.clear();
-  for (const ChunkKey& k : keys_) {
-    ChunkKey n;
-    for (n.x = k.x - r; n.x <= k.x + r; ++n.x)
-      for (n.y = k.y - r; n.y <= k.y + r; ++n.y)
-        for (n.z = k.z - r; n.z <= k.z + r; ++n.z) {
-          const Chunk* c = map->find(n);
-          if (c && (c->version != version_ || (!pending_.empty() && pending_.count(n))))
-            near_.push_back(n);
-        }
+  // The chunks holding points within this of what the frame sees: a stale point within reach of
+  // the view may move into it, fusion looks its margin beyond its samples, and registration may
+  // move the pose before fusion (update_visible_if_moved()).
+  const double size = map->chunk_size_m();
+  const double margin = reach_m() + kFusionMarginM + kPoseSlackM;
+  if (margin < size) {
+    frame_chunk_keys(*map, m, T_world_cam, static_cast<float>(margin), kVisibleStride, &keys_,
+                     &near_, false);
+    covered_spare_m_ = kPoseSlackM;
+  } else {
+    // Farther than the next chunk: every chunk within as many around those it sees.
+    frame_chunk_keys(*map, m, T_world_cam, 0.0f, kVisibleStride, &keys_, &near_, false);
+    const int r = static_cast<int>(std::ceil(margin / size));
+    near_.clear();
+    for (const ChunkKey& k : keys_) {
+      ChunkKey n;
+      for (n.x = k.x - r; n.x <= k.x + r; ++n.x)
+        for (n.y = k.y - r; n.y <= k.y + r; ++n.y)
+          for (n.z = k.z - r; n.z <= k.z + r; ++n.z) near_.push_back(n);
+    }
+    std::sort(near_.begin(), near_.end(), key_less);
+    near_.erase(std::unique(near_.begin(), near_.end()), near_.end());
+    keys_.swap(near_);
+    covered_spare_m_ = r * size - (margin - kPoseSlackM);
   }
-  if (near_.empty()) return;
-  std::sort(near_.begin(), near_.end(), key_less);
-  near_.erase(std::unique(near_.begin(), near_.end()), near_.end());
+  covered_T_world_cam_ = T_world_cam;
+  covered_version_ = version_;
+  // Moved now, merged by the sweeps of the next frames: the merge pass costs several times what
+  // moving does, and the view holds many chunks.
   size_t updated = 0;
-  update_range(map, near_.data(), near_.size(), std::numeric_limits<size_t>::max(), &updated);
+  update_range(map, keys_.data(), keys_.size(), std::numeric_limits<size_t>::max(), true, &updated);
+}
+
+void MapDeformation::update_visible_if_moved_now(PointMap* map, const MeasurementImage& m,
+                                                 const Pose& T_world_cam) {
+  // How far a point in view moves with the camera's change of pose, at most.
+  const Pose delta = covered_T_world_cam_.inverse() * T_world_cam;
+  const double shift = delta.translation().norm() +
+                       2.0 * std::sin(0.5 * Eigen::AngleAxisd(delta.linear()).angle()) * point_range_m_;
+  if (covered_version_ == version_ && shift < covered_spare_m_) return;
+  update_visible_now(map, m, T_world_cam);
 }
 
 size_t MapDeformation::sweep_now(PointMap* map, const Eigen::Vector3d& camera_m,
@@ -374,25 +503,29 @@ size_t MapDeformation::sweep_now(PointMap* map, const Eigen::Vector3d& camera_m,
     std::vector<std::pair<float, ChunkKey>> by_distance;
     const Eigen::Vector3f cam = camera_m.cast<float>();
     const float half = 0.5f * static_cast<float>(map->chunk_size_m());
-    const auto list = [&](const ChunkKey& k) {
+    map->for_each_chunk([&](const ChunkKey& k, const Chunk& c) {
+      if (c.version == version_ && !pending_.count(k)) return;
       const Eigen::Vector3f centre = map->chunk_origin_m(k) + Eigen::Vector3f::Constant(half);
       by_distance.emplace_back((centre - cam).squaredNorm(), k);
-    };
-    map->for_each_chunk([&](const ChunkKey& k, const Chunk& c) {
-      if (c.version != version_ || pending_.count(k)) list(k);
     });
     std::sort(by_distance.begin(), by_distance.end(), [](const auto& a, const auto& b) {
       return a.first < b.first || (a.first == b.first && key_less(a.second, b.second));
     });
     sweep_keys_.clear();
     for (const auto& e : by_distance) sweep_keys_.push_back(e.second);
-    if (sweep_keys_.empty()) drop_unneeded_history(*map);
+    sweep_done_ = false;
   }
-  if (sweep_next_ >= sweep_keys_.size()) return 0;
-  size_t updated = 0;
-  sweep_next_ += update_range(map, sweep_keys_.data() + sweep_next_,
-                              sweep_keys_.size() - sweep_next_, max_points, &updated);
-  if (sweep_next_ >= sweep_keys_.size()) drop_unneeded_history(*map);
+  if (sweep_done_) return 0;
+  // The merges the view's chunks left (they are where the camera is), then the stale chunks.
+  size_t updated = run_queued_merges(map, max_points);
+  if (updated < max_points && sweep_next_ < sweep_keys_.size())
+    sweep_next_ += update_range(map, sweep_keys_.data() + sweep_next_,
+                                sweep_keys_.size() - sweep_next_, max_points - updated, false,
+                                &updated);
+  if (sweep_next_ >= sweep_keys_.size() && merge_queue_.empty()) {
+    sweep_done_ = true;
+    drop_unneeded_history(*map);
+  }
   return updated;
 }
 
@@ -404,10 +537,12 @@ size_t MapDeformation::bring_all_up_to_date(PointMap* map) {
   // In key order: the result does not depend on the hash table's.
   std::sort(keys_.begin(), keys_.end(), key_less);
   size_t updated = 0;
-  update_range(map, keys_.data(), keys_.size(), std::numeric_limits<size_t>::max(), &updated);
+  update_range(map, keys_.data(), keys_.size(), std::numeric_limits<size_t>::max(), false, &updated);
+  run_queued_merges(map, std::numeric_limits<size_t>::max());
   sweep_version_ = version_;
   sweep_keys_.clear();
   sweep_next_ = 0;
+  sweep_done_ = true;
   drop_unneeded_history(*map);
   return updated;
 }
@@ -417,6 +552,7 @@ uint32_t MapDeformation::oldest_version_needed(const PointMap& map) const {
   map.for_each_chunk([&](const ChunkKey&, const Chunk& c) { oldest = std::min(oldest, c.version); });
   for (const auto& kv : pending_)
     for (const PendingGroup& g : kv.second) oldest = std::min(oldest, g.version);
+  for (const auto& kv : merge_queue_) oldest = std::min(oldest, kv.second.from);
   if (oldest_stored_) oldest = std::min(oldest, *oldest_stored_);
   return oldest;
 }
@@ -500,9 +636,14 @@ void MapDeformation::clear() {
   oldest_stored_.reset();
   pending_.clear();
   scratch_->from = scratch_->to = ~0u;
+  covered_version_ = ~0u;
+  merge_queue_.clear();
+  merge_fifo_.clear();
+  merge_fifo_head_ = 0;
   sweep_version_ = 0;
   sweep_keys_.clear();
   sweep_next_ = 0;
+  sweep_done_ = true;
   stats_ = {};
 }
 
@@ -525,10 +666,14 @@ size_t MapDeformation::memory_bytes() const {
   }
   const Scratch& s = *scratch_;
   bytes += sizeof(Scratch) + s.motion.capacity() * sizeof(Scratch::Motion) +
-           s.stamp.capacity() * sizeof(uint32_t) + s.keep.capacity() +
+           (s.stamp.capacity() + s.present.capacity() + s.seen.capacity()) * sizeof(uint32_t) +
+           s.keep.capacity() +
            s.segment.capacity() * sizeof(uint32_t) + s.merger.memory_bytes();
-  bytes += (keys_.capacity() + near_.capacity() + updated_.capacity() + sweep_keys_.capacity()) *
+  bytes += merge_queue_.bucket_count() * sizeof(void*) +
+           merge_queue_.size() * (sizeof(MergeJob) + 2 * sizeof(void*));
+  bytes += (keys_.capacity() + near_.capacity() + sweep_keys_.capacity() + merge_fifo_.capacity()) *
                sizeof(ChunkKey) +
+           updated_.capacity() * sizeof(UpdatedChunk) +
            touched_.capacity() * sizeof(touched_[0]);
   return bytes;
 }

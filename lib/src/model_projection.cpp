@@ -12,7 +12,7 @@ namespace depthfuse {
 
 void frame_chunk_keys(const PointMap& map, const MeasurementImage& m, const Pose& T_world_cam,
                       float margin_m, int stride, std::vector<ChunkKey>* keys,
-                      std::vector<ChunkKey>* near) {
+                      std::vector<ChunkKey>* near, bool in_front) {
   keys->clear();
   const Eigen::Matrix3f R = T_world_cam.linear().cast<float>();
   const Eigen::Vector3f t = T_world_cam.translation().cast<float>();
@@ -37,6 +37,7 @@ void frame_chunk_keys(const PointMap& map, const MeasurementImage& m, const Pose
       if (!m.valid[i]) continue;
       const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);
       for (float f : {1.0f, 0.95f, 0.9f}) {
+        if (f < 1.0f && !in_front) break;
         near->clear();
         map.keys_near(R * (f * p_c) + t, margin_m, near);
         for (const ChunkKey& k : *near) {

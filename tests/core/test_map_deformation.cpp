@@ -127,10 +127,10 @@ TEST(MapDeformation, ACorrectedKeyframeBringsItsWallBackAndTheDoubledSurfaceMerg
 }
 
 // Keyframes whose relation the correction does not change: the cloud moves rigidly, exactly, and
-// nothing lies on anything that did not before. The merge rule still accepts a few pairs of young
-// points of neighbouring keyframes that fusion never compared (it compares a measurement with the
-// points rendered around its pixel, never two points); they are a small fraction.
-TEST(MapDeformation, ARigidMoveOfTheWholeMapMergesAlmostNothing) {
+// nothing merges. (The merge rule would accept some pairs of young points of two keyframes, which
+// fusion never compared: it compares a measurement with points, never two points. Merging them,
+// 0.13 % of this wall, would thin the cloud at every closure.)
+TEST(MapDeformation, ARigidMoveOfTheWholeMapMergesNothing) {
   Fusing fx;
   MapDeformation deformation;
   const double wall_z = 2.2;
@@ -151,7 +151,7 @@ TEST(MapDeformation, ARigidMoveOfTheWholeMapMergesAlmostNothing) {
   for (const Pose& T : keyframes) moved.push_back(shift * T);
   ASSERT_TRUE(deformation.correct(moved).is_ok());
   EXPECT_EQ(deformation.bring_all_up_to_date(&fx.map), before);
-  EXPECT_LT(deformation.stats().points_merged, before / 200);
+  EXPECT_EQ(deformation.stats().points_merged, 0u);
   EXPECT_EQ(fx.map.point_count(), before - deformation.stats().points_merged);
   EXPECT_LT(largest_offset_from_plane_z(fx.map, wall_z + 0.03), offset + 1e-5);
 }
@@ -219,7 +219,7 @@ TEST(MapDeformation, PointsCrossingIntoAStaleChunkWaitAndMoveOnce) {
 // (c) The lazy path through process(): the frame's chunks follow before it is registered, the
 // other chunks over the next frames, nearest first, within the per-frame budget.
 TEST(MapDeformation, ProcessBringsTheViewUpToDateAndSweepsTheRestWithinItsBudget) {
-  ReconstructionConfig c = ReconstructionConfig().with_method(Method::kKyostila13);
+  ReconstructionConfig c;
   c.fusion.deform_points_per_frame = 20000;
   IncrementalReconstructor rec(c);
   const double wall_z = 2.2;
@@ -235,50 +235,95 @@ TEST(MapDeformation, ProcessBringsTheViewUpToDateAndSweepsTheRestWithinItsBudget
     f.T_world_cam_hint = T;
     ASSERT_TRUE(rec.process(f).is_ok());
   }
-  // The loop closure: the whole walk was 3 cm too near the wall.
-  const Pose shift = translation(0, 0, 0.03);
+  // The loop closure: the whole walk was 2 cm too near the wall.
+  const Pose shift = translation(0, 0, 0.02);
   std::vector<Pose> corrected;
   for (const Pose& T : keyframes) corrected.push_back(shift * T);
   ASSERT_TRUE(rec.deformation().correct(corrected).is_ok());
 
-  // Back at the start of the walk: the chunks it sees are up to date, the far end is not.
-  Frame f = test::render_plane(translation(0, 0, 0), Eigen::Vector3d::UnitZ(), wall_z);
-  f.T_world_cam_hint = shift;
-  uint64_t moved_before = rec.deformation().stats().points_updated;
-  ASSERT_TRUE(rec.process(f).is_ok());
-  size_t stale = 0, near_current = 0, stale_points = 0;
+  // Where the walk ended: the chunks the camera sees are up to date before it is registered, the
+  // start of the walk is not. (Registered against the wall where it was, whether the map or the
+  // model rendered for the last frame, 2 cm from here, the frame would go 2 cm back.)
+  const Pose end = translation(5, 0, 0);
+  Frame f = test::render_plane(end, Eigen::Vector3d::UnitZ(), wall_z);
+  f.T_world_cam_hint = shift * end;
+  Result<FrameReport> first = rec.process(f);
+  ASSERT_TRUE(first.is_ok());
+  EXPECT_TRUE(first->registered);
+  EXPECT_FALSE(first->model_reused);
+  EXPECT_NEAR(first->T_world_cam.translation().z(), 0.02, 1e-3);
+  size_t stale = 0, near_current = 0, stale_points = 0, largest_chunk = 0;
   rec.map().for_each_chunk([&](const ChunkKey& k, const Chunk& ch) {
     const double x = rec.map().chunk_origin_m(k).x();
-    if (x > -1.0 && x < 1.0) {
+    if (x > 4.0 && x < 6.0) {
       near_current += ch.version == 1;
       EXPECT_EQ(ch.version, 1u) << "chunk at x " << x;
     }
     stale += ch.version == 0;
     if (ch.version == 0) stale_points += ch.points.size();
+    largest_chunk = std::max(largest_chunk, ch.points.size());
   });
   EXPECT_GT(near_current, 0u);
   EXPECT_GT(stale, 10u);
-  // The rest over the next frames, never much more than the budget each: at most a chunk over.
-  size_t largest_chunk = 0;
-  rec.map().for_each_chunk([&](const ChunkKey&, const Chunk& ch) {
-    largest_chunk = std::max(largest_chunk, ch.points.size());
-  });
+  // The rest over the next frames (the merge passes the view's chunks left, then the stale
+  // chunks), never much more than the budget each: at most a chunk over.
   int frames = 0;
-  while (rec.deformation().pending_points() > 0 || !all_chunks_at(rec.map(), 1)) {
-    moved_before = rec.deformation().stats().points_updated;
-    ASSERT_TRUE(rec.process(f).is_ok());
-    const uint64_t moved = rec.deformation().stats().points_updated - moved_before;
-    EXPECT_GT(moved, 0u) << "frame " << frames;
-    EXPECT_LT(moved, 20000u + largest_chunk) << "frame " << frames;
+  while (rec.deformation().oldest_version() != 1) {
+    Result<FrameReport> r = rec.process(f);
+    ASSERT_TRUE(r.is_ok());
+    EXPECT_GT(r->swept_points, 0u) << "frame " << frames;
+    EXPECT_LT(r->swept_points, 20000u + largest_chunk) << "frame " << frames;
     ASSERT_LT(++frames, 100);
   }
+  EXPECT_EQ(rec.deformation().pending_points(), 0u);
+  EXPECT_TRUE(all_chunks_at(rec.map(), 1));
   EXPECT_GE(frames, static_cast<int>(stale_points / (20000 + largest_chunk)));
-  EXPECT_LE(frames, static_cast<int>(stale_points / 20000) + 1);
-  // The wall moved 3 cm, all of it (the frames fused since merge into it and move its points a
+  EXPECT_LE(frames, static_cast<int>(rec.map().point_count() / 20000) + 2);
+  // The wall moved 2 cm, all of it (the frames fused since merge into it and move its points a
   // little off the plane, as before: 0.1 mm).
-  EXPECT_LT(largest_offset_from_plane_z(rec.map(), wall_z + 0.03), 1e-3);
-  // Done: the history before the correction is not needed any more.
-  EXPECT_EQ(rec.deformation().oldest_version(), 1u);
+  EXPECT_LT(largest_offset_from_plane_z(rec.map(), wall_z + 0.02), 1e-3);
+}
+
+// Registration moving the pose a little leaves the chunks around the view as they are; a jump
+// (a relocalisation) brings those of the new view up to date before fusion.
+TEST(MapDeformation, AFrameWhosePoseJumpsGetsItsNewViewUpToDate) {
+  Fusing fx;
+  MapDeformation d;
+  ASSERT_TRUE(d.keyframe_added(0, fx.next_frame, Pose::Identity()).is_ok());
+  for (int i = 0; i < 8; ++i) {
+    const Pose T = translation(1.0 * i, 0, 0);
+    fx.fuse(test::render_plane(T, Eigen::Vector3d::UnitZ(), 2.2), T);
+  }
+  ASSERT_TRUE(d.correct({translation(0, 0, 0.01)}).is_ok());
+  const auto current_near = [&](double x0) {
+    size_t n = 0, all = 0;
+    fx.map.for_each_chunk([&](const ChunkKey& k, const Chunk& c) {
+      const double x = fx.map.chunk_origin_m(k).x() + 0.25;
+      if (std::abs(x - x0) < 0.75) {
+        ++all;
+        n += c.version == 1;
+      }
+    });
+    return std::make_pair(n, all);
+  };
+  const Pose at_start = translation(0, 0, 0.01);
+  MeasurementImage m;
+  ASSERT_TRUE(backproject(test::render_plane(at_start, Eigen::Vector3d::UnitZ(), 2.21), fx.config.sensor,
+                          fx.config.fusion, &m).is_ok());
+  d.update_visible(&fx.map, m, at_start);
+  auto [n0, all0] = current_near(0.0);
+  EXPECT_EQ(n0, all0);
+  EXPECT_GT(all0, 0u);
+  const uint64_t chunks = d.stats().chunks_updated;
+  // ICP moved the pose by a centimetre: nothing more to do.
+  d.update_visible_if_moved(&fx.map, m, translation(0.01, 0, 0.01));
+  EXPECT_EQ(d.stats().chunks_updated, chunks);
+  // Relocalised 5 m on.
+  d.update_visible_if_moved(&fx.map, m, translation(5.0, 0, 0.01));
+  EXPECT_GT(d.stats().chunks_updated, chunks);
+  auto [n5, all5] = current_near(5.0);
+  EXPECT_EQ(n5, all5);
+  EXPECT_GT(all5, 0u);
 }
 
 // (d) Keyframes the graph did not have when it was snapshotted move rigidly with the last one it

@@ -51,7 +51,7 @@ struct FusionConfig {
   // After a loop closure the map follows the corrected poses (MapDeformation): besides the chunks
   // a frame sees, each frame brings at most about this many more points up to date (whole chunks,
   // nearest to the camera first).
-  int deform_points_per_frame = 200000;
+  int deform_points_per_frame = 50000;
 };
 
 struct PostfilterConfig {

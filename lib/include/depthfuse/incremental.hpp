@@ -36,8 +36,10 @@ struct FrameReport {
   double prefilter_ms = 0, registration_ms = 0, fusion_ms = 0;
   double relocalisation_ms = 0;          // the keyframe search, part of registration_ms
   // Bringing chunks up to date after a loop closure (MapDeformation): those the frame sees, before
-  // registration and before fusion, and the sweep after it.
+  // registration and before fusion, and the sweep after it, which went over swept_points points
+  // (fusion.deform_points_per_frame and at most a chunk more).
   double deformation_ms = 0;
+  size_t swept_points = 0;
 };
 
 class Relocaliser;
@@ -163,6 +165,7 @@ class IncrementalReconstructor {
   std::unique_ptr<Relocaliser> relocaliser_;
   MeasurementImage scratch_;
   int frames_since_model_ = 0;  // frames registered to the Registrar's last rendered model
+  uint32_t model_version_ = 0;  // the map's version (MapDeformation) when it was rendered
   std::optional<Pose> last_T_world_cam_;
   // The last two frames fused, stamped: the camera's velocity through the next frame, for a
   // rolling shutter (camera_velocity_through_next()).

@@ -84,15 +84,24 @@ class MapDeformation {
   // moves twice. A chunk updated, or one that took points in, is dirty. Returns the points brought
   // up to date (pending ones included).
   size_t update(PointMap* map, const std::vector<ChunkKey>& keys);
-  // Before a frame is registered at T_world_cam, and again before it is fused: the chunks it sees
-  // from there (frame_chunk_keys(), as fusion selects them) and those within reach_m() of them
-  // (at least one chunk around), whose points may move into view. Nothing at version 0.
+  // Before a frame is registered at T_world_cam: the chunks it sees from there (frame_chunk_keys(),
+  // sampled as fusion samples them) and those holding points within reach_m() of it, which may
+  // move into view, and within fusion's margin. Their points move now; their merge passes wait
+  // for the sweep (they cost several times the move). Nothing at version 0.
   void update_visible(PointMap* map, const MeasurementImage& m, const Pose& T_world_cam) {
     if (version_ != 0) update_visible_now(map, m, T_world_cam);
   }
-  // After a frame: other stale chunks, nearest to camera_m first (listed once per correction),
-  // whole chunks until at least max_points points are up to date. Once all are done, the history
-  // no chunk needs any more is dropped. Returns the points brought up to date. Nothing at version 0.
+  // Before the frame is fused at the pose registration gave it: update_visible() again, unless the
+  // chunks it covered still hold all the frame can see (the pose moved less than the chunks around
+  // the view allow for; a relocalisation moves it far). Fusion must touch no chunk that has not
+  // followed the last correction: its new points there would be moved a second time.
+  void update_visible_if_moved(PointMap* map, const MeasurementImage& m, const Pose& T_world_cam) {
+    if (version_ != 0) update_visible_if_moved_now(map, m, T_world_cam);
+  }
+  // After a frame: the merge passes update_visible() left, then other stale chunks, nearest to
+  // camera_m first (listed once per correction), whole chunks until about max_points points were
+  // merged or brought up to date. Once all are done, the history no chunk needs any more is
+  // dropped. Returns the points gone over. Nothing at version 0.
   size_t sweep(PointMap* map, const Eigen::Vector3d& camera_m, size_t max_points) {
     return version_ == 0 ? 0 : sweep_now(map, camera_m, max_points);
   }
@@ -151,13 +160,27 @@ class MapDeformation {
   // pending buffer.
   void send(PointMap* map, const ChunkKey& key, const PointArrays& from, size_t i,
             const Chunk& from_chunk);
-  // The merge pass over the chunks updated_ and touched_ name.
-  void merge_updated(PointMap* map);
+  // Whether the keyframes of a's points (Scratch::segment) moved the chunk at origin_m (edge
+  // size_m) alike, to within kRigidM, since the version prepare_motions() was given.
+  bool moved_rigidly(const PointArrays& a, const Eigen::Vector3f& origin_m, float size_m);
+  // A merge pass to run: chunk `key` from its point `first` on, for the corrections since `from`.
+  struct MergeJob {
+    ChunkKey key;
+    size_t first;
+    uint32_t from;
+  };
+  // The merge passes the chunks updated_ and touched_ need: now, or queued for the sweep.
+  void merge_updated(PointMap* map, bool defer);
+  // Returns the points the pass went over.
+  size_t run_merge(PointMap* map, const MergeJob& job);
+  // Queued merges, oldest first, until they went over max_points points; returns how many.
+  size_t run_queued_merges(PointMap* map, size_t max_points);
   // update() over keys[0, count), stopping once *updated reaches max_points; returns the index of
   // the first key not done.
   size_t update_range(PointMap* map, const ChunkKey* keys, size_t count, size_t max_points,
-                      size_t* updated);
+                      bool defer_merges, size_t* updated);
   void update_visible_now(PointMap* map, const MeasurementImage& m, const Pose& T_world_cam);
+  void update_visible_if_moved_now(PointMap* map, const MeasurementImage& m, const Pose& T_world_cam);
   size_t sweep_now(PointMap* map, const Eigen::Vector3d& camera_m, size_t max_points);
   void drop_unneeded_history(const PointMap& map);
   // The bound on how far the correction from `before` to `after` moves a point.
@@ -184,13 +207,31 @@ class MapDeformation {
   // Buffers kept from call to call: the keyframes' motions, the merge pass's.
   struct Scratch;
   std::unique_ptr<Scratch> scratch_;
-  std::vector<ChunkKey> keys_, near_, updated_;
+  std::vector<ChunkKey> keys_, near_;
+  struct UpdatedChunk {
+    ChunkKey key;
+    uint32_t from;  // the version its points came from
+  };
+  std::vector<UpdatedChunk> updated_;
   std::vector<std::pair<ChunkKey, size_t>> touched_;  // chunk, its first point taken in
 
-  // The sweep: the stale chunks when it started, nearest to the camera first.
+  // What update_visible() last covered: the chunks around the view from this pose, at this
+  // version, with this much to spare for the pose moving, m.
+  Pose covered_T_world_cam_ = Pose::Identity();
+  uint32_t covered_version_ = ~0u;
+  double covered_spare_m_ = 0;
+
+  // Merges update_visible() left for the sweep: one per chunk, in the order they were queued.
+  std::unordered_map<ChunkKey, MergeJob, ChunkKeyHash> merge_queue_;
+  std::vector<ChunkKey> merge_fifo_;  // from merge_fifo_head_ on; keys no longer queued skipped
+  size_t merge_fifo_head_ = 0;
+
+  // The sweep: the stale chunks when it started, nearest to the camera first; done once they and
+  // the merge queue are.
   uint32_t sweep_version_ = 0;
   std::vector<ChunkKey> sweep_keys_;
   size_t sweep_next_ = 0;
+  bool sweep_done_ = true;
 
   DeformationStats stats_;
 };
