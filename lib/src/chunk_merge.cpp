@@ -63,8 +63,8 @@ bool ChunkMerger::build(const PointArrays& a) {
   Eigen::Vector3f extent = hi - lo;
   std::sort(extent.data(), extent.data() + 3);
   const float spacing = std::sqrt(extent[1] * extent[2] / static_cast<float>(n));
-  cell_m_ = std::max({2.0f * quantile_[q], 2.0f * spacing, 1e-4f,
-                      extent[2] / static_cast<float>(kCoordMax - 2)});
+  cell_m_ = std::max(
+      {2.0f * quantile_[q], 2.0f * spacing, 1e-4f, extent[2] / static_cast<float>(kCoordMax - 2)});
   origin_m_ = lo;
 
   size_t capacity = 16;
@@ -179,7 +179,8 @@ size_t ChunkMerger::merge(PointArrays* a, size_t first, std::vector<uint32_t>* s
       if (reach_[i] <= 0.25f * cell_m_) {
         // The side of its cell the point lies on, per axis: the neighbour there (offset +-1).
         const Eigen::Vector3f f = (a->position_m[i] - origin_m_) * inv - corner;
-        const int sx = f.x() < 0.5f ? -1 : 1, sy = f.y() < 0.5f ? -1 : 1, sz = f.z() < 0.5f ? -1 : 1;
+        const int sx = f.x() < 0.5f ? -1 : 1, sy = f.y() < 0.5f ? -1 : 1,
+                  sz = f.z() < 0.5f ? -1 : 1;
         int n = 0;
         for (int dz : {0, sz})
           for (int dy : {0, sy})
@@ -212,10 +213,11 @@ size_t ChunkMerger::merge(PointArrays* a, size_t first, std::vector<uint32_t>* s
 
 size_t ChunkMerger::memory_bytes() const {
   return cells_.capacity() * sizeof(Cell) + order_.capacity() * sizeof(uint32_t) +
-         rank_.capacity() * sizeof(uint32_t) + sorted_position_.capacity() * sizeof(Eigen::Vector3f) +
-         sorted_reach_.capacity() * sizeof(float) +
-         cell_of_.capacity() * sizeof(uint32_t) + reach_.capacity() * sizeof(float) +
-         quantile_.capacity() * sizeof(float) + keep_.capacity();
+         rank_.capacity() * sizeof(uint32_t) +
+         sorted_position_.capacity() * sizeof(Eigen::Vector3f) +
+         sorted_reach_.capacity() * sizeof(float) + cell_of_.capacity() * sizeof(uint32_t) +
+         reach_.capacity() * sizeof(float) + quantile_.capacity() * sizeof(float) +
+         keep_.capacity();
 }
 
 }  // namespace depthfuse

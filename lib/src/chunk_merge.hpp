@@ -79,12 +79,12 @@ class ChunkMerger {
   int64_t partner(const PointArrays& a, size_t i, const std::vector<uint32_t>& segment,
                   PairGate* gate, const Range* ranges, int count) const;
 
-  float cell_m_ = 0;             // h
-  Eigen::Vector3f origin_m_;     // the cells' corner: the points' bounding box's lowest
-  std::vector<Cell> cells_;      // size a power of two, 2^(64 - shift_)
+  float cell_m_ = 0;          // h
+  Eigen::Vector3f origin_m_;  // the cells' corner: the points' bounding box's lowest
+  std::vector<Cell> cells_;   // size a power of two, 2^(64 - shift_)
   int shift_ = 60;
   std::vector<uint32_t> order_;
-  std::vector<uint32_t> rank_;                   // per point: its index in order_
+  std::vector<uint32_t> rank_;  // per point: its index in order_
   // Per index in order_: the point's position and reach (kNoReach where it is no partner), so
   // that a cell's points are read contiguously.
   std::vector<Eigen::Vector3f> sorted_position_;

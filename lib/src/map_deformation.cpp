@@ -7,9 +7,9 @@
 #include <string>
 #include <tuple>
 
-#include "depthfuse/base/log.hpp"
 #include "chunk_merge.hpp"
 #include "deformation_kernels.hpp"
+#include "depthfuse/base/log.hpp"
 #include "model_projection.hpp"
 
 DF_LOG_CATEGORY(Deformation)
@@ -89,10 +89,10 @@ struct MapDeformation::Scratch : PairGate {
     RigidMotionF m;
     bool identity = false;  // the keyframe did not move: its points are left untouched
   };
-  std::vector<Motion> motion;   // per keyframe, valid where stamp[k] == current
+  std::vector<Motion> motion;  // per keyframe, valid where stamp[k] == current
   std::vector<uint32_t> stamp;
   uint32_t current = 0;
-  uint32_t from = ~0u, to = ~0u;  // the motions' versions
+  uint32_t from = ~0u, to = ~0u;                    // the motions' versions
   const std::vector<StoredPose>* before = nullptr;  // the poses at `from` and now
   const std::vector<StoredPose>* now = nullptr;
   // The keyframes the points of the chunk being merged came from, each once (seen[k] == chunk).
@@ -109,8 +109,8 @@ struct MapDeformation::Scratch : PairGate {
     stamp[k] = current;
     // A keyframe that did not exist at that version has no points of it (they were fused later,
     // in a chunk already up to date); one whose pose is the same did not move.
-    m.identity = k >= before->size() ||
-                 std::memcmp(&(*before)[k], &(*now)[k], sizeof(StoredPose)) == 0;
+    m.identity =
+        k >= before->size() || std::memcmp(&(*before)[k], &(*now)[k], sizeof(StoredPose)) == 0;
     if (!m.identity) {
       const Pose M = load((*now)[k]) * load((*before)[k]).inverse();
       m.m.R = M.linear().cast<float>();
@@ -129,7 +129,9 @@ struct MapDeformation::Scratch : PairGate {
 };
 
 MapDeformation::MapDeformation(double point_range_m)
-    : point_range_m_(point_range_m), poses_(1), max_motion_m_(1, 0.0),
+    : point_range_m_(point_range_m),
+      poses_(1),
+      max_motion_m_(1, 0.0),
       scratch_(std::make_unique<Scratch>()) {}
 
 MapDeformation::~MapDeformation() = default;
@@ -178,14 +180,16 @@ Result<uint32_t> MapDeformation::correct(const std::vector<Pose>& T_world_kf) {
   if (version_ == std::numeric_limits<uint32_t>::max())
     return invalid_argument("no version left after " + std::to_string(version_));
   for (size_t k = 0; k < T_world_kf.size(); ++k)
-    DF_RETURN_IF_ERROR(check_pose(T_world_kf[k], "the corrected pose of keyframe " + std::to_string(k)));
+    DF_RETURN_IF_ERROR(
+        check_pose(T_world_kf[k], "the corrected pose of keyframe " + std::to_string(k)));
   const std::vector<StoredPose>& before = poses_.back();
   std::vector<StoredPose> after(before.size());
   for (size_t k = 0; k < T_world_kf.size(); ++k) after[k] = store(T_world_kf[k]);
   // Keyframes the graph did not have yet ride along with the last one it did.
   const size_t last = T_world_kf.size() - 1;
   const Pose ride = T_world_kf[last] * load(before[last]).inverse();
-  for (size_t k = T_world_kf.size(); k < before.size(); ++k) after[k] = store(ride * load(before[k]));
+  for (size_t k = T_world_kf.size(); k < before.size(); ++k)
+    after[k] = store(ride * load(before[k]));
   const double bound = max_motion(before, after);
   const size_t riding = before.size() - T_world_kf.size();
   poses_.push_back(std::move(after));  // `before` is gone
@@ -261,7 +265,8 @@ void MapDeformation::send(PointMap* map, const ChunkKey& key, const PointArrays&
     dest->last_touched_frame = from_chunk.last_touched_frame;
   }
   if (dest->version == version_) {
-    if (touched_.empty() || touched_.back().first != key) touched_.emplace_back(key, dest->points.size());
+    if (touched_.empty() || touched_.back().first != key)
+      touched_.emplace_back(key, dest->points.size());
     dest->points.push_back(from.position_m[i], from.state[i]);
     dest->dirty = true;
     return;
@@ -350,7 +355,8 @@ bool MapDeformation::moved_rigidly(const PointArrays& a, const Eigen::Vector3f& 
     last = k;
   }
   for (int c = 0; c < 8; ++c) {
-    const Eigen::Vector3f x = origin_m + size_m * Eigen::Vector3f(c & 1, (c >> 1) & 1, (c >> 2) & 1);
+    const Eigen::Vector3f x =
+        origin_m + size_m * Eigen::Vector3f(c & 1, (c >> 1) & 1, (c >> 2) & 1);
     for (size_t p = 1; p < s.present.size(); ++p)
       if (s.moved_apart(s.present[0], s.present[p], x)) return false;
   }
@@ -358,7 +364,9 @@ bool MapDeformation::moved_rigidly(const PointArrays& a, const Eigen::Vector3f& 
 }
 
 void MapDeformation::merge_updated(PointMap* map, bool defer) {
-  const auto by_key = [](const UpdatedChunk& a, const UpdatedChunk& b) { return key_less(a.key, b.key); };
+  const auto by_key = [](const UpdatedChunk& a, const UpdatedChunk& b) {
+    return key_less(a.key, b.key);
+  };
   std::sort(updated_.begin(), updated_.end(), by_key);
   const auto job = [&](const MergeJob& j) {
     // One merge per chunk: a job still queued for it joins this one.
@@ -487,8 +495,9 @@ void MapDeformation::update_visible_if_moved_now(PointMap* map, const Measuremen
                                                  const Pose& T_world_cam) {
   // How far a point in view moves with the camera's change of pose, at most.
   const Pose delta = covered_T_world_cam_.inverse() * T_world_cam;
-  const double shift = delta.translation().norm() +
-                       2.0 * std::sin(0.5 * Eigen::AngleAxisd(delta.linear()).angle()) * point_range_m_;
+  const double shift =
+      delta.translation().norm() +
+      2.0 * std::sin(0.5 * Eigen::AngleAxisd(delta.linear()).angle()) * point_range_m_;
   if (covered_version_ == version_ && shift < covered_spare_m_) return;
   update_visible_now(map, m, T_world_cam);
 }
@@ -519,9 +528,9 @@ size_t MapDeformation::sweep_now(PointMap* map, const Eigen::Vector3d& camera_m,
   // The merges the view's chunks left (they are where the camera is), then the stale chunks.
   size_t updated = run_queued_merges(map, max_points);
   if (updated < max_points && sweep_next_ < sweep_keys_.size())
-    sweep_next_ += update_range(map, sweep_keys_.data() + sweep_next_,
-                                sweep_keys_.size() - sweep_next_, max_points - updated, false,
-                                &updated);
+    sweep_next_ +=
+        update_range(map, sweep_keys_.data() + sweep_next_, sweep_keys_.size() - sweep_next_,
+                     max_points - updated, false, &updated);
   if (sweep_next_ >= sweep_keys_.size() && merge_queue_.empty()) {
     sweep_done_ = true;
     drop_unneeded_history(*map);
@@ -537,7 +546,8 @@ size_t MapDeformation::bring_all_up_to_date(PointMap* map) {
   // In key order: the result does not depend on the hash table's.
   std::sort(keys_.begin(), keys_.end(), key_less);
   size_t updated = 0;
-  update_range(map, keys_.data(), keys_.size(), std::numeric_limits<size_t>::max(), false, &updated);
+  update_range(map, keys_.data(), keys_.size(), std::numeric_limits<size_t>::max(), false,
+               &updated);
   run_queued_merges(map, std::numeric_limits<size_t>::max());
   sweep_version_ = version_;
   sweep_keys_.clear();
@@ -549,7 +559,8 @@ size_t MapDeformation::bring_all_up_to_date(PointMap* map) {
 
 uint32_t MapDeformation::oldest_version_needed(const PointMap& map) const {
   uint32_t oldest = version_;
-  map.for_each_chunk([&](const ChunkKey&, const Chunk& c) { oldest = std::min(oldest, c.version); });
+  map.for_each_chunk(
+      [&](const ChunkKey&, const Chunk& c) { oldest = std::min(oldest, c.version); });
   for (const auto& kv : pending_)
     for (const PendingGroup& g : kv.second) oldest = std::min(oldest, g.version);
   for (const auto& kv : merge_queue_) oldest = std::min(oldest, kv.second.from);
@@ -569,7 +580,8 @@ size_t MapDeformation::forget_versions_before(uint32_t version) {
   if (version <= oldest_version_) return 0;
   const size_t n = version - oldest_version_;
   poses_.erase(poses_.begin(), poses_.begin() + static_cast<std::ptrdiff_t>(n));
-  max_motion_m_.erase(max_motion_m_.begin(), max_motion_m_.begin() + static_cast<std::ptrdiff_t>(n));
+  max_motion_m_.erase(max_motion_m_.begin(),
+                      max_motion_m_.begin() + static_cast<std::ptrdiff_t>(n));
   oldest_version_ = version;
   // Scratch motions may refer to a version dropped.
   scratch_->from = scratch_->to = ~0u;
@@ -592,7 +604,8 @@ Status MapDeformation::restore(const DeformationHistory& h) {
   for (size_t k = 1; k < h.keyframe_first_frame.size(); ++k)
     if (h.keyframe_first_frame[k] <= h.keyframe_first_frame[k - 1])
       return invalid_argument("deformation history: keyframe " + std::to_string(k) +
-                              "'s first frame is not after keyframe " + std::to_string(k - 1) + "'s");
+                              "'s first frame is not after keyframe " + std::to_string(k - 1) +
+                              "'s");
   if (h.T_world_kf.empty()) return invalid_argument("deformation history: no version");
   if (h.max_motion_m.size() != h.T_world_kf.size())
     return invalid_argument("deformation history: " + std::to_string(h.T_world_kf.size()) +
@@ -608,13 +621,16 @@ Status MapDeformation::restore(const DeformationHistory& h) {
   for (size_t v = 0; v < h.T_world_kf.size(); ++v) {
     const std::string version = std::to_string(h.oldest_version + v);
     if (v > 0 && h.T_world_kf[v].size() < h.T_world_kf[v - 1].size())
-      return invalid_argument("deformation history: version " + version + " has fewer keyframes than the one before");
+      return invalid_argument("deformation history: version " + version +
+                              " has fewer keyframes than the one before");
     if (!(h.max_motion_m[v] >= 0) || !std::isfinite(h.max_motion_m[v]))
-      return invalid_argument("deformation history: version " + version + "'s motion bound is not a distance");
+      return invalid_argument("deformation history: version " + version +
+                              "'s motion bound is not a distance");
     poses.emplace_back();
     for (size_t k = 0; k < h.T_world_kf[v].size(); ++k) {
-      DF_RETURN_IF_ERROR(check_pose(h.T_world_kf[v][k], "deformation history: version " + version +
-                                                            "'s pose of keyframe " + std::to_string(k)));
+      DF_RETURN_IF_ERROR(check_pose(
+          h.T_world_kf[v][k],
+          "deformation history: version " + version + "'s pose of keyframe " + std::to_string(k)));
       poses.back().push_back(store(h.T_world_kf[v][k]));
     }
   }
@@ -667,14 +683,12 @@ size_t MapDeformation::memory_bytes() const {
   const Scratch& s = *scratch_;
   bytes += sizeof(Scratch) + s.motion.capacity() * sizeof(Scratch::Motion) +
            (s.stamp.capacity() + s.present.capacity() + s.seen.capacity()) * sizeof(uint32_t) +
-           s.keep.capacity() +
-           s.segment.capacity() * sizeof(uint32_t) + s.merger.memory_bytes();
+           s.keep.capacity() + s.segment.capacity() * sizeof(uint32_t) + s.merger.memory_bytes();
   bytes += merge_queue_.bucket_count() * sizeof(void*) +
            merge_queue_.size() * (sizeof(MergeJob) + 2 * sizeof(void*));
   bytes += (keys_.capacity() + near_.capacity() + sweep_keys_.capacity() + merge_fifo_.capacity()) *
                sizeof(ChunkKey) +
-           updated_.capacity() * sizeof(UpdatedChunk) +
-           touched_.capacity() * sizeof(touched_[0]);
+           updated_.capacity() * sizeof(UpdatedChunk) + touched_.capacity() * sizeof(touched_[0]);
   return bytes;
 }
 

@@ -39,7 +39,8 @@ struct Fusing {
 double largest_offset_from_plane_z(const PointMap& map, double z0) {
   double worst = 0;
   map.for_each_chunk([&](const ChunkKey&, const Chunk& c) {
-    for (const Eigen::Vector3f& p : c.points.position_m) worst = std::max(worst, std::abs(p.z() - z0));
+    for (const Eigen::Vector3f& p : c.points.position_m)
+      worst = std::max(worst, std::abs(p.z() - z0));
   });
   return worst;
 }
@@ -66,14 +67,21 @@ PointRecord point_at(const Eigen::Vector3f& p, uint32_t frame, int id = 0) {
   r.position_m = p;
   r.normal = Eigen::Vector3f(0.6f, 0.0f, 0.8f);
   // An ellipsoid that is not aligned with the axes: its rotation shows.
-  const Eigen::Matrix3f A = (Eigen::Matrix3f() << 3, 1, 0, 1, 2, 0.5f, 0, 0.5f, 4).finished() * 1e5f;
-  r.information[0] = A(0, 0); r.information[1] = A(0, 1); r.information[2] = A(0, 2);
-  r.information[3] = A(1, 1); r.information[4] = A(1, 2); r.information[5] = A(2, 2);
+  const Eigen::Matrix3f A =
+      (Eigen::Matrix3f() << 3, 1, 0, 1, 2, 0.5f, 0, 0.5f, 4).finished() * 1e5f;
+  r.information[0] = A(0, 0);
+  r.information[1] = A(0, 1);
+  r.information[2] = A(0, 2);
+  r.information[3] = A(1, 1);
+  r.information[4] = A(1, 2);
+  r.information[5] = A(2, 2);
   r.last_frame = frame;
   return r;
 }
 
-int id_of(const PointArrays& a, size_t i) { return a.state[i].r | (a.state[i].g << 8); }
+int id_of(const PointArrays& a, size_t i) {
+  return a.state[i].r | (a.state[i].g << 8);
+}
 
 }  // namespace
 
@@ -98,12 +106,14 @@ TEST(MapDeformation, ACorrectedKeyframeBringsItsWallBackAndTheDoubledSurfaceMerg
   // The second view's points on the part of the wall the first view saw too (its footprint: the
   // image's extent at the wall's depth), once moved back.
   const CameraIntrinsics K = CameraIntrinsics::kinect_v2();
-  const double half_w = wall_z * (K.width - 1 - K.cx) / K.fx, half_h = wall_z * (K.height - 1 - K.cy) / K.fy;
+  const double half_w = wall_z * (K.width - 1 - K.cx) / K.fx,
+               half_h = wall_z * (K.height - 1 - K.cy) / K.fy;
   size_t overlap = 0;
   fx.map.for_each_chunk([&](const ChunkKey&, const Chunk& c) {
     for (size_t i = 0; i < c.points.size(); ++i) {
       const Eigen::Vector3f& p = c.points.position_m[i];
-      overlap += c.points.state[i].last_frame == 2 && std::abs(p.x()) < half_w && std::abs(p.y()) < half_h;
+      overlap +=
+          c.points.state[i].last_frame == 2 && std::abs(p.x()) < half_w && std::abs(p.y()) < half_h;
     }
   });
   ASSERT_GT(overlap, second_view / 2);
@@ -204,7 +214,8 @@ TEST(MapDeformation, PointsCrossingIntoAStaleChunkWaitAndMoveOnce) {
     const Eigen::Vector3d p = M * original.position_m[j].cast<double>();
     EXPECT_LT((after.position_m[i].cast<double>() - p).norm(), 1e-6) << "point " << j;
     const Eigen::Matrix3d R = M.linear();
-    EXPECT_LT((after.normal(i).cast<double>() - R * original.normal(j).cast<double>()).norm(), 1e-6);
+    EXPECT_LT((after.normal(i).cast<double>() - R * original.normal(j).cast<double>()).norm(),
+              1e-6);
     const Eigen::Matrix3d L = R * information_matrix(original, j).cast<double>() * R.transpose();
     EXPECT_LT((information_matrix(after, i).cast<double>() - L).norm(), 1e-6 * L.norm());
   }
@@ -308,8 +319,9 @@ TEST(MapDeformation, AFrameWhosePoseJumpsGetsItsNewViewUpToDate) {
   };
   const Pose at_start = translation(0, 0, 0.01);
   MeasurementImage m;
-  ASSERT_TRUE(backproject(test::render_plane(at_start, Eigen::Vector3d::UnitZ(), 2.21), fx.config.sensor,
-                          fx.config.fusion, &m).is_ok());
+  ASSERT_TRUE(backproject(test::render_plane(at_start, Eigen::Vector3d::UnitZ(), 2.21),
+                          fx.config.sensor, fx.config.fusion, &m)
+                  .is_ok());
   d.update_visible(&fx.map, m, at_start);
   auto [n0, all0] = current_near(0.0);
   EXPECT_EQ(n0, all0);
@@ -368,7 +380,8 @@ TEST(MapDeformation, KeyframesAddedAfterTheSnapshotRideWithTheLastCorrected) {
   d.bring_all_up_to_date(&map);
   const PointArrays out = map.gather();
   ASSERT_EQ(out.size(), 1u);
-  EXPECT_LT((out.position_m[0].cast<double>() - ride * Eigen::Vector3d(2.1, 0.2, 1.1)).norm(), 1e-5);
+  EXPECT_LT((out.position_m[0].cast<double>() - ride * Eigen::Vector3d(2.1, 0.2, 1.1)).norm(),
+            1e-5);
 }
 
 // (e) The history is kept only as far back as a chunk needs it: resident, pending, or stored out
@@ -416,8 +429,7 @@ TEST(MapDeformation, HistoryIsDroppedWhenNoChunkNeedsIt) {
   EXPECT_EQ(d.oldest_version(), d.version());
   EXPECT_LT(d.memory_bytes(), settled + 1024);
   const PointArrays all = map.gather();
-  for (size_t i = 0; i < all.size(); ++i)
-    EXPECT_NEAR(all.position_m[i].z(), 0.1 + 0.036, 1e-5);
+  for (size_t i = 0; i < all.size(); ++i) EXPECT_NEAR(all.position_m[i].z(), 0.1 + 0.036, 1e-5);
   EXPECT_EQ(d.stats().points_unmovable, 0u);
 
   // A chunk older than the history kept stays where it is, counted.
@@ -435,7 +447,8 @@ TEST(MapDeformation, BadInputIsRefusedWithTheReason) {
   MapDeformation d;
   Status s = d.keyframe_added(1, 1, Pose::Identity());
   EXPECT_FALSE(s.is_ok());
-  EXPECT_NE(s.message().find("keyframe 1 added out of order: the next keyframe is 0"), std::string::npos)
+  EXPECT_NE(s.message().find("keyframe 1 added out of order: the next keyframe is 0"),
+            std::string::npos)
       << s.message();
   ASSERT_TRUE(d.keyframe_added(0, 5, Pose::Identity()).is_ok());
   s = d.keyframe_added(1, 5, Pose::Identity());
@@ -444,7 +457,8 @@ TEST(MapDeformation, BadInputIsRefusedWithTheReason) {
   Pose bent = Pose::Identity();
   bent.linear()(0, 0) = 2;
   s = d.keyframe_added(1, 6, bent);
-  EXPECT_NE(s.message().find("keyframe 1's pose is not a rotation and a translation"), std::string::npos)
+  EXPECT_NE(s.message().find("keyframe 1's pose is not a rotation and a translation"),
+            std::string::npos)
       << s.message();
   Result<uint32_t> r = d.correct({Pose::Identity(), Pose::Identity()});
   ASSERT_FALSE(r.is_ok());
@@ -457,7 +471,8 @@ TEST(MapDeformation, BadInputIsRefusedWithTheReason) {
   DeformationHistory h = d.history();
   h.max_motion_m.push_back(0.0);
   s = d.restore(h);
-  EXPECT_NE(s.message().find("1 versions of poses but 2 motion bounds"), std::string::npos) << s.message();
+  EXPECT_NE(s.message().find("1 versions of poses but 2 motion bounds"), std::string::npos)
+      << s.message();
   ASSERT_TRUE(d.restore(d.history()).is_ok());
   EXPECT_EQ(d.keyframe_count(), 1u);
 }

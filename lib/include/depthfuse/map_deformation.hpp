@@ -23,11 +23,11 @@ namespace depthfuse {
 
 // What the deformation has done since it was made or cleared.
 struct DeformationStats {
-  uint64_t chunks_updated = 0;    // brought from an older version to the current one
-  uint64_t points_updated = 0;    // brought up to date (moved unless their keyframe stayed)
-  uint64_t points_crossed = 0;    // ... into another chunk
-  uint64_t points_pending = 0;    // ... which was not up to date: held in its pending buffer
-  uint64_t points_merged = 0;     // merged into a point of another visit (and so removed)
+  uint64_t chunks_updated = 0;  // brought from an older version to the current one
+  uint64_t points_updated = 0;  // brought up to date (moved unless their keyframe stayed)
+  uint64_t points_crossed = 0;  // ... into another chunk
+  uint64_t points_pending = 0;  // ... which was not up to date: held in its pending buffer
+  uint64_t points_merged = 0;   // merged into a point of another visit (and so removed)
   // In a chunk older than the history kept (forget_versions_before()): left where they were.
   uint64_t points_unmovable = 0;
 };
@@ -78,7 +78,8 @@ class MapDeformation {
   double reach_m() const;
 
   // Brings the chunks with these keys up to date (those absent or current are skipped), then runs
-  // the merge pass over them. A point of a stale chunk moves by motion(): position, normal and
+  // the merge pass over them (lib/src/chunk_merge.hpp: pairs from two keyframes that the
+  // correction moved apart). A point of a stale chunk moves by motion(): position, normal and
   // information (R L R^T). One that then falls in another chunk goes there if that chunk is up to
   // date or new, otherwise into that chunk's pending buffer, applied when it is updated: no point
   // moves twice. A chunk updated, or one that took points in, is dirty. Returns the points brought
@@ -113,8 +114,8 @@ class MapDeformation {
   // The history kept: versions from oldest_version() to version(). A chunk older than it cannot be
   // moved (its points stay where they are, counted in stats().points_unmovable).
   uint32_t oldest_version() const { return oldest_version_; }
-  // The oldest version anything still needs: the map's chunks, the pending buffers, and the chunks
-  // stored out of memory (set_oldest_stored_version()).
+  // The oldest version anything still needs: the map's chunks, the pending buffers, the merge
+  // passes queued, and the chunks stored out of memory (set_oldest_stored_version()).
   uint32_t oldest_version_needed(const PointMap& map) const;
   // The oldest version among chunks stored out of memory (evicted to the scan file), which keeps
   // the history they need; none: nothing stored.
@@ -131,7 +132,8 @@ class MapDeformation {
   void clear();
 
   size_t pending_points() const;
-  // The pose history, the segment table, the pending points and the merge pass's buffers.
+  // The pose history, the segment table, the pending points, the merges queued and the buffers
+  // kept (the merge pass's grow to the largest chunk).
   size_t memory_bytes() const;
   const DeformationStats& stats() const { return stats_; }
 
@@ -180,17 +182,19 @@ class MapDeformation {
   size_t update_range(PointMap* map, const ChunkKey* keys, size_t count, size_t max_points,
                       bool defer_merges, size_t* updated);
   void update_visible_now(PointMap* map, const MeasurementImage& m, const Pose& T_world_cam);
-  void update_visible_if_moved_now(PointMap* map, const MeasurementImage& m, const Pose& T_world_cam);
+  void update_visible_if_moved_now(PointMap* map, const MeasurementImage& m,
+                                   const Pose& T_world_cam);
   size_t sweep_now(PointMap* map, const Eigen::Vector3d& camera_m, size_t max_points);
   void drop_unneeded_history(const PointMap& map);
   // The bound on how far the correction from `before` to `after` moves a point.
-  double max_motion(const std::vector<StoredPose>& before, const std::vector<StoredPose>& after) const;
+  double max_motion(const std::vector<StoredPose>& before,
+                    const std::vector<StoredPose>& after) const;
 
   double point_range_m_;
-  // The segment table: keyframe k's first frame, and a dense frame -> keyframe table for the
-  // frames from first_frame_[0] up to the last keyframe's first (later frames: the last keyframe).
+  // The segment table: keyframe k's first frame, searched by bisection (4 bytes a keyframe, however
+  // long the scan; a chunk's points come in runs of one segment, so the last one found is tried
+  // first).
   std::vector<uint32_t> first_frame_;
-  std::vector<uint32_t> keyframe_of_frame_;
   // The history: poses_[v - oldest_version_] holds version v's keyframe poses, max_motion_m_ the
   // bound of the correction that made it. Why a list of poses per version rather than per keyframe
   // a list of the versions it changed in: a pose graph's solution moves every keyframe but the
