@@ -11,8 +11,10 @@
 //  - BM_Sweep/N: what one frame's sweep costs at the default budget (fusion.
 //    deform_points_per_frame), ms, on the map of N points (the first frame after a correction
 //    lists the stale chunks too);
-//  - BM_UpdateVisible/v: what a frame pays before registration and fusion once every chunk is up
-//    to date, on the 2M-point map: v = 0 before any correction (nothing), v = 1 after one.
+//  - BM_FirstFrameAfterClosure/N: update_visible() for the first frame after a closure, which
+//    moves the chunks around its view (their merge passes wait for the sweep), ms;
+//  - BM_UpdateVisible/v/N: what a frame pays before registration once every chunk is up to date,
+//    on the map of N points: v = 0 before any correction (nothing), v = 1 after one.
 #include <benchmark/benchmark.h>
 
 #include <cmath>
@@ -206,14 +208,9 @@ void BM_Sweep(benchmark::State& state) {
   state.counters["frames_per_sweep"] = static_cast<double>(frames) / std::max<size_t>(1, sweeps);
 }
 
-void BM_UpdateVisible(benchmark::State& state) {
-  Room& r = room(2000000);
-  if (r.deformation.version() == 0) r.correct();
-  r.deformation.bring_all_up_to_date(&r.map);
-  MapDeformation before_any;  // version 0
-  MapDeformation& d = state.range(0) > 0 ? r.deformation : before_any;
-  // A camera at 1.5 m from the +x wall, looking at it.
-  MeasurementImage m;
+// A camera 1.5 m from the room's +x wall, looking at it.
+void wall_view(MeasurementImage* out, Pose* T_world_cam) {
+  MeasurementImage& m = *out;
   m.intrinsics = CameraIntrinsics::kinect_v2();
   m.resize(m.intrinsics.width, m.intrinsics.height);
   for (int v = 0; v < m.height; ++v)
@@ -224,10 +221,42 @@ void BM_UpdateVisible(benchmark::State& state) {
       m.y[i] = static_cast<float>((v - m.intrinsics.cy) / m.intrinsics.fy) * m.z[i];
       m.valid[i] = 1;
     }
-  Pose T = Pose::Identity();
+  Pose& T = *T_world_cam;
+  T = Pose::Identity();
   T.linear() << 0, 0, 1, -1, 0, 0, 0, -1, 0;  // camera z along +x, y down
   T.translation() = Eigen::Vector3d(2.5, 0.2, 1.2);
+}
+
+void BM_UpdateVisible(benchmark::State& state) {
+  Room& r = room(static_cast<size_t>(state.range(1)));
+  if (r.deformation.version() == 0) r.correct();
+  r.deformation.bring_all_up_to_date(&r.map);
+  MapDeformation before_any;  // version 0
+  MapDeformation& d = state.range(0) > 0 ? r.deformation : before_any;
+  MeasurementImage m;
+  Pose T;
+  wall_view(&m, &T);
   for (auto _ : state) d.update_visible(&r.map, m, T);
+}
+
+// The first frame after a closure: every chunk around the view is stale.
+void BM_FirstFrameAfterClosure(benchmark::State& state) {
+  Room& r = room(static_cast<size_t>(state.range(0)));
+  MeasurementImage m;
+  Pose T;
+  wall_view(&m, &T);
+  uint64_t moved = 0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    r.deformation.bring_all_up_to_date(&r.map);
+    r.correct();
+    const uint64_t before = r.deformation.stats().points_updated;
+    state.ResumeTiming();
+    r.deformation.update_visible(&r.map, m, T);
+    moved += r.deformation.stats().points_updated - before;
+  }
+  state.counters["points_moved"] =
+      benchmark::Counter(static_cast<double>(moved), benchmark::Counter::kAvgIterations);
 }
 
 }  // namespace
@@ -239,6 +268,11 @@ BENCHMARK(BM_BringAllUpToDate)
     ->Unit(benchmark::kMillisecond)
     ->Iterations(4);
 BENCHMARK(BM_MergePass)->Arg(20000)->Arg(60000)->Unit(benchmark::kMillisecond);
-BENCHMARK(BM_Sweep)->Arg(2000000)->Unit(benchmark::kMillisecond);
-BENCHMARK(BM_UpdateVisible)->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_Sweep)->Arg(500000)->Arg(2000000)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_FirstFrameAfterClosure)->Arg(500000)->Arg(2000000)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_UpdateVisible)
+    ->Args({0, 2000000})
+    ->Args({1, 500000})
+    ->Args({1, 2000000})
+    ->Unit(benchmark::kMicrosecond);
 BENCHMARK_MAIN();
