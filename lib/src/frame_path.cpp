@@ -1,8 +1,11 @@
 #include "depthfuse/frame_path.hpp"
 
+#include "depthfuse/base/log.hpp"
 #include "loop_closure.hpp"
 
 namespace depthfuse {
+
+DF_LOG_CATEGORY(Graph)
 
 FramePath::FramePath(IncrementalReconstructor& reconstructor, FrameStore* store,
                      bool background_loop_closure)
@@ -50,6 +53,12 @@ void FramePath::join_graph(const Frame& frame, const FrameReport& report, FrameO
                           reconstructor_.measurement()))
     return;
   outcome->keyframe = true;
+  const std::vector<GraphKeyframe>& keyframes = graph_.keyframes();
+  const Status added = reconstructor_.deformation().keyframe_added(
+      static_cast<uint32_t>(keyframes.size() - 1), keyframes.back().frame_id,
+      keyframes.back().T_world_kf);
+  if (!added) DF_LOG(Graph, Error) << "the map cannot follow keyframe " << keyframes.size() - 1
+                                   << ": " << added.message();
   GraphSnapshot snapshot;
   snapshot.keyframes = graph_.keyframes();
   snapshot.odometry = graph_.odometry();
@@ -63,6 +72,13 @@ std::optional<AppliedCorrection> FramePath::apply_correction() {
   if (!c) return std::nullopt;
   AppliedCorrection applied = graph_.apply(*c);
   reconstructor_.apply_correction(applied);
+  // The map follows the keyframes where the graph now has them, chunk by chunk from the next frame
+  // on (MapDeformation).
+  std::vector<Pose> T_world_kf;
+  T_world_kf.reserve(graph_.keyframes().size());
+  for (const GraphKeyframe& k : graph_.keyframes()) T_world_kf.push_back(k.T_world_kf);
+  const Result<uint32_t> version = reconstructor_.deformation().correct(T_world_kf);
+  if (!version) DF_LOG(Graph, Error) << "the map cannot follow the correction: " << version.status().message();
   return applied;
 }
 

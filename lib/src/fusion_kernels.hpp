@@ -57,6 +57,10 @@ DF_INLINE void set_information(PointState* s, const Sym3f& L) {
   s->info_yy = L.yy; s->info_yz = L.yz; s->info_zz = L.zz;
 }
 
+DF_INLINE Sym3f information_of(const PointState& s) {
+  return {s.info_xx, s.info_xy, s.info_xz, s.info_yy, s.info_yz, s.info_zz};
+}
+
 // Refines existing point i of `a` with a measurement: the merge rule's position p and information
 // L, and n, the running mean of the normals (running_mean_normal()); rgb may be null.
 DF_INLINE void refine_point(PointArrays& a, size_t i, const Eigen::Vector3f& p, const Sym3f& L,

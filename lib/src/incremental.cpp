@@ -32,6 +32,9 @@ bool may_reuse(const RegistrationConfig& c, int reused, const SurfaceView& last,
 IncrementalReconstructor::IncrementalReconstructor(const ReconstructionConfig& config)
     : config_(config.with_method(config.pipeline.method)),
       map_(std::make_unique<PointMap>(config.fusion.chunk_size_m)),
+      // A point lies within the sensor's range of its frame's camera, and the camera walks about a
+      // metre within a keyframe segment at most.
+      deformation_(config.sensor.max_depth_m + 1.0),
       fuser_(config_.sensor, config_.fusion),
       registrar_(config_.registration),
       relocaliser_(std::make_unique<Relocaliser>(config_.relocalisation)),
@@ -93,6 +96,19 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   report.prefilter_ms = ms_since(t0);
 
   Pose T = initial_pose(frame, prediction);
+  // After a loop closure, the map around the frame follows it before the frame meets the map.
+  const auto deform = [&](const auto& step) {
+    const auto t = Clock::now();
+    step();
+    report.deformation_ms += ms_since(t);
+  };
+  deformation_.set_current_frame(next_frame_id_);
+  deform([&] { deformation_.update_visible(map_.get(), scratch_, T); });
+  // The model rendered for an earlier frame shows the map before the last correction.
+  if (model_version_ != deformation_.version()) {
+    model_version_ = deformation_.version();
+    frames_since_model_ = 0;
+  }
   t0 = Clock::now();
   registrar_.set_frame_color(frame.color, scratch_);
   if (config_.registration.enabled && map_->point_count() > 0)
@@ -119,9 +135,16 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
           static_cast<float>(report.registration.model_fitness);
   }
 
+  // Registration may have moved the pose far (a relocalisation).
+  deform([&] { deformation_.update_visible_if_moved(map_.get(), scratch_, T); });
   t0 = Clock::now();
   report.fusion = fuser_.fuse(scratch_, &frame.color, T, next_frame_id_, map_.get());
   report.fusion_ms = ms_since(t0);
+  deform([&] {
+    report.swept_points = deformation_.sweep(
+        map_.get(), T.translation(),
+        static_cast<size_t>(std::max(1, config_.fusion.deform_points_per_frame)));
+  });
   fused_at(frame.utime, T);
   registrar_.keep_frame_as_photometric_reference(scratch_, T);
   ++next_frame_id_;
@@ -314,12 +337,15 @@ void IncrementalReconstructor::apply_correction(const AppliedCorrection& c) {
 }
 
 size_t IncrementalReconstructor::finish() {
+  bring_all_up_to_date();
   return config_.postfilter.enabled ? postfilter(map_.get()) : 0;
 }
 
 void IncrementalReconstructor::reset(std::unique_ptr<PointMap> map, uint32_t next_frame_id,
                                      const std::optional<Pose>& last_T_world_cam) {
   map_ = map ? std::move(map) : std::make_unique<PointMap>(config_.fusion.chunk_size_m);
+  deformation_.clear();
+  model_version_ = 0;
   frames_since_model_ = 0;
   relocaliser_->clear();
   recent_model_fitness_count_ = 0;

@@ -10,10 +10,10 @@
 
 namespace depthfuse {
 
-
-void ModelProjection::select_chunks(PointMap& map, const MeasurementImage& m,
-                                    const Pose& T_world_cam, float margin_m, int stride) {
-  keys_.clear();
+void frame_chunk_keys(const PointMap& map, const MeasurementImage& m, const Pose& T_world_cam,
+                      float margin_m, int stride, std::vector<ChunkKey>* keys,
+                      std::vector<ChunkKey>* near, bool in_front) {
+  keys->clear();
   const Eigen::Matrix3f R = T_world_cam.linear().cast<float>();
   const Eigen::Vector3f t = T_world_cam.translation().cast<float>();
   // Neighbouring samples name the same few chunks over and over: a small direct-mapped table of
@@ -37,22 +37,28 @@ void ModelProjection::select_chunks(PointMap& map, const MeasurementImage& m,
       if (!m.valid[i]) continue;
       const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);
       for (float f : {1.0f, 0.95f, 0.9f}) {
-        near_.clear();
-        map.keys_near(R * (f * p_c) + t, margin_m, &near_);
-        for (const ChunkKey& k : near_) {
+        if (f < 1.0f && !in_front) break;
+        near->clear();
+        map.keys_near(R * (f * p_c) + t, margin_m, near);
+        for (const ChunkKey& k : *near) {
           const size_t slot = hash(k) % kSeen;
           if (seen_used[slot] && seen[slot] == k) continue;
           seen[slot] = k;
           seen_used[slot] = true;
-          keys_.push_back(k);
+          keys->push_back(k);
         }
       }
     }
   }
-  std::sort(keys_.begin(), keys_.end(), [](const ChunkKey& a, const ChunkKey& b) {
+  std::sort(keys->begin(), keys->end(), [](const ChunkKey& a, const ChunkKey& b) {
     return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
   });
-  keys_.erase(std::unique(keys_.begin(), keys_.end()), keys_.end());
+  keys->erase(std::unique(keys->begin(), keys->end()), keys->end());
+}
+
+void ModelProjection::select_chunks(PointMap& map, const MeasurementImage& m,
+                                    const Pose& T_world_cam, float margin_m, int stride) {
+  frame_chunk_keys(map, m, T_world_cam, margin_m, stride, &keys_, &near_);
   chunks_.clear();
   for (const ChunkKey& k : keys_) {
     if (Chunk* c = map.find(k)) {

@@ -47,11 +47,17 @@ DF_INLINE float pixel_offset2(float x, float y, float z, float fx, float fy, flo
   return du * du + dv * dv;
 }
 
+// The keys of the chunks a frame sees from T_world_cam, existing or not, sorted and each once:
+// those its measurements (sampled every `stride` pixels) and, if in_front, the stretch of each ray
+// just in front of the surface (0.9 to 1.0 of the range, where a seen-through point would be) fall
+// in, each dilated where a point lies within margin_m of a chunk face. `near` is scratch.
+void frame_chunk_keys(const PointMap& map, const MeasurementImage& m, const Pose& T_world_cam,
+                      float margin_m, int stride, std::vector<ChunkKey>* keys,
+                      std::vector<ChunkKey>* near, bool in_front = true);
+
 class ModelProjection {
  public:
-  // Chunks touched by the measurements seen from T_world_cam (sampled every `stride` pixels), and
-  // the stretch of each ray just in front of the surface (0.9 to 1.0 of the range, where a seen-
-  // through point would be), each dilated where a point lies within margin_m of a chunk face.
+  // The chunks of frame_chunk_keys() that exist and hold points, for render().
   void select_chunks(PointMap& map, const MeasurementImage& m, const Pose& T_world_cam,
                      float margin_m, int stride = 8);
 

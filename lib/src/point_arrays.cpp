@@ -93,17 +93,12 @@ bool PointArrays::operator==(const PointArrays& o) const {
 }
 
 float uncertainty_m(const PointArrays& a, size_t i) {
-  // The covariance's trace is the information matrix's diagonal cofactors summed over its
-  // determinant: no inverse is formed, which makes this a quarter of the cost of one (the map
-  // preview calls it for every point of the chunks it sends).
-  const PointState& s = a.state[i];
-  const float c_xx = s.info_yy * s.info_zz - s.info_yz * s.info_yz;
-  const float c_yy = s.info_xx * s.info_zz - s.info_xz * s.info_xz;
-  const float c_zz = s.info_xx * s.info_yy - s.info_xy * s.info_xy;
-  const float det = s.info_xx * c_xx - s.info_xy * (s.info_xy * s.info_zz - s.info_yz * s.info_xz) +
-                    s.info_xz * (s.info_xy * s.info_yz - s.info_yy * s.info_xz);
+  // No inverse is formed, which makes this a quarter of the cost of one (the map preview calls it
+  // for every point of the chunks it sends).
+  float cofactors, det;
+  covariance_trace_parts(a.state[i], &cofactors, &det);
   if (!(det > 0.0f)) return std::numeric_limits<float>::infinity();
-  return std::sqrt(std::max(0.0f, (c_xx + c_yy + c_zz) / (3.0f * det)));
+  return std::sqrt(std::max(0.0f, cofactors / (3.0f * det)));
 }
 
 }  // namespace depthfuse

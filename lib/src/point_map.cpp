@@ -45,7 +45,11 @@ const Chunk* PointMap::find(const ChunkKey& key) const {
   return it == chunks_.end() ? nullptr : &it->second;
 }
 
-Chunk& PointMap::get_or_create(const ChunkKey& key) { return chunks_[key]; }
+Chunk& PointMap::get_or_create(const ChunkKey& key) {
+  const auto [it, created] = chunks_.try_emplace(key);
+  if (created) it->second.version = version_;
+  return it->second;
+}
 
 void PointMap::insert(const ChunkKey& key, Chunk chunk) { chunks_[key] = std::move(chunk); }
 

@@ -48,6 +48,7 @@ void expect_config_eq(const AppConfig& a, const AppConfig& b) {
   EXPECT_EQ(ra.fusion.normal_radius_px, rb.fusion.normal_radius_px);
   EXPECT_EQ(ra.fusion.redundancy_gate, rb.fusion.redundancy_gate);
   EXPECT_EQ(ra.fusion.redundancy_min_merges, rb.fusion.redundancy_min_merges);
+  EXPECT_EQ(ra.fusion.deform_points_per_frame, rb.fusion.deform_points_per_frame);
   EXPECT_EQ(ra.postfilter.enabled, rb.postfilter.enabled);
   EXPECT_EQ(ra.registration.enabled, rb.registration.enabled);
   EXPECT_EQ(ra.registration.iterations, rb.registration.iterations);
@@ -160,6 +161,7 @@ candidate_radius_px = 2
 normal_radius_px = 3
 redundancy_gate = 1.5
 redundancy_min_merges = 4
+deform_points_per_frame = 5000
 
 [postfilter]
 enabled = false
@@ -256,6 +258,7 @@ publish_rate_hz = 0.5
   EXPECT_EQ(f.normal_radius_px, 3);
   EXPECT_EQ(f.redundancy_gate, 1.5);
   EXPECT_EQ(f.redundancy_min_merges, 4);
+  EXPECT_EQ(f.deform_points_per_frame, 5000);
   EXPECT_FALSE(c.reconstruction.postfilter.enabled);
   const RegistrationConfig& g = c.reconstruction.registration;
   EXPECT_FALSE(g.enabled);
@@ -421,6 +424,7 @@ TEST(AppConfig, OutOfRangeValuesAreErrors) {
       {"fusion", "normal_radius_px", "0", "must be >= 1, got 0"},
       {"fusion", "redundancy_gate", "-1", "must be >= 0, got -1"},
       {"fusion", "redundancy_min_merges", "-2", "must be >= 0, got -2"},
+      {"fusion", "deform_points_per_frame", "0", "must be >= 1, got 0"},
       {"registration", "iterations", "-1", "must be >= 0, got -1"},
       {"registration", "subsample_px", "0", "must be >= 1, got 0"},
       {"registration", "max_correspondence_m", "0", "must be > 0, got 0"},

@@ -97,6 +97,7 @@ void read_fusion(TableReader& r, FusionConfig* f) {
   r.read("normal_radius_px", &f->normal_radius_px, at_least(1));
   r.read("redundancy_gate", &f->redundancy_gate, non_negative());
   r.read("redundancy_min_merges", &f->redundancy_min_merges, non_negative());
+  r.read("deform_points_per_frame", &f->deform_points_per_frame, at_least(1));
   r.read("threads", &f->threads, closed(1, 2));
   r.reject_unknown();
 }

@@ -48,6 +48,10 @@ struct FusionConfig {
   // config/depthfuse.toml).
   double redundancy_gate = 2.0;
   int redundancy_min_merges = 10;
+  // After a loop closure the map follows the corrected poses (MapDeformation): besides the chunks
+  // a frame sees, each frame brings at most about this many more points up to date (whole chunks,
+  // nearest to the camera first).
+  int deform_points_per_frame = 50000;
 };
 
 struct PostfilterConfig {

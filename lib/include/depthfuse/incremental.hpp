@@ -9,6 +9,7 @@
 
 #include "depthfuse/config.hpp"
 #include "depthfuse/fusion.hpp"
+#include "depthfuse/map_deformation.hpp"
 #include "depthfuse/measurement.hpp"
 #include "depthfuse/point_map.hpp"
 #include "depthfuse/registration.hpp"
@@ -35,6 +36,11 @@ struct FrameReport {
   size_t prefiltered = 0;                // measurements the pre-filter removed
   double prefilter_ms = 0, registration_ms = 0, fusion_ms = 0;
   double relocalisation_ms = 0;          // the keyframe search, part of registration_ms
+  // Bringing chunks up to date after a loop closure (MapDeformation): those the frame sees, before
+  // registration and before fusion, and the sweep after it, which went over swept_points points
+  // (fusion.deform_points_per_frame and at most a chunk more).
+  double deformation_ms = 0;
+  size_t swept_points = 0;
 };
 
 class Relocaliser;
@@ -94,8 +100,17 @@ class IncrementalReconstructor {
   // The last frame's measurements (back-projected, normals, pre-filtered): a keyframe's points.
   const MeasurementImage& measurement() const { return scratch_; }
 
-  // Post-filter the whole map (end of scan).
+  // Post-filter the whole map (end of scan), after bringing it up to date.
   size_t finish();
+
+  // How the map follows the pose graph: keyframes are added to it and loop closures correct it
+  // (MapDeformation). process() brings the chunks a frame sees up to date before it is registered
+  // and fused, and after fusion sweeps fusion.deform_points_per_frame points of the others.
+  MapDeformation& deformation() { return deformation_; }
+  const MapDeformation& deformation() const { return deformation_; }
+  // The whole map in the current version (export, evaluation): what map() users that need every
+  // chunk consistent call first. Returns the points brought up to date.
+  size_t bring_all_up_to_date() { return deformation_.bring_all_up_to_date(map_.get()); }
 
   PointMap& map() { return *map_; }
   const PointMap& map() const { return *map_; }
@@ -152,11 +167,13 @@ class IncrementalReconstructor {
 
   ReconstructionConfig config_;
   std::unique_ptr<PointMap> map_;
+  MapDeformation deformation_;
   Fuser fuser_;
   Registrar registrar_;
   std::unique_ptr<Relocaliser> relocaliser_;
   MeasurementImage scratch_;
   int frames_since_model_ = 0;  // frames registered to the Registrar's last rendered model
+  uint32_t model_version_ = 0;  // the map's version (MapDeformation) when it was rendered
   std::optional<Pose> last_T_world_cam_;
   // The last two frames fused, stamped: the camera's velocity through the next frame, for a
   // rolling shutter (camera_velocity_through_next()).

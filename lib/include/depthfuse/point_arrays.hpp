@@ -77,6 +77,18 @@ inline Eigen::Matrix3f information_matrix(const PointArrays& a, size_t i) {
        s.info_xz, s.info_yz, s.info_zz;
   return m;
 }
+// The trace of a point's covariance (the inverse of its information) as the sum of the
+// information's diagonal cofactors over its determinant: no inverse is formed. Writes both; the
+// information is singular where !(det > 0).
+inline void covariance_trace_parts(const PointState& s, float* cofactor_sum, float* det) {
+  const float c_xx = s.info_yy * s.info_zz - s.info_yz * s.info_yz;
+  const float c_yy = s.info_xx * s.info_zz - s.info_xz * s.info_xz;
+  const float c_zz = s.info_xx * s.info_yy - s.info_xy * s.info_xy;
+  *det = s.info_xx * c_xx - s.info_xy * (s.info_xy * s.info_zz - s.info_yz * s.info_xz) +
+         s.info_xz * (s.info_xy * s.info_yz - s.info_yy * s.info_xz);
+  *cofactor_sum = c_xx + c_yy + c_zz;
+}
+
 // A scalar uncertainty for reports and export: sqrt of the mean covariance eigenvalue, in metres.
 float uncertainty_m(const PointArrays& a, size_t i);
 

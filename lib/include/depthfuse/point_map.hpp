@@ -32,6 +32,9 @@ struct Chunk {
   PointArrays points;
   uint32_t last_touched_frame = 0;  // for eviction: the newest frame that observed this chunk
   bool dirty = true;                // changed since it was last written to a checkpoint
+  // The pose graph's version the points are expressed in (MapDeformation): older than the map's
+  // version() means a loop closure has moved their keyframes since, and they have not followed yet.
+  uint32_t version = 0;
 };
 
 class PointMap {
@@ -49,9 +52,16 @@ class PointMap {
 
   Chunk* find(const ChunkKey& key);
   const Chunk* find(const ChunkKey& key) const;
+  // A chunk it creates is at version().
   Chunk& get_or_create(const ChunkKey& key);
-  // Takes a chunk in (e.g. loaded from a checkpoint), replacing any chunk with that key.
+  // Takes a chunk in (e.g. loaded from a checkpoint), replacing any chunk with that key. The chunk
+  // keeps its own version.
   void insert(const ChunkKey& key, Chunk chunk);
+
+  // The pose graph's version new points are fused in, and new chunks created at (MapDeformation
+  // keeps it; 0 until the first loop closure).
+  uint32_t version() const { return version_; }
+  void set_version(uint32_t version) { version_ = version; }
   // Removes a chunk and hands it back (e.g. to be written out). Empty optional if absent.
   bool extract(const ChunkKey& key, Chunk* out);
   void clear();
@@ -75,6 +85,7 @@ class PointMap {
   double chunk_size_m_;
   float inv_chunk_size_;
   std::unordered_map<ChunkKey, Chunk, ChunkKeyHash> chunks_;
+  uint32_t version_ = 0;
 };
 
 }  // namespace depthfuse
