@@ -6,7 +6,12 @@ Each estimated pose is paired with the ground-truth pose of the nearest stamp wi
 the true ones by the best rigid motion (Horn / Umeyama without scale), and the residual distances
 give the RMSE, the worst, and how many exceed --over-m.
 
-  ate.py EST.traj GROUNDTRUTH.txt [--max-dt-s 0.02] [--over-m 0.05] [--per-frame FILE] [--json]
+  ate.py EST.traj GROUNDTRUTH.txt [--max-dt-s 0.02] [--over-m 0.05] [--offset-s S]
+         [--per-frame FILE] [--json]
+
+--offset-s is added to the estimate's stamps before pairing (TUM's evaluate_ate.py --offset): for a
+reference whose clock is known to be off, e.g. TUM fr1's motion capture, about 25 ms ahead of the
+depth stamps by the colour images' witness (docs/results.md), -0.025.
 
 --per-frame writes one line per paired pose: index in EST, stamp, error (m). Needs numpy only.
 """
@@ -47,10 +52,12 @@ def main():
     p.add_argument("groundtruth")
     p.add_argument("--max-dt-s", type=float, default=0.02)
     p.add_argument("--over-m", type=float, default=0.05)
+    p.add_argument("--offset-s", type=float, default=0.0)
     p.add_argument("--per-frame")
     p.add_argument("--json", action="store_true")
     a = p.parse_args()
     ts, est = read_tum(a.estimate)
+    ts = ts + a.offset_s
     tg, gt = read_tum(a.groundtruth)
     if len(ts) == 0 or len(tg) == 0:
         sys.exit("ate.py: an empty trajectory")
