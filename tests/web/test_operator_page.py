@@ -93,6 +93,15 @@ def monitor_counters(base):
     return (me[0]["counters"], me[0]["last_error"]) if me else ({}, "")
 
 
+def counted(base, expect, what, timeout_s=5):
+    """Waits until the monitor's counters hold `expect`; the failure shows them as they are then."""
+    try:
+        eventually(lambda: all(monitor_counters(base)[0].get(k) == v for k, v in expect.items()),
+                   timeout_s, what)
+    except Failure as e:
+        raise Failure("%s (expected %s): %s" % (e, expect, monitor_counters(base)[0]))
+
+
 def status_utime(base):
     code, body = http(base, "api/status")
     check(code == 200, "GET /api/status answered %d" % code)
@@ -201,10 +210,9 @@ def test_correction(browser, base, sender):
         check(r.returncode == 0, "depthfuse_web_graph_sender failed: %s" % r.stderr)
     send(scan, "--spoil", "--dx", "1")
     send("another-scan", "--dx", "1")
-    eventually(lambda: monitor_counters(base)[0].get("graph_corrections_malformed") == 1 and
-               monitor_counters(base)[0].get("graph_corrections_other_scan") == 1, 5,
-               "the monitor did not count a broken correction and one of another scan: %s" %
-               (monitor_counters(base)[0],))
+    counted(base, {"graph_corrections_malformed": 1, "graph_corrections_other_scan": 1,
+                   "graph_corrections_applied": 0},
+            "the monitor did not count a broken correction and one of another scan as such")
     check(path()[:len(before)] == before and browser.evaluate("dfState.corrections.length") == 0,
           "a broken correction, or one of another scan, moved the page's path")
     # Every keyframe from sequence 0 on (so the whole path) turns 90 degrees about z, then moves.
@@ -221,18 +229,25 @@ def test_correction(browser, base, sender):
               "position %d of the path: %s, expected %s (was %s)" % (i // 3, after[i:i + 3], expect, before[i:i + 3]))
     note = browser.evaluate("(e => e.hidden ? '' : e.textContent)(document.getElementById('correction-note'))")
     check("correction 1 moved the path" in note, "the page's note of the correction: %r" % note)
-    eventually(lambda: monitor_counters(base)[0].get("graph_corrections_applied") == 1, 5,
-               "the monitor did not count the correction: %s" % (monitor_counters(base)[0],))
+    counted(base, {"graph_corrections_applied": 1}, "the monitor did not count the correction")
 
     # The closure line: the fusion daemon's counters, as the status the page has carries them.
     c = browser.evaluate("JSON.stringify(dfState.status.daemons.find(d => d.name === 'fusion').counters)")
     c = json.loads(c)
-    line = browser.evaluate("document.getElementById('graph').textContent")
+    real_line = browser.evaluate("document.getElementById('graph').textContent")
     last = ("%d correction" % c["graph_corrections"]) if c["graph_corrections"] else "no correction yet"
     for part in ("pose graph: %d keyframe" % c["keyframes"], "%d loop closure" % c["loop_closures"], last):
-        check(part in line, "the closure line %r lacks %r (counters %s)" % (line, part, c))
+        check(part in real_line, "the closure line %r lacks %r (counters %s)" % (real_line, part, c))
+    # The synthetic scan (with pose hints) builds no pose graph: the line as a scan with closures
+    # makes it, drawn from counters in one go (the next status redraws it).
+    line = browser.evaluate("showGraph({keyframes: 52, loop_closures: 30, graph_corrections: 3, "
+                            "last_correction_mm: 4.5, loop_candidates: 40, loops_gated: 6, loops_rejected: 4}),"
+                            " document.getElementById('graph').textContent")
+    check(line == "pose graph: 52 keyframes, 30 loop closures, 3 corrections (last moved the map 4.5 mm)",
+          "the closure line for a scan with closures: %r" % line)
+    browser.evaluate("showGraph(dfState.status.daemons.find(d => d.name === 'fusion').counters)")
     print("correction: the page's path (%d positions) moved as sent, noted; broken and foreign ones "
-          "counted and ignored; %r" % (len(before) // 3, line))
+          "counted and ignored; %r" % (len(before) // 3, real_line))
 
 
 def test_remote_needs_key(args, url, work):
