@@ -4,6 +4,8 @@
 #include <cstring>
 
 #include "depthfuse/daemon/status_json.hpp"
+#include "depthfuse/lcm/frame_codec.hpp"
+#include "keyframe_motions.hpp"
 
 namespace depthfuse::monitor {
 
@@ -71,6 +73,9 @@ MapStore::Accepted MapStore::apply(const depthfuse::map_delta_t& msg, bool* want
     chunks_.clear();
     by_version_.clear();
     trajectory_.clear();
+    trajectory_sequence_.clear();
+    correction_ = 0;
+    correction_json_.clear();
     bytes_ = points_ = 0;
     *want_snapshot = !msg.scan_id.empty();
   } else if (msg.sequence != last_sequence_ + 1 && !msg.scan_id.empty()) {
@@ -115,7 +120,10 @@ MapStore::Accepted MapStore::apply(const depthfuse::map_delta_t& msg, bool* want
     const size_t n = trajectory_.size();
     const bool moved = n < 3 || std::hypot(p[0] - trajectory_[n - 3], p[1] - trajectory_[n - 2],
                                            p[2] - trajectory_[n - 1]) >= kMinPoseStepM;
-    if (moved && n / 3 < kMaxTrajectoryPoses) trajectory_.insert(trajectory_.end(), p, p + 3);
+    if (moved && n / 3 < kMaxTrajectoryPoses) {
+      trajectory_.insert(trajectory_.end(), p, p + 3);
+      trajectory_sequence_.push_back(msg.frame_sequence);
+    }
   }
   last_ = msg;
   last_.chunks.clear();
@@ -124,6 +132,49 @@ MapStore::Accepted MapStore::apply(const depthfuse::map_delta_t& msg, bool* want
   pose_json_ = pose_json();  // once per delta, for every page and push
   ++pose_version_;
   return result;
+}
+
+MapStore::Accepted MapStore::apply(const depthfuse::graph_correction_t& msg, Status* problem) {
+  auto motions = KeyframeMotions::from_message(msg);
+  if (!motions) {
+    *problem = motions.status();
+    return Accepted::kMalformed;
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (msg.scan_id.empty() || msg.scan_id != scan_id_ || msg.sender != sender_) {
+    *problem = invalid_argument("graph correction for scan '" + msg.scan_id + "' of '" + msg.sender +
+                                "', while the map is scan '" + scan_id_ + "' of '" + sender_ + "'");
+    return Accepted::kOtherScan;
+  }
+  size_t moved = 0;
+  for (size_t i = 0; i < trajectory_sequence_.size(); ++i) {
+    const Pose* motion = motions->of(trajectory_sequence_[i]);
+    if (!motion) continue;
+    float* p = &trajectory_[3 * i];
+    const Eigen::Vector3d q = *motion * Eigen::Vector3d(p[0], p[1], p[2]);
+    for (int k = 0; k < 3; ++k) p[k] = static_cast<float>(q[k]);
+    ++moved;
+  }
+  // The camera moves too, so that the frustum stays at the end of the path until the next delta.
+  if (have_last_ && last_.has_pose) {
+    if (const Pose* motion = motions->of(last_.frame_sequence)) {
+      auto T_world_cam = lcm::pose_from_arrays(last_.position_m, last_.orientation_wxyz);
+      if (T_world_cam) {
+        lcm::pose_to_arrays(*motion * *T_world_cam, last_.position_m, last_.orientation_wxyz);
+        pose_json_ = pose_json();
+        ++pose_version_;
+      }
+    }
+  }
+  ++path_version_;
+  ++correction_;
+  using daemon::json_number;
+  correction_json_ = "{\"type\": \"correction\", \"version\": " + std::to_string(msg.version) +
+                     ", \"loops\": " + std::to_string(msg.loops) +
+                     ", \"keyframes\": " + std::to_string(msg.num_keyframes) +
+                     ", \"max_translation_m\": " + json_number(msg.max_translation_m) +
+                     ", \"poses_moved\": " + std::to_string(moved) + "}";
+  return Accepted::kOk;
 }
 
 std::string MapStore::pose_json() const {
@@ -154,11 +205,16 @@ void MapStore::changes(Cursor* cursor, size_t max_bytes, std::vector<std::string
   std::lock_guard<std::mutex> lock(mutex_);
   if (cursor->epoch != epoch_) {
     text->push_back("{\"type\": \"reset\", \"scan_id\": " + daemon::json_string(scan_id_) + "}");
-    *cursor = Cursor{epoch_, 0, 0};
+    // A new page, or a new map: the path it gets is already corrected, and so no note.
+    *cursor = Cursor{epoch_, 0, 0, 0, path_version_, correction_};
   }
   if (have_last_ && cursor->pose_version != pose_version_) {
     text->push_back(pose_json_);
     cursor->pose_version = pose_version_;
+  }
+  if (cursor->path_version != path_version_) {
+    cursor->path_version = path_version_;
+    cursor->trajectory = 0;  // a correction moved the path: all of it again
   }
   if (cursor->trajectory < trajectory_.size()) {
     std::string j = "{\"type\": \"trajectory\", \"from\": " + std::to_string(cursor->trajectory / 3) +
@@ -167,6 +223,10 @@ void MapStore::changes(Cursor* cursor, size_t max_bytes, std::vector<std::string
       j += (i > cursor->trajectory ? ", " : "") + daemon::json_number(trajectory_[i]);
     text->push_back(j + "]}");
     cursor->trajectory = trajectory_.size();
+  }
+  if (cursor->correction != correction_) {
+    text->push_back(correction_json_);
+    cursor->correction = correction_;
   }
   size_t bytes = 0;
   for (auto it = by_version_.upper_bound(cursor->version); it != by_version_.end(); ++it) {

@@ -6,9 +6,11 @@
 #include "depthfuse/daemon/operator_command.hpp"
 #include "depthfuse/daemon/process_info.hpp"
 #include "depthfuse/daemon/status_json.hpp"
+#include "depthfuse/graph_correction_t.hpp"
 #include "depthfuse/lcm/channels.hpp"
 #include "depthfuse/map_delta_t.hpp"
 #include "depthfuse/map_request_t.hpp"
+#include "keyframe_motions.hpp"
 
 DF_LOG_CATEGORY(OperatorView)
 
@@ -36,6 +38,8 @@ Result<std::unique_ptr<OperatorView>> OperatorView::start(const WebServerOptions
   view->server_ = std::move(*server);
   lcm->subscribe(lcm::kMapChannel, [v](const std::string&, const uint8_t* data, size_t size,
                                        int64_t) { v->on_map(data, size); });
+  lcm->subscribe(lcm::kGraphChannel, [v](const std::string&, const uint8_t* data, size_t size,
+                                         int64_t) { v->on_graph(data, size); });
   DF_LOG(OperatorView, Info) << "the operator's page is at " << view->server_->url();
   return view;
 }
@@ -52,6 +56,40 @@ void OperatorView::on_map(const uint8_t* data, size_t size) {
                           ? lcm::DecodeResult::kOk
                           : lcm::DecodeResult::kMalformed);
   want_snapshot_ = want_snapshot_ || want;
+}
+
+void OperatorView::on_graph(const uint8_t* data, size_t size) {
+  // Refused before it is decoded: no correction of a scan is this large.
+  if (size > KeyframeMotions::kMaxEncodedBytes) {
+    if (graph_counters_.malformed.fetch_add(1) == 0)
+      DF_LOG(OperatorView, Warning) << "graph correction of " << size << " bytes refused (at most "
+                                    << KeyframeMotions::kMaxEncodedBytes
+                                    << "; further refusals are only counted)";
+    return;
+  }
+  depthfuse::graph_correction_t msg;
+  const auto r = lcm::decode_message(data, size, &msg);
+  if (r != lcm::DecodeResult::kOk) {
+    graph_counters_.count(r);
+    return;
+  }
+  Status problem;
+  switch (store_.apply(msg, &problem)) {
+    case MapStore::Accepted::kOk:
+      ++graph_counters_.received;
+      DF_LOG(OperatorView, Info) << "loop closure " << msg.version << " of scan " << msg.scan_id
+                                 << ": the camera's path moved up to "
+                                 << msg.max_translation_m * 1e3 << " mm";
+      return;
+    case MapStore::Accepted::kMalformed:
+      if (graph_counters_.malformed.fetch_add(1) == 0)
+        DF_LOG(OperatorView, Warning) << problem.to_string() << " (further refusals are only counted)";
+      return;
+    case MapStore::Accepted::kOtherScan:
+      if (graph_other_scan_.fetch_add(1) == 0)
+        DF_LOG(OperatorView, Warning) << problem.to_string() << ": ignored (further ones are only counted)";
+      return;
+  }
 }
 
 void OperatorView::on_heartbeat(const depthfuse::heartbeat_t& hb) {
@@ -124,6 +162,11 @@ void OperatorView::add_counters(depthfuse::heartbeat_t* hb) const {
   daemon::add_counter(hb, "map_deltas", static_cast<double>(map_counters_.received.load()));
   daemon::add_counter(hb, "map_deltas_malformed", static_cast<double>(map_counters_.malformed.load()));
   daemon::add_counter(hb, "map_preview_points", static_cast<double>(store_.point_count()));
+  daemon::add_counter(hb, "graph_corrections_applied", static_cast<double>(graph_counters_.received.load()));
+  daemon::add_counter(hb, "graph_corrections_malformed",
+                      static_cast<double>(graph_counters_.malformed.load() + graph_counters_.bad_version.load() +
+                                          graph_counters_.foreign.load()));
+  daemon::add_counter(hb, "graph_corrections_other_scan", static_cast<double>(graph_other_scan_.load()));
   daemon::add_counter(hb, "page_commands_sent", static_cast<double>(commands_sent_));
   daemon::add_counter(hb, "page_commands_unacknowledged", static_cast<double>(commands_unacknowledged_));
   // What the web server refused or dropped (web_limits.hpp).

@@ -1,9 +1,11 @@
 // The monitor's side of the operator's page, on the monitor's LCM thread: takes the fusion
-// daemon's map deltas into the MapStore (asking for a snapshot when it joined late or missed
-// deltas), hands each status to the web server, and sends the page's commands as command_t,
+// daemon's map deltas and loop closures' corrections (DEPTHFUSE_GRAPH, which move the camera's
+// path) into the MapStore (asking for a snapshot when it joined late or missed deltas), hands
+// each status to the web server, and sends the page's commands as command_t,
 // repeated every 500 ms until the fusion daemon acknowledges them (as `depthfuse scan` does).
 #pragma once
 
+#include <atomic>
 #include <chrono>
 #include <cstdint>
 #include <deque>
@@ -23,7 +25,7 @@ namespace depthfuse::monitor {
 
 class OperatorView {
  public:
-  // Subscribes to the map channel; the server starts serving at once.
+  // Subscribes to the map and graph channels; the server starts serving at once.
   static Result<std::unique_ptr<OperatorView>> start(const WebServerOptions& options,
                                                      lcm::LcmTransport* lcm);
 
@@ -31,7 +33,7 @@ class OperatorView {
   void on_heartbeat(const depthfuse::heartbeat_t& hb);  // acknowledgements
   void on_status(const depthfuse::status_t& st);
   void poll();  // resends unacknowledged commands, asks for snapshots
-  // Its counters (map deltas, the page's commands sent and refused) and, as the last error, the
+  // Its counters (map deltas, graph corrections, the page's commands sent and refused) and, as the last error, the
   // page's last refused command.
   void add_counters(depthfuse::heartbeat_t* hb) const;
 
@@ -46,6 +48,7 @@ class OperatorView {
   };
   explicit OperatorView(lcm::LcmTransport* lcm) : lcm_(lcm) {}
   void on_map(const uint8_t* data, size_t size);
+  void on_graph(const uint8_t* data, size_t size);
   // Any web server thread.
   Result<int64_t> queue_command(const std::string& action, const std::string& argument);
 
@@ -53,6 +56,10 @@ class OperatorView {
   MapStore store_;
   std::unique_ptr<WebServer> server_;
   lcm::ReceiveCounters map_counters_;
+  // Corrections applied (received), refused as broken, too large or of another type or version,
+  // and those of another scan or fusion daemon.
+  lcm::ReceiveCounters graph_counters_;
+  std::atomic<int64_t> graph_other_scan_{0};
   bool want_snapshot_ = true;
   Clock::time_point last_request_{};
   int64_t commands_sent_ = 0, commands_unacknowledged_ = 0;

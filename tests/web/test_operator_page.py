@@ -12,7 +12,10 @@ processes on a per-test LCM port, all with a rig key of the test's, then:
   3. headless chromium (driven over the DevTools protocol on a pipe) loads the page, which asks
      for the key; with a wrong key, Start is refused (and counted), and the page asks again; with
      the right key, Start must start a scan, observed in the fusion daemon's own heartbeat on LCM
-     (tools/lcm/watch.py); the cloud must then have points; a click on Pause must pause;
+     (tools/lcm/watch.py); the cloud must then have points; a click on Pause must pause; a loop
+     closure's correction published on LCM must move the path the page draws by its motion (a
+     broken one and one of another scan are counted and ignored), and the closure line must show
+     the fusion daemon's pose graph counters;
   4. a screenshot goes to <out>/operator-page.png; a click on Stop ends the scan, and its map
      stays on the page.
 Exit 0 pass, 1 fail, 77 skipped (no chromium).
@@ -88,6 +91,15 @@ def monitor_counters(base):
     st = json.loads(http(base, "api/status")[1])
     me = [d for d in st.get("daemons", []) if d["name"] == "monitor"]
     return (me[0]["counters"], me[0]["last_error"]) if me else ({}, "")
+
+
+def counted(base, expect, what, timeout_s=5):
+    """Waits until the monitor's counters hold `expect`; the failure shows them as they are then."""
+    try:
+        eventually(lambda: all(monitor_counters(base)[0].get(k) == v for k, v in expect.items()),
+                   timeout_s, what)
+    except Failure as e:
+        raise Failure("%s (expected %s): %s" % (e, expect, monitor_counters(base)[0]))
 
 
 def status_utime(base):
@@ -176,6 +188,66 @@ def test_signed_commands(base, key, heartbeats):
     eventually(counted, 5, "the monitor's status does not count the refusals %s and 2 verified, "
                "or still names a refusal after a command verified: %s" % (expect, monitor_counters(base)))
     return expect
+
+
+def test_correction(browser, base, sender):
+    """A loop closure's correction on LCM (as the fusion daemon sends it, signed with the rig key)
+    moves the path the page draws, and the page notes it; a broken one and one of another scan are
+    counted by the monitor and change nothing. The closure line shows the fusion daemon's pose graph
+    counters. Called with the scan paused, so that the path holds still."""
+    scan = browser.evaluate("dfState.pose && dfState.pose.scan_id")
+    check(scan, "the page has no scan id: %s" % browser.evaluate("JSON.stringify(dfState.pose)"))
+    path = lambda: browser.evaluate("Array.from(dfState.path)")
+
+    def settled():
+        a = path()
+        time.sleep(1.0)
+        return a if a and a == path() else None
+    before = eventually(settled, 10, "the page's path kept changing while the scan was paused")
+
+    def send(*extra):
+        r = subprocess.run(sender + ["--scan-id"] + list(extra), capture_output=True, text=True, timeout=20)
+        check(r.returncode == 0, "depthfuse_web_graph_sender failed: %s" % r.stderr)
+    send(scan, "--spoil", "--dx", "1")
+    send("another-scan", "--dx", "1")
+    counted(base, {"graph_corrections_malformed": 1, "graph_corrections_other_scan": 1,
+                   "graph_corrections_applied": 0},
+            "the monitor did not count a broken correction and one of another scan as such")
+    check(path()[:len(before)] == before and browser.evaluate("dfState.corrections.length") == 0,
+          "a broken correction, or one of another scan, moved the page's path")
+    # Every keyframe from sequence 0 on (so the whole path) turns 90 degrees about z, then moves.
+    send(scan, "--first-sequence", "0", "--yaw-deg", "90", "--dx", "0.5", "--dy", "-0.25", "--dz", "1")
+    eventually(lambda: browser.evaluate("dfState.corrections.length") == 1, 10,
+               "the page got no note of the correction")
+    after = path()
+    # A delta after it may add the camera's (uncorrected) pose at the end: only the old ones count.
+    check(len(after) >= len(before), "the path lost positions: %d, was %d" % (len(after), len(before)))
+    for i in range(0, len(before), 3):
+        x, y, z = before[i:i + 3]
+        expect = (-y + 0.5, x - 0.25, z + 1)
+        check(all(abs(a - e) < 1e-3 for a, e in zip(after[i:i + 3], expect)),
+              "position %d of the path: %s, expected %s (was %s)" % (i // 3, after[i:i + 3], expect, before[i:i + 3]))
+    note = browser.evaluate("(e => e.hidden ? '' : e.textContent)(document.getElementById('correction-note'))")
+    check("correction 1 moved the path" in note, "the page's note of the correction: %r" % note)
+    counted(base, {"graph_corrections_applied": 1}, "the monitor did not count the correction")
+
+    # The closure line: the fusion daemon's counters, as the status the page has carries them.
+    c = browser.evaluate("JSON.stringify(dfState.status.daemons.find(d => d.name === 'fusion').counters)")
+    c = json.loads(c)
+    real_line = browser.evaluate("document.getElementById('graph').textContent")
+    last = ("%d correction" % c["graph_corrections"]) if c["graph_corrections"] else "no correction yet"
+    for part in ("pose graph: %d keyframe" % c["keyframes"], "%d loop closure" % c["loop_closures"], last):
+        check(part in real_line, "the closure line %r lacks %r (counters %s)" % (real_line, part, c))
+    # The synthetic scan (with pose hints) builds no pose graph: the line as a scan with closures
+    # makes it, drawn from counters in one go (the next status redraws it).
+    line = browser.evaluate("showGraph({keyframes: 52, loop_closures: 30, graph_corrections: 3, "
+                            "last_correction_mm: 4.5, loop_candidates: 40, loops_gated: 6, loops_rejected: 4}),"
+                            " document.getElementById('graph').textContent")
+    check(line == "pose graph: 52 keyframes, 30 loop closures, 3 corrections (last moved the map 4.5 mm)",
+          "the closure line for a scan with closures: %r" % line)
+    browser.evaluate("showGraph(dfState.status.daemons.find(d => d.name === 'fusion').counters)")
+    print("correction: the page's path (%d positions) moved as sent, noted; broken and foreign ones "
+          "counted and ignored; %r" % (len(before) // 3, real_line))
 
 
 def test_remote_needs_key(args, url, work):
@@ -276,6 +348,7 @@ def run(args, work):
         browser.click("btn-pause")
         eventually(lambda: heartbeats.get("fusion")["state"] == HEARTBEAT_PAUSED, 15,
                    "Pause on the page did not pause the scan")
+        test_correction(browser, base, [os.path.join(args.bin, "depthfuse_web_graph_sender")] + keyed)
         points = browser.evaluate("dfState.points")
         chunks = browser.evaluate("dfState.chunks")
         coverage = browser.evaluate("dfState.coverage")

@@ -1,12 +1,12 @@
 // The operator's page: the map preview as it grows, the camera and its path, the daemons' status,
 // the coverage, and the scan buttons. The monitor pushes everything over the WebSocket /ws: text
-// frames are JSON (status, pose, trajectory, reset), binary frames one map chunk each (layout in
+// frames are JSON (status, pose, trajectory, correction, reset), binary frames one map chunk each (layout in
 // docs/operator-view.md). window.dfState mirrors what the page shows, for tests.
 'use strict';
 
 const state = window.dfState = {
   connected: false, points: 0, chunks: 0, status: null, pose: null, commands: [], errors: [],
-  needKey: null, wsUrl: null,
+  needKey: null, wsUrl: null, path: [], corrections: [], graph: null,
 };
 
 // ------------------------------------------------------------------ the 3-D view
@@ -160,6 +160,21 @@ function updateTrajectory() {
   pathLine.geometry = new THREE.BufferGeometry();
   pathLine.geometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(trajectory), 3));
   state.trajectory = trajectory.length / 3;
+  state.path = trajectory;
+}
+
+// A loop closure moved the keyframes: the monitor has moved the path (and sends all of it again);
+// say so for a while.
+const kNoteMs = 10000;
+let noteTimer = null;
+function onCorrection(m) {
+  state.corrections.push(m);
+  const note = document.getElementById('correction-note');
+  note.textContent = `loop closure: correction ${m.version} moved the path ` +
+      `(${m.poses_moved} positions, keyframes up to ${(1000 * m.max_translation_m).toFixed(1)} mm)`;
+  note.hidden = false;
+  clearTimeout(noteTimer);
+  noteTimer = setTimeout(() => { note.hidden = true; }, kNoteMs);
 }
 
 function onPose(m) {
@@ -220,6 +235,7 @@ function onStatus(st) {
     cell(row, d.point_count);
     if (d.last_error) errors.push(`${d.name}: ${d.last_error}`);
     if (d.name === 'fusion') {
+      showGraph(d.counters);
       document.getElementById('scan').textContent =
           d.scan_id ? `scan ${d.scan_id} (${d.state})` : `no scan (${d.state})`;
       if (d.last_command_message)
@@ -227,6 +243,25 @@ function onStatus(st) {
     }
   }
   document.getElementById('errors').textContent = errors.join('\n');
+}
+
+// The fusion daemon's pose graph from its heartbeat counters (docs/protocol.md, heartbeat_t).
+function showGraph(c) {
+  const shown = document.getElementById('graph');
+  if (c.keyframes === undefined) {
+    state.graph = null;
+    shown.textContent = 'pose graph: -';
+    return;
+  }
+  state.graph = c;
+  const plural = (n, one, many) => `${n} ${n === 1 ? one : many}`;
+  shown.textContent = `pose graph: ${plural(c.keyframes, 'keyframe', 'keyframes')}, ` +
+      `${plural(c.loop_closures, 'loop closure', 'loop closures')}, ` +
+      (c.graph_corrections ? `${plural(c.graph_corrections, 'correction', 'corrections')} ` +
+                             `(last moved the map ${Number(c.last_correction_mm).toFixed(1)} mm)`
+                           : 'no correction yet');
+  shown.title = `loop candidates ${c.loop_candidates}, gated ${c.loops_gated}, ` +
+      `rejected ${c.loops_rejected}`;
 }
 
 // ------------------------------------------------------------------ the connection
@@ -253,9 +288,12 @@ function connect() {
     if (m.type === 'status') onStatus(m.status);
     else if (m.type === 'pose') onPose(m);
     else if (m.type === 'reset') clearMap();
+    else if (m.type === 'correction') onCorrection(m);
     else if (m.type === 'trajectory') {
+      // Appended one by one: a whole path (sent again after a correction) holds up to 300000
+      // numbers, more than a call's arguments may be.
       trajectory.length = 3 * m.from;
-      trajectory.push(...m.xyz);
+      for (const v of m.xyz) trajectory.push(v);
       updateTrajectory();
     }
   };
