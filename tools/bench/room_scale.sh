@@ -97,12 +97,15 @@ daemons() {
   if ! have "$out/$tag.ply"; then
     rm -rf "$scans"
     log "$tag: fusion daemon + capture at 30 Hz, no pose hints"
+    # A rig key of its own, as the appliance runs: every frame signed and checked.
+    local key="$out/rig.key"
+    [[ -s "$key" ]] || (umask 077; od -An -tx1 -N32 /dev/urandom | tr -d ' \n' > "$key")
     t0=$(now)
-    "$BIN/depthfuse-fusion" --lcm "$url" --scan-dir "$scans" --autostart "$scene" \
+    "$BIN/depthfuse-fusion" --lcm "$url" --key-file "$key" --scan-dir "$scans" --autostart "$scene" \
       > "$out/$tag.fusion.log" 2>&1 &
     local fusion=$!
     sleep 2
-    "$BIN/depthfuse-capture" --lcm "$url" --rate 30 --name capture \
+    "$BIN/depthfuse-capture" --lcm "$url" --key-file "$key" --rate 30 --name capture \
       --source "synthetic:$scene?frames=$FRAMES&seed=$SEED&hints=0" > "$out/$tag.capture.log" 2>&1 ||
       log "$tag: the capture failed, see $out/$tag.capture.log"
     sleep 5  # the frames still queued; then the fusion daemon's heartbeat (its counters)
