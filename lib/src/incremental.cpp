@@ -316,9 +316,7 @@ Status IncrementalReconstructor::replay(const Frame& frame, uint32_t frame_id,
   if (frame_id == 0 || frame_id == 0xFFFFFFFFu)
     return invalid_argument("replay: frame id " + std::to_string(frame_id) + " is out of range");
   // As process() measured it: replayed in order at the same poses, the same velocity.
-  const std::optional<CameraVelocity> velocity =
-      frame.T_world_cam_hint ? std::nullopt : camera_velocity_through_next(frame.utime);
-  Result<size_t> removed = measure_frame(frame, config_, &scratch_, velocity ? &*velocity : nullptr);
+  Result<size_t> removed = measure(frame);
   if (!removed) return removed.status().with_context("replaying frame " + std::to_string(frame_id));
   fuser_.fuse(scratch_, &frame.color, T_world_cam, frame_id, map_.get());
   fused_at(frame.utime, T_world_cam);
@@ -366,7 +364,7 @@ void IncrementalReconstructor::reset(std::unique_ptr<PointMap> map, uint32_t nex
 }
 
 bool IncrementalReconstructor::keeps_keyframes() const {
-  // As in process(): only frames tracked without a hint become keyframes, so without registration
+  // As in note_tracked(): only frames tracked without a hint become keyframes, so without registration
   // there are none.
   return config_.registration.enabled && config_.relocalisation.enabled;
 }

@@ -76,7 +76,7 @@ struct NormalEquations {
 };
 
 // The pose change that turns `T` into `A` as a twist about the centre c (the inverse of the update
-// T' = Tc * twist_to_pose(xi) * Tc^-1 * T in run()).
+// T' = Tc * twist_to_pose(xi) * Tc^-1 * T of moved_by_twist()).
 inline Eigen::Matrix<double, 6, 1> twist_between(const Pose& T, const Pose& A, const Eigen::Vector3d& c) {
   Pose Tc = Pose::Identity();
   Tc.translation() = c;
