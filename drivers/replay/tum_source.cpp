@@ -144,44 +144,102 @@ Result<CameraFile> read_camera_file(const std::string& path) {
   return out;
 }
 
+namespace {
+
+// The folder's camera.toml, if it has one.
+Result<std::optional<CameraFile>> folder_camera_file(const std::string& folder) {
+  if (!fs::exists(folder + "/camera.toml")) return std::optional<CameraFile>();
+  auto c = read_camera_file(folder + "/camera.toml");
+  if (!c) return c.status();
+  return std::optional<CameraFile>(std::move(*c));
+}
+
+// The colour list, on the depth's clock (the stamp offset added) and in time order; empty when
+// colour is not wanted or the folder has none.
+Result<std::vector<ListEntry>> colour_list(const std::string& folder, const TumReplayConfig& config,
+                                           const std::optional<CameraFile>& cam) {
+  std::vector<ListEntry> rgb_list;
+  if (!config.load_color || !fs::exists(folder + "/rgb.txt")) return rgb_list;
+  auto r = read_list(folder + "/rgb.txt");
+  if (!r) return r.status();
+  rgb_list = std::move(*r);
+  const double offset_s = config.color_stamp_offset_s ? *config.color_stamp_offset_s
+                          : cam                       ? cam->color_stamp_offset_s
+                                                      : 0.0;
+  for (ListEntry& e : rgb_list) e.t += offset_s;
+  std::sort(rgb_list.begin(), rgb_list.end(), [](auto& a, auto& b) { return a.t < b.t; });
+  return rgb_list;
+}
+
+// The caller's trajectory, else the folder's ground truth when it is to be used; none without
+// either.
+Result<std::optional<std::vector<StampedPose>>> pose_list(const std::string& folder,
+                                                          const TumReplayConfig& config) {
+  std::string poses_path = config.poses_path;
+  if (poses_path.empty() && config.use_groundtruth && fs::exists(folder + "/groundtruth.txt"))
+    poses_path = folder + "/groundtruth.txt";
+  if (poses_path.empty()) return std::optional<std::vector<StampedPose>>();
+  auto p = read_tum_trajectory(poses_path);
+  if (!p) return p.status();
+  return std::optional<std::vector<StampedPose>>(std::move(*p));
+}
+
+// The camera a folder's frames are read with, where it came from, and its lens.
+struct Calibration {
+  CameraIntrinsics intrinsics;
+  std::string origin;
+  std::optional<LensDistortion> distortion;
+};
+
+// Defaults for a folder without a camera: the TUM benchmark's for 640x480, else the Kinect V2's
+// field of view at the first depth image's size.
+Result<Calibration> default_calibration(const std::string& first_depth_path) {
+  auto file = read_image_file(first_depth_path);
+  if (!file) return file.status();
+  auto first = decode_depth_image(*file, kMaxUncalibratedSide, kMaxUncalibratedSide);
+  if (!first) return first.status();
+  const int w = first->cols, h = first->rows;
+  Calibration cal;
+  if (w == 640 && h == 480) {
+    // The TUM benchmark's default for its Kinect (v1) depth: fx = fy = 525, centre 319.5, 239.5.
+    cal.intrinsics = {640, 480, 525.0, 525.0, 319.5, 239.5};
+    cal.origin = "TUM default for 640x480";
+  } else {
+    CameraIntrinsics k = CameraIntrinsics::kinect_v2();
+    // Scale the Kinect V2 field of view to the folder's own size.
+    const double s = static_cast<double>(w) / k.width;
+    cal.intrinsics = {w, h, k.fx * s, k.fy * s, (w - 1) / 2.0, (h - 1) / 2.0};
+    cal.origin = "Kinect V2 default";
+  }
+  return cal;
+}
+
+// Intrinsics: the caller's, else camera.toml, else defaults for the image's own size.
+Result<Calibration> calibration(const TumReplayConfig& config, const std::optional<CameraFile>& cam,
+                                const std::string& first_depth_path) {
+  if (config.intrinsics) return Calibration{*config.intrinsics, "caller", config.distortion};
+  if (cam) return Calibration{cam->intrinsics, "camera.toml", cam->distortion};
+  return default_calibration(first_depth_path);
+}
+
+}  // namespace
+
 Result<std::unique_ptr<TumSource>> TumSource::open(const std::string& folder,
                                                    const TumReplayConfig& config) {
   if (!fs::is_directory(folder)) return not_found("no such TUM folder: " + folder);
   auto src = std::unique_ptr<TumSource>(new TumSource());
   src->folder_ = folder;
 
-  std::optional<CameraFile> cam;
-  if (fs::exists(folder + "/camera.toml")) {
-    auto c = read_camera_file(folder + "/camera.toml");
-    if (!c) return c.status();
-    cam = *c;
-  }
-
+  auto cam = folder_camera_file(folder);
+  if (!cam) return cam.status();
   auto depth_list = read_list(folder + "/depth.txt");
   if (!depth_list) return depth_list.status().with_context("reading the depth list");
   if (depth_list->empty()) return invalid_argument(folder + "/depth.txt lists no frames: empty sequence");
-  std::vector<ListEntry> rgb_list;
-  if (config.load_color && fs::exists(folder + "/rgb.txt")) {
-    auto r = read_list(folder + "/rgb.txt");
-    if (!r) return r.status();
-    rgb_list = std::move(*r);
-    const double offset_s = config.color_stamp_offset_s ? *config.color_stamp_offset_s
-                            : cam                       ? cam->color_stamp_offset_s
-                                                        : 0.0;
-    for (ListEntry& e : rgb_list) e.t += offset_s;
-    std::sort(rgb_list.begin(), rgb_list.end(), [](auto& a, auto& b) { return a.t < b.t; });
-  }
-
-  std::vector<StampedPose> poses;
-  std::string poses_path = config.poses_path;
-  if (poses_path.empty() && config.use_groundtruth && fs::exists(folder + "/groundtruth.txt"))
-    poses_path = folder + "/groundtruth.txt";
-  if (!poses_path.empty()) {
-    auto p = read_tum_trajectory(poses_path);
-    if (!p) return p.status();
-    poses = std::move(*p);
-    src->has_poses_ = true;
-  }
+  auto rgb_list = colour_list(folder, config, *cam);
+  if (!rgb_list) return rgb_list.status();
+  auto poses = pose_list(folder, config);
+  if (!poses) return poses.status();
+  src->has_poses_ = poses->has_value();
 
   const size_t stride = std::max<size_t>(1, config.stride);
   for (size_t i = 0; i < depth_list->size(); i += stride) {
@@ -189,47 +247,23 @@ Result<std::unique_ptr<TumSource>> TumSource::open(const std::string& folder,
     Entry e;
     e.t_depth = d.t;
     e.depth_path = folder + "/" + d.path;
-    const long c = nearest(rgb_list, d.t, config.max_association_dt_s);
-    if (c >= 0) e.rgb_path = folder + "/" + rgb_list[c].path;
-    if (!poses.empty()) {
-      const long p = nearest_pose(poses, d.t, config.max_association_dt_s);
-      if (p >= 0) e.T_world_cam = poses[p].T_world_cam;
+    const long c = nearest(*rgb_list, d.t, config.max_association_dt_s);
+    if (c >= 0) e.rgb_path = folder + "/" + (*rgb_list)[c].path;
+    if (*poses && !(*poses)->empty()) {
+      const long p = nearest_pose(**poses, d.t, config.max_association_dt_s);
+      if (p >= 0) e.T_world_cam = (**poses)[p].T_world_cam;
     }
     src->entries_.push_back(std::move(e));
     if (config.max_frames && src->entries_.size() >= config.max_frames) break;
   }
 
-  // Intrinsics: the caller's, else camera.toml, else defaults for the image's own size.
-  std::optional<LensDistortion> distortion;
-  src->depth_scale_ = config.depth_scale ? *config.depth_scale : cam ? cam->depth_scale : 5000.0;
-  if (config.intrinsics) {
-    src->intrinsics_ = *config.intrinsics;
-    src->intrinsics_origin_ = "caller";
-    distortion = config.distortion;
-  } else if (cam) {
-    src->intrinsics_ = cam->intrinsics;
-    src->intrinsics_origin_ = "camera.toml";
-    distortion = cam->distortion;
-  } else {
-    auto file = read_image_file(src->entries_.front().depth_path);
-    if (!file) return file.status();
-    auto first = decode_depth_image(*file, kMaxUncalibratedSide, kMaxUncalibratedSide);
-    if (!first) return first.status();
-    const int w = first->cols, h = first->rows;
-    if (w == 640 && h == 480) {
-      // The TUM benchmark's default for its Kinect (v1) depth: fx = fy = 525, centre 319.5, 239.5.
-      src->intrinsics_ = {640, 480, 525.0, 525.0, 319.5, 239.5};
-      src->intrinsics_origin_ = "TUM default for 640x480";
-    } else {
-      CameraIntrinsics k = CameraIntrinsics::kinect_v2();
-      // Scale the Kinect V2 field of view to the folder's own size.
-      const double s = static_cast<double>(w) / k.width;
-      src->intrinsics_ = {w, h, k.fx * s, k.fy * s, (w - 1) / 2.0, (h - 1) / 2.0};
-      src->intrinsics_origin_ = "Kinect V2 default";
-    }
-  }
-  if (distortion && !distortion->is_zero()) {
-    auto u = Undistorter::create(src->intrinsics_, *distortion);
+  src->depth_scale_ = config.depth_scale ? *config.depth_scale : *cam ? (*cam)->depth_scale : 5000.0;
+  auto cal = calibration(config, *cam, src->entries_.front().depth_path);
+  if (!cal) return cal.status();
+  src->intrinsics_ = cal->intrinsics;
+  src->intrinsics_origin_ = cal->origin;
+  if (cal->distortion && !cal->distortion->is_zero()) {
+    auto u = Undistorter::create(src->intrinsics_, *cal->distortion);
     if (!u) return u.status().with_context(folder);
     DF_LOG(Tum, Info) << folder << ": lens distortion undone on every frame (pixels moved by up to "
                       << u->max_shift_px() << " px)";

@@ -76,6 +76,46 @@ Result<std::unique_ptr<PointMap>> fuse_all(const std::vector<Frame>& frames,
   return fuser.take_map();
 }
 
+// One round of re-registration: every frame against the map from its current pose. The refined
+// poses (a frame that does not converge keeps its own), with the round's largest change and mean
+// fit in `rep`.
+Result<std::vector<Pose>> register_round(const std::vector<Frame>& frames,
+                                         const std::vector<Pose>& T_world_cam,
+                                         const std::vector<CameraVelocity>& velocities,
+                                         const PointMap& map, const ReconstructionConfig& c,
+                                         int round, Registrar& registrar, MeasurementImage* m,
+                                         const ProgressFn& progress, BatchIterationReport* rep) {
+  std::vector<Pose> refined = T_world_cam;
+  size_t registered = 0;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    Result<size_t> r =
+        measure_frame(frames[i], c, m, i < velocities.size() ? &velocities[i] : nullptr);
+    if (!r) return r.status();
+    // The first round starts from the initial poses, which may be several centimetres off:
+    // coarse to fine, with wider correspondence gates. Later rounds only refine.
+    const RegistrationResult reg = round == 1 ? registrar.track(*m, map, T_world_cam[i])
+                                              : registrar.refine(*m, map, T_world_cam[i]);
+    if (reg.converged) {
+      refined[i] = reg.T_world_cam;
+      rep->max_translation_change_m =
+          std::max(rep->max_translation_change_m,
+                   (reg.T_world_cam.translation() - T_world_cam[i].translation()).norm());
+      rep->max_rotation_change_deg = std::max(
+          rep->max_rotation_change_deg, rotation_between_deg(reg.T_world_cam, T_world_cam[i]));
+      rep->mean_fitness += reg.fitness;
+      rep->mean_rmse_m += reg.rmse_m;
+      ++registered;
+    }
+    if (progress) progress("re-registration " + std::to_string(round), i + 1, frames.size());
+  }
+  rep->registered = registered;
+  if (registered) {
+    rep->mean_fitness /= registered;
+    rep->mean_rmse_m /= registered;
+  }
+  return refined;
+}
+
 }  // namespace
 
 Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
@@ -127,36 +167,10 @@ Result<BatchResult> reconstruct_batch(const std::vector<Frame>& frames,
     t0 = Clock::now();
     BatchIterationReport rep;
     rep.iteration = round;
-    std::vector<Pose> refined = result.T_world_cam;
-    size_t registered = 0;
-    for (size_t i = 0; i < frames.size(); ++i) {
-      Result<size_t> r =
-          measure_frame(frames[i], c, &m, i < velocities.size() ? &velocities[i] : nullptr);
-      if (!r) return r.status();
-      // The first round starts from the initial poses, which may be several centimetres off:
-      // coarse to fine, with wider correspondence gates. Later rounds only refine.
-      const RegistrationResult reg = round == 1
-                                         ? registrar.track(m, *result.map, result.T_world_cam[i])
-                                         : registrar.refine(m, *result.map, result.T_world_cam[i]);
-      if (reg.converged) {
-        refined[i] = reg.T_world_cam;
-        rep.max_translation_change_m =
-            std::max(rep.max_translation_change_m,
-                     (reg.T_world_cam.translation() - result.T_world_cam[i].translation()).norm());
-        rep.max_rotation_change_deg = std::max(
-            rep.max_rotation_change_deg, rotation_between_deg(reg.T_world_cam, result.T_world_cam[i]));
-        rep.mean_fitness += reg.fitness;
-        rep.mean_rmse_m += reg.rmse_m;
-        ++registered;
-      }
-      if (progress) progress("re-registration " + std::to_string(round), i + 1, frames.size());
-    }
-    rep.registered = registered;
-    if (registered) {
-      rep.mean_fitness /= registered;
-      rep.mean_rmse_m /= registered;
-    }
-    result.T_world_cam = refined;
+    auto refined = register_round(frames, result.T_world_cam, velocities, *result.map, c, round,
+                                  registrar, &m, progress, &rep);
+    if (!refined) return refined.status();
+    result.T_world_cam = std::move(*refined);
     velocities = velocities_of(result.T_world_cam);
     fused = fuse_all(frames, result.T_world_cam, velocities, c_refine, &result.prefiltered,
                      &measurements, progress, "fusion " + std::to_string(round));

@@ -69,15 +69,7 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   FrameReport report;
   report.frame_id = next_frame_id_;
   auto t0 = Clock::now();
-  // A rolling shutter (row_readout_s > 0) shears a moving camera's depth map, and a sheared map
-  // fits no rigid pose: tracking takes the shear for a shift (the batch loop's figures in
-  // docs/history/results-sessions-1-33.md). Frame by frame the motion through this frame is not
-  // known yet; the motion through the last two fused frames is the constant-velocity model's guess
-  // of it. A hint is a pose from elsewhere, and its frames are
-  // taken as they are.
-  const std::optional<CameraVelocity> velocity =
-      frame.T_world_cam_hint ? std::nullopt : camera_velocity_through_next(frame.utime);
-  Result<size_t> removed = measure_frame(frame, config_, &scratch_, velocity ? &*velocity : nullptr);
+  Result<size_t> removed = measure(frame);
   if (!removed) return removed.status();
   // Nothing to track or fuse: the frame cannot be placed, and tracking from an empty first frame
   // would anchor the map nowhere. Said with the reason, so that a broken sensor or a wrong depth
@@ -124,17 +116,7 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
     return report;
   }
 
-  // Only a frame tracked without a hint is a keyframe: with hints, or without registration,
-  // nothing is ever relocalised.
-  if (config_.registration.enabled && !frame.T_world_cam_hint &&
-      report.tracking == TrackingState::kTracked) {
-    relocaliser_->frame_tracked(scratch_, T, report.frame_id);
-    // The first frame, on an empty map, has nothing to agree with.
-    if (report.registered)
-      recent_model_fitness_[recent_model_fitness_count_++ % recent_model_fitness_.size()] =
-          static_cast<float>(report.registration.model_fitness);
-  }
-
+  note_tracked(frame, T, report);
   // Registration may have moved the pose far (a relocalisation).
   deform([&] { deformation_.update_visible_if_moved(map_.get(), scratch_, T); });
   t0 = Clock::now();
@@ -149,6 +131,32 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   registrar_.keep_frame_as_photometric_reference(scratch_, T);
   ++next_frame_id_;
   return report;
+}
+
+Result<size_t> IncrementalReconstructor::measure(const Frame& frame) {
+  // A rolling shutter (row_readout_s > 0) shears a moving camera's depth map, and a sheared map
+  // fits no rigid pose: tracking takes the shear for a shift (the batch loop's figures in
+  // docs/history/results-sessions-1-33.md). Frame by frame the motion through this frame is not
+  // known yet; the motion through the last two fused frames is the constant-velocity model's guess
+  // of it. A hint is a pose from elsewhere, and its frames are
+  // taken as they are.
+  const std::optional<CameraVelocity> velocity =
+      frame.T_world_cam_hint ? std::nullopt : camera_velocity_through_next(frame.utime);
+  return measure_frame(frame, config_, &scratch_, velocity ? &*velocity : nullptr);
+}
+
+void IncrementalReconstructor::note_tracked(const Frame& frame, const Pose& T_world_cam,
+                                            const FrameReport& report) {
+  // Only a frame tracked without a hint is a keyframe: with hints, or without registration,
+  // nothing is ever relocalised.
+  if (!config_.registration.enabled || frame.T_world_cam_hint ||
+      report.tracking != TrackingState::kTracked)
+    return;
+  relocaliser_->frame_tracked(scratch_, T_world_cam, report.frame_id);
+  // The first frame, on an empty map, has nothing to agree with.
+  if (report.registered)
+    recent_model_fitness_[recent_model_fitness_count_++ % recent_model_fitness_.size()] =
+        static_cast<float>(report.registration.model_fitness);
 }
 
 Pose IncrementalReconstructor::initial_pose(const Frame& frame,
@@ -308,9 +316,7 @@ Status IncrementalReconstructor::replay(const Frame& frame, uint32_t frame_id,
   if (frame_id == 0 || frame_id == 0xFFFFFFFFu)
     return invalid_argument("replay: frame id " + std::to_string(frame_id) + " is out of range");
   // As process() measured it: replayed in order at the same poses, the same velocity.
-  const std::optional<CameraVelocity> velocity =
-      frame.T_world_cam_hint ? std::nullopt : camera_velocity_through_next(frame.utime);
-  Result<size_t> removed = measure_frame(frame, config_, &scratch_, velocity ? &*velocity : nullptr);
+  Result<size_t> removed = measure(frame);
   if (!removed) return removed.status().with_context("replaying frame " + std::to_string(frame_id));
   fuser_.fuse(scratch_, &frame.color, T_world_cam, frame_id, map_.get());
   fused_at(frame.utime, T_world_cam);
@@ -358,7 +364,7 @@ void IncrementalReconstructor::reset(std::unique_ptr<PointMap> map, uint32_t nex
 }
 
 bool IncrementalReconstructor::keeps_keyframes() const {
-  // As in process(): only frames tracked without a hint become keyframes, so without registration
+  // As in note_tracked(): only frames tracked without a hint become keyframes, so without registration
   // there are none.
   return config_.registration.enabled && config_.relocalisation.enabled;
 }

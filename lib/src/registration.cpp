@@ -76,7 +76,7 @@ struct NormalEquations {
 };
 
 // The pose change that turns `T` into `A` as a twist about the centre c (the inverse of the update
-// T' = Tc * twist_to_pose(xi) * Tc^-1 * T in run()).
+// T' = Tc * twist_to_pose(xi) * Tc^-1 * T of moved_by_twist()).
 inline Eigen::Matrix<double, 6, 1> twist_between(const Pose& T, const Pose& A, const Eigen::Vector3d& c) {
   Pose Tc = Pose::Identity();
   Tc.translation() = c;
@@ -216,6 +216,162 @@ void Registrar::render_model(const MeasurementImage& m, const PointMap& map, con
 // each cost as much as the first for motion far below the sensor's noise.
 constexpr double kConvergedStep = 1e-4;
 
+namespace {
+
+// What makes a frame pixel and a model pixel a pair: the model camera that finds the model pixel,
+// the normals' largest angle, the pair's largest distance (m), and the Huber scale (m) that weighs
+// its residual; every step_px-th row and column is sampled.
+struct PairGates {
+  int width = 0, height = 0;  // the model camera's
+  float fx = 0, fy = 0, cx = 0, cy = 0;
+  float cos_max = 0;
+  float max_d_m = 0;
+  float huber_m = 0;
+  int step_px = 1;
+};
+
+// The frame's pose in float as the pair search applies it: into the world (T_world_cam, whose
+// position is also the centre the twists turn about) and into the camera the model was rendered
+// from (T_cam0_cam), where pairs are associated.
+struct PairPose {
+  Eigen::Matrix3f R_world_cam;
+  Eigen::Vector3f t_world_cam;
+  Eigen::Matrix3f R_cam0_cam;
+  Eigen::Vector3f t_cam0_cam;
+};
+
+inline PairPose pair_pose(const Pose& T_world_cam, const Pose& T_cam0_world) {
+  PairPose P;
+  P.R_world_cam = T_world_cam.linear().cast<float>();
+  P.t_world_cam = T_world_cam.translation().cast<float>();
+  const Pose T_cam0_cam = T_cam0_world * T_world_cam;
+  P.R_cam0_cam = T_cam0_cam.linear().cast<float>();
+  P.t_cam0_cam = T_cam0_cam.translation().cast<float>();
+  return P;
+}
+
+// One iteration's point-to-plane pairs, with the samples taken and those that found a model pixel.
+struct PairSums {
+  NormalEquations eq;
+  size_t sampled = 0;
+  size_t modelled = 0;
+
+  void merge(const PairSums& o) {
+    eq.merge(o.eq);
+    sampled += o.sampled;
+    modelled += o.modelled;
+  }
+};
+
+// The pairs of the frame's rows [v_begin, v_end) against the model's surface.
+void add_pairs_in_rows(const MeasurementImage& m, const SurfaceView::Pixel* surface,
+                       const PairGates& g, const PairPose& P, int v_begin, int v_end,
+                       PairSums* out) {
+  const Eigen::Vector3f& centre = P.t_world_cam;
+  for (int v = v_begin; v < v_end; v += g.step_px) {
+    for (int u = 0; u < m.width; u += g.step_px) {
+      const size_t i = static_cast<size_t>(v) * m.width + u;
+      if (!m.valid[i] || m.nz[i] == 0.0f) continue;
+      ++out->sampled;
+      const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);
+      const Eigen::Vector3f p0 = P.R_cam0_cam * p_c + P.t_cam0_cam;
+      const uint32_t px =
+          pixel_index(p0.x(), p0.y(), p0.z(), g.fx, g.fy, g.cx, g.cy, g.width, g.height);
+      if (px == kNoPixel) continue;
+      const SurfaceView::Pixel& s = surface[px];
+      if (!(s.w > 0.0f)) continue;
+      ++out->modelled;
+      const Eigen::Vector3f q(s.x, s.y, s.z);
+      const Eigen::Vector3f n_q(s.nx, s.ny, s.nz);
+      const Eigen::Vector3f p_w = P.R_world_cam * p_c + P.t_world_cam;
+      const Eigen::Vector3f d = p_w - q;
+      if (d.squaredNorm() > g.max_d_m * g.max_d_m) continue;
+      const Eigen::Vector3f n_p = P.R_world_cam * Eigen::Vector3f(m.nx[i], m.ny[i], m.nz[i]);
+      if (n_p.dot(n_q) < g.cos_max) continue;
+      const float r = n_q.dot(d);
+      const float w = std::abs(r) <= g.huber_m ? 1.0f : g.huber_m / std::abs(r);
+      out->eq.add(p_w - centre, n_q, r, w, huber_cost(r, g.huber_m));
+    }
+  }
+}
+
+// The pairs from two halves of the rows, on two threads if there are two, summed in the same order
+// either way.
+PairSums pair_sums(const MeasurementImage& m, const SurfaceView& model, const PairGates& g,
+                   const PairPose& P, int threads) {
+  const int half_rows = (m.height / 2 + g.step_px - 1) / g.step_px * g.step_px;  // a step multiple
+  const SurfaceView::Pixel* surface = model.pixels.data();
+  PairSums first, second;
+  run_pair(
+      threads, [&] { add_pairs_in_rows(m, surface, g, P, 0, half_rows, &first); },
+      [&] { add_pairs_in_rows(m, surface, g, P, half_rows, m.height, &second); });
+  first.merge(second);
+  return first;
+}
+
+// The twist (world axes, about `centre`) of one Gauss-Newton step: with a motion prior the MAP
+// step, else the step in the directions the pairs constrain, the others held at `anchor` (nullptr:
+// where they are).
+Eigen::Matrix<double, 6, 1> icp_step(const NormalEquations& eq, const ScaledEquations& scaled_eq,
+                                     const Pose& T_world_cam, const Eigen::Vector3f& centre,
+                                     const MotionPrior* prior, const Pose* anchor,
+                                     double degenerate_ratio, double model_error_m) {
+  if (prior) {
+    const Matrix6d B = delta_to_twist(T_world_cam);
+    const double alpha = data_scale(eq, model_error_m);
+    const Matrix6d H = eq.H.selfadjointView<Eigen::Upper>();
+    return solve_map_step(alpha * H, alpha * eq.b, B * prior->information * B.transpose(),
+                          B * pose_delta(T_world_cam, prior->T_world_cam));
+  }
+  const Eigen::Matrix<double, 6, 1> to_anchor =
+      anchor ? twist_between(T_world_cam, *anchor, centre.cast<double>())
+             : Eigen::Matrix<double, 6, 1>::Zero();
+  return solve_step(scaled_eq, degenerate_ratio, to_anchor);
+}
+
+// The pose moved by a twist about `centre`: T' = Tc * exp(xi) * Tc^-1 * T, its rotation
+// re-normalised.
+Pose moved_by_twist(const Pose& T_world_cam, const Eigen::Matrix<double, 6, 1>& xi,
+                    const Eigen::Vector3f& centre) {
+  Pose Tc = Pose::Identity();
+  Tc.translation() = centre.cast<double>();
+  Pose T = Tc * twist_to_pose(xi) * Tc.inverse() * T_world_cam;
+  T.linear() = Eigen::Quaterniond(T.linear()).normalized().toRotationMatrix();
+  return T;
+}
+
+// How well the last iteration's pairs fit: fitness over the samples and over those with a model
+// pixel, the mean Huber cost, the RMS residual.
+void set_fit(const PairSums& sums, const PairGates& g, RegistrationResult* result) {
+  const NormalEquations& eq = sums.eq;
+  result->correspondences = eq.inliers;
+  result->fitness = sums.sampled ? static_cast<double>(eq.inliers) / sums.sampled : 0.0;
+  result->model_fitness = sums.modelled ? static_cast<double>(eq.inliers) / sums.modelled : 0.0;
+  // A sample without a pair costs what a pair at the gate would.
+  const double unpaired =
+      huber_cost(g.max_d_m, g.huber_m) * static_cast<double>(sums.sampled - eq.inliers);
+  result->mean_cost = sums.sampled ? (eq.cost + unpaired) / sums.sampled : 0.0;
+  result->rmse_m = eq.inliers ? std::sqrt(eq.sq_residual / eq.inliers) : 0.0;
+}
+
+// The estimate's information (of the camera frame's delta) when it converged at T_world_cam, and
+// its covariance: with the motion prior's, else alone.
+void set_uncertainty(const NormalEquations& eq, const Pose& T_world_cam, double model_error_m,
+                     const MotionPrior* prior, RegistrationResult* result) {
+  if (result->converged) {
+    const Matrix6d B = delta_to_twist(T_world_cam);
+    const Matrix6d H = eq.H.selfadjointView<Eigen::Upper>();
+    result->information = data_scale(eq, model_error_m) * (B.transpose() * H * B);
+  }
+  result->motion_prior = prior != nullptr;
+  if (prior)
+    posterior(result, prior->information);
+  else
+    result->covariance = capped_inverse(result->information);
+}
+
+}  // namespace
+
 RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& model,
                                   const Pose& initial, const Hold& hold, int subsample,
                                   int iterations, double max_corr_m, size_t min_pairs,
@@ -225,119 +381,47 @@ RegistrationResult Registrar::run(const MeasurementImage& m, const SurfaceView& 
   const CameraIntrinsics& MK = model.K;
   if (model.empty() || model.pixels.size() != static_cast<size_t>(MK.width) * MK.height)
     return result;
-  const SurfaceView::Pixel* surface = model.pixels.data();
+
+  PairGates gates;
+  gates.width = MK.width;
+  gates.height = MK.height;
+  gates.fx = static_cast<float>(MK.fx);
+  gates.fy = static_cast<float>(MK.fy);
+  gates.cx = static_cast<float>(MK.cx);
+  gates.cy = static_cast<float>(MK.cy);
+  gates.cos_max = static_cast<float>(std::cos(config_.max_normal_angle_deg * M_PI / 180.0));
+  gates.max_d_m = static_cast<float>(max_corr_m);
+  gates.huber_m = static_cast<float>(config_.huber_delta_m);
+  gates.step_px = std::max(1, subsample);
+  min_pairs = std::max<size_t>(6, min_pairs);
 
   // Associations are made in the camera the model was rendered from.
   const Pose T_cam0_world = model.T_world_cam.inverse();
-  const float fx = static_cast<float>(MK.fx), fy = static_cast<float>(MK.fy);
-  const float cx = static_cast<float>(MK.cx), cy = static_cast<float>(MK.cy);
-  const float cos_max = static_cast<float>(std::cos(config_.max_normal_angle_deg * M_PI / 180.0));
-  const float max_d = static_cast<float>(max_corr_m);
-  const float huber = static_cast<float>(config_.huber_delta_m);
-  const int step = std::max(1, subsample);
-  min_pairs = std::max<size_t>(6, min_pairs);
-
   Pose T = initial;
-  size_t sampled = 0, modelled = 0;
-  NormalEquations eq;
+  PairSums sums;
   for (int it = 0; it < iterations; ++it) {
-    eq = NormalEquations();
-    sampled = 0;
-    modelled = 0;
-    const Eigen::Matrix3f R = T.linear().cast<float>();
-    const Eigen::Vector3f t = T.translation().cast<float>();
-    // Association in the camera the model was rendered from.
-    const Pose T_cam0_cam = T_cam0_world * T;
-    const Eigen::Matrix3f R0 = T_cam0_cam.linear().cast<float>();
-    const Eigen::Vector3f t0 = T_cam0_cam.translation().cast<float>();
-    const Eigen::Vector3f centre = t;
-
-    // Pairs from two halves of the rows, on two threads if there are two, summed in the same order
-    // either way.
-    auto pairs = [&](int v_begin, int v_end, NormalEquations* out, size_t* out_sampled,
-                     size_t* out_modelled) {
-      for (int v = v_begin; v < v_end; v += step) {
-        for (int u = 0; u < m.width; u += step) {
-          const size_t i = static_cast<size_t>(v) * m.width + u;
-          if (!m.valid[i] || m.nz[i] == 0.0f) continue;
-          ++*out_sampled;
-          const Eigen::Vector3f p_c(m.x[i], m.y[i], m.z[i]);
-          const Eigen::Vector3f p0 = R0 * p_c + t0;
-          const uint32_t px =
-              pixel_index(p0.x(), p0.y(), p0.z(), fx, fy, cx, cy, MK.width, MK.height);
-          if (px == kNoPixel) continue;
-          const SurfaceView::Pixel& s = surface[px];
-          if (!(s.w > 0.0f)) continue;
-          ++*out_modelled;
-          const Eigen::Vector3f q(s.x, s.y, s.z);
-          const Eigen::Vector3f n_q(s.nx, s.ny, s.nz);
-          const Eigen::Vector3f p_w = R * p_c + t;
-          const Eigen::Vector3f d = p_w - q;
-          if (d.squaredNorm() > max_d * max_d) continue;
-          const Eigen::Vector3f n_p = R * Eigen::Vector3f(m.nx[i], m.ny[i], m.nz[i]);
-          if (n_p.dot(n_q) < cos_max) continue;
-          const float r = n_q.dot(d);
-          const float w = std::abs(r) <= huber ? 1.0f : huber / std::abs(r);
-          out->add(p_w - centre, n_q, r, w, huber_cost(r, huber));
-        }
-      }
-    };
-    const int half_rows = (m.height / 2 + step - 1) / step * step;  // a multiple of the step
-    NormalEquations second;
-    size_t second_sampled = 0, second_modelled = 0;
-    run_pair(
-        config_.threads, [&] { pairs(0, half_rows, &eq, &sampled, &modelled); },
-        [&] { pairs(half_rows, m.height, &second, &second_sampled, &second_modelled); });
-    eq.merge(second);
-    sampled += second_sampled;
-    modelled += second_modelled;
+    const PairPose P = pair_pose(T, T_cam0_world);
+    const Eigen::Vector3f& centre = P.t_world_cam;
+    sums = pair_sums(m, model, gates, P, config_.threads);
     result.iterations = it + 1;
-    if (eq.inliers < min_pairs) break;
+    if (sums.eq.inliers < min_pairs) break;
     if (photometric_level >= 0)
-      photometric_->add_to(m, T, centre, photometric_level, step, max_d, &eq.H, &eq.b);
-    const ScaledEquations scaled_eq = scaled(eq);
+      photometric_->add_to(m, T, centre, photometric_level, gates.step_px, gates.max_d_m,
+                           &sums.eq.H, &sums.eq.b);
+    const ScaledEquations scaled_eq = scaled(sums.eq);
     result.conditioning = scaled_eq.conditioning();
-    Eigen::Matrix<double, 6, 1> xi;
-    if (hold.prior) {
-      const Matrix6d B = delta_to_twist(T);
-      const double alpha = data_scale(eq, config_.model_error_m);
-      const Matrix6d H = eq.H.selfadjointView<Eigen::Upper>();
-      xi = solve_map_step(alpha * H, alpha * eq.b, B * hold.prior->information * B.transpose(),
-                          B * pose_delta(T, hold.prior->T_world_cam));
-    } else {
-      const Eigen::Matrix<double, 6, 1> to_anchor =
-          hold.anchor ? twist_between(T, *hold.anchor, centre.cast<double>())
-                      : Eigen::Matrix<double, 6, 1>::Zero();
-      xi = solve_step(scaled_eq, hold.degenerate_ratio, to_anchor);
-    }
+    const Eigen::Matrix<double, 6, 1> xi =
+        icp_step(sums.eq, scaled_eq, T, centre, hold.prior, hold.anchor, hold.degenerate_ratio,
+                 config_.model_error_m);
     if (!xi.allFinite()) break;
-    // The twist is about `centre`: T' = Tc * exp(xi) * Tc^-1 * T.
-    Pose Tc = Pose::Identity();
-    Tc.translation() = centre.cast<double>();
-    T = Tc * twist_to_pose(xi) * Tc.inverse() * T;
-    T.linear() = Eigen::Quaterniond(T.linear()).normalized().toRotationMatrix();
+    T = moved_by_twist(T, xi, centre);
     if (xi.head<3>().norm() < kConvergedStep && xi.tail<3>().norm() < kConvergedStep) break;
   }
 
-  result.correspondences = eq.inliers;
-  result.fitness = sampled ? static_cast<double>(eq.inliers) / sampled : 0.0;
-  result.model_fitness = modelled ? static_cast<double>(eq.inliers) / modelled : 0.0;
-  // A sample without a pair costs what a pair at the gate would.
-  const double unpaired = huber_cost(max_d, huber) * static_cast<double>(sampled - eq.inliers);
-  result.mean_cost = sampled ? (eq.cost + unpaired) / sampled : 0.0;
-  result.rmse_m = eq.inliers ? std::sqrt(eq.sq_residual / eq.inliers) : 0.0;
-  result.converged = eq.inliers >= min_pairs;
-  if (result.converged) {
-    result.T_world_cam = T;
-    const Matrix6d B = delta_to_twist(T);
-    const Matrix6d H = eq.H.selfadjointView<Eigen::Upper>();
-    result.information = data_scale(eq, config_.model_error_m) * (B.transpose() * H * B);
-  }
-  result.motion_prior = hold.prior != nullptr;
-  if (hold.prior)
-    posterior(&result, hold.prior->information);
-  else
-    result.covariance = capped_inverse(result.information);
+  set_fit(sums, gates, &result);
+  result.converged = sums.eq.inliers >= min_pairs;
+  if (result.converged) result.T_world_cam = T;
+  set_uncertainty(sums.eq, T, config_.model_error_m, hold.prior, &result);
   return result;
 }
 

@@ -23,38 +23,25 @@
 # with numpy (the python3 on PATH may lack it).
 set -euo pipefail
 
-here="$(cd "$(dirname "$0")/../.." && pwd)"
-py=/usr/bin/python3
-bins=()
-data=/work/shared/datasets/tum_fr1_xyz
-work="/tmp/track_fr1.${USER:-$(id -un)}"
+source "$(dirname "$0")/fr1_common.sh"
 strides="1 3 5"
 max_frames=""
 config=""
 cameras=()
-while [[ $# -gt 0 ]]; do
+own_option() {
   case "$1" in
-    --bin) bins+=("$2"); shift 2 ;;
-    --data) data="$2"; shift 2 ;;
-    --work) work="$2"; shift 2 ;;
-    --strides) strides="$2"; shift 2 ;;
-    --max-frames) max_frames="$2"; shift 2 ;;
-    --config) config="$2"; shift 2 ;;
-    --camera) cameras+=("$2"); shift 2 ;;
-    -h|--help) sed -n '2,23p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
-    *) echo "track_fr1.sh: unknown argument $1 (--help)" >&2; exit 2 ;;
+    --strides) strides="$2" ;;
+    --max-frames) max_frames="$2" ;;
+    --config) config="$2" ;;
+    --camera) cameras+=("$2") ;;
+    *) return 1 ;;
   esac
-done
-[[ ${#bins[@]} -eq 0 ]] && bins=("$here/build/bin")
-[[ ${#bins[@]} -gt 2 ]] && { echo "track_fr1.sh: at most two --bin" >&2; exit 2; }
-for b in "${bins[@]}"; do
-  [[ -x "$b/depthfuse" ]] || { echo "track_fr1.sh: no $b/depthfuse" >&2; exit 2; }
-done
-[[ -f "$data/depth.txt" && -f "$data/groundtruth.txt" ]] || {
-  echo "track_fr1.sh: $data has no depth.txt and groundtruth.txt" >&2; exit 2; }
+}
+fr1_parse_args "$@"
+fr1_check_inputs depthfuse
 [[ ${#cameras[@]} -eq 0 ]] && cameras=("$here/tools/eval/tum_fr1_camera.toml")
-[[ ${#cameras[@]} -gt 2 || (${#cameras[@]} -eq 2 && ${#bins[@]} -ne 2) ]] && {
-  echo "track_fr1.sh: --camera once, or twice with two --bin" >&2; exit 2; }
+[[ ${#cameras[@]} -gt 2 || (${#cameras[@]} -eq 2 && ${#bins[@]} -ne 2) ]] &&
+  fr1_die 2 "--camera once, or twice with two --bin"
 mkdir -p "$work"
 
 subset() {  # stride -> folder
@@ -79,19 +66,17 @@ for s in $strides; do
     t0=$(date +%s.%N)
     "$b/depthfuse" reconstruct "$dir" --track --method full --iterations 0 --camera "$camera" \
       ${config:+--config "$config"} -o "$work/$tag.ply" --trajectory-out "$work/$tag.traj" \
-      > "$log" 2>&1 || { echo "track_fr1.sh: $b/depthfuse failed, see $log" >&2; exit 1; }
+      > "$log" 2>&1 || fr1_die 1 "$b/depthfuse failed, see $log"
     secs=$(echo "$(date +%s.%N) - $t0" | bc)
     counts=$(sed -n 's/.*tracked from the first frame: \([0-9]*\) frames uncertain, \([0-9]*\) lost (left out), \([0-9]*\) relocalised.*/\1 \/ \2 \/ \3/p' "$log")
-    ate=$("$py" "$here/tools/eval/ate.py" "$work/$tag.traj" "$dir/groundtruth.txt" --json \
-            --per-frame "$work/$tag.err")
-    line=$("$py" -c 'import json,sys; a=json.loads(sys.argv[1]); print("%.1f | %.1f (pose %d) | %d | %d" % (a["rmse_mm"], a["worst_mm"], a["worst_index"], a["over"], a["pairs"]))' "$ate")
+    line=$(fr1_ate "$work/$tag.traj" "$dir/groundtruth.txt" "$work/$tag.err" \
+             "rmse_mm worst_mm worst_index over pairs" "%.1f | %.1f (pose %d) | %d | %d")
     result[$tag]="$line | ${counts:-?} | $(printf %.0f "$secs") s"
     echo "done: stride $s, $b: $line; uncertain/lost/relocalised ${counts:-?}" >&2
   done
 done
 
-echo "load: $(cut -d' ' -f1-3 /proc/loadavg)"
-echo
+fr1_load
 echo "| frames | binary | ATE RMSE mm | worst mm | > 50 mm | poses | uncertain / lost / relocalised | time |"
 echo "|---|---|---|---|---|---|---|---|"
 for s in $strides; do

@@ -28,38 +28,23 @@
 # route (tools/lcm/route) and /usr/bin/python3 with numpy.
 set -euo pipefail
 
-here="$(cd "$(dirname "$0")/../.." && pwd)"
-py=/usr/bin/python3
-bins=()
-data=/work/shared/datasets/tum_fr1_xyz
-work="/tmp/track_fr1_live.${USER:-$(id -un)}"
+source "$(dirname "$0")/fr1_common.sh"
 camera="$here/tools/eval/tum_fr1_camera.toml"
 key_file=""
 port=7699
 readouts=()
-while [[ $# -gt 0 ]]; do
+own_option() {
   case "$1" in
-    --bin) bins+=("$2"); shift 2 ;;
-    --data) data="$2"; shift 2 ;;
-    --work) work="$2"; shift 2 ;;
-    --camera) camera="$2"; shift 2 ;;
-    --key-file) key_file="$2"; shift 2 ;;
-    --port) port="$2"; shift 2 ;;
-    --readout) readouts+=("$2"); shift 2 ;;
-    -h|--help) sed -n '2,25p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
-    *) echo "track_fr1_live.sh: unknown argument $1 (--help)" >&2; exit 2 ;;
+    --camera) camera="$2" ;;
+    --key-file) key_file="$2" ;;
+    --port) port="$2" ;;
+    --readout) readouts+=("$2") ;;
+    *) return 1 ;;
   esac
-done
-[[ ${#bins[@]} -eq 0 ]] && bins=("$here/build/bin")
-[[ ${#bins[@]} -gt 2 ]] && { echo "track_fr1_live.sh: at most two --bin" >&2; exit 2; }
-for b in "${bins[@]}"; do
-  for p in depthfuse-capture depthfuse-fusion; do
-    [[ -x "$b/$p" ]] || { echo "track_fr1_live.sh: no $b/$p" >&2; exit 2; }
-  done
-done
-[[ -f "$data/depth.txt" && -f "$data/groundtruth.txt" ]] || {
-  echo "track_fr1_live.sh: $data has no depth.txt and groundtruth.txt" >&2; exit 2; }
-[[ -f "$camera" ]] || { echo "track_fr1_live.sh: no camera file $camera" >&2; exit 2; }
+}
+fr1_parse_args "$@"
+fr1_check_inputs depthfuse-capture depthfuse-fusion
+[[ -f "$camera" ]] || fr1_die 2 "no camera file $camera"
 
 replay="$work/replay"
 rm -rf "$replay"
@@ -78,7 +63,7 @@ for k in "${!bins[@]}"; do
   scans="$work/scans_b$k"
   rm -rf "$scans"
   readout="${readouts[$k]:-${readouts[0]:-yes}}"
-  [[ $readout == yes || $readout == no ]] || { echo "track_fr1_live.sh: --readout yes|no" >&2; exit 2; }
+  [[ $readout == yes || $readout == no ]] || fr1_die 2 "--readout yes|no"
   config=()
   [[ $readout == yes ]] && config=(--config "$work/fusion_readout.toml")
   "$b/depthfuse-fusion" --lcm "$url" --key-file "$key_file" --scan-dir "$scans" "${config[@]}" \
@@ -88,26 +73,24 @@ for k in "${!bins[@]}"; do
   t0=$(date +%s.%N)
   "$b/depthfuse-capture" --lcm "$url" --key-file "$key_file" --source "tum:$replay" \
     --rate recorded > "$work/capture_b$k.log" 2>&1 ||
-    { echo "track_fr1_live.sh: the capture failed, see $work/capture_b$k.log" >&2; kill $fusion; exit 1; }
+    { kill $fusion; fr1_die 1 "the capture failed, see $work/capture_b$k.log"; }
   secs=$(echo "$(date +%s.%N) - $t0" | bc)
   sleep 3  # the queue's last frames
   kill -TERM $fusion
   wait $fusion || true
   traj="$scans/fr1-trajectory.txt"
-  [[ -f $traj ]] || { echo "track_fr1_live.sh: no $traj, see $work/fusion_b$k.log" >&2; exit 1; }
+  [[ -f $traj ]] || fr1_die 1 "no $traj, see $work/fusion_b$k.log"
   published=$(sed -n 's/.* ended after \([0-9]*\) frames.*/\1/p' "$work/capture_b$k.log" | tail -1)
   fused=$(grep -vc "^#" "$traj")
   lost=$(grep -c "tracking lost:" "$work/fusion_b$k.log" || true)
   relocalised=$(grep -c "relocalised among the keyframes" "$work/fusion_b$k.log" || true)
-  ate=$("$py" "$here/tools/eval/ate.py" "$traj" "$data/groundtruth.txt" --json \
-          --per-frame "$work/b$k.err")
-  line=$("$py" -c 'import json,sys; a=json.loads(sys.argv[1]); print("%.1f | %.1f | %d" % (a["rmse_mm"], a["worst_mm"], a["over"]))' "$ate")
+  line=$(fr1_ate "$traj" "$data/groundtruth.txt" "$work/b$k.err" "rmse_mm worst_mm over" \
+           "%.1f | %.1f | %d")
   result[$k]="$readout | ${published:-?} | $fused | $line | $lost / $relocalised | $(printf %.0f "$secs") s"
   echo "done: $b: published ${published:-?}, fused $fused, ATE $line" >&2
 done
 
-echo "load: $(cut -d' ' -f1-3 /proc/loadavg)"
-echo
+fr1_load
 echo "| binary | readout | published | fused | ATE RMSE mm | worst mm | > 50 mm | losses / relocalisations | time |"
 echo "|---|---|---|---|---|---|---|---|---|"
 for k in "${!bins[@]}"; do

@@ -79,26 +79,27 @@ std::vector<Primitive> make_room(uint64_t seed) {
 
 namespace {
 
-// 4 x 4 rooms of 5 x 5 m. Boxes sit in room corners, at most 1.3 m from the walls: the walk of
-// trajectory.cpp goes straight through room centres or on quarter circles of radius 2.5 m around a
-// room corner, which keeps >= 0.6 m from every box.
-std::vector<Primitive> make_rooms(uint64_t seed) {
+// Floor and ceiling over the whole grid, out to the outer walls' outer faces.
+void add_rooms_floor_and_ceiling(std::vector<Primitive>* p) {
   using namespace rooms_layout;
-  detail::HashRng rng(detail::stream_key(seed, detail::kStreamSceneLayout, 2));
   const double extent = kRoomsN * kCellM;
   const double hw = 0.5 * kWallM;
-  std::vector<Primitive> p;
-  p.push_back(colored(Primitive::plane(Vector3d::Zero(), Vector3d::UnitZ(), Vector3d::UnitX(), -hw,
-                                       extent + hw, -hw, extent + hw, "floor"),
-                      165, 155, 145));
+  p->push_back(colored(Primitive::plane(Vector3d::Zero(), Vector3d::UnitZ(), Vector3d::UnitX(), -hw,
+                                        extent + hw, -hw, extent + hw, "floor"),
+                       165, 155, 145));
   // Ceiling facing down: u = +y, v = n x u = +x.
-  p.push_back(
+  p->push_back(
       colored(Primitive::plane(Vector3d(0, 0, kHeightM), -Vector3d::UnitZ(), Vector3d::UnitY(), -hw,
                                extent + hw, -hw, extent + hw, "ceiling"),
               230, 230, 225));
+}
 
-  // Walls: along each grid line, pieces between doorways; a lintel (slightly thinner, so that its
-  // faces are not coplanar with the wall's) above each doorway.
+// Walls: along each grid line, pieces between doorways; a lintel (slightly thinner, so that its
+// faces are not coplanar with the wall's) above each doorway.
+void add_rooms_walls(std::vector<Primitive>* p) {
+  using namespace rooms_layout;
+  const double extent = kRoomsN * kCellM;
+  const double hw = 0.5 * kWallM;
   for (int axis = 0; axis < 2; ++axis) {  // 0: walls along x (at y = j * cell), 1: along y
     for (int j = 0; j <= kRoomsN; ++j) {
       const double c = j * kCellM;
@@ -127,51 +128,65 @@ std::vector<Primitive> make_rooms(uint64_t seed) {
       };
       const std::string line = std::string(axis == 0 ? "wall_y" : "wall_x") + std::to_string(j);
       for (size_t k = 0; k < pieces.size(); ++k)
-        p.push_back(make(pieces[k].first, pieces[k].second, hw, 0.0, kHeightM,
-                         line + "_" + std::to_string(k)));
+        p->push_back(make(pieces[k].first, pieces[k].second, hw, 0.0, kHeightM,
+                          line + "_" + std::to_string(k)));
       if (inner) {
         for (int i = 0; i < kRoomsN; ++i) {
           const double door_mid = (i + 0.5) * kCellM;
-          p.push_back(make(door_mid - 0.5 * kDoorM, door_mid + 0.5 * kDoorM, 0.4 * kWallM,
-                           kDoorHeightM, kHeightM, line + "_lintel" + std::to_string(i)));
+          p->push_back(make(door_mid - 0.5 * kDoorM, door_mid + 0.5 * kDoorM, 0.4 * kWallM,
+                            kDoorHeightM, kHeightM, line + "_lintel" + std::to_string(i)));
         }
       }
     }
   }
+}
 
-  // Boxes: two or three room corners each get one, sometimes with a smaller one on top.
-  for (int ry = 0; ry < kRoomsN; ++ry) {
-    for (int rx = 0; rx < kRoomsN; ++rx) {
-      const int count = rng.uniform_int(2, 3);
-      const int skip = rng.uniform_int(0, 3);  // the corner left free when there are three boxes
-      int placed = 0;
-      for (int corner = 0; corner < 4 && placed < count; ++corner) {
-        if (count == 3 && corner == skip) continue;
-        if (count == 2 && (corner == skip || corner == (skip + 2) % 4)) continue;
-        const int sx = corner & 1, sy = corner >> 1;
-        const double w = rng.uniform(0.4, 1.0), d = rng.uniform(0.4, 1.0),
-                     h = rng.uniform(0.3, 1.2);
-        const double gx = rng.uniform(0.1, 0.3), gy = rng.uniform(0.1, 0.3);
-        const double x0 = sx == 0 ? rx * kCellM + hw + gx : (rx + 1) * kCellM - hw - gx - w;
-        const double y0 = sy == 0 ? ry * kCellM + hw + gy : (ry + 1) * kCellM - hw - gy - d;
-        const std::string name =
-            "box_r" + std::to_string(rx) + std::to_string(ry) + "_c" + std::to_string(corner);
-        p.push_back(random_colored(
-            Primitive::box(Vector3d(x0, y0, 0.0), Vector3d(x0 + w, y0 + d, h), name), &rng));
-        if (rng.uniform() < 0.35) {
-          const double tw = w * rng.uniform(0.4, 0.7), td = d * rng.uniform(0.4, 0.7);
-          const double tx = x0 + rng.uniform(0.1, 0.9) * (w - tw);
-          const double ty = y0 + rng.uniform(0.1, 0.9) * (d - td);
-          const double th = rng.uniform(0.2, 0.5);
-          p.push_back(
-              random_colored(Primitive::box(Vector3d(tx, ty, h), Vector3d(tx + tw, ty + td, h + th),
-                                            name + "_top"),
-                             &rng));
-        }
-        ++placed;
-      }
+// Room (rx, ry)'s boxes: two or three of its corners each get one, sometimes with a smaller one on
+// top.
+void add_room_boxes(int rx, int ry, detail::HashRng* rng, std::vector<Primitive>* p) {
+  using namespace rooms_layout;
+  const double hw = 0.5 * kWallM;
+  const int count = rng->uniform_int(2, 3);
+  const int skip = rng->uniform_int(0, 3);  // the corner left free when there are three boxes
+  int placed = 0;
+  for (int corner = 0; corner < 4 && placed < count; ++corner) {
+    if (count == 3 && corner == skip) continue;
+    if (count == 2 && (corner == skip || corner == (skip + 2) % 4)) continue;
+    const int sx = corner & 1, sy = corner >> 1;
+    const double w = rng->uniform(0.4, 1.0), d = rng->uniform(0.4, 1.0),
+                 h = rng->uniform(0.3, 1.2);
+    const double gx = rng->uniform(0.1, 0.3), gy = rng->uniform(0.1, 0.3);
+    const double x0 = sx == 0 ? rx * kCellM + hw + gx : (rx + 1) * kCellM - hw - gx - w;
+    const double y0 = sy == 0 ? ry * kCellM + hw + gy : (ry + 1) * kCellM - hw - gy - d;
+    const std::string name =
+        "box_r" + std::to_string(rx) + std::to_string(ry) + "_c" + std::to_string(corner);
+    p->push_back(random_colored(
+        Primitive::box(Vector3d(x0, y0, 0.0), Vector3d(x0 + w, y0 + d, h), name), rng));
+    if (rng->uniform() < 0.35) {
+      const double tw = w * rng->uniform(0.4, 0.7), td = d * rng->uniform(0.4, 0.7);
+      const double tx = x0 + rng->uniform(0.1, 0.9) * (w - tw);
+      const double ty = y0 + rng->uniform(0.1, 0.9) * (d - td);
+      const double th = rng->uniform(0.2, 0.5);
+      p->push_back(
+          random_colored(Primitive::box(Vector3d(tx, ty, h), Vector3d(tx + tw, ty + td, h + th),
+                                        name + "_top"),
+                         rng));
     }
+    ++placed;
   }
+}
+
+// 4 x 4 rooms of 5 x 5 m. Boxes sit in room corners, at most 1.3 m from the walls: the walk of
+// trajectory.cpp goes straight through room centres or on quarter circles of radius 2.5 m around a
+// room corner, which keeps >= 0.6 m from every box.
+std::vector<Primitive> make_rooms(uint64_t seed) {
+  using namespace rooms_layout;
+  detail::HashRng rng(detail::stream_key(seed, detail::kStreamSceneLayout, 2));
+  std::vector<Primitive> p;
+  add_rooms_floor_and_ceiling(&p);
+  add_rooms_walls(&p);
+  for (int ry = 0; ry < kRoomsN; ++ry)
+    for (int rx = 0; rx < kRoomsN; ++rx) add_room_boxes(rx, ry, &rng, &p);
   return p;
 }
 

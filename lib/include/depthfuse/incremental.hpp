@@ -141,6 +141,9 @@ class IncrementalReconstructor {
   double model_fitness_reference() const;
 
  private:
+  // The frame's measurements into scratch_ (its rolling shutter undone with the motion of the last
+  // two frames fused, unless it has a hint): how many the pre-filter removed.
+  Result<size_t> measure(const Frame& frame);
   // Registration of the measured frame (scratch_) against the map from `*T_world_cam` (the initial
   // pose), which it replaces by the registered pose: tracking without a hint (with a second start
   // from the last pose after a poor track, and the relocaliser after a loss), refinement with one.
@@ -160,6 +163,9 @@ class IncrementalReconstructor {
   // tracks well is the frame's pose.
   void relocalise(FrameReport* report);
   bool keeps_keyframes() const;
+  // After a frame tracked without a hint at T_world_cam: the relocaliser's keyframes, and the
+  // model fitness the lost rule is scaled by.
+  void note_tracked(const Frame& frame, const Pose& T_world_cam, const FrameReport& report);
   // Where the camera's motion was steady: the velocity of the last two frames fused, in the
   // camera frame of the last; none across a gap of more than a few frame periods.
   std::optional<CameraVelocity> camera_velocity_through_next(int64_t utime) const;

@@ -94,22 +94,28 @@ MemoryEstimate estimate_memory(const PointArrays& points, int depth) {
   return e;
 }
 
-Result<TriangleMesh> mesh_points(const PointArrays& points, const MeshOptions& options,
-                                 MeshReport* report) {
-  MeshReport local;
-  MeshReport& r = report ? *report : local;
-  r = MeshReport{};
+namespace {
+
+Status check_options(const MeshOptions& options) {
   if (options.depth < kMinDepth || options.depth > kMaxDepth)
     return invalid_argument("mesh depth must be " + std::to_string(kMinDepth) + " to " +
                             std::to_string(kMaxDepth) + ", got " + std::to_string(options.depth));
   if (!(options.trim_factor > 0.0) || !std::isfinite(options.trim_factor))
     return invalid_argument("the mesh trim factor must be a positive number");
+  return Status::ok();
+}
 
-  auto cloud = std::make_shared<Cloud>();
-  cloud->reserve(points.size());
-  bool any_color = false;
+// The usable points as Poisson's input: positions with unit normals, and where each came from.
+struct OrientedCloud {
+  std::shared_ptr<Cloud> cloud = std::make_shared<Cloud>();
   std::vector<uint32_t> source;  // cloud index -> index in points (colour lookup)
-  source.reserve(points.size());
+  bool any_color = false;
+};
+
+OrientedCloud oriented_cloud(const PointArrays& points) {
+  OrientedCloud in;
+  in.cloud->reserve(points.size());
+  in.source.reserve(points.size());
   for (size_t i = 0; i < points.size(); ++i) {
     const Eigen::Vector3f p = points.position(i), n = points.normal(i);
     if (!usable(p, n)) continue;
@@ -117,84 +123,88 @@ Result<TriangleMesh> mesh_points(const PointArrays& points, const MeshOptions& o
     pcl::PointNormal q;
     q.x = p.x(), q.y = p.y(), q.z = p.z();
     q.normal_x = u.x(), q.normal_y = u.y(), q.normal_z = u.z();
-    cloud->push_back(q);
-    source.push_back(static_cast<uint32_t>(i));
+    in.cloud->push_back(q);
+    in.source.push_back(static_cast<uint32_t>(i));
     const PointState& s = points.state[i];
-    any_color = any_color || s.r || s.g || s.b;
+    in.any_color = in.any_color || s.r || s.g || s.b;
   }
-  r.input_points = cloud->size();
-  if (cloud->size() < 100)
-    return invalid_argument("too few points to mesh: " + std::to_string(cloud->size()) +
-                            " with a position and a normal (at least 100)");
+  return in;
+}
 
-  r.estimate = estimate_memory(points, options.depth);
+// Refuses a mesh whose estimated peak memory is over the budget, naming a depth that fits.
+Status check_memory_budget(const PointArrays& points, const MeshOptions& options,
+                           const MeshReport& r) {
   const size_t budget = options.memory_budget_bytes ? *options.memory_budget_bytes : available_memory_bytes();
-  if (budget && r.estimate.bytes > budget) {
-    std::string hint;
-    for (int d = options.depth - 1; d >= kMinDepth && hint.empty(); --d) {
-      const MemoryEstimate lower = estimate_memory(points, d);
-      if (lower.bytes <= budget)
-        hint = "depth " + std::to_string(d) + " (" + millimetres(lower.cell_m) + " cells) needs about " +
-               gigabytes(static_cast<double>(lower.bytes));
-    }
-    if (hint.empty())
-      hint = "no depth fits (the points alone need about " +
-             gigabytes(kBytesPerPoint * static_cast<double>(r.input_points)) + "): mesh a part of them";
-    return invalid_argument("meshing " + std::to_string(r.input_points) + " points at depth " +
-                            std::to_string(options.depth) + " (" + millimetres(r.estimate.cell_m) +
-                            " cells, " + std::to_string(r.estimate.occupied_cells) +
-                            " occupied) needs about " + gigabytes(static_cast<double>(r.estimate.bytes)) +
-                            ", more than the " + gigabytes(static_cast<double>(budget)) +
-                            (options.memory_budget_bytes ? " allowed" : " available") + "; " + hint);
+  if (!budget || r.estimate.bytes <= budget) return Status::ok();
+  std::string hint;
+  for (int d = options.depth - 1; d >= kMinDepth && hint.empty(); --d) {
+    const MemoryEstimate lower = estimate_memory(points, d);
+    if (lower.bytes <= budget)
+      hint = "depth " + std::to_string(d) + " (" + millimetres(lower.cell_m) + " cells) needs about " +
+             gigabytes(static_cast<double>(lower.bytes));
   }
+  if (hint.empty())
+    hint = "no depth fits (the points alone need about " +
+           gigabytes(kBytesPerPoint * static_cast<double>(r.input_points)) + "): mesh a part of them";
+  return invalid_argument("meshing " + std::to_string(r.input_points) + " points at depth " +
+                          std::to_string(options.depth) + " (" + millimetres(r.estimate.cell_m) +
+                          " cells, " + std::to_string(r.estimate.occupied_cells) +
+                          " occupied) needs about " + gigabytes(static_cast<double>(r.estimate.bytes)) +
+                          ", more than the " + gigabytes(static_cast<double>(budget)) +
+                          (options.memory_budget_bytes ? " allowed" : " available") + "; " + hint);
+}
 
-  // One k-d tree serves Poisson (which wants a search method) and the trimming.
-  auto tree = std::make_shared<pcl::search::KdTree<pcl::PointNormal>>(false);
+using Tree = pcl::search::KdTree<pcl::PointNormal>;
+
+// Poisson's surface of the cloud at `depth`, searching it with `tree`.
+void poisson_surface(const std::shared_ptr<Cloud>& cloud, const std::shared_ptr<Tree>& tree,
+                     int depth, Cloud* surface, std::vector<pcl::Vertices>* polygons) {
   pcl::Poisson<pcl::PointNormal> poisson;
-  poisson.setDepth(options.depth);
+  poisson.setDepth(depth);
   poisson.setInputCloud(cloud);
   poisson.setSearchMethod(tree);
   // One thread: PCL's OpenMP loops cover part of Poisson only and spin at their barriers; on the
   // 2-core development machine two threads took twice the CPU time and the wall time of one.
   poisson.setThreads(1);
-  Cloud surface;
-  std::vector<pcl::Vertices> polygons;
-  poisson.reconstruct(surface, polygons);
-  r.poisson_vertices = surface.size();
-  r.poisson_triangles = polygons.size();
-  if (surface.empty() || polygons.empty())
-    return internal_error("Poisson reconstruction of " + std::to_string(r.input_points) +
-                          " points gave no surface");
+  poisson.reconstruct(*surface, *polygons);
+}
 
-  // Trimming: a vertex is supported when its nearest input point is within trim_factor x the
-  // larger of that point's spacing and the cell (a point's spacing is measured once, when first
-  // needed).
-  const double cell = r.estimate.cell_m;
-  std::vector<float> spacing(cloud->size(), -1.0f);
+// Trimming: a vertex is supported when its nearest input point is within trim_factor x the
+// larger of that point's spacing and the cell (a point's spacing is measured once, when first
+// needed). Per surface vertex, its supporting cloud point, or -1.
+std::vector<int32_t> supporting_points(const Cloud& surface, const Cloud& cloud, Tree& tree,
+                                       double trim_factor, double cell_m) {
+  std::vector<float> spacing(cloud.size(), -1.0f);
   std::vector<int32_t> nearest(surface.size(), -1);
   pcl::Indices idx;
   std::vector<float> sq;
   for (size_t v = 0; v < surface.size(); ++v) {
-    if (tree->nearestKSearch(surface[v], 1, idx, sq) < 1) continue;
+    if (tree.nearestKSearch(surface[v], 1, idx, sq) < 1) continue;
     const int p = idx[0];
     if (spacing[p] < 0.0f) {
-      const int found = tree->nearestKSearch((*cloud)[p], kSpacingNeighbours + 1, idx, sq);
+      const int found = tree.nearestKSearch(cloud[p], kSpacingNeighbours + 1, idx, sq);
       double sum = 0.0;
       for (int k = 1; k < found; ++k) sum += std::sqrt(static_cast<double>(sq[k]));
       spacing[p] = found > 1 ? static_cast<float>(sum / (found - 1)) : 0.0f;
     }
-    const double limit = options.trim_factor * std::max<double>(spacing[p], cell);
-    nearest[v] = (surface[v].getVector3fMap() - (*cloud)[p].getVector3fMap()).norm() <= limit ? p : -1;
+    const double limit = trim_factor * std::max<double>(spacing[p], cell_m);
+    nearest[v] = (surface[v].getVector3fMap() - cloud[p].getVector3fMap()).norm() <= limit ? p : -1;
   }
+  return nearest;
+}
 
+// The triangles whose three vertices are supported (and distinct), their vertices renumbered in
+// order of first use, coloured by their supporting point when `color`.
+TriangleMesh supported_triangles(const Cloud& surface, const std::vector<pcl::Vertices>& polygons,
+                                 const std::vector<int32_t>& nearest, const OrientedCloud& in,
+                                 const PointArrays& points, bool color, MeshReport* r) {
   TriangleMesh mesh;
   std::vector<int64_t> remap(surface.size(), -1);
-  const bool color = options.with_color && any_color;
   for (const pcl::Vertices& poly : polygons) {
     const auto& t = poly.vertices;
     if (t.size() != 3 || nearest[t[0]] < 0 || nearest[t[1]] < 0 || nearest[t[2]] < 0 ||
         t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) {
-      ++r.trimmed_triangles;
+      ++r->trimmed_triangles;
       continue;
     }
     std::array<uint32_t, 3> tri;
@@ -204,7 +214,7 @@ Result<TriangleMesh> mesh_points(const PointArrays& points, const MeshOptions& o
         remap[v] = static_cast<int64_t>(mesh.vertex_m.size());
         mesh.vertex_m.push_back(surface[v].getVector3fMap());
         if (color) {
-          const PointState& s = points.state[source[static_cast<size_t>(nearest[v])]];
+          const PointState& s = points.state[in.source[static_cast<size_t>(nearest[v])]];
           mesh.vertex_rgb.push_back({s.r, s.g, s.b});
         }
       }
@@ -213,6 +223,40 @@ Result<TriangleMesh> mesh_points(const PointArrays& points, const MeshOptions& o
     mesh.triangles.push_back(tri);
   }
   return mesh;
+}
+
+}  // namespace
+
+Result<TriangleMesh> mesh_points(const PointArrays& points, const MeshOptions& options,
+                                 MeshReport* report) {
+  MeshReport local;
+  MeshReport& r = report ? *report : local;
+  r = MeshReport{};
+  if (Status s = check_options(options); !s) return s;
+
+  const OrientedCloud in = oriented_cloud(points);
+  r.input_points = in.cloud->size();
+  if (in.cloud->size() < 100)
+    return invalid_argument("too few points to mesh: " + std::to_string(in.cloud->size()) +
+                            " with a position and a normal (at least 100)");
+  r.estimate = estimate_memory(points, options.depth);
+  if (Status s = check_memory_budget(points, options, r); !s) return s;
+
+  // One k-d tree serves Poisson (which wants a search method) and the trimming.
+  auto tree = std::make_shared<Tree>(false);
+  Cloud surface;
+  std::vector<pcl::Vertices> polygons;
+  poisson_surface(in.cloud, tree, options.depth, &surface, &polygons);
+  r.poisson_vertices = surface.size();
+  r.poisson_triangles = polygons.size();
+  if (surface.empty() || polygons.empty())
+    return internal_error("Poisson reconstruction of " + std::to_string(r.input_points) +
+                          " points gave no surface");
+
+  const std::vector<int32_t> nearest =
+      supporting_points(surface, *in.cloud, *tree, options.trim_factor, r.estimate.cell_m);
+  return supported_triangles(surface, polygons, nearest, in, points,
+                             options.with_color && in.any_color, &r);
 }
 
 }  // namespace depthfuse::mesh

@@ -213,6 +213,7 @@ void bilateral_row(const PhasorRows& above, const PhasorRows& here, const Phasor
   }
 }
 
+// Long on purpose: a hot kernel whose loops share stack rows, vectorised whole in every ISA clone.
 DF_K2_CLONES
 void unwrap_row(const UnwrapInput& in, const float* __restrict edge_ok, const KernelConstants& k,
                 float* __restrict depth_mm, float* __restrict edge_depth_mm,
