@@ -6,9 +6,11 @@
 #                --method ylimaki17` (what fusion alone gives when the poses are right)
 #   live path    `reconstruct --track --iterations 0` (tracking, each frame fused once)
 #   --track      `reconstruct --track` (tracking, then the paper's re-registration rounds)
-#   daemons      depthfuse-capture with `synthetic:SCENE?...&hints=0` paced at 30 Hz into
-#                depthfuse-fusion with a scan file, stopped when the capture ends, then
-#                `depthfuse export` of the scan file (cloud and trajectory)
+#   daemons      depthfuse-capture replaying the scene's frames (its folder without the ground
+#                truth, so no pose hints) at their recorded 30 Hz into depthfuse-fusion with a
+#                scan file and a rig key, stopped when the capture ends, then `depthfuse export`
+#                of the scan file (cloud and trajectory). Replayed, not rendered on the fly: the
+#                renderer would take the cores the fusion daemon needs, as a Kinect does not
 #   Open3D       Open3D 0.16's frame-to-frame point-to-plane ICP (tools/eval/open3d_icp_odometry.py)
 #
 # then the twin `rooms` scene tracked (`--track --iterations 0`): its ATE, the case where a loop
@@ -92,10 +94,14 @@ tracked_row() {
 # daemons TAG SCENE FOLDER: capture at 30 Hz without hints into the fusion daemon, stop, export.
 # Sets daemon_frames.
 daemons() {
-  local tag=$1 scene=$2 scans="$out/$1.scans" t0
+  local tag=$1 scene=$2 folder=$3 scans="$out/$1.scans" replay="$out/$1.replay" t0
   daemon_frames="?"
   if ! have "$out/$tag.ply"; then
-    rm -rf "$scans"
+    rm -rf "$scans" "$replay"
+    mkdir -p "$replay"
+    for f in depth.txt depth rgb.txt rgb camera.toml; do
+      [[ -e "$folder/$f" ]] && ln -s "$(cd "$folder" && pwd)/$f" "$replay/$f"
+    done
     log "$tag: fusion daemon + capture at 30 Hz, no pose hints"
     # A rig key of its own, as the appliance runs: every frame signed and checked.
     local key="$out/rig.key"
@@ -105,8 +111,8 @@ daemons() {
       > "$out/$tag.fusion.log" 2>&1 &
     local fusion=$!
     sleep 2
-    "$BIN/depthfuse-capture" --lcm "$url" --key-file "$key" --rate 30 --name capture \
-      --source "synthetic:$scene?frames=$FRAMES&seed=$SEED&hints=0" > "$out/$tag.capture.log" 2>&1 ||
+    "$BIN/depthfuse-capture" --lcm "$url" --key-file "$key" --name capture \
+      --source "tum:$replay" --rate recorded > "$out/$tag.capture.log" 2>&1 ||
       log "$tag: the capture failed, see $out/$tag.capture.log"
     sleep 5  # the frames still queued; then the fusion daemon's heartbeat (its counters)
     "$py" "$here/tools/lcm/watch.py" --lcm "$url" --python-dir "$BIN/../python" \
