@@ -15,6 +15,8 @@
 
 #include <cstdint>
 #include <functional>
+#include <map>
+#include <optional>
 #include <string>
 #include <unordered_map>
 #include <unordered_set>
@@ -82,15 +84,23 @@ class MapPager {
   // when that is smaller.
   Status load_around(PointMap* map, const Eigen::Vector3f& p_m, double radius_m, uint32_t frame_id);
 
-  // Resume: a chunk that is in the scan file but not in memory.
-  void mark_evicted(const ChunkKey& key) { evicted_.insert(key); }
+  // Resume: a chunk that is in the scan file but not in memory, its points in the pose graph's
+  // `version` (ChunkInfo::version).
+  void mark_evicted(const ChunkKey& key, uint32_t version = 0) { note_evicted(key, version); }
+  // The oldest pose graph version among the evicted chunks (none: nothing evicted): the map's
+  // deformation keeps the history they need to follow the graph once loaded back
+  // (MapDeformation::set_oldest_stored_version).
+  std::optional<uint32_t> oldest_evicted_version() const {
+    if (evicted_versions_.empty()) return std::nullopt;
+    return evicted_versions_.begin()->first;
+  }
   // In the scan file and not in memory: evicted, or failed to load (damaged; kept in the file).
   bool is_evicted(const ChunkKey& key) const {
     return evicted_.count(key) != 0 || unloadable_.count(key) != 0;
   }
   const std::unordered_set<ChunkKey, ChunkKeyHash>& evicted() const { return evicted_; }
   void forget(const ChunkKey& key) {
-    evicted_.erase(key);
+    note_loaded(key);
     unloadable_.erase(key);
   }
 
@@ -110,10 +120,15 @@ class MapPager {
   Status load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t frame_id);
   Status evict(PointMap* map, const Eigen::Vector3f& camera_position_m, uint32_t frame_id);
   Status finish_call(Status st);
+  void note_evicted(const ChunkKey& key, uint32_t version);
+  void note_loaded(const ChunkKey& key);  // no longer evicted
 
   MapPagerConfig config_;
   ScanStore* store_;
   std::unordered_set<ChunkKey, ChunkKeyHash> evicted_;
+  // The evicted chunks' versions, and how many are at each.
+  std::unordered_map<ChunkKey, uint32_t, ChunkKeyHash> evicted_version_;
+  std::map<uint32_t, size_t> evicted_versions_;
   std::unordered_set<ChunkKey, ChunkKeyHash> unloadable_;  // load failed; not retried every frame
   std::unordered_map<ChunkKey, uint32_t, ChunkKeyHash> loaded_at_;  // frame a chunk was loaded at
   PagerStats stats_;
