@@ -254,4 +254,22 @@ inline Proc run(const std::string& cmd) {
   return r;
 }
 
+// SQL that turns a file of the current schema into what schema 5 wrote: chunk tables without the
+// version and checksum columns, no pose graph tables, user_version 5.
+inline std::string as_schema_5_sql() {
+  std::string sql;
+  for (const char* table : {"chunks", "chunk_staging"}) {
+    const std::string owner = std::string(table) == "chunks" ? "checkpoint_id" : "staged_utime";
+    const std::string t = table;
+    sql += "CREATE TABLE " + t + "_v5 (x INTEGER NOT NULL, y INTEGER NOT NULL, z INTEGER NOT NULL, "
+           "point_count INTEGER NOT NULL, min_x REAL, min_y REAL, min_z REAL, max_x REAL, max_y REAL, "
+           "max_z REAL, last_touched_frame INTEGER NOT NULL, " + owner + " INTEGER NOT NULL, data BLOB "
+           "NOT NULL, PRIMARY KEY (x, y, z)); INSERT INTO " + t + "_v5 SELECT x, y, z, point_count, "
+           "min_x, min_y, min_z, max_x, max_y, max_z, last_touched_frame, " + owner + ", data FROM " + t +
+           "; DROP TABLE " + t + "; ALTER TABLE " + t + "_v5 RENAME TO " + t + ";";
+  }
+  return sql + "DROP TABLE graph_keyframes; DROP TABLE graph; DELETE FROM meta WHERE key = "
+               "'chunk_checksums_from_checkpoint'; PRAGMA user_version = 5;";
+}
+
 }  // namespace depthfuse::store::test

@@ -312,7 +312,7 @@ TEST(FrameLog, SchemaFourFileOpensMigrated) {
     ASSERT_TRUE((*s)->commit_checkpoint(info));
   }
   // Schema 5 is schema 4 and the frame_log table: without it, the file is what schema 4 wrote.
-  exec_sql(path, "DROP TABLE frame_log; PRAGMA user_version = 4;");
+  exec_sql(path, test::as_schema_5_sql() + "DROP TABLE frame_log; PRAGMA user_version = 4;");
   auto ro = ScanStore::open(path, OpenMode::kReadOnly);
   ASSERT_FALSE(ro);
   EXPECT_NE(ro.status().message().find("depthfuse inspect --upgrade"), std::string::npos)
@@ -384,4 +384,62 @@ TEST(FrameLog, TheFusionThreadExportsAndCheckpointsWhileTheLogCommits) {
   auto exported = export_cloud((*rec)->store(), dir.file("final.ply"));
   ASSERT_TRUE(exported) << exported.status().to_string();
   EXPECT_EQ(exported->points_written, live.map().point_count());
+}
+
+// A schema-5 file (chunks without versions or checksums, no pose graph) migrates when a writer
+// opens it and resumes: its chunks come back at version 0, counted as unchecked, and a checkpoint
+// after the migration writes checksummed chunks and a graph.
+TEST(FrameLog, SchemaFiveFileMigratesAndResumes) {
+  TempDir dir;
+  const std::string path = dir.file("v5.db");
+  const ChunkKey key{1, 0, 0};
+  {
+    auto s = ScanStore::open(path, OpenMode::kCreate);
+    ASSERT_TRUE(s) << s.status().to_string();
+    ASSERT_TRUE((*s)->begin_checkpoint());
+    Chunk c;
+    c.points = test::make_points(key, 1, 50);
+    ASSERT_TRUE((*s)->write_chunk(key, c));
+    PoseRecord p;
+    p.frame_id = 1;
+    ASSERT_TRUE((*s)->write_pose(p));
+    CheckpointInfo info;
+    info.last_frame_id = 1;
+    info.frames_fused = 1;
+    ASSERT_TRUE((*s)->commit_checkpoint(info));
+  }
+  exec_sql(path, test::as_schema_5_sql());
+  RecorderConfig rc;
+  rc.bounded_memory = false;
+  ResumePoint at;
+  auto rec = ScanRecorder::resume(path, rc, &at);
+  ASSERT_TRUE(rec) << rec.status().to_string();
+  EXPECT_EQ((*rec)->store().open_report().found_schema_version, 5);
+  EXPECT_FALSE(at.graph);
+  ASSERT_TRUE(at.map->find(key));
+  EXPECT_EQ(at.map->find(key)->version, 0u);
+  EXPECT_EQ(at.map->find(key)->points.size(), 50u);
+  auto integrity = (*rec)->store().integrity_check();
+  ASSERT_TRUE(integrity);
+  EXPECT_TRUE(integrity->ok()) << integrity->problems.front();
+  EXPECT_EQ(integrity->chunks_unchecked, 1u);
+  // The next checkpoint rewrites the chunk with its version and checksum, and writes the graph.
+  at.map->find(key)->dirty = true;
+  at.map->find(key)->version = 2;
+  GraphCheckpoint g;
+  g.deformation.T_world_kf.emplace_back();
+  g.deformation.max_motion_m.push_back(0);
+  (*rec)->set_graph(g);
+  ASSERT_TRUE((*rec)->checkpoint(at.map.get(), "command"));
+  auto stored = (*rec)->store().read_chunk(key);
+  ASSERT_TRUE(stored);
+  EXPECT_EQ(stored->info.version, 2u);
+  EXPECT_TRUE(stored->info.checksummed);
+  auto graph = (*rec)->store().read_graph();
+  ASSERT_TRUE(graph) << graph.status().to_string();
+  EXPECT_TRUE(*graph);
+  integrity = (*rec)->store().integrity_check();
+  ASSERT_TRUE(integrity);
+  EXPECT_TRUE(integrity->ok()) << integrity->problems.front();
+  EXPECT_EQ(integrity->chunks_unchecked, 0u);
 }
