@@ -144,9 +144,6 @@ std::string describe_checked(const store::IntegrityReport& integrity) {
                         std::to_string(integrity.graph_keyframes_checked) +
                         " pose graph keyframe records decoded and checksummed; " +
                         std::to_string(poses_summed) + " pose records checksummed";
-  if (integrity.chunks_unchecked > 0)
-    checked += "; " + std::to_string(integrity.chunks_unchecked) +
-               " chunk rows unchecked (written before schema 6, without a checksum: blobs checked)";
   if (integrity.poses_unchecked > 0)
     checked += ", " + std::to_string(integrity.poses_unchecked) +
                " unchecked (written before schema 3, without a checksum: only decoded)";
@@ -155,6 +152,9 @@ std::string describe_checked(const store::IntegrityReport& integrity) {
     if (n > 0)
       checked += "; " + std::to_string(n) + what +
                  " poses unchecked (written before schema 4, without a checksum: only decoded)";
+  if (integrity.chunks_unchecked > 0)
+    checked += "; " + std::to_string(integrity.chunks_unchecked) +
+               " chunk rows unchecked (written before schema 6, without a checksum: blobs checked)";
   checked += "; " + std::to_string(integrity.log_records_checked) +
              " frame log records decoded and checksummed";
   return checked;
