@@ -11,8 +11,11 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <sqlite3.h>
+
 #include <chrono>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <map>
 #include <sstream>
@@ -97,6 +100,7 @@ struct Held {
   size_t odometry = 0, loops = 0;
   uint32_t graph_version = 0, deformation_version = 0;
   uint32_t next_sequence = 0;
+  std::vector<Eigen::Vector3d> trajectory;  // the camera's positions, corrected, frame by frame
   // key -> version, points, sum of the points' coordinates
   std::map<std::tuple<int, int, int>, std::tuple<uint32_t, size_t, double>> chunks;
 };
@@ -111,6 +115,8 @@ void write_held(const std::string& path, const Held& h) {
     for (int i = 0; i < 3; ++i) out << " " << h.keyframe_poses[k].translation()[i];
     out << "\n";
   }
+  out << h.trajectory.size() << "\n";
+  for (const Eigen::Vector3d& p : h.trajectory) out << p.x() << " " << p.y() << " " << p.z() << "\n";
   out << h.chunks.size() << "\n";
   for (const auto& [key, v] : h.chunks)
     out << std::get<0>(key) << " " << std::get<1>(key) << " " << std::get<2>(key) << " "
@@ -129,6 +135,10 @@ Held read_held(const std::string& path) {
     h.keyframe_frames.push_back(frame);
     h.keyframe_poses.push_back(T);
   }
+  size_t poses = 0;
+  in >> poses;
+  h.trajectory.resize(poses);
+  for (Eigen::Vector3d& p : h.trajectory) in >> p.x() >> p.y() >> p.z();
   in >> chunks;
   for (size_t c = 0; c < chunks; ++c) {
     int x, y, z;
@@ -139,6 +149,28 @@ Held read_held(const std::string& path) {
     h.chunks[{x, y, z}] = {version, points, sum};
   }
   return h;
+}
+
+void exec_sql(const std::string& path, const std::string& sql) {
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+  char* err = nullptr;
+  EXPECT_EQ(sqlite3_exec(db, sql.c_str(), nullptr, nullptr, &err), SQLITE_OK) << (err ? err : "");
+  sqlite3_free(err);
+  sqlite3_close(db);
+}
+
+// `depthfuse inspect` on a copy of the scan damaged by `sql`: it fails and names `what`.
+void expect_inspect_names(const std::string& dir, const std::string& scan, const std::string& name,
+                          const std::string& sql, const std::string& what) {
+  const std::string copy = dir + "/" + name + ".dfscan";
+  std::filesystem::copy_file(scan, copy);
+  // The killed writer's last checkpoint may still be in the write-ahead log only.
+  if (std::filesystem::exists(scan + "-wal")) std::filesystem::copy_file(scan + "-wal", copy + "-wal");
+  exec_sql(copy, sql);
+  std::string out;
+  EXPECT_EQ(run_command({bin("depthfuse"), "inspect", copy}, dir + "/" + name + ".log", &out), 1) << out;
+  EXPECT_NE(out.find(what), std::string::npos) << out;
 }
 
 double coordinate_sum(const PointArrays& a) {
@@ -170,6 +202,7 @@ double coordinate_sum(const PointArrays& a) {
   h.graph_version = g.version();
   h.deformation_version = session.reconstructor()->deformation().version();
   h.next_sequence = walk.sequence_;
+  for (const StampedPose& p : session.trajectory()) h.trajectory.push_back(p.T_world_cam.translation());
   session.reconstructor()->map().for_each_chunk([&](const ChunkKey& key, const Chunk& c) {
     if (!c.points.empty())
       h.chunks[{key.x, key.y, key.z}] = {c.version, c.points.size(), coordinate_sum(c.points)};
@@ -212,11 +245,25 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
       ++compared;
     }
     EXPECT_EQ(compared, held.chunks.size());
+    // The stored poses are the corrected ones, the session's at the checkpoint.
+    auto poses = (*reader)->read_poses();
+    ASSERT_TRUE(poses.is_ok());
+    ASSERT_EQ(poses->size(), held.trajectory.size());
+    for (size_t i = 0; i < poses->size(); ++i)
+      ASSERT_LT(((*poses)[i].T_world_cam.translation() - held.trajectory[i]).norm(), 1e-6)
+          << "the stored pose of frame " << (*poses)[i].frame_id << " is not the corrected one";
     auto integrity = (*reader)->integrity_check();
     ASSERT_TRUE(integrity.is_ok());
     EXPECT_TRUE(integrity->ok()) << integrity->problems.front();
     EXPECT_EQ(integrity->graph_keyframes_checked, held.keyframe_frames.size());
   }
+
+  // A damaged row of the graph is named.
+  expect_inspect_names(dir, dir + "/loop.dfscan", "damaged-keyframe",
+                       "UPDATE graph_keyframes SET utime = utime + 1 WHERE keyframe = 3;",
+                       "keyframe 3 of the pose graph: checksum mismatch");
+  expect_inspect_names(dir, dir + "/loop.dfscan", "damaged-graph",
+                       "UPDATE graph SET version = version + 1;", "pose graph: checksum mismatch");
 
   const AppConfig config = scan_config(dir);
   fusiond::SqliteCheckpointSink sink(config, fusiond::SqliteSinkOptions{dir + "/loop.dfscan"});
