@@ -231,6 +231,7 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
   ASSERT_FALSE(held.chunks.empty());
 
   // The file as a reader sees it: the graph, and every chunk's version and points.
+  std::vector<uint32_t> stored_frames;
   {
     auto reader = store::ScanStore::open(dir + "/loop.dfscan", store::OpenMode::kReadOnly);
     ASSERT_TRUE(reader.is_ok()) << reader.status().to_string();
@@ -249,6 +250,7 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
     auto poses = (*reader)->read_poses();
     ASSERT_TRUE(poses.is_ok());
     ASSERT_EQ(poses->size(), held.trajectory.size());
+    for (const store::PoseRecord& p : *poses) stored_frames.push_back(p.frame_id);
     for (size_t i = 0; i < poses->size(); ++i)
       ASSERT_LT(((*poses)[i].T_world_cam.translation() - held.trajectory[i]).norm(), 1e-6)
           << "the stored pose of frame " << (*poses)[i].frame_id << " is not the corrected one";
@@ -293,9 +295,15 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
     EXPECT_NEAR(coordinate_sum(c.points), std::get<2>(it->second), 1e-6) << store::to_string(key);
   });
   EXPECT_GT(resident, 0u);
-  // The trajectory knows its frames: a correction after the resume moves the poses from before.
-  ASSERT_FALSE(session.trajectory().empty());
-  const Pose first_before = session.trajectory()[session.trajectory().size() / 2].T_world_cam;
+  // The trajectory knows its frames: a correction after the resume moves a pose from before the
+  // crash with its keyframe. The last frame before the crash, and its keyframe.
+  ASSERT_EQ(session.trajectory().size(), stored_frames.size());
+  const size_t pre_crash = stored_frames.size() - 1;
+  const Pose pose_before = session.trajectory()[pre_crash].T_world_cam;
+  size_t keyframe = 0;
+  while (keyframe + 1 < g.keyframes().size() && g.keyframes()[keyframe + 1].frame_id <= stored_frames[pre_crash])
+    ++keyframe;
+  const Pose keyframe_before = g.keyframes()[keyframe].T_world_kf;
 
   // On from where the checkpoint left the camera: out along the arc and back again, over the
   // keyframes of before the crash, until a closure on them is applied.
@@ -312,9 +320,11 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
   }();
   ASSERT_TRUE(walk.frame(2));
   EXPECT_GT(session.reconstructor()->deformation().version(), held.deformation_version);
-  const Pose first_after = session.trajectory()[session.trajectory().size() / 2].T_world_cam;
-  EXPECT_GT((first_after.translation() - first_before.translation()).norm(), 0.0)
-      << "the correction did not move a pose fused before the crash";
+  const Pose motion = g.keyframes()[keyframe].T_world_kf * keyframe_before.inverse();
+  ASSERT_GT(motion.translation().norm(), 1e-4) << "the closure did not move keyframe " << keyframe;
+  const Pose pose_after = session.trajectory()[pre_crash].T_world_cam;
+  EXPECT_LT((pose_after.translation() - (motion * pose_before).translation()).norm(), 1e-6)
+      << "the pose of frame " << stored_frames[pre_crash] << " did not move with keyframe " << keyframe;
   // The points fused before the crash followed it: chunks from the file brought up to date.
   EXPECT_GT(session.reconstructor()->deformation().stats().points_updated, 0u);
 }
