@@ -427,6 +427,8 @@ TEST(FrameLog, SchemaFiveFileMigratesAndResumes) {
   at.map->find(key)->dirty = true;
   at.map->find(key)->version = 2;
   GraphCheckpoint g;
+  g.graph.version = 2;
+  g.deformation.oldest_version = 2;
   g.deformation.T_world_kf.emplace_back();
   g.deformation.max_motion_m.push_back(0);
   (*rec)->set_graph(g);

@@ -383,7 +383,7 @@ bool ScanRecorder::checkpoint_in_background(PointMap* map, const std::string& re
   job.removed = removed_chunks(*map);
   job.poses.swap(pending_poses_);
   job.corrections.swap(corrections_);
-  job.graph = graph_;
+  if (graph_ && !graph_->empty()) job.graph = graph_;
   status_.pending_poses = 0;
   if (!writer_) {
     auto connection = store_->another_connection(config_.store);
@@ -474,7 +474,7 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
     }
     for (const PoseRecord& p : pending_poses_) DF_RETURN_IF_ERROR(store.write_pose(p));
     DF_RETURN_IF_ERROR(store.correct_poses(corrections_));
-    if (graph_) DF_RETURN_IF_ERROR(store.write_graph(*graph_));
+    if (graph_ && !graph_->empty()) DF_RETURN_IF_ERROR(store.write_graph(*graph_));
     return Status::ok();
   };
   st = body();

@@ -191,7 +191,8 @@ class ScanRecorder {
   Status record_frame(const Frame& frame, const FrameReport& report, PointMap* map);
 
   // The pose graph the next checkpoint writes (FramePath::checkpoint_state()), in the same
-  // transaction as the chunks: a resume finds the two agreeing.
+  // transaction as the chunks: a resume finds the two agreeing. An empty graph (no keyframes yet,
+  // or a scan without loop closure) is not written.
   void set_graph(GraphCheckpoint graph) { graph_ = std::move(graph); }
   // A loop closure applied before frame `before_frame` was fused: the poses (and keyframe poses)
   // of the frames before it move with their keyframes, in the file at the next checkpoint.
