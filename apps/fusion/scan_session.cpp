@@ -131,7 +131,13 @@ Result<FrameOutcome> ScanSession::process(const Frame& frame) {
   const uint32_t frame_id = reconstructor_->next_frame_id();
   Result<FrameOutcome> outcome = path_->run(frame);
   if (!outcome) return outcome;
-  if (outcome->correction) correct_trajectory(*outcome->correction, frame_id);
+  if (outcome->correction) {
+    correct_trajectory(*outcome->correction, frame_id);
+    // The frame log holds poses, not corrections: a crash before the next checkpoint would replay
+    // the frames fused since in the corrected frame over a map of the version before. A checkpoint
+    // at once (in the background) keeps that window to its latency.
+    last_checkpoint_ = Clock::time_point{};
+  }
   if (outcome->report.fused()) {
     trajectory_.push_back({frame.utime * 1e-6, outcome->report.T_world_cam});
     trajectory_frames_.push_back(outcome->report.frame_id);

@@ -3,7 +3,9 @@
 // keyframes' poses, the loop edges, the version, the map deformation's history: `graph`); and the
 // stored poses moved by a correction. Written inside a checkpoint, on the connection's thread;
 // read by a resume and by inspect. Layouts: docs/checkpoint-format.md, "The pose graph".
+#include <algorithm>
 #include <cstring>
+#include <tuple>
 
 #include "depthfuse/store/checksum.hpp"
 #include "scan_store_internal.hpp"
@@ -312,18 +314,17 @@ Status ScanStore::correct_poses(const std::vector<PoseCorrection>& corrections) 
       if (frame_id < c.before_frame) T = c.correction.motion_of(frame_id) * T;
     return T;
   };
-  // Read first, then write: a statement still reading the table would see the rows it rewrote.
+  // Read first, then write: a statement still reading the table would see the rows it rewrote. A
+  // row that fails its checksum is left as it is (a new checksum would hide the damage from
+  // inspect), and does not stop the checkpoint.
   std::vector<PoseRecord> poses;
   {
     auto st = s.db.prepare(std::string("SELECT ") + kPoseColumns + " FROM poses WHERE frame_id < ? ORDER BY frame_id;",
                            "reading the poses to correct");
     if (!st) return st.status();
     st->bind(1, before);
-    for (const sql::Row& row : st->rows()) {
-      auto p = s.pose_of(row);
-      if (!p) return p.status();
-      poses.push_back(*p);
-    }
+    for (const sql::Row& row : st->rows())
+      if (auto p = s.pose_of(row)) poses.push_back(*p);
     DF_RETURN_IF_ERROR(st->status());
   }
   for (PoseRecord& p : poses) {
@@ -332,17 +333,13 @@ Status ScanStore::correct_poses(const std::vector<PoseCorrection>& corrections) 
   }
   std::vector<std::pair<uint32_t, Pose>> keyframes;
   {
-    auto st = s.db.prepare("SELECT frame_id, T_world_cam FROM keyframes WHERE frame_id < ?;",
+    auto st = s.db.prepare(std::string("SELECT ") + kKeyframeColumns + " FROM keyframes WHERE frame_id < ?;",
                            "reading the keyframe poses to correct");
     if (!st) return st.status();
     st->bind(1, before);
-    for (const sql::Row& row : st->rows()) {
-      Pose T;
-      const auto id = static_cast<uint32_t>(row.int64(0));
-      DF_RETURN_IF_ERROR(decode_pose(row.blob(1), row.blob_size(1),
-                                     s.path + ": keyframe " + std::to_string(id) + " pose", &T));
-      keyframes.emplace_back(id, T);
-    }
+    Keyframe k;
+    for (const sql::Row& row : st->rows())
+      if (s.keyframe_head_of(row, &k)) keyframes.emplace_back(k.frame_id, k.T_world_cam);
     DF_RETURN_IF_ERROR(st->status());
   }
   for (const auto& [id, T] : keyframes) DF_RETURN_IF_ERROR(update_keyframe_pose(id, moved(id, T)));
