@@ -389,7 +389,7 @@ TEST(FrameLog, TheFusionThreadExportsAndCheckpointsWhileTheLogCommits) {
 // A schema-5 file (chunks without versions or checksums, no pose graph) migrates when a writer
 // opens it and resumes: its chunks come back at version 0, counted as unchecked, and a checkpoint
 // after the migration writes checksummed chunks and a graph.
-TEST(FrameLog, SchemaFiveFileMigratesAndResumes) {
+TEST(SchemaSix, ASchemaFiveFileMigratesAndResumes) {
   TempDir dir;
   const std::string path = dir.file("v5.db");
   const ChunkKey key{1, 0, 0};
@@ -444,4 +444,41 @@ TEST(FrameLog, SchemaFiveFileMigratesAndResumes) {
   ASSERT_TRUE(integrity);
   EXPECT_TRUE(integrity->ok()) << integrity->problems.front();
   EXPECT_EQ(integrity->chunks_unchecked, 0u);
+}
+
+// A chunk row's version is covered by its checksum (a changed version would move or freeze the
+// chunk's points on a resume), and a NULL checksum in a row written since schema 6 is damage.
+TEST(SchemaSix, AChunkRowsVersionIsChecked) {
+  TempDir dir;
+  const std::string path = dir.file("v6.db");
+  const ChunkKey key{1, 0, 0};
+  {
+    auto s = ScanStore::open(path, OpenMode::kCreate);
+    ASSERT_TRUE(s) << s.status().to_string();
+    ASSERT_TRUE((*s)->begin_checkpoint());
+    Chunk c;
+    c.points = test::make_points(key, 1, 50);
+    c.version = 3;
+    ASSERT_TRUE((*s)->write_chunk(key, c));
+    CheckpointInfo info;
+    ASSERT_TRUE((*s)->commit_checkpoint(info));
+  }
+  auto integrity_problems = [&] {
+    auto s = ScanStore::open(path, OpenMode::kReadOnly);
+    EXPECT_TRUE(s) << s.status().to_string();
+    auto r = (*s)->integrity_check();
+    EXPECT_TRUE(r);
+    return r->problems;
+  };
+  EXPECT_TRUE(integrity_problems().empty());
+  exec_sql(path, "UPDATE chunks SET version = 4;");
+  auto problems = integrity_problems();
+  ASSERT_EQ(problems.size(), 1u);
+  EXPECT_NE(problems[0].find("chunk (1,0,0): checksum mismatch"), std::string::npos) << problems[0];
+  exec_sql(path, "UPDATE chunks SET version = 3, checksum = NULL;");
+  problems = integrity_problems();
+  ASSERT_EQ(problems.size(), 1u);
+  EXPECT_NE(problems[0].find("chunk (1,0,0) has no checksum, though every chunk from checkpoint 1 on"),
+            std::string::npos)
+      << problems[0];
 }
