@@ -1,7 +1,8 @@
 // Kill -9 after a loop closure, resume: the pose graph and the corrected map come back. A scan of
 // the analytic corner through ScanSession (the fusion daemon's path over the SQLite sink) goes out
 // along an arc and back, so that the way back closes a loop; it is checkpointed after the closure
-// and its process is killed with SIGKILL a few frames later. A new session resumes the file: the
+// (a periodic checkpoint, written in the background) and its process is killed with SIGKILL a few
+// frames later. A new session resumes the file: the
 // graph (keyframes, edges, version), the map's deformation version and the chunks (versions,
 // points) are what the checkpoint held, and a further closure after the resume moves the poses and
 // points fused before the crash.
@@ -190,7 +191,12 @@ double coordinate_sum(const PointArrays& a) {
   if (!walk.go(0, 1, 1) || !walk.go(1, 45, 0.75) || !walk.go(45, 2, 0.75)) _exit(11);
   if (!walk.until_version_above(0, 2)) _exit(12);
   if (!walk.frame(2)) _exit(13);  // the map follows the correction around the camera
-  if (!session.checkpoint("command", fusiond::FusionProgress{}).is_ok()) _exit(14);
+  // The daemon's periodic checkpoint: written by the recorder's thread from a snapshot taken now.
+  if (!session.checkpoint("periodic", fusiond::FusionProgress{}).is_ok()) _exit(14);
+  for (int i = 0; sink.checkpoint_in_flight(); ++i) {
+    if (i > 1000) _exit(16);
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
   Held h;
   const ScanGraph& g = session.path()->graph();
   for (const GraphKeyframe& k : g.keyframes()) {
