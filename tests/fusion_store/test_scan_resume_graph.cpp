@@ -12,8 +12,6 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
-#include <sqlite3.h>
-
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -27,6 +25,7 @@
 #include "lcm_test_util.hpp"
 #include "scan_session.hpp"
 #include "sqlite_checkpoint_sink.hpp"
+#include "store_test_util.hpp"
 
 namespace depthfuse::testing {
 namespace {
@@ -152,14 +151,6 @@ Held read_held(const std::string& path) {
   return h;
 }
 
-void exec_sql(const std::string& path, const std::string& sql) {
-  sqlite3* db = nullptr;
-  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
-  char* err = nullptr;
-  EXPECT_EQ(sqlite3_exec(db, sql.c_str(), nullptr, nullptr, &err), SQLITE_OK) << (err ? err : "");
-  sqlite3_free(err);
-  sqlite3_close(db);
-}
 
 // `depthfuse inspect` on a copy of the scan damaged by `sql`: it fails and names `what`.
 void expect_inspect_names(const std::string& dir, const std::string& scan, const std::string& name,
@@ -168,7 +159,7 @@ void expect_inspect_names(const std::string& dir, const std::string& scan, const
   std::filesystem::copy_file(scan, copy);
   // The killed writer's last checkpoint may still be in the write-ahead log only.
   if (std::filesystem::exists(scan + "-wal")) std::filesystem::copy_file(scan + "-wal", copy + "-wal");
-  exec_sql(copy, sql);
+  store::test::exec_sql(copy, sql);
   std::string out;
   EXPECT_EQ(run_command({bin("depthfuse"), "inspect", copy}, dir + "/" + name + ".log", &out), 1) << out;
   EXPECT_NE(out.find(what), std::string::npos) << out;

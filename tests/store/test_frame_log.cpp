@@ -99,15 +99,7 @@ int run_cli(const std::string& args, std::string* out) {
   return r.code;
 }
 
-void exec_sql(const std::string& path, const std::string& sql) {
-  sqlite3* db = nullptr;
-  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
-  char* err = nullptr;
-  const int rc = sqlite3_exec(db, sql.c_str(), nullptr, nullptr, &err);
-  EXPECT_EQ(rc, SQLITE_OK) << (err ? err : "");
-  sqlite3_free(err);
-  sqlite3_close(db);
-}
+using test::exec_sql;
 
 TEST(FrameLog, KilledAfterLogOnlyCommitsResumesToTheSameMapAndFrameId) {
   TempDir dir;
