@@ -419,6 +419,16 @@ Result<std::optional<GraphCheckpoint>> ScanStore::read_graph() {
   if (k != summary.keyframes)
     return corrupt(s.path + ": the pose graph counts " + std::to_string(summary.keyframes) +
                    " keyframes, the file holds " + std::to_string(k));
+  // The map follows the graph's keyframes: each one's segment starts at its frame.
+  const std::vector<uint32_t>& first = g.deformation.keyframe_first_frame;
+  if (first.size() != k)
+    return corrupt(s.path + ": the pose graph has " + std::to_string(k) + " keyframes, the map's deformation " +
+                   std::to_string(first.size()));
+  for (size_t i = 0; i < k; ++i)
+    if (first[i] != g.graph.keyframes[i].frame_id)
+      return corrupt(s.path + ": keyframe " + std::to_string(i) + " of the pose graph is frame " +
+                     std::to_string(g.graph.keyframes[i].frame_id) + ", the map's deformation starts its segment at frame " +
+                     std::to_string(first[i]));
   return std::optional<GraphCheckpoint>(std::move(g));
 }
 
