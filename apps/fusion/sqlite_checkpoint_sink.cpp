@@ -92,6 +92,11 @@ Status SqliteCheckpointSink::begin_scan(const ScanContext& scan) {
 
 Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, ScanContext* scan,
                                      RestoredScan* restored) {
+  if (store::MapPager* pager = recorder_ ? recorder_->pager() : nullptr) {
+    pager->set_bring_up_to_date([&reconstructor](PointMap* map, const ChunkKey& key) {
+      reconstructor.deformation().update(map, {key});
+    });
+  }
   if (!resume_) return Status::ok();
   std::unique_ptr<store::ResumePoint> at = std::move(resume_);
   if (!at->metadata.scan_id.empty()) scan->scan_id = at->metadata.scan_id;

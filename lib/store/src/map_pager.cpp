@@ -145,6 +145,22 @@ Status MapPager::load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t
       continue;
     }
     Chunk loaded = std::move(stored->chunk);
+    if (Chunk* resident = map->find(k); resident && bring_up_to_date_ && resident->version != loaded.version) {
+      // The stored points follow the corrections made since they were evicted, in the map under
+      // their key, then the resident ones join them.
+      Chunk newer;
+      map->extract(k, &newer);
+      map->insert(k, std::move(loaded));
+      bring_up_to_date_(map, k);
+      Chunk& merged = map->get_or_create(k);
+      merged.points.append(newer.points);
+      merged.last_touched_frame = std::max(merged.last_touched_frame, newer.last_touched_frame);
+      merged.dirty = true;
+      ++stats_.load_collisions;
+      loaded_at_[k] = frame_id;
+      ++stats_.total_loaded;
+      continue;
+    }
     if (Chunk* resident = map->find(k)) {
       // Fusion created the chunk while it was evicted (prepare() was skipped or the pose jumped):
       // keep both sets of points.

@@ -110,6 +110,14 @@ class MapPager {
   // for the checkpoint here.
   void set_before_staging(std::function<void()> fn) { before_staging_ = std::move(fn); }
 
+  // Brings the chunk at a key of the map up to the pose graph's current version (the map's
+  // deformation). A chunk loaded where fusion or the deformation made a new one while it was
+  // evicted is brought up to date before the two are merged: their points are in two versions,
+  // and a chunk holds one. Without it the two are merged as they are.
+  void set_bring_up_to_date(std::function<void(PointMap*, const ChunkKey&)> fn) {
+    bring_up_to_date_ = std::move(fn);
+  }
+
   // Bytes a chunk holds in memory, as the budget counts them.
   static size_t chunk_bytes(const Chunk& chunk);
 
@@ -134,6 +142,7 @@ class MapPager {
   PagerStats stats_;
   int skip_eviction_calls_ = 0;
   std::function<void()> before_staging_;
+  std::function<void(PointMap*, const ChunkKey&)> bring_up_to_date_;
   struct Candidate {
     ChunkKey key;
     uint32_t last_used_frame;
