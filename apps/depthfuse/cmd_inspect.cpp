@@ -89,10 +89,11 @@ void print_summary(const store::StoreSummary& s) {
   }
   if (s.graph) {
     const store::GraphSummary& g = *s.graph;
-    std::printf("pose graph     %zu keyframes (%s), %zu loops, version %u; deformation history from "
-                "version %u (written by checkpoint #%" PRId64 ")\n",
-                g.keyframes, mib(g.keyframe_bytes + g.state_bytes).c_str(), g.loops, g.version,
-                g.deformation_oldest_version, g.checkpoint_id);
+    std::printf(
+        "pose graph     %zu keyframes (%s), %zu loops, version %u; deformation history from "
+        "version %u (written by checkpoint #%" PRId64 ")\n",
+        g.keyframes, mib(g.keyframe_bytes + g.state_bytes).c_str(), g.loops, g.version,
+        g.deformation_oldest_version, g.checkpoint_id);
   } else if (!s.graph_problem.empty()) {
     std::printf("pose graph     unreadable: %s\n", s.graph_problem.c_str());
   } else {

@@ -38,9 +38,9 @@ struct FusionProgress {
 
 // What a resumed scan continues with besides its map (CheckpointSink::restore).
 struct RestoredScan {
-  std::vector<StampedPose> trajectory;   // the poses recorded so far, corrected by loop closures
+  std::vector<StampedPose> trajectory;      // the poses recorded so far, corrected by loop closures
   std::vector<uint32_t> trajectory_frames;  // each one's frame id
-  std::optional<ScanGraphState> graph;   // the pose graph of the checkpoint (FramePath::restore)
+  std::optional<ScanGraphState> graph;      // the pose graph of the checkpoint (FramePath::restore)
 };
 
 // A FrameStore of the scan's frame path (ScanSession runs FramePath over it): prepare_frame before

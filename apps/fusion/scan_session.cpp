@@ -110,7 +110,8 @@ Result<std::string> ScanSession::start(const std::string& requested_name) {
   auto path = std::make_unique<FramePath>(*reconstructor, &sink_, /*background_loop_closure=*/true);
   // The graph of before the restart: a later closure moves the poses and the map fused before it.
   if (restored.graph)
-    DF_RETURN_IF_ERROR(path->restore(std::move(*restored.graph)).with_context("resuming scan " + scan_.scan_id));
+    DF_RETURN_IF_ERROR(
+        path->restore(std::move(*restored.graph)).with_context("resuming scan " + scan_.scan_id));
   reconstructor_ = std::move(reconstructor);
   path_ = std::move(path);
   trajectory_ = std::move(restored.trajectory);
@@ -168,7 +169,8 @@ Status ScanSession::checkpoint(const std::string& reason, const FusionProgress& 
 
 void ScanSession::correct_trajectory(const AppliedCorrection& correction, uint32_t before_frame) {
   for (size_t i = 0; i < trajectory_.size(); ++i)
-    trajectory_[i].T_world_cam = correction.motion_of(trajectory_frames_[i]) * trajectory_[i].T_world_cam;
+    trajectory_[i].T_world_cam =
+        correction.motion_of(trajectory_frames_[i]) * trajectory_[i].T_world_cam;
   sink_.poses_corrected(correction, before_frame);
 }
 

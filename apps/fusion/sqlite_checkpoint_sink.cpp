@@ -138,32 +138,32 @@ Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, Sc
     restored->trajectory_frames.push_back(p.frame_id);
   }
   const auto& r = at->open_report;
-  DF_LOG(Fusion, Info) << "resumed scan " << scan->scan_id << " from " << path_ << " at checkpoint "
-                       << (at->checkpoint ? at->checkpoint->id : 0) << " (frame "
-                       << at->next_frame_id - 1 << "), replayed " << *replayed
-                       << " logged frames: next frame " << reconstructor.next_frame_id() << ", "
-                       << reconstructor.map().point_count()
-                       << " resident points; discarded after the checkpoint: " << r.discarded_poses
-                       << " poses, " << r.discarded_keyframes << " keyframes, "
-                       << r.discarded_staged_chunks << " staged chunks"
-                       << (restored->graph ? "; pose graph of " + std::to_string(restored->graph->keyframes.size()) +
-                                                 " keyframes, " + std::to_string(restored->graph->loops.size()) +
-                                                 " loops, version " + std::to_string(restored->graph->version)
-                                           : std::string());
+  DF_LOG(Fusion, Info)
+      << "resumed scan " << scan->scan_id << " from " << path_ << " at checkpoint "
+      << (at->checkpoint ? at->checkpoint->id : 0) << " (frame " << at->next_frame_id - 1
+      << "), replayed " << *replayed << " logged frames: next frame "
+      << reconstructor.next_frame_id() << ", " << reconstructor.map().point_count()
+      << " resident points; discarded after the checkpoint: " << r.discarded_poses << " poses, "
+      << r.discarded_keyframes << " keyframes, " << r.discarded_staged_chunks << " staged chunks"
+      << (restored->graph ? "; pose graph of " + std::to_string(restored->graph->keyframes.size()) +
+                                " keyframes, " + std::to_string(restored->graph->loops.size()) +
+                                " loops, version " + std::to_string(restored->graph->version)
+                          : std::string());
   return Status::ok();
 }
 
 void SqliteCheckpointSink::keep_history_for_evicted(IncrementalReconstructor& reconstructor) {
   const store::MapPager* pager = recorder_ ? recorder_->pager() : nullptr;
-  reconstructor.deformation().set_oldest_stored_version(
-      pager ? pager->oldest_evicted_version() : std::nullopt);
+  reconstructor.deformation().set_oldest_stored_version(pager ? pager->oldest_evicted_version()
+                                                              : std::nullopt);
 }
 
 void SqliteCheckpointSink::keep_graph(GraphCheckpoint graph) {
   if (recorder_) recorder_->set_graph(std::move(graph));
 }
 
-void SqliteCheckpointSink::poses_corrected(const AppliedCorrection& correction, uint32_t before_frame) {
+void SqliteCheckpointSink::poses_corrected(const AppliedCorrection& correction,
+                                           uint32_t before_frame) {
   if (recorder_) recorder_->poses_corrected(correction, before_frame);
 }
 

@@ -152,19 +152,22 @@ Status ScanGraph::restore(ScanGraphState s) {
     return invalid_argument(what + ": " + std::to_string(n) + " keyframes but " +
                             std::to_string(s.odometry.size()) + " odometry edges");
   for (size_t i = 0; i < n; ++i) {
-    if (!s.keyframes[i].cloud) return invalid_argument(what + ": keyframe " + std::to_string(i) + " has no cloud");
+    if (!s.keyframes[i].cloud)
+      return invalid_argument(what + ": keyframe " + std::to_string(i) + " has no cloud");
     if (i > 0 && s.keyframes[i].frame_id <= s.keyframes[i - 1].frame_id)
       return invalid_argument(what + ": keyframe " + std::to_string(i) + "'s frame " +
-                              std::to_string(s.keyframes[i].frame_id) + " is not after the previous one's");
+                              std::to_string(s.keyframes[i].frame_id) +
+                              " is not after the previous one's");
   }
   for (size_t i = 0; i < s.odometry.size(); ++i)
     if (s.odometry[i].from != i || s.odometry[i].to != i + 1)
-      return invalid_argument(what + ": odometry edge " + std::to_string(i) + " does not join keyframes " +
-                              std::to_string(i) + " and " + std::to_string(i + 1));
+      return invalid_argument(what + ": odometry edge " + std::to_string(i) +
+                              " does not join keyframes " + std::to_string(i) + " and " +
+                              std::to_string(i + 1));
   for (const PoseGraphEdge& e : s.loops)
     if (e.from >= n || e.to >= n)
-      return invalid_argument(what + ": a loop edge joins keyframes " + std::to_string(e.from) + " and " +
-                              std::to_string(e.to) + " of " + std::to_string(n));
+      return invalid_argument(what + ": a loop edge joins keyframes " + std::to_string(e.from) +
+                              " and " + std::to_string(e.to) + " of " + std::to_string(n));
   keyframes_ = std::move(s.keyframes);
   odometry_ = std::move(s.odometry);
   odometry_covariance_ = std::move(s.odometry_covariance);

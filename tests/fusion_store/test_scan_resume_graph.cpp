@@ -7,7 +7,6 @@
 // points) are what the checkpoint held, and a further closure after the resume moves the poses and
 // points fused before the crash.
 #include <gtest/gtest.h>
-
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -79,9 +78,12 @@ class Walk {
       return false;
     }
     // A frame the tracking refuses is not fused; the scan goes on (as the daemon's does).
-    if (out->report.fused()) ++fused;
-    else last_problem = "frame " + std::to_string(out->report.frame_id) + " not fused (graph version " +
-                        std::to_string(session_->path()->graph().version()) + ")";
+    if (out->report.fused())
+      ++fused;
+    else
+      last_problem = "frame " + std::to_string(out->report.frame_id) +
+                     " not fused (graph version " +
+                     std::to_string(session_->path()->graph().version()) + ")";
     ++processed;
     return true;
   }
@@ -116,7 +118,8 @@ void write_held(const std::string& path, const Held& h) {
     out << "\n";
   }
   out << h.trajectory.size() << "\n";
-  for (const Eigen::Vector3d& p : h.trajectory) out << p.x() << " " << p.y() << " " << p.z() << "\n";
+  for (const Eigen::Vector3d& p : h.trajectory)
+    out << p.x() << " " << p.y() << " " << p.z() << "\n";
   out << h.chunks.size() << "\n";
   for (const auto& [key, v] : h.chunks)
     out << std::get<0>(key) << " " << std::get<1>(key) << " " << std::get<2>(key) << " "
@@ -127,7 +130,8 @@ Held read_held(const std::string& path) {
   Held h;
   std::ifstream in(path);
   size_t keyframes = 0, chunks = 0;
-  in >> keyframes >> h.odometry >> h.loops >> h.graph_version >> h.deformation_version >> h.next_sequence;
+  in >> keyframes >> h.odometry >> h.loops >> h.graph_version >> h.deformation_version >>
+      h.next_sequence;
   for (size_t k = 0; k < keyframes; ++k) {
     uint32_t frame = 0;
     Pose T = Pose::Identity();
@@ -151,17 +155,18 @@ Held read_held(const std::string& path) {
   return h;
 }
 
-
 // `depthfuse inspect` on a copy of the scan damaged by `sql`: it fails and names `what`.
 void expect_inspect_names(const std::string& dir, const std::string& scan, const std::string& name,
                           const std::string& sql, const std::string& what) {
   const std::string copy = dir + "/" + name + ".dfscan";
   std::filesystem::copy_file(scan, copy);
   // The killed writer's last checkpoint may still be in the write-ahead log only.
-  if (std::filesystem::exists(scan + "-wal")) std::filesystem::copy_file(scan + "-wal", copy + "-wal");
+  if (std::filesystem::exists(scan + "-wal"))
+    std::filesystem::copy_file(scan + "-wal", copy + "-wal");
   store::test::exec_sql(copy, sql);
   std::string out;
-  EXPECT_EQ(run_command({bin("depthfuse"), "inspect", copy}, dir + "/" + name + ".log", &out), 1) << out;
+  EXPECT_EQ(run_command({bin("depthfuse"), "inspect", copy}, dir + "/" + name + ".log", &out), 1)
+      << out;
   EXPECT_NE(out.find(what), std::string::npos) << out;
 }
 
@@ -199,7 +204,8 @@ double coordinate_sum(const PointArrays& a) {
   h.graph_version = g.version();
   h.deformation_version = session.reconstructor()->deformation().version();
   h.next_sequence = walk.sequence_;
-  for (const StampedPose& p : session.trajectory()) h.trajectory.push_back(p.T_world_cam.translation());
+  for (const StampedPose& p : session.trajectory())
+    h.trajectory.push_back(p.T_world_cam.translation());
   session.reconstructor()->map().for_each_chunk([&](const ChunkKey& key, const Chunk& c) {
     if (!c.points.empty())
       h.chunks[{key.x, key.y, key.z}] = {c.version, c.points.size(), coordinate_sum(c.points)};
@@ -273,7 +279,9 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
   ASSERT_EQ(g.keyframes().size(), held.keyframe_frames.size());
   for (size_t k = 0; k < held.keyframe_frames.size(); ++k) {
     EXPECT_EQ(g.keyframes()[k].frame_id, held.keyframe_frames[k]);
-    EXPECT_LT((g.keyframes()[k].T_world_kf.translation() - held.keyframe_poses[k].translation()).norm(), 1e-9);
+    EXPECT_LT(
+        (g.keyframes()[k].T_world_kf.translation() - held.keyframe_poses[k].translation()).norm(),
+        1e-9);
     ASSERT_TRUE(g.keyframes()[k].cloud);
     EXPECT_GT(g.keyframes()[k].cloud->size(), 100u);
   }
@@ -298,7 +306,8 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
   const size_t pre_crash = stored_frames.size() - 1;
   const Pose pose_before = session.trajectory()[pre_crash].T_world_cam;
   size_t keyframe = 0;
-  while (keyframe + 1 < g.keyframes().size() && g.keyframes()[keyframe + 1].frame_id <= stored_frames[pre_crash])
+  while (keyframe + 1 < g.keyframes().size() &&
+         g.keyframes()[keyframe + 1].frame_id <= stored_frames[pre_crash])
     ++keyframe;
   const Pose keyframe_before = g.keyframes()[keyframe].T_world_kf;
 
@@ -308,20 +317,23 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
   walk.sequence_ = held.next_sequence;
   ASSERT_TRUE(walk.go(2, 45, 0.75) && walk.go(45, 2, 0.75)) << walk.last_problem;
   EXPECT_GE(walk.fused, walk.processed * 9 / 10) << walk.last_problem;
-  ASSERT_TRUE(walk.until_version_above(held.graph_version, 2)) << "no closure after the resume: " << [&] {
-    const LoopClosureStats st = session.path()->loop_closure_stats();
-    return std::to_string(g.keyframes().size()) + " keyframes, " + std::to_string(st.keyframes_searched) +
-           " searched, " + std::to_string(st.candidates) + " candidates, " + std::to_string(st.aligned) +
-           " aligned, " + std::to_string(st.gated) + " gated, " + std::to_string(st.rejected) + " rejected, " +
-           std::to_string(st.optimisations) + " optimisations";
-  }();
+  ASSERT_TRUE(walk.until_version_above(held.graph_version, 2)) << "no closure after the resume: " <<
+      [&] {
+        const LoopClosureStats st = session.path()->loop_closure_stats();
+        return std::to_string(g.keyframes().size()) + " keyframes, " +
+               std::to_string(st.keyframes_searched) + " searched, " +
+               std::to_string(st.candidates) + " candidates, " + std::to_string(st.aligned) +
+               " aligned, " + std::to_string(st.gated) + " gated, " + std::to_string(st.rejected) +
+               " rejected, " + std::to_string(st.optimisations) + " optimisations";
+      }();
   ASSERT_TRUE(walk.frame(2));
   EXPECT_GT(session.reconstructor()->deformation().version(), held.deformation_version);
   const Pose motion = g.keyframes()[keyframe].T_world_kf * keyframe_before.inverse();
   ASSERT_GT(motion.translation().norm(), 1e-4) << "the closure did not move keyframe " << keyframe;
   const Pose pose_after = session.trajectory()[pre_crash].T_world_cam;
   EXPECT_LT((pose_after.translation() - (motion * pose_before).translation()).norm(), 1e-6)
-      << "the pose of frame " << stored_frames[pre_crash] << " did not move with keyframe " << keyframe;
+      << "the pose of frame " << stored_frames[pre_crash] << " did not move with keyframe "
+      << keyframe;
   // The points fused before the crash followed it: chunks from the file brought up to date.
   EXPECT_GT(session.reconstructor()->deformation().stats().points_updated, 0u);
 }

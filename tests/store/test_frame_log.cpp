@@ -470,7 +470,8 @@ TEST(SchemaSix, AChunkRowsVersionIsChecked) {
   exec_sql(path, "UPDATE chunks SET version = 3, checksum = NULL;");
   problems = integrity_problems();
   ASSERT_EQ(problems.size(), 1u);
-  EXPECT_NE(problems[0].find("chunk (1,0,0) has no checksum, though every chunk from checkpoint 1 on"),
-            std::string::npos)
+  EXPECT_NE(
+      problems[0].find("chunk (1,0,0) has no checksum, though every chunk from checkpoint 1 on"),
+      std::string::npos)
       << problems[0];
 }

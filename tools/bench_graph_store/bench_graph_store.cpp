@@ -4,7 +4,6 @@
 // deformation history of `versions` versions) and one keyframe appended per checkpoint. The
 // ratio of the two is what the graph adds to a checkpoint.
 #include <benchmark/benchmark.h>
-
 #include <unistd.h>
 
 #include <cstdio>

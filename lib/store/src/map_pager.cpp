@@ -145,7 +145,8 @@ Status MapPager::load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t
       continue;
     }
     Chunk loaded = std::move(stored->chunk);
-    if (Chunk* resident = map->find(k); resident && bring_up_to_date_ && resident->version != loaded.version) {
+    if (Chunk* resident = map->find(k);
+        resident && bring_up_to_date_ && resident->version != loaded.version) {
       // The stored points follow the corrections made since they were evicted, in the map under
       // their key, then the resident ones join them.
       Chunk newer;

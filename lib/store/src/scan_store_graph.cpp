@@ -14,7 +14,7 @@ namespace depthfuse::store {
 
 namespace {
 
-constexpr size_t kPoseBytes = 12 * sizeof(double);   // encode_pose's
+constexpr size_t kPoseBytes = 12 * sizeof(double);    // encode_pose's
 constexpr size_t kMatrixBytes = 36 * sizeof(double);  // a 6x6 matrix, column-major
 constexpr size_t kThumbnailFloats = std::tuple_size<decltype(KeyframeCloud::thumbnail)>::value;
 
@@ -113,7 +113,8 @@ std::vector<uint8_t> encode_state(const GraphCheckpoint& g) {
 
 // Into g: the keyframes' poses (g->graph.keyframes sized by the caller's rows or, when empty,
 // made here), the loops and the history.
-Status decode_state(const std::vector<uint8_t>& bytes, const std::string& what, GraphCheckpoint* g) {
+Status decode_state(const std::vector<uint8_t>& bytes, const std::string& what,
+                    GraphCheckpoint* g) {
   Reader r(bytes.data(), bytes.size(), what);
   uint32_t n = 0;
   DF_RETURN_IF_ERROR(r.count(&n, kPoseBytes));
@@ -163,7 +164,8 @@ Status encode_cloud(BlobCodec& codec, const KeyframeCloud& c, std::vector<uint8_
 Status decode_cloud(BlobCodec& codec, const void* blob, size_t size, const std::string& what,
                     KeyframeCloud* c) {
   std::vector<uint8_t> bytes;
-  DF_RETURN_IF_ERROR(codec.decode_column(blob, size, what, BlobKind::kKeyframeCloud, sizeof(float), &bytes));
+  DF_RETURN_IF_ERROR(
+      codec.decode_column(blob, size, what, BlobKind::kKeyframeCloud, sizeof(float), &bytes));
   const size_t floats = bytes.size() / sizeof(float);
   if (floats < kThumbnailFloats || (floats - kThumbnailFloats) % 6 != 0)
     return corrupt(what + ": " + std::to_string(floats) + " values are not points and a thumbnail");
@@ -201,7 +203,8 @@ uint32_t graph_row_checksum(int64_t checkpoint_id, uint32_t version, uint32_t ke
       .value();
 }
 
-constexpr const char* kGraphRow = "SELECT checkpoint_id, version, keyframe_count, checksum, state FROM graph WHERE id = 1;";
+constexpr const char* kGraphRow =
+    "SELECT checkpoint_id, version, keyframe_count, checksum, state FROM graph WHERE id = 1;";
 
 // The graph row, its checksum checked and its state blob decoded into *g (poses into the
 // keyframes g holds, or as many as it announces).
@@ -224,17 +227,20 @@ Status read_graph_row(ScanStore::Impl& s, GraphCheckpoint* g, GraphSummary* summ
   const auto* state = static_cast<const uint8_t*>(r.blob(4));
   const size_t state_size = r.blob_size(4);
   summary->state_bytes = state_size;
-  DF_RETURN_IF_ERROR(check_row_checksum(
-      r, 3, graph_row_checksum(summary->checkpoint_id, summary->version, static_cast<uint32_t>(count), state, state_size),
-      what));
+  DF_RETURN_IF_ERROR(
+      check_row_checksum(r, 3,
+                         graph_row_checksum(summary->checkpoint_id, summary->version,
+                                            static_cast<uint32_t>(count), state, state_size),
+                         what));
   if (r.is_null(3)) return corrupt(what + ": the row has no checksum");
   std::vector<uint8_t> bytes;
-  DF_RETURN_IF_ERROR(s.codec.decode_column(state, state_size, what + " state", BlobKind::kGraph, 1, &bytes));
+  DF_RETURN_IF_ERROR(
+      s.codec.decode_column(state, state_size, what + " state", BlobKind::kGraph, 1, &bytes));
   g->graph.version = summary->version;
   DF_RETURN_IF_ERROR(decode_state(bytes, what + " state", g));
   if (g->graph.keyframes.size() != summary->keyframes)
-    return corrupt(what + ": its row counts " + std::to_string(summary->keyframes) + " keyframes, its state " +
-                   std::to_string(g->graph.keyframes.size()));
+    return corrupt(what + ": its row counts " + std::to_string(summary->keyframes) +
+                   " keyframes, its state " + std::to_string(g->graph.keyframes.size()));
   summary->loops = g->graph.loops.size();
   summary->deformation_oldest_version = g->deformation.oldest_version;
   summary->deformation_version = static_cast<uint32_t>(
@@ -255,9 +261,9 @@ Status ScanStore::write_graph(const GraphCheckpoint& g) {
   if (!stored) return stored.status();
   size_t first = static_cast<size_t>(*stored);
   if (first > 0) {
-    auto last = s.db.query_int("SELECT frame_id FROM graph_keyframes WHERE keyframe = " +
-                                   std::to_string(first - 1) + ";",
-                               ctx);
+    auto last = s.db.query_int(
+        "SELECT frame_id FROM graph_keyframes WHERE keyframe = " + std::to_string(first - 1) + ";",
+        ctx);
     if (!last) return last.status();
     if (first > keyframes.size() || keyframes[first - 1].frame_id != static_cast<uint32_t>(*last)) {
       DF_RETURN_IF_ERROR(s.db.exec("DELETE FROM graph_keyframes;", ctx));
@@ -265,14 +271,17 @@ Status ScanStore::write_graph(const GraphCheckpoint& g) {
     }
   }
   if (first < keyframes.size()) {
-    auto ins = s.db.prepare("INSERT INTO graph_keyframes (keyframe, frame_id, utime, checksum, odometry, "
-                            "cloud) VALUES (?, ?, ?, ?, ?, ?);",
-                            ctx);
+    auto ins = s.db.prepare(
+        "INSERT INTO graph_keyframes (keyframe, frame_id, utime, checksum, odometry, "
+        "cloud) VALUES (?, ?, ?, ?, ?, ?);",
+        ctx);
     if (!ins) return ins.status();
     std::vector<uint8_t> cloud;
     for (size_t k = first; k < keyframes.size(); ++k) {
       const GraphKeyframe& kf = keyframes[k];
-      if (!kf.cloud) return invalid_argument(s.path + ": keyframe " + std::to_string(k) + " of the graph has no cloud");
+      if (!kf.cloud)
+        return invalid_argument(s.path + ": keyframe " + std::to_string(k) +
+                                " of the graph has no cloud");
       DF_RETURN_IF_ERROR(encode_cloud(s.codec, *kf.cloud, &cloud).with_context(ctx));
       Bytes odometry;
       if (k > 0) {
@@ -281,24 +290,29 @@ Status ScanStore::write_graph(const GraphCheckpoint& g) {
       }
       const std::vector<uint8_t>& odo = odometry.bytes();
       ins->bind(1, static_cast<int64_t>(k)).bind(2, kf.frame_id).bind(3, kf.utime);
-      ins->bind(4, graph_keyframe_checksum(static_cast<uint32_t>(k), kf.frame_id, kf.utime, odo.data(),
-                                           odo.size(), cloud.data(), cloud.size()));
-      if (odo.empty()) ins->bind_null(5);
-      else ins->bind_blob(5, odo);
+      ins->bind(4, graph_keyframe_checksum(static_cast<uint32_t>(k), kf.frame_id, kf.utime,
+                                           odo.data(), odo.size(), cloud.data(), cloud.size()));
+      if (odo.empty())
+        ins->bind_null(5);
+      else
+        ins->bind_blob(5, odo);
       ins->bind_blob(6, cloud);
       DF_RETURN_IF_ERROR(ins->run("writing keyframe " + std::to_string(k) + " of the pose graph"));
     }
   }
   std::vector<uint8_t> state;
   const std::vector<uint8_t> raw = encode_state(g);
-  DF_RETURN_IF_ERROR(s.codec.encode_column(BlobKind::kGraph, raw.data(), static_cast<uint32_t>(raw.size()), 1, &state));
+  DF_RETURN_IF_ERROR(s.codec.encode_column(BlobKind::kGraph, raw.data(),
+                                           static_cast<uint32_t>(raw.size()), 1, &state));
   const auto count = static_cast<uint32_t>(keyframes.size());
-  auto row = s.db.prepare("INSERT OR REPLACE INTO graph (id, checkpoint_id, version, keyframe_count, "
-                          "checksum, state) VALUES (1, ?, ?, ?, ?, ?);",
-                          ctx);
+  auto row = s.db.prepare(
+      "INSERT OR REPLACE INTO graph (id, checkpoint_id, version, keyframe_count, "
+      "checksum, state) VALUES (1, ?, ?, ?, ?, ?);",
+      ctx);
   if (!row) return row.status();
   row->bind(1, s.checkpoint_id).bind(2, g.graph.version).bind(3, count);
-  row->bind(4, graph_row_checksum(s.checkpoint_id, g.graph.version, count, state.data(), state.size()));
+  row->bind(
+      4, graph_row_checksum(s.checkpoint_id, g.graph.version, count, state.data(), state.size()));
   row->bind_blob(5, state);
   return row->run();
 }
@@ -319,8 +333,9 @@ Status ScanStore::correct_poses(const std::vector<PoseCorrection>& corrections) 
   // inspect), and does not stop the checkpoint.
   std::vector<PoseRecord> poses;
   {
-    auto st = s.db.prepare(std::string("SELECT ") + kPoseColumns + " FROM poses WHERE frame_id < ? ORDER BY frame_id;",
-                           "reading the poses to correct");
+    auto st = s.db.prepare(
+        std::string("SELECT ") + kPoseColumns + " FROM poses WHERE frame_id < ? ORDER BY frame_id;",
+        "reading the poses to correct");
     if (!st) return st.status();
     st->bind(1, before);
     for (const sql::Row& row : st->rows())
@@ -333,8 +348,9 @@ Status ScanStore::correct_poses(const std::vector<PoseCorrection>& corrections) 
   }
   std::vector<std::pair<uint32_t, Pose>> keyframes;
   {
-    auto st = s.db.prepare(std::string("SELECT ") + kKeyframeColumns + " FROM keyframes WHERE frame_id < ?;",
-                           "reading the keyframe poses to correct");
+    auto st = s.db.prepare(
+        std::string("SELECT ") + kKeyframeColumns + " FROM keyframes WHERE frame_id < ?;",
+        "reading the keyframe poses to correct");
     if (!st) return st.status();
     st->bind(1, before);
     Keyframe k;
@@ -354,9 +370,10 @@ Result<std::optional<GraphSummary>> ScanStore::graph_summary() {
   ScopedRead snapshot(*this);
   DF_RETURN_IF_ERROR(read_graph_row(s, &g, &summary, &found));
   if (!found) return std::optional<GraphSummary>();
-  auto bytes = s.db.query_int("SELECT COALESCE(SUM(length(cloud)), 0) FROM graph_keyframes WHERE keyframe < " +
-                                  std::to_string(summary.keyframes) + ";",
-                              "sizing the pose graph's keyframes");
+  auto bytes = s.db.query_int(
+      "SELECT COALESCE(SUM(length(cloud)), 0) FROM graph_keyframes WHERE keyframe < " +
+          std::to_string(summary.keyframes) + ";",
+      "sizing the pose graph's keyframes");
   if (!bytes) return bytes.status();
   summary.keyframe_bytes = static_cast<uint64_t>(*bytes);
   return std::optional<GraphSummary>(summary);
@@ -370,9 +387,10 @@ Result<std::optional<GraphCheckpoint>> ScanStore::read_graph() {
   bool found = false;
   DF_RETURN_IF_ERROR(read_graph_row(s, &g, &summary, &found));
   if (!found) return std::optional<GraphCheckpoint>();
-  auto st = s.db.prepare("SELECT keyframe, frame_id, utime, checksum, odometry, cloud FROM graph_keyframes "
-                         "WHERE keyframe < ? ORDER BY keyframe;",
-                         "reading the pose graph's keyframes");
+  auto st = s.db.prepare(
+      "SELECT keyframe, frame_id, utime, checksum, odometry, cloud FROM graph_keyframes "
+      "WHERE keyframe < ? ORDER BY keyframe;",
+      "reading the pose graph's keyframes");
   if (!st) return st.status();
   st->bind(1, static_cast<int64_t>(summary.keyframes));
   size_t k = 0;
@@ -381,7 +399,8 @@ Result<std::optional<GraphCheckpoint>> ScanStore::read_graph() {
     if (row.int64(0) != static_cast<int64_t>(k))
       return corrupt(what + " is missing (found keyframe " + std::to_string(row.int64(0)) + ")");
     const int64_t frame_id = row.int64(1);
-    if (frame_id < 1 || frame_id >= kAllFrames) return corrupt(what + ": the frame id is out of range");
+    if (frame_id < 1 || frame_id >= kAllFrames)
+      return corrupt(what + ": the frame id is out of range");
     GraphKeyframe& kf = g.graph.keyframes[k];
     kf.frame_id = static_cast<uint32_t>(frame_id);
     kf.utime = row.int64(2);
@@ -390,10 +409,11 @@ Result<std::optional<GraphCheckpoint>> ScanStore::read_graph() {
     const void* cloud = row.blob(5);
     const size_t cloud_size = row.blob_size(5);
     if (row.is_null(3)) return corrupt(what + ": the row has no checksum");
-    DF_RETURN_IF_ERROR(check_row_checksum(
-        row, 3,
-        graph_keyframe_checksum(static_cast<uint32_t>(k), kf.frame_id, kf.utime, odo, odo_size, cloud, cloud_size),
-        what));
+    DF_RETURN_IF_ERROR(
+        check_row_checksum(row, 3,
+                           graph_keyframe_checksum(static_cast<uint32_t>(k), kf.frame_id, kf.utime,
+                                                   odo, odo_size, cloud, cloud_size),
+                           what));
     auto c = std::make_shared<KeyframeCloud>();
     DF_RETURN_IF_ERROR(decode_cloud(s.codec, cloud, cloud_size, what + " cloud", c.get()));
     kf.cloud = std::move(c);
@@ -422,12 +442,13 @@ Result<std::optional<GraphCheckpoint>> ScanStore::read_graph() {
   // The map follows the graph's keyframes: each one's segment starts at its frame.
   const std::vector<uint32_t>& first = g.deformation.keyframe_first_frame;
   if (first.size() != k)
-    return corrupt(s.path + ": the pose graph has " + std::to_string(k) + " keyframes, the map's deformation " +
-                   std::to_string(first.size()));
+    return corrupt(s.path + ": the pose graph has " + std::to_string(k) +
+                   " keyframes, the map's deformation " + std::to_string(first.size()));
   for (size_t i = 0; i < k; ++i)
     if (first[i] != g.graph.keyframes[i].frame_id)
       return corrupt(s.path + ": keyframe " + std::to_string(i) + " of the pose graph is frame " +
-                     std::to_string(g.graph.keyframes[i].frame_id) + ", the map's deformation starts its segment at frame " +
+                     std::to_string(g.graph.keyframes[i].frame_id) +
+                     ", the map's deformation starts its segment at frame " +
                      std::to_string(first[i]));
   return std::optional<GraphCheckpoint>(std::move(g));
 }

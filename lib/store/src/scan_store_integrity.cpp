@@ -118,7 +118,8 @@ Result<IntegrityReport> ScanStore::integrity_check(bool check_blobs) {
   for (std::string& p : frame_problems()) rep.problems.push_back(std::move(p));
   if (!check_blobs) return rep;
   // Every chunk blob: decodes, checksums match, and its row's count and bounds agree.
-  auto chunks_from = checksums_from(s, "chunks", "checkpoint_id", "chunk_checksums_from_checkpoint");
+  auto chunks_from =
+      checksums_from(s, "chunks", "checkpoint_id", "chunk_checksums_from_checkpoint");
   if (!chunks_from) rep.problems.push_back(chunks_from.status().message());
   for (const bool staged : {false, true}) {
     StoredChunk c;
@@ -132,8 +133,9 @@ Result<IntegrityReport> ScanStore::integrity_check(bool check_blobs) {
             // Rows older than schema 6 have none; a staged one cannot be (a writer's open empties
             // the staging table after migrating).
             if (!chunks_from || staged || c.info.checkpoint_id >= *chunks_from)
-              return corrupt(no_checksum(s.path, (staged ? "staged chunk " : "chunk ") + to_string(c.info.key),
-                                         "chunk from checkpoint", chunks_from ? *chunks_from : 1, 6));
+              return corrupt(
+                  no_checksum(s.path, (staged ? "staged chunk " : "chunk ") + to_string(c.info.key),
+                              "chunk from checkpoint", chunks_from ? *chunks_from : 1, 6));
             ++rep.chunks_unchecked;
           }
           if (c.info.point_count == 0) return Status::ok();

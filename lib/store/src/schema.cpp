@@ -211,10 +211,13 @@ Status migrate_5_to_6(sql::Database& db) {
   for (const auto& [table, owner] : {std::pair<const char*, const char*>{"chunks", "checkpoint_id"},
                                      {"chunk_staging", "staged_utime"}}) {
     const std::string old = std::string(table) + "_v5";
-    DF_RETURN_IF_ERROR(db.exec(std::string("ALTER TABLE ") + table + " RENAME TO " + old + ";", ctx));
+    DF_RETURN_IF_ERROR(
+        db.exec(std::string("ALTER TABLE ") + table + " RENAME TO " + old + ";", ctx));
     DF_RETURN_IF_ERROR(db.exec(chunk_table(table, owner, /*with_version=*/true), ctx));
-    const std::string columns = std::string("x, y, z, point_count, min_x, min_y, min_z, max_x, max_y, "
-                                            "max_z, last_touched_frame, ") + owner + ", data";
+    const std::string columns =
+        std::string("x, y, z, point_count, min_x, min_y, min_z, max_x, max_y, max_z, "
+                    "last_touched_frame, ") +
+        owner + ", data";
     DF_RETURN_IF_ERROR(db.exec(std::string("INSERT INTO ") + table + " (" + columns + ") SELECT " +
                                    columns + " FROM " + old + "; DROP TABLE " + old + ";",
                                ctx));

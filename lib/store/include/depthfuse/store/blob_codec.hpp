@@ -21,7 +21,9 @@ struct ZSTD_DCtx_s;
 namespace depthfuse::store {
 
 // kKeyframeCloud and kGraph: the pose graph's blobs (graph_codec.hpp), one column each.
-enum class BlobKind : uint8_t { kPoints = 1, kDepth = 2, kColor = 3, kKeyframeCloud = 4, kGraph = 5 };
+enum class BlobKind : uint8_t {
+  kPoints = 1, kDepth = 2, kColor = 3, kKeyframeCloud = 4, kGraph = 5
+};
 
 // How a keyframe's depth is stored. The encoder picks the first uint16 format that reproduces
 // every pixel bit for bit (depth from a Kinect or a TUM PNG), and raw float32 otherwise.

@@ -101,7 +101,7 @@ struct ChunkInfo {
   uint32_t point_count = 0;
   Eigen::AlignedBox3f bounds_m;              // of the points; empty for an empty chunk
   uint32_t last_touched_frame = 0;
-  uint32_t version = 0;                      // the pose graph's version of its points (Chunk::version)
+  uint32_t version = 0;                      // the graph version of its points (Chunk::version)
   int64_t checkpoint_id = 0;                 // the checkpoint that wrote it (0 = staged)
   size_t blob_bytes = 0;
   bool checksummed = true;                   // false: a row written before schema 6
