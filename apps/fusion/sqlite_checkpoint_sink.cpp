@@ -128,15 +128,16 @@ Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, Sc
   // The frames after the checkpoint that the redo log holds are fused again at their poses.
   auto replayed = recorder_->replay_log(reconstructor);
   if (!replayed) return replayed.status();
+  // The replayed frames' poses, before the checkpoint below takes them.
+  for (const auto& p : recorder_->pending_poses()) {
+    restored->trajectory.push_back({p.utime * 1e-6, p.T_world_cam});
+    restored->trajectory_frames.push_back(p.frame_id);
+  }
   // A checkpoint of the replayed frames, at once and in the background: otherwise every restart
   // before the next full checkpoint would replay them again, and more.
   if (*replayed > 0)
     (void)recorder_->checkpoint_in_background(&reconstructor.map(), "replayed",
                                               {resumed_received_, resumed_dropped_});
-  for (const auto& p : recorder_->pending_poses()) {
-    restored->trajectory.push_back({p.utime * 1e-6, p.T_world_cam});
-    restored->trajectory_frames.push_back(p.frame_id);
-  }
   const auto& r = at->open_report;
   DF_LOG(Fusion, Info)
       << "resumed scan " << scan->scan_id << " from " << path_ << " at checkpoint "

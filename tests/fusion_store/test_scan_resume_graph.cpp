@@ -35,12 +35,13 @@ Pose on_arc(double azimuth_deg) {
   return test::look_at({2.4 * std::cos(a), 2.4 * std::sin(a), 1.4}, {0.3, 0.3, 0.4});
 }
 
-AppConfig scan_config(const std::string& dir) {
+// `frame_log`: the daemon's redo log (its default interval). Without it a resume starts from the
+// checkpoint exactly (the log replays the frames fused after it): what is compared is what the
+// checkpoint holds.
+AppConfig scan_config(const std::string& dir, bool frame_log) {
   AppConfig config;
   config.fusion.scan_dir = dir + "/scans";
-  // Without the redo log a resume starts from the checkpoint exactly (the log would replay the
-  // frames fused after it): what is compared is what the checkpoint holds.
-  config.fusion.frame_log_interval_s = 0;
+  if (!frame_log) config.fusion.frame_log_interval_s = 0;
   // A short loop: the way back may close on keyframes a few keyframes and half a metre behind.
   config.reconstruction.loop_closure.min_keyframes_back = 3;
   config.reconstruction.loop_closure.min_path_m = 0.5;
@@ -178,8 +179,9 @@ double coordinate_sum(const PointArrays& a) {
 
 // The child: out along the arc and back until the loop closes, a checkpoint, what it held written
 // to `held_path`, a few frames more, then SIGKILL. Exit codes name the step that failed.
-[[noreturn]] void scan_and_die(const std::string& dir, const std::string& held_path) {
-  const AppConfig config = scan_config(dir);
+[[noreturn]] void scan_and_die(const std::string& dir, const std::string& held_path,
+                               bool frame_log) {
+  const AppConfig config = scan_config(dir, frame_log);
   fusiond::SqliteCheckpointSink sink(config, fusiond::SqliteSinkOptions{dir + "/loop.dfscan"});
   fusiond::ScanSession session(config, sink);
   if (!session.start("loop").is_ok()) _exit(10);
@@ -211,24 +213,30 @@ double coordinate_sum(const PointArrays& a) {
       h.chunks[{key.x, key.y, key.z}] = {c.version, c.points.size(), coordinate_sum(c.points)};
   });
   write_held(held_path, h);
-  // Fused, not checkpointed: lost with the process.
+  // Fused, not checkpointed: lost with the process, or (with the frame log) logged and replayed.
   walk.go(2, 6, 0.75);
+  if (frame_log) std::this_thread::sleep_for(std::chrono::milliseconds(1500));
   ::kill(::getpid(), SIGKILL);
   _exit(15);
 }
 
-TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
-  const std::string dir = temp_dir("scan-resume-graph");
+// Runs scan_and_die in a child process and returns what its checkpoint held.
+Held scan_and_kill(const std::string& dir, bool frame_log) {
   const std::string held_path = dir + "/held.txt";
   const pid_t child = ::fork();
-  ASSERT_GE(child, 0);
-  if (child == 0) scan_and_die(dir, held_path);
+  EXPECT_GE(child, 0);
+  if (child == 0) scan_and_die(dir, held_path, frame_log);
   int status = 0;
-  ASSERT_EQ(::waitpid(child, &status, 0), child);
-  ASSERT_TRUE(WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL)
+  EXPECT_EQ(::waitpid(child, &status, 0), child);
+  EXPECT_TRUE(WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL)
       << "the scan's process ended with " << (WIFEXITED(status) ? WEXITSTATUS(status) : -1)
       << " before it was killed";
-  const Held held = read_held(held_path);
+  return read_held(held_path);
+}
+
+TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
+  const std::string dir = temp_dir("scan-resume-graph");
+  const Held held = scan_and_kill(dir, /*frame_log=*/false);
   ASSERT_GE(held.loops, 1u);
   ASSERT_GE(held.graph_version, 1u);
   ASSERT_FALSE(held.chunks.empty());
@@ -270,7 +278,7 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
   expect_inspect_names(dir, dir + "/loop.dfscan", "damaged-graph",
                        "UPDATE graph SET version = version + 1;", "pose graph: checksum mismatch");
 
-  const AppConfig config = scan_config(dir);
+  const AppConfig config = scan_config(dir, /*frame_log=*/false);
   fusiond::SqliteCheckpointSink sink(config, fusiond::SqliteSinkOptions{dir + "/loop.dfscan"});
   fusiond::ScanSession session(config, sink);
   auto started = session.start("loop");
@@ -336,6 +344,34 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
       << keyframe;
   // The points fused before the crash followed it: chunks from the file brought up to date.
   EXPECT_GT(session.reconstructor()->deformation().stats().points_updated, 0u);
+}
+
+// With the frame redo log, the frames fused after the checkpoint are replayed on the restored
+// graph's map: the graph and the deformation are the checkpoint's, the frames after it come back,
+// no chunk is in a version the map has not reached, and the scan goes on.
+TEST(ScanResume, KillAfterAClosureWithTheFrameLogReplaysOnTheRestoredGraph) {
+  const std::string dir = temp_dir("scan-resume-graph-log");
+  const Held held = scan_and_kill(dir, /*frame_log=*/true);
+  ASSERT_GE(held.graph_version, 1u);
+  const AppConfig config = scan_config(dir, /*frame_log=*/true);
+  fusiond::SqliteCheckpointSink sink(config, fusiond::SqliteSinkOptions{dir + "/loop.dfscan"});
+  fusiond::ScanSession session(config, sink);
+  auto started = session.start("loop");
+  ASSERT_TRUE(started.is_ok()) << started.status().to_string();
+  const ScanGraph& g = session.path()->graph();
+  ASSERT_EQ(g.keyframes().size(), held.keyframe_frames.size());
+  EXPECT_EQ(g.version(), held.graph_version);
+  const uint32_t version = session.reconstructor()->deformation().version();
+  EXPECT_EQ(version, held.deformation_version);
+  // The checkpoint's frames and the logged ones after it.
+  EXPECT_GT(session.trajectory().size(), held.trajectory.size());
+  session.reconstructor()->map().for_each_chunk([&](const ChunkKey& key, const Chunk& c) {
+    EXPECT_LE(c.version, version) << store::to_string(key);
+  });
+  Walk walk(&session);
+  walk.sequence_ = held.next_sequence + 10;
+  ASSERT_TRUE(walk.go(6, 12, 0.75)) << walk.last_problem;
+  EXPECT_GE(walk.fused, walk.processed * 9 / 10) << walk.last_problem;
 }
 
 }  // namespace
