@@ -87,6 +87,18 @@ void print_summary(const store::StoreSummary& s) {
   } else {
     std::printf("checkpoints    none\n");
   }
+  if (s.graph) {
+    const store::GraphSummary& g = *s.graph;
+    std::printf(
+        "pose graph     %zu keyframes (%s), %zu loops, version %u; deformation history from "
+        "version %u (written by checkpoint #%" PRId64 ")\n",
+        g.keyframes, mib(g.keyframe_bytes + g.state_bytes).c_str(), g.loops, g.version,
+        g.deformation_oldest_version, g.checkpoint_id);
+  } else if (!s.graph_problem.empty()) {
+    std::printf("pose graph     unreadable: %s\n", s.graph_problem.c_str());
+  } else {
+    std::printf("pose graph     none\n");
+  }
   if (s.staged_chunk_count)
     std::printf("staged         %zu evicted chunks not yet in a checkpoint (a writer is active or crashed)\n",
                 s.staged_chunk_count);
@@ -128,9 +140,11 @@ Status print_lists(store::ScanStore& scan, const cli::Args& args) {
 // no checksum).
 std::string describe_checked(const store::IntegrityReport& integrity) {
   const size_t poses_summed = integrity.poses_checked - integrity.poses_unchecked;
-  std::string checked = "; " + std::to_string(integrity.chunks_checked) + " chunk and " +
-                        std::to_string(integrity.keyframes_checked) + " keyframe records decoded and "
-                        "checksummed; " + std::to_string(poses_summed) + " pose records checksummed";
+  std::string checked = "; " + std::to_string(integrity.chunks_checked) + " chunk, " +
+                        std::to_string(integrity.keyframes_checked) + " keyframe and " +
+                        std::to_string(integrity.graph_keyframes_checked) +
+                        " pose graph keyframe records decoded and checksummed; " +
+                        std::to_string(poses_summed) + " pose records checksummed";
   if (integrity.poses_unchecked > 0)
     checked += ", " + std::to_string(integrity.poses_unchecked) +
                " unchecked (written before schema 3, without a checksum: only decoded)";
@@ -139,6 +153,9 @@ std::string describe_checked(const store::IntegrityReport& integrity) {
     if (n > 0)
       checked += "; " + std::to_string(n) + what +
                  " poses unchecked (written before schema 4, without a checksum: only decoded)";
+  if (integrity.chunks_unchecked > 0)
+    checked += "; " + std::to_string(integrity.chunks_unchecked) +
+               " chunk rows unchecked (written before schema 6, without a checksum: blobs checked)";
   checked += "; " + std::to_string(integrity.log_records_checked) +
              " frame log records decoded and checksummed";
   return checked;

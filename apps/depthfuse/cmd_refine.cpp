@@ -114,10 +114,16 @@ Result<Keyframes> read_keyframes(store::ScanStore& scan, const Options& o, cli::
 // transaction; rolled back on any failure.
 Status write_refined(store::ScanStore& scan, const Keyframes& k, const BatchResult& result,
                      const ReconstructionConfig& config, const store::ScanMetadata& meta) {
+  // With a pose graph, the keyframes' poses refined from are the corrected ones, and the refined
+  // cloud is in the graph's current version: a resume's deformation must not move it again.
+  auto graph = scan.graph_summary();
+  if (!graph) return graph.status();
+  const uint32_t version = *graph ? (*graph)->deformation_version : 0;
   Status st = scan.begin_checkpoint();
   if (st) st = scan.delete_all_chunks();
   if (st) {
-    result.map->for_each_chunk([&](const ChunkKey& key, const Chunk& c) {
+    result.map->for_each_chunk([&](const ChunkKey& key, Chunk& c) {
+      c.version = version;
       if (st) st = scan.write_chunk(key, c);
     });
   }

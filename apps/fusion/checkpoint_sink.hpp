@@ -8,6 +8,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -35,6 +36,13 @@ struct FusionProgress {
   uint64_t frames_dropped = 0;
 };
 
+// What a resumed scan continues with besides its map (CheckpointSink::restore).
+struct RestoredScan {
+  std::vector<StampedPose> trajectory;      // the poses recorded so far, corrected by loop closures
+  std::vector<uint32_t> trajectory_frames;  // each one's frame id
+  std::optional<ScanGraphState> graph;      // the pose graph of the checkpoint (FramePath::restore)
+};
+
 // A FrameStore of the scan's frame path (ScanSession runs FramePath over it): prepare_frame before
 // each frame is processed (a pager loads the evicted chunks the frame will touch), frame_fused
 // after each fused frame (poses, keyframes every fusion_daemon.keyframe_every_n_frames, paging of
@@ -45,14 +53,23 @@ class CheckpointSink : public FrameStore {
   virtual std::string describe() const = 0;
   virtual Status begin_scan(const ScanContext& scan) = 0;
   // Right after begin_scan, with the scan's fresh reconstructor: a sink that found an existing
-  // scan (a restart after a crash) puts its last checkpoint back (map, next frame id, last pose),
-  // may rename the scan to the stored one, and fills in the trajectory recorded so far.
+  // scan (a restart after a crash) puts its last checkpoint back (map, next frame id, last pose,
+  // the map's deformation), may rename the scan to the stored one, and fills in the trajectory
+  // recorded so far and the pose graph.
   virtual Status restore(IncrementalReconstructor& reconstructor, ScanContext* scan,
-                         std::vector<StampedPose>* trajectory) {
+                         RestoredScan* restored) {
     (void)reconstructor;
     (void)scan;
-    (void)trajectory;
+    (void)restored;
     return Status::ok();
+  }
+  // The pose graph the next checkpoint (or end_scan) keeps with the map.
+  virtual void keep_graph(GraphCheckpoint graph) { (void)graph; }
+  // A loop closure was applied before frame `before_frame`: the poses stored of the frames before
+  // it move with their keyframes.
+  virtual void poses_corrected(const AppliedCorrection& correction, uint32_t before_frame) {
+    (void)correction;
+    (void)before_frame;
   }
   Status prepare_frame(const Frame& frame, const Pose& T_world_cam_initial,
                        IncrementalReconstructor& reconstructor) override {

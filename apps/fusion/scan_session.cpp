@@ -96,22 +96,27 @@ Result<std::string> ScanSession::start(const std::string& requested_name) {
   scan_ = ScanContext{name, config_.fusion.scan_dir, now_utime(), &config_};
   DF_RETURN_IF_ERROR(sink_.begin_scan(scan_).with_context("checkpoint store"));
   auto reconstructor = std::make_unique<IncrementalReconstructor>(config_.reconstruction);
-  std::vector<StampedPose> trajectory;
+  RestoredScan restored;
   // An existing scan file (a restart after a crash): continue from its last checkpoint.
   DF_RETURN_IF_ERROR(
-      sink_.restore(*reconstructor, &scan_, &trajectory).with_context("checkpoint store"));
+      sink_.restore(*reconstructor, &scan_, &restored).with_context("checkpoint store"));
   // A resumed scan takes the id stored in its file, which names the files written at its end (PLY,
   // trajectory): one that is not a scan name ("../../x", "/etc/x") would write them outside
   // scan_dir.
   if (!valid_scan_name(scan_.scan_id))
     return corrupt("the scan file for '" + name + "' holds the scan id '" + scan_.scan_id +
                    "', which is not a scan name: not resumed");
-  reconstructor_ = std::move(reconstructor);
   // Loop closure on a thread of its own: the fusion thread never waits for the optimiser.
-  path_ = std::make_unique<FramePath>(*reconstructor_, &sink_, /*background_loop_closure=*/true);
-  trajectory_ = std::move(trajectory);
-  // A resumed scan's stored poses are before the graph's first keyframe: no closure moves them.
-  trajectory_frames_.assign(trajectory_.size(), 0);
+  auto path = std::make_unique<FramePath>(*reconstructor, &sink_, /*background_loop_closure=*/true);
+  // The graph of before the restart: a later closure moves the poses and the map fused before it.
+  if (restored.graph)
+    DF_RETURN_IF_ERROR(
+        path->restore(std::move(*restored.graph)).with_context("resuming scan " + scan_.scan_id));
+  reconstructor_ = std::move(reconstructor);
+  path_ = std::move(path);
+  trajectory_ = std::move(restored.trajectory);
+  trajectory_frames_ = std::move(restored.trajectory_frames);
+  // The sequences of frames fused before a resume are not stored.
   trajectory_sequences_.assign(trajectory_.size(), 0);
   last_checkpoint_ = Clock::now();
   const uint32_t next = reconstructor_->next_frame_id();
@@ -124,12 +129,15 @@ Result<std::string> ScanSession::start(const std::string& requested_name) {
 
 Result<FrameOutcome> ScanSession::process(const Frame& frame) {
   if (!active()) return invalid_argument("no scan is running");
+  const uint32_t frame_id = reconstructor_->next_frame_id();
   Result<FrameOutcome> outcome = path_->run(frame);
   if (!outcome) return outcome;
   if (outcome->correction) {
-    for (size_t i = 0; i < trajectory_.size(); ++i)
-      trajectory_[i].T_world_cam = outcome->correction->motion_of(trajectory_frames_[i]) *
-                                   trajectory_[i].T_world_cam;
+    correct_trajectory(*outcome->correction, frame_id);
+    // The frame log holds poses, not corrections: a crash before the next checkpoint would replay
+    // the frames fused since in the corrected frame over a map of the version before. A checkpoint
+    // at once (in the background) keeps that window to its latency.
+    last_checkpoint_ = Clock::time_point{};
   }
   if (outcome->report.fused()) {
     trajectory_.push_back({frame.utime * 1e-6, outcome->report.T_world_cam});
@@ -155,18 +163,25 @@ bool ScanSession::checkpoint_due() const {
 Status ScanSession::checkpoint(const std::string& reason, const FusionProgress& progress) {
   if (!active()) return invalid_argument("no scan is running");
   last_checkpoint_ = Clock::now();
+  sink_.keep_graph(path_->checkpoint_state());
   return sink_.checkpoint(reason, *reconstructor_, progress);
+}
+
+void ScanSession::correct_trajectory(const AppliedCorrection& correction, uint32_t before_frame) {
+  for (size_t i = 0; i < trajectory_.size(); ++i)
+    trajectory_[i].T_world_cam =
+        correction.motion_of(trajectory_frames_[i]) * trajectory_[i].T_world_cam;
+  sink_.poses_corrected(correction, before_frame);
 }
 
 Result<ScanSession::Saved> ScanSession::stop(const std::string& reason,
                                              const FusionProgress& progress) {
   if (!active()) return invalid_argument("no scan is running");
   // What the loop closer has found last moves the poses and the map before they are saved.
-  if (const std::optional<AppliedCorrection> last = path_->finish()) {
-    for (size_t i = 0; i < trajectory_.size(); ++i)
-      trajectory_[i].T_world_cam = last->motion_of(trajectory_frames_[i]) * trajectory_[i].T_world_cam;
-  }
+  if (const std::optional<AppliedCorrection> last = path_->finish())
+    correct_trajectory(*last, reconstructor_->next_frame_id());
   const size_t removed = reconstructor_->finish();
+  sink_.keep_graph(path_->checkpoint_state());
   Saved saved;
   saved.store = sink_.end_scan(reason, *reconstructor_, progress);
 

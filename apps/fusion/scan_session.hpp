@@ -58,11 +58,15 @@ class ScanSession {
   const std::vector<StampedPose>& trajectory() const { return trajectory_; }
   // Null between scans.
   const FramePath* path() const { return path_.get(); }
-  // The sequence of a frame this scan fused (0 when it is not known: before a resume).
+  // The sequence of a frame this scan fused (0 when it is not known: fused before a resume).
   int64_t sequence_of(uint32_t frame_id) const;
   size_t point_count() const { return reconstructor_ ? reconstructor_->map().point_count() : 0; }
 
  private:
+  // A loop closure applied before frame `before_frame`: the poses of the frames before it move
+  // with their keyframes, here and in the sink's store.
+  void correct_trajectory(const AppliedCorrection& correction, uint32_t before_frame);
+
   const AppConfig& config_;
   CheckpointSink& sink_;
   std::unique_ptr<IncrementalReconstructor> reconstructor_;

@@ -91,7 +91,12 @@ Status SqliteCheckpointSink::begin_scan(const ScanContext& scan) {
 }
 
 Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, ScanContext* scan,
-                                     std::vector<StampedPose>* trajectory) {
+                                     RestoredScan* restored) {
+  if (store::MapPager* pager = recorder_ ? recorder_->pager() : nullptr) {
+    pager->set_bring_up_to_date([&reconstructor](PointMap* map, const ChunkKey& key) {
+      reconstructor.deformation().update(map, {key});
+    });
+  }
   if (!resume_) return Status::ok();
   std::unique_ptr<store::ResumePoint> at = std::move(resume_);
   if (!at->metadata.scan_id.empty()) scan->scan_id = at->metadata.scan_id;
@@ -101,33 +106,66 @@ Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, Sc
   std::unique_ptr<PointMap> map = std::move(at->map);
   if (!map) map = std::make_unique<PointMap>(config_.reconstruction.fusion.chunk_size_m);
   reconstructor.reset(std::move(map), at->next_frame_id, at->last_T_world_cam);
+  if (at->graph) {
+    // Before the log's frames are replayed: they are fused in the graph's version, and the stale
+    // chunks they load follow the corrections made before the crash.
+    DF_RETURN_IF_ERROR(reconstructor.deformation()
+                           .restore(at->graph->deformation)
+                           .with_context("restoring the map's deformation from " + path_));
+    reconstructor.map().set_version(reconstructor.deformation().version());
+    restored->graph = std::move(at->graph->graph);
+  }
+  keep_history_for_evicted(reconstructor);
   restore_keyframes(reconstructor);
-  if (trajectory) {
-    trajectory->clear();
-    auto poses = recorder_->store().read_poses();
-    if (!poses) return poses.status().with_context("reading the poses of " + path_);
-    for (const auto& p : *poses) trajectory->push_back({p.utime * 1e-6, p.T_world_cam});
+  restored->trajectory.clear();
+  restored->trajectory_frames.clear();
+  auto poses = recorder_->store().read_poses();
+  if (!poses) return poses.status().with_context("reading the poses of " + path_);
+  for (const auto& p : *poses) {
+    restored->trajectory.push_back({p.utime * 1e-6, p.T_world_cam});
+    restored->trajectory_frames.push_back(p.frame_id);
   }
   // The frames after the checkpoint that the redo log holds are fused again at their poses.
   auto replayed = recorder_->replay_log(reconstructor);
   if (!replayed) return replayed.status();
+  // The replayed frames' poses, before the checkpoint below takes them.
+  for (const auto& p : recorder_->pending_poses()) {
+    restored->trajectory.push_back({p.utime * 1e-6, p.T_world_cam});
+    restored->trajectory_frames.push_back(p.frame_id);
+  }
   // A checkpoint of the replayed frames, at once and in the background: otherwise every restart
   // before the next full checkpoint would replay them again, and more.
   if (*replayed > 0)
     (void)recorder_->checkpoint_in_background(&reconstructor.map(), "replayed",
                                               {resumed_received_, resumed_dropped_});
-  if (trajectory)
-    for (const auto& p : recorder_->pending_poses()) trajectory->push_back({p.utime * 1e-6, p.T_world_cam});
   const auto& r = at->open_report;
-  DF_LOG(Fusion, Info) << "resumed scan " << scan->scan_id << " from " << path_ << " at checkpoint "
-                       << (at->checkpoint ? at->checkpoint->id : 0) << " (frame "
-                       << at->next_frame_id - 1 << "), replayed " << *replayed
-                       << " logged frames: next frame " << reconstructor.next_frame_id() << ", "
-                       << reconstructor.map().point_count()
-                       << " resident points; discarded after the checkpoint: " << r.discarded_poses
-                       << " poses, " << r.discarded_keyframes << " keyframes, "
-                       << r.discarded_staged_chunks << " staged chunks";
+  DF_LOG(Fusion, Info)
+      << "resumed scan " << scan->scan_id << " from " << path_ << " at checkpoint "
+      << (at->checkpoint ? at->checkpoint->id : 0) << " (frame " << at->next_frame_id - 1
+      << "), replayed " << *replayed << " logged frames: next frame "
+      << reconstructor.next_frame_id() << ", " << reconstructor.map().point_count()
+      << " resident points; discarded after the checkpoint: " << r.discarded_poses << " poses, "
+      << r.discarded_keyframes << " keyframes, " << r.discarded_staged_chunks << " staged chunks"
+      << (restored->graph ? "; pose graph of " + std::to_string(restored->graph->keyframes.size()) +
+                                " keyframes, " + std::to_string(restored->graph->loops.size()) +
+                                " loops, version " + std::to_string(restored->graph->version)
+                          : std::string());
   return Status::ok();
+}
+
+void SqliteCheckpointSink::keep_history_for_evicted(IncrementalReconstructor& reconstructor) {
+  const store::MapPager* pager = recorder_ ? recorder_->pager() : nullptr;
+  reconstructor.deformation().set_oldest_stored_version(pager ? pager->oldest_evicted_version()
+                                                              : std::nullopt);
+}
+
+void SqliteCheckpointSink::keep_graph(GraphCheckpoint graph) {
+  if (recorder_) recorder_->set_graph(std::move(graph));
+}
+
+void SqliteCheckpointSink::poses_corrected(const AppliedCorrection& correction,
+                                           uint32_t before_frame) {
+  if (recorder_) recorder_->poses_corrected(correction, before_frame);
 }
 
 // A resumed scan without relocalisation keyframes could not find a camera that moved while it was
@@ -153,13 +191,17 @@ void SqliteCheckpointSink::restore_keyframes(IncrementalReconstructor& reconstru
 Status SqliteCheckpointSink::prepare_frame(const Frame& frame, const Pose& T_world_cam_initial,
                                            IncrementalReconstructor& reconstructor) {
   if (!recorder_) return invalid_argument("no scan file is open");
-  return recorder_->prepare_frame(frame, T_world_cam_initial, reconstructor);
+  Status st = recorder_->prepare_frame(frame, T_world_cam_initial, reconstructor);
+  keep_history_for_evicted(reconstructor);
+  return st;
 }
 
 Status SqliteCheckpointSink::frame_fused(const Frame& frame, const FrameReport& report,
                                          IncrementalReconstructor& reconstructor) {
   if (!recorder_) return invalid_argument("no scan file is open");
-  return recorder_->record_frame(frame, report, &reconstructor.map());
+  Status st = recorder_->record_frame(frame, report, &reconstructor.map());
+  keep_history_for_evicted(reconstructor);
+  return st;
 }
 
 Status SqliteCheckpointSink::checkpoint(const std::string& reason, IncrementalReconstructor& reconstructor,

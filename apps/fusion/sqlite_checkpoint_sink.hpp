@@ -25,7 +25,9 @@ class SqliteCheckpointSink : public CheckpointSink {
   std::string describe() const override;
   Status begin_scan(const ScanContext& scan) override;
   Status restore(IncrementalReconstructor& reconstructor, ScanContext* scan,
-                 std::vector<StampedPose>* trajectory) override;
+                 RestoredScan* restored) override;
+  void keep_graph(GraphCheckpoint graph) override;
+  void poses_corrected(const AppliedCorrection& correction, uint32_t before_frame) override;
   Status prepare_frame(const Frame& frame, const Pose& T_world_cam_initial,
                        IncrementalReconstructor& reconstructor) override;
   Status frame_fused(const Frame& frame, const FrameReport& report,
@@ -50,6 +52,8 @@ class SqliteCheckpointSink : public CheckpointSink {
   store::FrameCounters counters_of(const FusionProgress& progress) const;
   // restore(): the stored keyframes back into the relocaliser, logged; never fails the resume.
   void restore_keyframes(IncrementalReconstructor& reconstructor);
+  // The map's deformation keeps the history the evicted chunks need (after every pager call).
+  void keep_history_for_evicted(IncrementalReconstructor& reconstructor);
 
   AppConfig config_;
   SqliteSinkOptions options_;

@@ -59,11 +59,28 @@ void FramePath::join_graph(const Frame& frame, const FrameReport& report, FrameO
       keyframes.back().T_world_kf);
   if (!added) DF_LOG(Graph, Error) << "the map cannot follow keyframe " << keyframes.size() - 1
                                    << ": " << added.message();
+  submit_graph();
+}
+
+void FramePath::submit_graph() {
   GraphSnapshot snapshot;
   snapshot.keyframes = graph_.keyframes();
   snapshot.odometry = graph_.odometry();
   snapshot.odometry_covariance = graph_.odometry_covariance();
   closer_->submit(std::move(snapshot));
+}
+
+GraphCheckpoint FramePath::checkpoint_state() const {
+  return GraphCheckpoint{graph_.state(), reconstructor_.deformation().history()};
+}
+
+Status FramePath::restore(ScanGraphState graph) {
+  DF_RETURN_IF_ERROR(graph_.restore(std::move(graph)));
+  if (closer_ && !graph_.keyframes().empty()) {
+    closer_->restore(graph_.loops(), graph_.keyframes().size());
+    submit_graph();
+  }
+  return Status::ok();
 }
 
 std::optional<AppliedCorrection> FramePath::apply_correction() {

@@ -318,6 +318,10 @@ Status IncrementalReconstructor::replay(const Frame& frame, uint32_t frame_id,
   // As process() measured it: replayed in order at the same poses, the same velocity.
   Result<size_t> removed = measure(frame);
   if (!removed) return removed.status().with_context("replaying frame " + std::to_string(frame_id));
+  // A resumed scan's map may hold chunks that have not followed the corrections before the crash:
+  // as in process(), those the frame meets follow them first.
+  deformation_.set_current_frame(frame_id);
+  deformation_.update_visible(map_.get(), scratch_, T_world_cam);
   fuser_.fuse(scratch_, &frame.color, T_world_cam, frame_id, map_.get());
   fused_at(frame.utime, T_world_cam);
   // The registrar's model and photometric reference are of frames before the crash, or none.

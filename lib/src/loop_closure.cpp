@@ -75,6 +75,13 @@ void LoopCloser::submit(GraphSnapshot snapshot) {
   wake_.notify_all();
 }
 
+void LoopCloser::restore(std::vector<PoseGraphEdge> loops, size_t searched) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  loops_ = std::move(loops);
+  searched_ = searched;
+  stats_.loops = loops_.size();
+}
+
 std::optional<GraphCorrection> LoopCloser::take() {
   std::lock_guard<std::mutex> lock(mutex_);
   std::optional<GraphCorrection> c = std::move(correction_);

@@ -40,6 +40,9 @@ class LoopCloser {
   // After a new keyframe: the graph as it is. Keyframes not searched yet are searched (when the
   // thread is behind, several at once, newest first).
   void submit(GraphSnapshot snapshot);
+  // Before the first submit() of a resumed scan: the loop edges it believed before, and the
+  // keyframes it had searched (the next snapshot's older ones are candidates, not searched again).
+  void restore(std::vector<PoseGraphEdge> loops, size_t searched);
   // The newest correction found and not yet taken; never waits.
   std::optional<GraphCorrection> take();
   // Waits until everything submitted has been searched (the end of an offline run).

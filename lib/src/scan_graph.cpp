@@ -141,6 +141,44 @@ AppliedCorrection ScanGraph::apply(const GraphCorrection& c) {
   return applied;
 }
 
+ScanGraphState ScanGraph::state() const {
+  return ScanGraphState{keyframes_, odometry_, odometry_covariance_, loops_, version_};
+}
+
+Status ScanGraph::restore(ScanGraphState s) {
+  const size_t n = s.keyframes.size();
+  const std::string what = "pose graph";
+  if (s.odometry.size() != (n > 0 ? n - 1 : 0) || s.odometry_covariance.size() != s.odometry.size())
+    return invalid_argument(what + ": " + std::to_string(n) + " keyframes but " +
+                            std::to_string(s.odometry.size()) + " odometry edges");
+  for (size_t i = 0; i < n; ++i) {
+    if (!s.keyframes[i].cloud)
+      return invalid_argument(what + ": keyframe " + std::to_string(i) + " has no cloud");
+    if (i > 0 && s.keyframes[i].frame_id <= s.keyframes[i - 1].frame_id)
+      return invalid_argument(what + ": keyframe " + std::to_string(i) + "'s frame " +
+                              std::to_string(s.keyframes[i].frame_id) +
+                              " is not after the previous one's");
+  }
+  for (size_t i = 0; i < s.odometry.size(); ++i)
+    if (s.odometry[i].from != i || s.odometry[i].to != i + 1)
+      return invalid_argument(what + ": odometry edge " + std::to_string(i) +
+                              " does not join keyframes " + std::to_string(i) + " and " +
+                              std::to_string(i + 1));
+  for (const PoseGraphEdge& e : s.loops)
+    if (e.from >= n || e.to >= n)
+      return invalid_argument(what + ": a loop edge joins keyframes " + std::to_string(e.from) +
+                              " and " + std::to_string(e.to) + " of " + std::to_string(n));
+  keyframes_ = std::move(s.keyframes);
+  odometry_ = std::move(s.odometry);
+  odometry_covariance_ = std::move(s.odometry_covariance);
+  loops_ = std::move(s.loops);
+  version_ = s.version;
+  since_keyframe_.setZero();
+  last_fused_.reset();
+  if (!keyframes_.empty()) last_fused_ = keyframes_.back().T_world_kf;
+  return Status::ok();
+}
+
 size_t ScanGraph::memory_bytes() const {
   size_t bytes = sizeof(*this) + keyframes_.capacity() * sizeof(GraphKeyframe) +
                  (odometry_.capacity() + loops_.capacity()) * sizeof(PoseGraphEdge) +

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <gtest/gtest.h>
+#include <sqlite3.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -252,6 +253,35 @@ inline Proc run(const std::string& cmd) {
   const int status = pclose(p);
   r.code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
   return r;
+}
+
+// Runs `sql` on the file at `path` as another program would (tests that alter or damage rows).
+inline void exec_sql(const std::string& path, const std::string& sql) {
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+  char* err = nullptr;
+  const int rc = sqlite3_exec(db, sql.c_str(), nullptr, nullptr, &err);
+  EXPECT_EQ(rc, SQLITE_OK) << (err ? err : "");
+  sqlite3_free(err);
+  sqlite3_close(db);
+}
+
+// SQL that turns a file of the current schema into what schema 5 wrote: chunk tables without the
+// version and checksum columns, no pose graph tables, user_version 5.
+inline std::string as_schema_5_sql() {
+  std::string sql;
+  for (const char* table : {"chunks", "chunk_staging"}) {
+    const std::string owner = std::string(table) == "chunks" ? "checkpoint_id" : "staged_utime";
+    const std::string t = table;
+    sql += "CREATE TABLE " + t + "_v5 (x INTEGER NOT NULL, y INTEGER NOT NULL, z INTEGER NOT NULL, "
+           "point_count INTEGER NOT NULL, min_x REAL, min_y REAL, min_z REAL, max_x REAL, max_y REAL, "
+           "max_z REAL, last_touched_frame INTEGER NOT NULL, " + owner + " INTEGER NOT NULL, data BLOB "
+           "NOT NULL, PRIMARY KEY (x, y, z)); INSERT INTO " + t + "_v5 SELECT x, y, z, point_count, "
+           "min_x, min_y, min_z, max_x, max_y, max_z, last_touched_frame, " + owner + ", data FROM " + t +
+           "; DROP TABLE " + t + "; ALTER TABLE " + t + "_v5 RENAME TO " + t + ";";
+  }
+  return sql + "DROP TABLE graph_keyframes; DROP TABLE graph; DELETE FROM meta WHERE key = "
+               "'chunk_checksums_from_checkpoint'; PRAGMA user_version = 5;";
 }
 
 }  // namespace depthfuse::store::test

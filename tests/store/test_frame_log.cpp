@@ -99,15 +99,7 @@ int run_cli(const std::string& args, std::string* out) {
   return r.code;
 }
 
-void exec_sql(const std::string& path, const std::string& sql) {
-  sqlite3* db = nullptr;
-  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
-  char* err = nullptr;
-  const int rc = sqlite3_exec(db, sql.c_str(), nullptr, nullptr, &err);
-  EXPECT_EQ(rc, SQLITE_OK) << (err ? err : "");
-  sqlite3_free(err);
-  sqlite3_close(db);
-}
+using test::exec_sql;
 
 TEST(FrameLog, KilledAfterLogOnlyCommitsResumesToTheSameMapAndFrameId) {
   TempDir dir;
@@ -312,7 +304,7 @@ TEST(FrameLog, SchemaFourFileOpensMigrated) {
     ASSERT_TRUE((*s)->commit_checkpoint(info));
   }
   // Schema 5 is schema 4 and the frame_log table: without it, the file is what schema 4 wrote.
-  exec_sql(path, "DROP TABLE frame_log; PRAGMA user_version = 4;");
+  exec_sql(path, test::as_schema_5_sql() + "DROP TABLE frame_log; PRAGMA user_version = 4;");
   auto ro = ScanStore::open(path, OpenMode::kReadOnly);
   ASSERT_FALSE(ro);
   EXPECT_NE(ro.status().message().find("depthfuse inspect --upgrade"), std::string::npos)
@@ -384,4 +376,102 @@ TEST(FrameLog, TheFusionThreadExportsAndCheckpointsWhileTheLogCommits) {
   auto exported = export_cloud((*rec)->store(), dir.file("final.ply"));
   ASSERT_TRUE(exported) << exported.status().to_string();
   EXPECT_EQ(exported->points_written, live.map().point_count());
+}
+
+// A schema-5 file (chunks without versions or checksums, no pose graph) migrates when a writer
+// opens it and resumes: its chunks come back at version 0, counted as unchecked, and a checkpoint
+// after the migration writes checksummed chunks and a graph.
+TEST(SchemaSix, ASchemaFiveFileMigratesAndResumes) {
+  TempDir dir;
+  const std::string path = dir.file("v5.db");
+  const ChunkKey key{1, 0, 0};
+  {
+    auto s = ScanStore::open(path, OpenMode::kCreate);
+    ASSERT_TRUE(s) << s.status().to_string();
+    ASSERT_TRUE((*s)->begin_checkpoint());
+    Chunk c;
+    c.points = test::make_points(key, 1, 50);
+    ASSERT_TRUE((*s)->write_chunk(key, c));
+    PoseRecord p;
+    p.frame_id = 1;
+    ASSERT_TRUE((*s)->write_pose(p));
+    CheckpointInfo info;
+    info.last_frame_id = 1;
+    info.frames_fused = 1;
+    ASSERT_TRUE((*s)->commit_checkpoint(info));
+  }
+  exec_sql(path, test::as_schema_5_sql());
+  RecorderConfig rc;
+  rc.bounded_memory = false;
+  ResumePoint at;
+  auto rec = ScanRecorder::resume(path, rc, &at);
+  ASSERT_TRUE(rec) << rec.status().to_string();
+  EXPECT_EQ((*rec)->store().open_report().found_schema_version, 5);
+  EXPECT_FALSE(at.graph);
+  ASSERT_TRUE(at.map->find(key));
+  EXPECT_EQ(at.map->find(key)->version, 0u);
+  EXPECT_EQ(at.map->find(key)->points.size(), 50u);
+  auto integrity = (*rec)->store().integrity_check();
+  ASSERT_TRUE(integrity);
+  EXPECT_TRUE(integrity->ok()) << integrity->problems.front();
+  EXPECT_EQ(integrity->chunks_unchecked, 1u);
+  // The next checkpoint rewrites the chunk with its version and checksum, and writes the graph.
+  at.map->find(key)->dirty = true;
+  at.map->find(key)->version = 2;
+  GraphCheckpoint g;
+  g.graph.version = 2;
+  g.deformation.oldest_version = 2;
+  g.deformation.T_world_kf.emplace_back();
+  g.deformation.max_motion_m.push_back(0);
+  (*rec)->set_graph(g);
+  ASSERT_TRUE((*rec)->checkpoint(at.map.get(), "command"));
+  auto stored = (*rec)->store().read_chunk(key);
+  ASSERT_TRUE(stored);
+  EXPECT_EQ(stored->info.version, 2u);
+  EXPECT_TRUE(stored->info.checksummed);
+  auto graph = (*rec)->store().read_graph();
+  ASSERT_TRUE(graph) << graph.status().to_string();
+  EXPECT_TRUE(*graph);
+  integrity = (*rec)->store().integrity_check();
+  ASSERT_TRUE(integrity);
+  EXPECT_TRUE(integrity->ok()) << integrity->problems.front();
+  EXPECT_EQ(integrity->chunks_unchecked, 0u);
+}
+
+// A chunk row's version is covered by its checksum (a changed version would move or freeze the
+// chunk's points on a resume), and a NULL checksum in a row written since schema 6 is damage.
+TEST(SchemaSix, AChunkRowsVersionIsChecked) {
+  TempDir dir;
+  const std::string path = dir.file("v6.db");
+  const ChunkKey key{1, 0, 0};
+  {
+    auto s = ScanStore::open(path, OpenMode::kCreate);
+    ASSERT_TRUE(s) << s.status().to_string();
+    ASSERT_TRUE((*s)->begin_checkpoint());
+    Chunk c;
+    c.points = test::make_points(key, 1, 50);
+    c.version = 3;
+    ASSERT_TRUE((*s)->write_chunk(key, c));
+    CheckpointInfo info;
+    ASSERT_TRUE((*s)->commit_checkpoint(info));
+  }
+  auto integrity_problems = [&] {
+    auto s = ScanStore::open(path, OpenMode::kReadOnly);
+    EXPECT_TRUE(s) << s.status().to_string();
+    auto r = (*s)->integrity_check();
+    EXPECT_TRUE(r);
+    return r->problems;
+  };
+  EXPECT_TRUE(integrity_problems().empty());
+  exec_sql(path, "UPDATE chunks SET version = 4;");
+  auto problems = integrity_problems();
+  ASSERT_EQ(problems.size(), 1u);
+  EXPECT_NE(problems[0].find("chunk (1,0,0): checksum mismatch"), std::string::npos) << problems[0];
+  exec_sql(path, "UPDATE chunks SET version = 3, checksum = NULL;");
+  problems = integrity_problems();
+  ASSERT_EQ(problems.size(), 1u);
+  EXPECT_NE(
+      problems[0].find("chunk (1,0,0) has no checksum, though every chunk from checkpoint 1 on"),
+      std::string::npos)
+      << problems[0];
 }

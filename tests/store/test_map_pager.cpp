@@ -281,3 +281,53 @@ TEST(MapPager, AChunkCreatedOverAnEvictedOneKeepsTheStoredPoints) {
   ASSERT_TRUE(in_file) << in_file.status().to_string();
   EXPECT_TRUE(bit_equal(in_file->chunk.points, both));
 }
+
+// A loop closure while a chunk was evicted: fusion (or the map's deformation) made a new chunk at
+// its key at the new version. The stored points follow the corrections (here: a hook standing for
+// MapDeformation::update, moving them 1 cm) before the new ones join them, and the pager keeps
+// the evicted chunks' oldest version for the deformation's history.
+TEST(MapPager, AChunkLoadedOverANewerOneIsBroughtUpToDateFirst) {
+  TempDir dir;
+  auto store = ScanStore::open(dir.file("scan.db"), OpenMode::kCreate);
+  ASSERT_TRUE(store);
+  MapPager pager(row_config(0.001), store->get());
+  size_t brought = 0;
+  pager.set_bring_up_to_date([&](PointMap* m, const ChunkKey& key) {
+    Chunk* c = m->find(key);
+    ASSERT_NE(c, nullptr);
+    for (size_t i = 0; i < c->points.size(); ++i) c->points.position_m[i].x() += 0.01f;
+    c->version = m->version();
+    ++brought;
+  });
+  PointMap map(0.5);
+  const ChunkKey k{12, 0, 0};  // 6 m from the camera
+  const PointArrays stored = make_points(k, 1, 40), fresh = make_points(k, 2, 7);
+  Chunk& c = map.get_or_create(k);
+  c.points = stored;
+  c.last_touched_frame = 10;
+  c.dirty = true;
+  ASSERT_TRUE(pager.update(&map, kRowCamera, 100));
+  ASSERT_TRUE(pager.is_evicted(k));
+  EXPECT_EQ(pager.oldest_evicted_version(), std::optional<uint32_t>(0));
+  map.set_version(1);  // a correction
+  Chunk& created = map.get_or_create(k);
+  EXPECT_EQ(created.version, 1u);
+  created.points = fresh;
+  created.last_touched_frame = 101;
+  created.dirty = true;
+  ASSERT_TRUE(pager.update(&map, kRowCamera, 101)) << pager.stats().last_error;
+  EXPECT_EQ(brought, 1u);
+  EXPECT_EQ(pager.oldest_evicted_version(), std::nullopt);
+  PointArrays both = stored;
+  for (size_t i = 0; i < both.size(); ++i) both.position_m[i].x() += 0.01f;
+  both.append(fresh);
+  ASSERT_NE(map.find(k), nullptr);
+  EXPECT_EQ(map.find(k)->version, 1u);
+  EXPECT_TRUE(bit_equal(map.find(k)->points, both));
+  // Evicted again at version 1: the file keeps it.
+  ASSERT_TRUE(pager.update(&map, kRowCamera, 200));
+  EXPECT_EQ(pager.oldest_evicted_version(), std::optional<uint32_t>(1));
+  auto in_file = (*store)->read_chunk(k, /*include_staged=*/true);
+  ASSERT_TRUE(in_file) << in_file.status().to_string();
+  EXPECT_EQ(in_file->chunk.version, 1u);
+}

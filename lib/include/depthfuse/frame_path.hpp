@@ -20,6 +20,7 @@
 #include <optional>
 
 #include "depthfuse/incremental.hpp"
+#include "depthfuse/map_deformation.hpp"
 #include "depthfuse/scan_graph.hpp"
 #include "depthfuse/status.hpp"
 #include "depthfuse/types.hpp"
@@ -51,6 +52,13 @@ struct FrameOutcome {
   std::optional<AppliedCorrection> correction;
 };
 
+// What the scan file keeps of the pose graph and of how the map follows it, as of a checkpoint.
+struct GraphCheckpoint {
+  ScanGraphState graph;
+  DeformationHistory deformation;
+  bool empty() const { return graph.keyframes.empty() && graph.version == 0; }
+};
+
 class LoopCloser;
 
 class FramePath {
@@ -69,11 +77,20 @@ class FramePath {
   std::optional<AppliedCorrection> finish();
 
   const ScanGraph& graph() const { return graph_; }
+  // The graph and the map's deformation as they stand (a checkpoint copies them: the keyframes'
+  // clouds are shared).
+  GraphCheckpoint checkpoint_state() const;
+  // A resumed scan, before its first frame: the graph as its checkpoint had it (the map's
+  // deformation is the reconstructor's, restored with the map). The loop closer takes its loop
+  // edges and its keyframes, so that a later closure can use keyframes from before the restart
+  // and keeps the loops found then. An error changes nothing.
+  Status restore(ScanGraphState graph);
   LoopClosureStats loop_closure_stats() const;
 
  private:
   std::optional<AppliedCorrection> apply_correction();
   void join_graph(const Frame& frame, const FrameReport& report, FrameOutcome* outcome);
+  void submit_graph();
 
   IncrementalReconstructor& reconstructor_;
   FrameStore* store_;

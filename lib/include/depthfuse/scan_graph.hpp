@@ -19,6 +19,7 @@
 #include "depthfuse/measurement.hpp"
 #include "depthfuse/pose_delta.hpp"
 #include "depthfuse/pose_graph.hpp"
+#include "depthfuse/status.hpp"
 #include "depthfuse/types.hpp"
 
 namespace depthfuse {
@@ -76,6 +77,15 @@ struct LoopClosureStats {
   double seconds = 0;            // thread time spent
 };
 
+// A ScanGraph as plain data, for the scan file (ScanGraph::state(), ScanGraph::restore()).
+struct ScanGraphState {
+  std::vector<GraphKeyframe> keyframes;
+  std::vector<PoseGraphEdge> odometry;       // i -> i + 1
+  std::vector<Matrix6d> odometry_covariance;  // each odometry edge's, its information's inverse
+  std::vector<PoseGraphEdge> loops;
+  uint32_t version = 0;
+};
+
 class ScanGraph {
  public:
   explicit ScanGraph(const LoopClosureConfig& config);
@@ -95,6 +105,12 @@ class ScanGraph {
   uint32_t version() const { return version_; }  // corrections applied
   size_t memory_bytes() const;
   void clear();
+
+  ScanGraphState state() const;
+  // Replaces the graph by `s` (a resumed scan); the next frame's uncertainty is accumulated from
+  // the last keyframe. An error (edges that do not join keyframes i and i + 1, a loop edge out of
+  // range, frame ids out of order, a missing cloud) changes nothing.
+  Status restore(ScanGraphState s);
 
  private:
   LoopClosureConfig config_;

@@ -94,6 +94,8 @@ const char* kind_name(BlobKind k) {
     case BlobKind::kPoints: return "points";
     case BlobKind::kDepth: return "depth";
     case BlobKind::kColor: return "color";
+    case BlobKind::kKeyframeCloud: return "keyframe cloud";
+    case BlobKind::kGraph: return "pose graph";
   }
   return "unknown";
 }
@@ -417,6 +419,30 @@ Status BlobCodec::decode_points(const void* blob, size_t size, const std::string
     for (size_t i = 0; i < n; ++i) std::memcpy(base + i * stride, src + i * c.size, c.size);
     src += n * c.size;
   }
+  return st;
+}
+
+Status BlobCodec::encode_column(BlobKind kind, const void* data, uint32_t count,
+                                uint8_t element_size, std::vector<uint8_t>* blob) {
+  const std::vector<Column> cols = {
+      {0, element_size, static_cast<uint8_t>(element_size > 1 ? kBytePlanes : kNone), data, nullptr,
+       "values"}};
+  return encode(kind, count, 0, 0, cols, blob, level_);
+}
+
+Status BlobCodec::decode_column(const void* blob, size_t size, const std::string& what,
+                                BlobKind kind, uint8_t element_size, std::vector<uint8_t>* out) {
+  auto header = read_header(blob, size, what);
+  if (!header) return header.status();
+  const size_t n = header->element_count;
+  // Size check before allocating: a damaged count must not become a huge allocation.
+  if (element_size == 0 || n * element_size != header->raw_bytes)
+    return corrupt(what + ": header announces " + std::to_string(n) + " elements in " +
+                   std::to_string(header->raw_bytes) + " bytes");
+  out->resize(n * element_size);
+  std::vector<Column> cols = {{0, element_size, 0, nullptr, out->data(), "values"}};
+  Status st = decode(blob, size, what, kind, *header, cols);
+  if (!st) out->clear();
   return st;
 }
 

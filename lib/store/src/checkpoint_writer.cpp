@@ -97,6 +97,8 @@ void CheckpointWriter::write_loop() {
         for (const EncodedChunk& c : encoded) DF_RETURN_IF_ERROR(store_->write_chunk(c));
         for (const ChunkKey& k : job.removed) DF_RETURN_IF_ERROR(store_->delete_chunk(k));
         for (const PoseRecord& p : job.poses) DF_RETURN_IF_ERROR(store_->write_pose(p));
+        DF_RETURN_IF_ERROR(store_->correct_poses(job.corrections));
+        if (job.graph) DF_RETURN_IF_ERROR(store_->write_graph(*job.graph));
         return Status::ok();
       };
       st = body();

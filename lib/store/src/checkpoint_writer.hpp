@@ -32,6 +32,9 @@ struct CheckpointJob {
   std::vector<ChunkKey> removed;                   // left the map since the last checkpoint
   std::vector<ChunkKey> resident;                  // the map's keys at the snapshot
   std::vector<PoseRecord> poses;
+  // Loop closures applied since the last checkpoint, for the poses written before (after `poses`).
+  std::vector<PoseCorrection> corrections;
+  std::optional<GraphCheckpoint> graph;            // the pose graph at the snapshot
   CheckpointInfo info;
   int64_t snapshot_ns = 0;                         // steady clock, when the snapshot was taken
 };

@@ -134,7 +134,7 @@ Status MapPager::load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t
   Status first_error;
   for (const ChunkKey& k : keys) {
     auto stored = store_->read_chunk(k, config_.read_staged);
-    evicted_.erase(k);
+    note_loaded(k);
     if (!stored) {
       // Not found: nothing to load. Damaged or unreadable: it stays in the file untouched (a
       // chunk fusion creates at that key replaces it at the next checkpoint).
@@ -145,6 +145,23 @@ Status MapPager::load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t
       continue;
     }
     Chunk loaded = std::move(stored->chunk);
+    if (Chunk* resident = map->find(k);
+        resident && bring_up_to_date_ && resident->version != loaded.version) {
+      // The stored points follow the corrections made since they were evicted, in the map under
+      // their key, then the resident ones join them.
+      Chunk newer;
+      map->extract(k, &newer);
+      map->insert(k, std::move(loaded));
+      bring_up_to_date_(map, k);
+      Chunk& merged = map->get_or_create(k);
+      merged.points.append(newer.points);
+      merged.last_touched_frame = std::max(merged.last_touched_frame, newer.last_touched_frame);
+      merged.dirty = true;
+      ++stats_.load_collisions;
+      loaded_at_[k] = frame_id;
+      ++stats_.total_loaded;
+      continue;
+    }
     if (Chunk* resident = map->find(k)) {
       // Fusion created the chunk while it was evicted (prepare() was skipped or the pose jumped):
       // keep both sets of points.
@@ -158,6 +175,22 @@ Status MapPager::load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t
     ++stats_.total_loaded;
   }
   return first_error;
+}
+
+void MapPager::note_evicted(const ChunkKey& key, uint32_t version) {
+  note_loaded(key);  // evicted again: its version is the new one
+  evicted_.insert(key);
+  evicted_version_[key] = version;
+  ++evicted_versions_[version];
+}
+
+void MapPager::note_loaded(const ChunkKey& key) {
+  evicted_.erase(key);
+  const auto it = evicted_version_.find(key);
+  if (it == evicted_version_.end()) return;
+  const auto count = evicted_versions_.find(it->second);
+  if (--count->second == 0) evicted_versions_.erase(count);
+  evicted_version_.erase(it);
 }
 
 Status MapPager::update(PointMap* map, const Eigen::Vector3f& camera_position_m, uint32_t frame_id) {
@@ -240,10 +273,11 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
     const Chunk* c = map->find(k);
     // A clean, empty chunk has nothing in the file and nothing to come back to.
     const bool keep_key = c->dirty || !c->points.empty();
+    const uint32_t c_version = c->version;
     map->extract(k, nullptr);
     loaded_at_.erase(k);
     unloadable_.erase(k);
-    if (keep_key) evicted_.insert(k);
+    if (keep_key) note_evicted(k, c_version);
   }
   stats_.total_evicted += n;
   stats_.total_evicted_recent += recent;

@@ -148,7 +148,7 @@ Result<std::unique_ptr<ScanRecorder>> ScanRecorder::resume(const std::string& pa
     // Everything starts on disk; the pager brings back what is near the camera.
     auto keys = store.list_chunks();
     if (!keys) return keys.status();
-    for (const ChunkInfo& c : *keys) rec->pager_->mark_evicted(c.key);
+    for (const ChunkInfo& c : *keys) rec->pager_->mark_evicted(c.key, c.version);
     // The surroundings of the last pose; prepare_frame() brings back whatever the next frames see.
     Eigen::Vector3f cam = Eigen::Vector3f::Zero();
     if (resume->last_T_world_cam) cam = resume->last_T_world_cam->translation().cast<float>();
@@ -162,12 +162,16 @@ Result<std::unique_ptr<ScanRecorder>> ScanRecorder::resume(const std::string& pa
       Chunk c;
       c.points = std::move(points);
       c.last_touched_frame = info.last_touched_frame;
+      c.version = info.version;
       c.dirty = false;
       map->insert(info.key, std::move(c));
       return Status::ok();
     }));
   }
   if (rec->pager_) rec->status_.pager = rec->pager_->stats();
+  auto graph = store.read_graph();
+  if (!graph) return graph.status().with_context("resuming");
+  resume->graph = std::move(*graph);
   auto log = store.frame_log_summary();
   if (!log) return log.status();
   resume->frame_log = *log;
@@ -297,6 +301,11 @@ Status ScanRecorder::record_frame(const Frame& frame, const FrameReport& report,
   return result;
 }
 
+void ScanRecorder::poses_corrected(const AppliedCorrection& correction, uint32_t before_frame) {
+  corrections_.push_back({correction, before_frame});
+  if (last_pose_) last_pose_ = correction.motion_of(last_frame_id_) * *last_pose_;
+}
+
 Result<CheckpointRecord> ScanRecorder::checkpoint(PointMap* map, const std::string& reason,
                                                   const FrameCounters& counters) {
   return write_checkpoint(map, reason, counters, false);
@@ -373,6 +382,8 @@ bool ScanRecorder::checkpoint_in_background(PointMap* map, const std::string& re
   });
   job.removed = removed_chunks(*map);
   job.poses.swap(pending_poses_);
+  job.corrections.swap(corrections_);
+  if (graph_ && !graph_->empty()) job.graph = graph_;
   status_.pending_poses = 0;
   if (!writer_) {
     auto connection = store_->another_connection(config_.store);
@@ -415,6 +426,7 @@ void ScanRecorder::collect_background(PointMap* map, bool clear_dirty) {
 // staged dirty since), and the removed ones are found again from the last checkpoint's keys.
 void ScanRecorder::not_written(const CheckpointJob& job, const Status& why) {
   pending_poses_.insert(pending_poses_.begin(), job.poses.begin(), job.poses.end());
+  corrections_.insert(corrections_.begin(), job.corrections.begin(), job.corrections.end());
   status_.pending_poses = pending_poses_.size();
   (void)checkpoint_failed(why, job.info.last_frame_id);
 }
@@ -461,6 +473,8 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
       }
     }
     for (const PoseRecord& p : pending_poses_) DF_RETURN_IF_ERROR(store.write_pose(p));
+    DF_RETURN_IF_ERROR(store.correct_poses(corrections_));
+    if (graph_ && !graph_->empty()) DF_RETURN_IF_ERROR(store.write_graph(*graph_));
     return Status::ok();
   };
   st = body();
@@ -477,6 +491,7 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
   });
   for (const ChunkKey& k : emptied_evicted) pager_->forget(k);
   pending_poses_.clear();
+  corrections_.clear();
   status_.pending_poses = 0;
   status_.last_checkpoint_chunks = written;
   checkpoint_committed(*rec, std::move(resident));

@@ -60,7 +60,9 @@ ChunkInfo chunk_info_of(const sql::Row& row) {
     }
   }
   info.last_touched_frame = static_cast<uint32_t>(row.int64(ChunkCol::kLastTouchedFrame));
+  info.version = static_cast<uint32_t>(row.int64(ChunkCol::kVersion));
   info.checkpoint_id = row.int64(ChunkCol::kCheckpointId);
+  info.checksummed = !row.is_null(ChunkCol::kChecksum);
   return info;
 }
 
@@ -106,6 +108,7 @@ Status encode_chunk(BlobCodec& codec, const ChunkKey& key, const Chunk& chunk, E
   out->point_count = static_cast<uint32_t>(chunk.points.size());
   out->bounds_m = bounds_of(chunk.points);
   out->last_touched_frame = chunk.last_touched_frame;
+  out->version = chunk.version;
   return codec.encode_points(chunk.points, &out->blob).with_context("encoding chunk " + to_string(key));
 }
 
@@ -121,7 +124,7 @@ Status ScanStore::Impl::write_chunk_row(bool staged, const EncodedChunk& chunk, 
   const std::string sql =
       std::string("INSERT OR REPLACE INTO ") + (staged ? "chunk_staging (" : "chunks (") +
       kChunkColumns + (staged ? ", staged_utime" : ", checkpoint_id") +
-      ", data) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?);";
+      ", data) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?);";
   auto st = db.prepare(sql, "writing chunk " + to_string(key));
   if (!st) return st.status();
   st->bind(param(ChunkCol::kX), key.x).bind(param(ChunkCol::kY), key.y).bind(param(ChunkCol::kZ), key.z);
@@ -135,6 +138,9 @@ Status ScanStore::Impl::write_chunk_row(bool staged, const EncodedChunk& chunk, 
     }
   }
   st->bind(param(ChunkCol::kLastTouchedFrame), chunk.last_touched_frame);
+  st->bind(param(ChunkCol::kVersion), chunk.version);
+  st->bind(param(ChunkCol::kChecksum),
+           chunk_row_checksum(key, chunk.point_count, chunk.last_touched_frame, chunk.version));
   st->bind(param(ChunkCol::kCheckpointId), last_column);
   st->bind_blob(param(ChunkCol::kData), chunk.blob);
   return st->run();
@@ -160,14 +166,26 @@ Status ScanStore::Impl::decode_chunk_row(const sql::Row& row, bool staged, Store
   info.blob_bytes = row.blob_size(ChunkCol::kData);
   const std::string what = path + ": " + (staged ? "staged chunk " : "chunk ") +
                            to_string(info.key);
+  DF_RETURN_IF_ERROR(check_row_checksum(
+      row, ChunkCol::kChecksum,
+      chunk_row_checksum(info.key, info.point_count, info.last_touched_frame, info.version), what));
   DF_RETURN_IF_ERROR(codec.decode_points(row.blob(ChunkCol::kData), row.blob_size(ChunkCol::kData),
                                          what, &out->chunk.points));
   if (out->chunk.points.size() != info.point_count)
     return corrupt(what + ": holds " + std::to_string(out->chunk.points.size()) +
                    " points, its row says " + std::to_string(info.point_count));
   out->chunk.last_touched_frame = info.last_touched_frame;
+  out->chunk.version = info.version;
   out->chunk.dirty = false;
   return Status::ok();
+}
+
+uint32_t chunk_row_checksum(const ChunkKey& key, uint32_t point_count, uint32_t last_touched_frame,
+                            uint32_t version) {
+  return RowCrc()
+      .add(key.x).add(key.y).add(key.z)
+      .add(point_count).add(last_touched_frame).add(version)
+      .value();
 }
 
 uint32_t keyframe_row_checksum(uint32_t frame_id, int64_t utime, const CameraIntrinsics& K,

@@ -75,18 +75,20 @@ constexpr int param(int column) { return column + 1; }
 // checkpoint id (0 when staged), then the blob or an expression on it; an INSERT names them with
 // the column that differs, then `data`.
 inline constexpr const char* kChunkColumns =
-    "x, y, z, point_count, min_x, min_y, min_z, max_x, max_y, max_z, last_touched_frame";
+    "x, y, z, point_count, min_x, min_y, min_z, max_x, max_y, max_z, last_touched_frame, version, "
+    "checksum";
 struct ChunkCol {
   enum : int {
-    kX, kY, kZ, kPointCount, kMinX, kMinY, kMinZ, kMaxX, kMaxY, kMaxZ, kLastTouchedFrame,
-    kCheckpointId, kData
+    kX, kY, kZ, kPointCount, kMinX, kMinY, kMinZ, kMaxX, kMaxY, kMaxZ, kLastTouchedFrame, kVersion,
+    kChecksum, kCheckpointId, kData
   };
 };
 static_assert(columns_named(kChunkColumns, ChunkCol::kCheckpointId, {{ChunkCol::kX, "x"},
               {ChunkCol::kY, "y"}, {ChunkCol::kZ, "z"}, {ChunkCol::kPointCount, "point_count"},
               {ChunkCol::kMinX, "min_x"}, {ChunkCol::kMinY, "min_y"}, {ChunkCol::kMinZ, "min_z"},
               {ChunkCol::kMaxX, "max_x"}, {ChunkCol::kMaxY, "max_y"}, {ChunkCol::kMaxZ, "max_z"},
-              {ChunkCol::kLastTouchedFrame, "last_touched_frame"}}));
+              {ChunkCol::kLastTouchedFrame, "last_touched_frame"}, {ChunkCol::kVersion, "version"},
+              {ChunkCol::kChecksum, "checksum"}}));
 
 // A row of the poses table.
 inline constexpr const char* kPoseColumns =
@@ -183,6 +185,11 @@ Eigen::AlignedBox3f bounds_of(const PointArrays& a);
 
 // The values of a pose row that its checksum covers besides the pose blob.
 PoseFields pose_fields(const PoseRecord& p);
+
+// CRC-32 of a chunk row (chunks.checksum, chunk_staging.checksum; the blob has its own): x y z
+// i32, point_count u32, last_touched_frame u32, version u32.
+uint32_t chunk_row_checksum(const ChunkKey& key, uint32_t point_count, uint32_t last_touched_frame,
+                            uint32_t version);
 
 // CRC-32 of a keyframe row's pose and the values it is used with (keyframes.checksum):
 // frame_id u32, utime i64, width u32, height u32, fx fy cx cy f64, the pose blob's bytes.

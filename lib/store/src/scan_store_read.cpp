@@ -276,6 +276,10 @@ Result<StoreSummary> ScanStore::summary() {
   auto last = last_checkpoint();
   if (!last) return last.status();
   sum.last_checkpoint = *last;
+  // A damaged graph is the integrity check's to report in full; the summary says it is there.
+  auto graph = graph_summary();
+  if (graph) sum.graph = *graph;
+  else sum.graph_problem = graph.status().message();
   sum.file_bytes = file_size(s.path);
   sum.wal_bytes = file_size(s.path + "-wal");
   return sum;

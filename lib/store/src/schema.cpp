@@ -9,7 +9,7 @@
 namespace depthfuse::store::schema {
 
 const char* const kTables[] = {"meta", "checkpoints", "chunks", "chunk_staging", "poses",
-                               "keyframes", "frame_log", nullptr};
+                               "keyframes", "frame_log", "graph_keyframes", "graph", nullptr};
 
 namespace {
 
@@ -18,7 +18,8 @@ namespace {
 //
 // The committed chunks and the staged ones share a layout; only the column before the blob
 // differs: the checkpoint that wrote a committed chunk, the time a staged one was evicted.
-std::string chunk_table(const char* name, const char* owner_column) {
+// Schema 6 adds the pose graph's version of the points and the row's checksum before the owner.
+std::string chunk_table(const char* name, const char* owner_column, bool with_version = false) {
   return std::string("\nCREATE TABLE ") + name + R"sql( (
   x INTEGER NOT NULL,
   y INTEGER NOT NULL,
@@ -27,7 +28,8 @@ std::string chunk_table(const char* name, const char* owner_column) {
   min_x REAL, min_y REAL, min_z REAL,
   max_x REAL, max_y REAL, max_z REAL,
   last_touched_frame INTEGER NOT NULL,
-  )sql" + owner_column + R"sql( INTEGER NOT NULL,
+  )sql" + (with_version ? "version INTEGER NOT NULL DEFAULT 0,\n  checksum INTEGER,\n  " : "") +
+         owner_column + R"sql( INTEGER NOT NULL,
   data BLOB NOT NULL,
   PRIMARY KEY (x, y, z)
 );
@@ -196,6 +198,53 @@ PRAGMA user_version = 5;
 )sql", "migrating schema 4 to 5");
 }
 
+// Schema 5 -> 6: the pose graph and the map's deformation (docs/checkpoint-format.md, "The pose
+// graph"). graph_keyframes holds each keyframe of the graph once, with the odometry edge that
+// joins it to the one before and its cloud (append-only: neither changes once made); the one row
+// of `graph` holds what a correction rewrites (the keyframes' poses, the loop edges, the graph's
+// version, the deformation's history), written by every checkpoint. Chunks carry the version of
+// the graph their points are in, and a CRC-32 of their row; the chunk tables are rebuilt so that
+// both sit before the blob. Rows written before keep NULL (unchecked, version 0); where they end
+// is recorded as for the other checksums (meta chunk_checksums_from_checkpoint).
+Status migrate_5_to_6(sql::Database& db) {
+  const std::string ctx = "migrating schema 5 to 6";
+  for (const auto& [table, owner] : {std::pair<const char*, const char*>{"chunks", "checkpoint_id"},
+                                     {"chunk_staging", "staged_utime"}}) {
+    const std::string old = std::string(table) + "_v5";
+    DF_RETURN_IF_ERROR(
+        db.exec(std::string("ALTER TABLE ") + table + " RENAME TO " + old + ";", ctx));
+    DF_RETURN_IF_ERROR(db.exec(chunk_table(table, owner, /*with_version=*/true), ctx));
+    const std::string columns =
+        std::string("x, y, z, point_count, min_x, min_y, min_z, max_x, max_y, max_z, "
+                    "last_touched_frame, ") +
+        owner + ", data";
+    DF_RETURN_IF_ERROR(db.exec(std::string("INSERT INTO ") + table + " (" + columns + ") SELECT " +
+                                   columns + " FROM " + old + "; DROP TABLE " + old + ";",
+                               ctx));
+  }
+  return db.exec(R"sql(
+CREATE TABLE graph_keyframes (
+  keyframe INTEGER PRIMARY KEY,
+  frame_id INTEGER NOT NULL,
+  utime INTEGER NOT NULL,
+  checksum INTEGER NOT NULL,
+  odometry BLOB,
+  cloud BLOB NOT NULL
+);
+CREATE TABLE graph (
+  id INTEGER PRIMARY KEY CHECK (id = 1),
+  checkpoint_id INTEGER NOT NULL,
+  version INTEGER NOT NULL,
+  keyframe_count INTEGER NOT NULL,
+  checksum INTEGER NOT NULL,
+  state BLOB NOT NULL
+);
+INSERT OR REPLACE INTO meta (key, value)
+  SELECT 'chunk_checksums_from_checkpoint', COALESCE(MAX(id), 0) + 1 FROM checkpoints;
+PRAGMA user_version = 6;
+)sql", ctx);
+}
+
 }  // namespace
 
 Status create_current(sql::Database& db) {
@@ -207,13 +256,14 @@ Status create_current(sql::Database& db) {
   DF_RETURN_IF_ERROR(migrate_2_to_3(db));
   DF_RETURN_IF_ERROR(migrate_3_to_4(db));
   DF_RETURN_IF_ERROR(migrate_4_to_5(db));
+  DF_RETURN_IF_ERROR(migrate_5_to_6(db));
   DF_RETURN_IF_ERROR(db.exec("PRAGMA application_id = " + std::to_string(kApplicationId) + ";", ctx));
   DF_RETURN_IF_ERROR(db.exec("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";", ctx));
   return Status::ok();
 }
 
 Status migrate(sql::Database& db, int from_version) {
-  static_assert(kSchemaVersion == 5, "add the migration step to the new version here");
+  static_assert(kSchemaVersion == 6, "add the migration step to the new version here");
   int v = from_version;
   if (v == 1) {
     DF_RETURN_IF_ERROR(migrate_1_to_2(db));
@@ -230,6 +280,10 @@ Status migrate(sql::Database& db, int from_version) {
   if (v == 4) {
     DF_RETURN_IF_ERROR(migrate_4_to_5(db));
     v = 5;
+  }
+  if (v == 5) {
+    DF_RETURN_IF_ERROR(migrate_5_to_6(db));
+    v = 6;
   }
   if (v != kSchemaVersion)
     return unsupported(db.path() + ": no migration from schema version " +

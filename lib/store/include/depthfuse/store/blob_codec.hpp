@@ -20,7 +20,10 @@ struct ZSTD_DCtx_s;
 
 namespace depthfuse::store {
 
-enum class BlobKind : uint8_t { kPoints = 1, kDepth = 2, kColor = 3 };
+// kKeyframeCloud and kGraph: the pose graph's blobs (graph_codec.hpp), one column each.
+enum class BlobKind : uint8_t {
+  kPoints = 1, kDepth = 2, kColor = 3, kKeyframeCloud = 4, kGraph = 5
+};
 
 // How a keyframe's depth is stored. The encoder picks the first uint16 format that reproduces
 // every pixel bit for bit (depth from a Kinect or a TUM PNG), and raw float32 otherwise.
@@ -62,6 +65,15 @@ class BlobCodec {
 
   Status encode_color(const ColorImage& color, std::vector<uint8_t>* blob);
   Status decode_color(const void* blob, size_t size, const std::string& what, ColorImage* out);
+
+  // One column of `count` elements of `element_size` bytes (stored as byte planes when wider than
+  // a byte), for blobs whose layout their users define (the pose graph's).
+  Status encode_column(BlobKind kind, const void* data, uint32_t count, uint8_t element_size,
+                       std::vector<uint8_t>* blob);
+  // Its elements into *out (count * element_size bytes); a blob of another kind or element size
+  // is an error.
+  Status decode_column(const void* blob, size_t size, const std::string& what, BlobKind kind,
+                       uint8_t element_size, std::vector<uint8_t>* out);
 
   // Validates magic, header checksum and sizes (not the payload).
   static Result<BlobHeader> read_header(const void* blob, size_t size, const std::string& what);

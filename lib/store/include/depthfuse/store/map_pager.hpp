@@ -15,6 +15,8 @@
 
 #include <cstdint>
 #include <functional>
+#include <map>
+#include <optional>
 #include <string>
 #include <unordered_map>
 #include <unordered_set>
@@ -82,15 +84,23 @@ class MapPager {
   // when that is smaller.
   Status load_around(PointMap* map, const Eigen::Vector3f& p_m, double radius_m, uint32_t frame_id);
 
-  // Resume: a chunk that is in the scan file but not in memory.
-  void mark_evicted(const ChunkKey& key) { evicted_.insert(key); }
+  // Resume: a chunk that is in the scan file but not in memory, its points in the pose graph's
+  // `version` (ChunkInfo::version).
+  void mark_evicted(const ChunkKey& key, uint32_t version = 0) { note_evicted(key, version); }
+  // The oldest pose graph version among the evicted chunks (none: nothing evicted): the map's
+  // deformation keeps the history they need to follow the graph once loaded back
+  // (MapDeformation::set_oldest_stored_version).
+  std::optional<uint32_t> oldest_evicted_version() const {
+    if (evicted_versions_.empty()) return std::nullopt;
+    return evicted_versions_.begin()->first;
+  }
   // In the scan file and not in memory: evicted, or failed to load (damaged; kept in the file).
   bool is_evicted(const ChunkKey& key) const {
     return evicted_.count(key) != 0 || unloadable_.count(key) != 0;
   }
   const std::unordered_set<ChunkKey, ChunkKeyHash>& evicted() const { return evicted_; }
   void forget(const ChunkKey& key) {
-    evicted_.erase(key);
+    note_loaded(key);
     unloadable_.erase(key);
   }
 
@@ -99,6 +109,14 @@ class MapPager {
   // then could replace such a staged copy before the checkpoint took it, so the recorder waits
   // for the checkpoint here.
   void set_before_staging(std::function<void()> fn) { before_staging_ = std::move(fn); }
+
+  // Brings the chunk at a key of the map up to the pose graph's current version (the map's
+  // deformation). A chunk loaded where fusion or the deformation made a new one while it was
+  // evicted is brought up to date before the two are merged: their points are in two versions,
+  // and a chunk holds one. Without it the two are merged as they are.
+  void set_bring_up_to_date(std::function<void(PointMap*, const ChunkKey&)> fn) {
+    bring_up_to_date_ = std::move(fn);
+  }
 
   // Bytes a chunk holds in memory, as the budget counts them.
   static size_t chunk_bytes(const Chunk& chunk);
@@ -110,15 +128,21 @@ class MapPager {
   Status load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t frame_id);
   Status evict(PointMap* map, const Eigen::Vector3f& camera_position_m, uint32_t frame_id);
   Status finish_call(Status st);
+  void note_evicted(const ChunkKey& key, uint32_t version);
+  void note_loaded(const ChunkKey& key);  // no longer evicted
 
   MapPagerConfig config_;
   ScanStore* store_;
   std::unordered_set<ChunkKey, ChunkKeyHash> evicted_;
+  // The evicted chunks' versions, and how many are at each.
+  std::unordered_map<ChunkKey, uint32_t, ChunkKeyHash> evicted_version_;
+  std::map<uint32_t, size_t> evicted_versions_;
   std::unordered_set<ChunkKey, ChunkKeyHash> unloadable_;  // load failed; not retried every frame
   std::unordered_map<ChunkKey, uint32_t, ChunkKeyHash> loaded_at_;  // frame a chunk was loaded at
   PagerStats stats_;
   int skip_eviction_calls_ = 0;
   std::function<void()> before_staging_;
+  std::function<void(PointMap*, const ChunkKey&)> bring_up_to_date_;
   struct Candidate {
     ChunkKey key;
     uint32_t last_used_frame;

@@ -123,6 +123,9 @@ struct ResumePoint {
   OpenReport open_report;                    // what was discarded (work after the checkpoint)
   // The frame redo log's records after the checkpoint: ScanRecorder::replay_log() fuses them.
   FrameLogSummary frame_log;
+  // The checkpoint's pose graph and map deformation (none: the scan has none). The map's chunks
+  // carry their versions.
+  std::optional<GraphCheckpoint> graph;
 };
 
 // What ScanRecorder::restore_keyframes() did.
@@ -187,8 +190,17 @@ class ScanRecorder {
   // and lets the pager evict what the budget cannot hold.
   Status record_frame(const Frame& frame, const FrameReport& report, PointMap* map);
 
+  // The pose graph the next checkpoint writes (FramePath::checkpoint_state()), in the same
+  // transaction as the chunks: a resume finds the two agreeing. An empty graph (no keyframes yet,
+  // or a scan without loop closure) is not written.
+  void set_graph(GraphCheckpoint graph) { graph_ = std::move(graph); }
+  // A loop closure applied before frame `before_frame` was fused: the poses (and keyframe poses)
+  // of the frames before it move with their keyframes, in the file at the next checkpoint.
+  void poses_corrected(const AppliedCorrection& correction, uint32_t before_frame);
+
   // One transaction: changed resident chunks, chunks removed from the map since the last
-  // checkpoint, chunks evicted since the last checkpoint, buffered poses and the counters.
+  // checkpoint, chunks evicted since the last checkpoint, buffered poses, the poses moved by loop
+  // closures, the pose graph and the counters.
   Result<CheckpointRecord> checkpoint(PointMap* map, const std::string& reason,
                                       const FrameCounters& counters = {});
 
@@ -244,6 +256,8 @@ class ScanRecorder {
   RecorderConfig config_;
   std::unique_ptr<MapPager> pager_;
   std::vector<PoseRecord> pending_poses_;
+  std::vector<PoseCorrection> corrections_;  // since the last checkpoint, oldest first
+  std::optional<GraphCheckpoint> graph_;
   std::vector<Keyframe> pending_keyframes_;  // taken while the writer held the store
   std::vector<ChunkKey> resident_at_checkpoint_;  // to notice chunks removed from the map
   uint32_t last_frame_id_ = 0;

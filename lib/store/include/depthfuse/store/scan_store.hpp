@@ -26,14 +26,16 @@
 
 #include <Eigen/Geometry>
 
+#include "depthfuse/frame_path.hpp"
 #include "depthfuse/point_map.hpp"
+#include "depthfuse/scan_graph.hpp"
 #include "depthfuse/status.hpp"
 #include "depthfuse/store/blob_codec.hpp"
 #include "depthfuse/types.hpp"
 
 namespace depthfuse::store {
 
-constexpr int kSchemaVersion = 5;                 // PRAGMA user_version of files written now
+constexpr int kSchemaVersion = 6;                 // PRAGMA user_version of files written now
 constexpr int32_t kApplicationId = 0x44465343;    // PRAGMA application_id: "DFSC"
 
 enum class OpenMode {
@@ -99,8 +101,10 @@ struct ChunkInfo {
   uint32_t point_count = 0;
   Eigen::AlignedBox3f bounds_m;              // of the points; empty for an empty chunk
   uint32_t last_touched_frame = 0;
+  uint32_t version = 0;                      // the graph version of its points (Chunk::version)
   int64_t checkpoint_id = 0;                 // the checkpoint that wrote it (0 = staged)
   size_t blob_bytes = 0;
+  bool checksummed = true;                   // false: a row written before schema 6
 };
 
 // A chunk encoded ahead of the checkpoint that writes it (a checkpoint written in the background
@@ -110,6 +114,7 @@ struct EncodedChunk {
   uint32_t point_count = 0;
   Eigen::AlignedBox3f bounds_m;              // empty for an empty chunk
   uint32_t last_touched_frame = 0;
+  uint32_t version = 0;
   std::vector<uint8_t> blob;                 // DFB1 points
 };
 Status encode_chunk(BlobCodec& codec, const ChunkKey& key, const Chunk& chunk, EncodedChunk* out);
@@ -166,6 +171,23 @@ struct CheckpointRecord {
   std::optional<Pose> T_world_cam;
 };
 
+// What the last checkpoint holds of the pose graph (inspect).
+struct GraphSummary {
+  int64_t checkpoint_id = 0;                 // the checkpoint that wrote it
+  uint32_t version = 0;                      // corrections applied
+  size_t keyframes = 0, loops = 0;
+  uint32_t deformation_version = 0;          // the map's: the graph's version once it follows
+  uint32_t deformation_oldest_version = 0;   // history kept from (evicted chunks need it)
+  uint64_t keyframe_bytes = 0, state_bytes = 0;  // stored blob sizes
+};
+
+// A loop closure applied to the poses of the frames before `before_frame` (the first frame fused
+// after it), for the poses already written (ScanStore::correct_poses).
+struct PoseCorrection {
+  AppliedCorrection correction;
+  uint32_t before_frame = 0;
+};
+
 // What opening read-write did to the file.
 struct OpenReport {
   int found_schema_version = 0;
@@ -186,6 +208,8 @@ struct StoreSummary {
   size_t pose_count = 0, keyframe_count = 0;
   size_t checkpoint_count = 0;
   std::optional<CheckpointRecord> last_checkpoint;
+  std::optional<GraphSummary> graph;         // none: the scan has no pose graph (or a damaged one)
+  std::string graph_problem;                 // why the graph could not be read; empty when it could
   size_t staged_chunk_count = 0;             // evicted since the last checkpoint
   uint64_t chunk_bytes = 0, keyframe_bytes = 0;  // stored blob sizes
   uint64_t file_bytes = 0, wal_bytes = 0;
@@ -195,6 +219,9 @@ struct IntegrityReport {
   bool ok() const { return problems.empty(); }
   std::vector<std::string> problems;         // each names the table/row/column at fault
   size_t chunks_checked = 0, keyframes_checked = 0, poses_checked = 0;
+  size_t graph_keyframes_checked = 0;        // the pose graph's keyframe rows
+  // Of chunks_checked: rows written before schema 6, without a checksum (and at version 0).
+  size_t chunks_unchecked = 0;
   // Of poses_checked: rows written before schema 3, without a checksum. Their pose decodes (96
   // bytes, finite, a rotation) but a changed value cannot be told from a true one.
   size_t poses_unchecked = 0;
@@ -263,6 +290,19 @@ class ScanStore {
   // Inside a checkpoint it joins it; outside, its own (not fsynced) transaction. Keyframes newer
   // than the last checkpoint are discarded when a writer reopens after a crash.
   Status write_keyframe(const Keyframe& keyframe);
+
+  // ---- The pose graph (scan_store_graph.cpp). Inside a checkpoint: appends the keyframes not
+  // stored yet (a keyframe's cloud and odometry edge never change), replaces the keyframes'
+  // poses, the loop edges, the version and the deformation's history.
+  Status write_graph(const GraphCheckpoint& graph);
+  // Inside a checkpoint: moves the stored pose of every frame before each correction's
+  // before_frame (poses, keyframes), corrections in order, so that the file's poses are the
+  // corrected ones.
+  Status correct_poses(const std::vector<PoseCorrection>& corrections);
+  // The last checkpoint's graph, every row's checksum and blob checked (kCorrupt naming the row);
+  // none when the scan has none.
+  Result<std::optional<GraphCheckpoint>> read_graph();
+  Result<std::optional<GraphSummary>> graph_summary();
 
   // ---- The frame redo log (scan_store_frame_log.cpp). Records are appended in one transaction
   // committed with a full sync (inside an open checkpoint they join it); a checkpoint's commit
