@@ -231,6 +231,14 @@ Pose MapDeformation::motion(uint32_t frame_id, uint32_t from_version) const {
   return load(poses_at(version_)[k]) * load(before[k]).inverse();
 }
 
+size_t MapDeformation::move_in_place(PointArrays* points, uint32_t from_version) {
+  if (from_version >= version_ || from_version < oldest_version_ || first_frame_.empty())
+    return 0;
+  prepare_motions(from_version);
+  move_points(points, 0, points->size());
+  return points->size();
+}
+
 void MapDeformation::prepare_motions(uint32_t from) {
   Scratch& s = *scratch_;
   const size_t K = first_frame_.size();

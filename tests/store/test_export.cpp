@@ -425,3 +425,45 @@ TEST(Refine, ReRegistersTheKeyframesAndWritesACheckpoint) {
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.output.find("another process is writing"), std::string::npos) << r.output;
 }
+
+// A chunk stored before the last loop closure's correction reached it (evicted stale, or the scan
+// ended first) is exported where the correction put its keyframe, not where it was fused.
+TEST(Export, AChunkStoredBeforeACorrectionIsExportedWhereItsKeyframeMoved) {
+  TempDir dir;
+  const std::string scan = dir.file("stale.db");
+  const ChunkKey key{0, 0, 0};
+  Chunk chunk;
+  chunk.points = make_points(key, 1, 100);  // fused by frame 0: keyframe 0's segment
+  chunk.version = 0;
+  Pose moved = Pose::Identity();
+  moved.translation() = Eigen::Vector3d(0.05, 0.0, 0.0);
+  {
+    auto s = ScanStore::open(scan, OpenMode::kCreate);
+    ASSERT_TRUE(s);
+    ASSERT_TRUE((*s)->begin_checkpoint());
+    ASSERT_TRUE((*s)->write_chunk(key, chunk));
+    GraphCheckpoint g;
+    GraphKeyframe k;
+    k.frame_id = 1;
+    k.T_world_kf = moved;
+    k.cloud = std::make_shared<const KeyframeCloud>();
+    g.graph.keyframes.push_back(k);
+    g.graph.version = 1;
+    g.deformation.keyframe_first_frame = {1};
+    g.deformation.oldest_version = 0;
+    g.deformation.T_world_kf = {{Pose::Identity()}, {moved}};
+    g.deformation.max_motion_m = {0.0, 0.05};
+    ASSERT_TRUE((*s)->write_graph(g));
+    ASSERT_TRUE((*s)->commit_checkpoint(CheckpointInfo{}));
+  }
+  auto s = ScanStore::open(scan, OpenMode::kReadOnly);
+  ASSERT_TRUE(s);
+  const std::string out = dir.file("out.ply");
+  ASSERT_TRUE(export_cloud(**s, out, ExportOptions{}));
+  auto cloud = read_ply(out);
+  ASSERT_TRUE(cloud) << cloud.status().to_string();
+  ASSERT_EQ(cloud->size(), chunk.points.size());
+  for (size_t i = 0; i < cloud->size(); ++i)
+    EXPECT_LT((cloud->position_m[i] - chunk.points.position_m[i] - Eigen::Vector3f(0.05f, 0, 0)).norm(), 1e-5f)
+        << "point " << i;
+}

@@ -110,6 +110,10 @@ class MapDeformation {
   size_t sweep(PointMap* map, const Eigen::Vector3d& camera_m, size_t max_points) {
     return version_ == 0 ? 0 : sweep_now(map, camera_m, max_points);
   }
+  // Points read from a chunk stored at `from_version` (an export streaming the scan file): moved
+  // to the current version where they lie, none sent to another chunk and none merged. Returns the
+  // points moved (0 when the chunk is current or older than the history kept).
+  size_t move_in_place(PointArrays* points, uint32_t from_version);
   // Every resident chunk (end of scan, export): the whole map in the current version, pending
   // buffers applied (except those of chunks not in memory), the history no chunk needs dropped.
   // Returns the points brought up to date.

@@ -9,6 +9,7 @@
 #include <cctype>
 #include <tuple>
 
+#include "depthfuse/map_deformation.hpp"
 #include "depthfuse/trajectory.hpp"
 
 namespace depthfuse::store {
@@ -43,6 +44,16 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
   ScopedRead snapshot(store);
   DF_RETURN_IF_ERROR(snapshot.status());
 
+  // Chunks the scan stored before the last loop closure's correction reached them (evicted, or
+  // the scan ended first) move with their keyframes as they are read.
+  MapDeformation deformation;
+  auto graph = store.read_graph();
+  if (!graph) return graph.status().with_context("exporting " + store.path());
+  if (*graph) DF_RETURN_IF_ERROR(deformation.restore((*graph)->deformation));
+  auto follow = [&](const ChunkInfo& info, PointArrays& a) {
+    if (info.version < deformation.version()) deformation.move_in_place(&a, info.version);
+  };
+
   ExportReport report;
   ChunkFilter filter;
   filter.bbox_m = options.bbox_m;
@@ -76,6 +87,7 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
     DF_RETURN_IF_ERROR(store.for_each_chunk(
         [&](const ChunkInfo& info, PointArrays& a) {
           if (replaced(info.key)) return Status::ok();
+          follow(info, a);
           count += select_points(a, options, &keep);
           return Status::ok();
         },
@@ -99,6 +111,7 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
     st = store.for_each_chunk(
         [&](const ChunkInfo& info, PointArrays& a) {
           if (replaced(info.key)) return Status::ok();
+          follow(info, a);
           return write(a);
         },
         filter);
