@@ -32,6 +32,8 @@ Result<FrameOutcome> FramePath::run(const Frame& frame) {
   Result<FrameReport> report = reconstructor_.process(frame, prediction);
   if (!report) return report.status();
   outcome.report = std::move(*report);
+  outcome.report.graph_memory_bytes =
+      graph_.memory_bytes() + reconstructor_.deformation().memory_bytes();
   if (store_ && outcome.report.fused()) {
     Status recorded = store_->frame_fused(frame, outcome.report, reconstructor_);
     if (outcome.store_status.is_ok()) outcome.store_status = std::move(recorded);

@@ -143,6 +143,27 @@ TEST(MapPager, RecentlySeenChunksStayWhileTheOldOnesMakeRoom) {
   }
 }
 
+// What else the map's budget holds (the pose graph, the deformation's history: set_other_bytes)
+// takes the room of chunks. Room for 25 chunks, ten of them taken: the 22 old far chunks go, and
+// since that leaves 19 + 10, four recently seen ones too, down to the budget (without the other
+// bytes the old ones alone sufficed: the test above).
+TEST(MapPager, OtherBytesInTheBudgetEvictChunksToMakeRoom) {
+  TempDir dir;
+  auto store = ScanStore::open(dir.file("scan.db"), OpenMode::kCreate);
+  ASSERT_TRUE(store);
+  PointMap map(0.5);
+  fill_row(&map);
+  const size_t chunk = MapPager::chunk_bytes(*map.find({0, 0, 0}));
+  const size_t chunks_before = map.chunk_count();
+  MapPager pager(row_config(25.0 * chunk / (1024.0 * 1024.0)), store->get());
+  pager.set_other_bytes(10 * chunk);
+  ASSERT_TRUE(pager.update(&map, kRowCamera, 100));
+  EXPECT_EQ(pager.stats().other_bytes, 10 * chunk);
+  EXPECT_LE(pager.stats().resident_bytes, 25 * chunk);
+  EXPECT_EQ(pager.stats().total_evicted, 26u) << "of " << chunks_before;
+  EXPECT_EQ(pager.stats().total_evicted_recent, 4u);
+}
+
 TEST(MapPager, BudgetHoldsOverRecentChunksButNotOverThisFramesOrNearOnes) {
   TempDir dir;
   auto store = ScanStore::open(dir.file("scan.db"), OpenMode::kCreate);

@@ -41,6 +41,9 @@ struct FrameReport {
   // (fusion.deform_points_per_frame and at most a chunk more).
   double deformation_ms = 0;
   size_t swept_points = 0;
+  // What the scan's pose graph and the map's deformation hold (FramePath fills it in): memory that
+  // grows with the scan's length, which the map's budget counts beside its chunks.
+  size_t graph_memory_bytes = 0;
 };
 
 class Relocaliser;

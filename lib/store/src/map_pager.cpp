@@ -212,8 +212,9 @@ Status MapPager::update(PointMap* map, const Eigen::Vector3f& camera_position_m,
 
 Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame_id) {
   const size_t budget = static_cast<size_t>(config_.memory_budget_mib * 1024.0 * 1024.0);
-  size_t resident = 0;
+  size_t resident = other_bytes_;
   map->for_each_chunk([&](const ChunkKey&, const Chunk& c) { resident += chunk_bytes(c); });
+  stats_.other_bytes = other_bytes_;
   stats_.resident_chunks = map->chunk_count();
   stats_.resident_bytes = resident;
   stats_.unevictable_bytes = 0;

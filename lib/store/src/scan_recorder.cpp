@@ -290,6 +290,7 @@ Status ScanRecorder::record_frame(const Frame& frame, const FrameReport& report,
   Status result = catch_up(map);
 
   if (pager_) {
+    pager_->set_other_bytes(report.graph_memory_bytes);
     Status st = pager_->update(map, report.T_world_cam.translation().cast<float>(), report.frame_id);
     status_.pager = pager_->stats();
     if (!st && result) result = note(st);

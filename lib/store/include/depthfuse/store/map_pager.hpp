@@ -53,7 +53,8 @@ struct MapPagerConfig {
 
 struct PagerStats {
   size_t resident_chunks = 0;
-  size_t resident_bytes = 0;              // after the last update
+  size_t resident_bytes = 0;              // after the last update: the chunks and other_bytes
+  size_t other_bytes = 0;                 // besides the chunks (set_other_bytes)
   size_t evicted_chunks = 0;              // keys in the evicted index
   size_t unevictable_bytes = 0;           // over budget, but all seen by the last frame or near
   size_t unloadable_chunks = 0;           // evicted chunks that failed to load (damaged)
@@ -75,6 +76,10 @@ class MapPager {
   // `T_world_cam_guess`: the frame's pose hint, else the prediction, else the last pose.
   // `frame_id`: the id the frame will get (IncrementalReconstructor::next_frame_id()).
   Status prepare(PointMap* map, const Frame& frame, const Pose& T_world_cam_guess, uint32_t frame_id);
+
+  // What else the map's budget holds besides its chunks (the pose graph's keyframes, the map's
+  // deformation history: they grow with the scan's length): chunks are evicted to leave room.
+  void set_other_bytes(size_t bytes) { other_bytes_ = bytes; }
 
   // After the frame was fused, with the camera position in the world frame.
   Status update(PointMap* map, const Eigen::Vector3f& camera_position_m, uint32_t frame_id);
@@ -125,6 +130,7 @@ class MapPager {
   const PagerStats& stats() const { return stats_; }
 
  private:
+  size_t other_bytes_ = 0;
   Status load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t frame_id);
   Status evict(PointMap* map, const Eigen::Vector3f& camera_position_m, uint32_t frame_id);
   Status finish_call(Status st);
