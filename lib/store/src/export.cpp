@@ -37,6 +37,29 @@ size_t select_points(const PointArrays& a, const ExportOptions& o, std::vector<u
   return n;
 }
 
+namespace {
+
+// Chunks the scan stored before the last loop closure's correction reached them (evicted, or the
+// scan ended first) move with their keyframes as they are read: the deformation as stored.
+Status restore_deformation(ScanStore& store, MapDeformation* deformation) {
+  auto graph = store.read_graph();
+  if (!graph) return graph.status().with_context("exporting " + store.path());
+  if (*graph) return deformation->restore((*graph)->deformation);
+  return Status::ok();
+}
+
+// The replacing map's chunks in key order (written after the file's).
+std::vector<ChunkKey> sorted_keys(const PointMap* map) {
+  if (!map) return {};
+  std::vector<ChunkKey> keys = map->keys();
+  std::sort(keys.begin(), keys.end(), [](const ChunkKey& a, const ChunkKey& b) {
+    return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
+  });
+  return keys;
+}
+
+}  // namespace
+
 Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
                                   const ExportOptions& options) {
   auto format = cloud_format_for(path);
@@ -44,12 +67,8 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
   ScopedRead snapshot(store);
   DF_RETURN_IF_ERROR(snapshot.status());
 
-  // Chunks the scan stored before the last loop closure's correction reached them (evicted, or
-  // the scan ended first) move with their keyframes as they are read.
   MapDeformation deformation;
-  auto graph = store.read_graph();
-  if (!graph) return graph.status().with_context("exporting " + store.path());
-  if (*graph) DF_RETURN_IF_ERROR(deformation.restore((*graph)->deformation));
+  DF_RETURN_IF_ERROR(restore_deformation(store, &deformation));
   auto follow = [&](const ChunkInfo& info, PointArrays& a) {
     if (info.version < deformation.version()) deformation.move_in_place(&a, info.version);
   };
@@ -66,18 +85,11 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
   std::vector<uint8_t> keep;
   const PointMap* replacing = options.replacing;
   auto replaced = [&](const ChunkKey& key) { return replacing && replacing->find(key) != nullptr; };
-  // The replacing chunks in key order, after the file's.
-  std::vector<ChunkKey> extra;
-  if (replacing) {
-    extra = replacing->keys();
-    std::sort(extra.begin(), extra.end(), [](const ChunkKey& a, const ChunkKey& b) {
-      return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
-    });
-    PointArrays copy;
-    for (const ChunkKey& key : extra) {
-      copy = replacing->find(key)->points;
-      count += select_points(copy, options, &keep);
-    }
+  const std::vector<ChunkKey> extra = sorted_keys(replacing);
+  PointArrays copy;
+  for (const ChunkKey& key : extra) {
+    copy = replacing->find(key)->points;
+    count += select_points(copy, options, &keep);
   }
   if (options.min_merges == 0 && !options.bbox_m && !options.skip_damaged && !replacing) {
     auto chunks = store.list_chunks();
@@ -115,7 +127,6 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
           return write(a);
         },
         filter);
-    PointArrays copy;
     for (size_t i = 0; i < extra.size() && st; ++i) {
       copy = replacing->find(extra[i])->points;
       if (!copy.empty()) st = write(copy);

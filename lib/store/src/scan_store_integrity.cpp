@@ -58,6 +58,144 @@ std::string no_checksum(const std::string& path, const std::string& row, const s
          "): the row was altered or damaged";
 }
 
+// Every chunk blob, resident and staged: decodes, checksums match, and its row's count and bounds
+// agree.
+void check_chunk_rows(ScanStore::Impl& s, IntegrityReport* rep) {
+  auto chunks_from =
+      checksums_from(s, "chunks", "checkpoint_id", "chunk_checksums_from_checkpoint");
+  if (!chunks_from) rep->problems.push_back(chunks_from.status().message());
+  for (const bool staged : {false, true}) {
+    StoredChunk c;
+    check_rows(
+        s.db, select_chunks(staged, "data") + " ORDER BY x, y, z;",
+        staged ? "reading chunk_staging" : "reading chunks",
+        [&](const sql::Row& row) {
+          ++rep->chunks_checked;
+          DF_RETURN_IF_ERROR(s.decode_chunk_row(row, staged, &c));
+          if (!c.info.checksummed) {
+            // Rows older than schema 6 have none; a staged one cannot be (a writer's open empties
+            // the staging table after migrating).
+            if (!chunks_from || staged || c.info.checkpoint_id >= *chunks_from)
+              return corrupt(
+                  no_checksum(s.path, (staged ? "staged chunk " : "chunk ") + to_string(c.info.key),
+                              "chunk from checkpoint", chunks_from ? *chunks_from : 1, 6));
+            ++rep->chunks_unchecked;
+          }
+          if (c.info.point_count == 0) return Status::ok();
+          const Eigen::AlignedBox3f box = bounds_of(c.chunk.points);
+          if (!box.min().isApprox(c.info.bounds_m.min(), 1e-5f) ||
+              !box.max().isApprox(c.info.bounds_m.max(), 1e-5f))
+            return corrupt(s.path + ": chunk " + to_string(c.info.key) +
+                           ": stored bounds disagree with its points");
+          return Status::ok();
+        },
+        rep);
+  }
+}
+
+// Every keyframe row decoded, and the keyframe and checkpoint rows without a checksum.
+void check_keyframe_rows(ScanStore& store, ScanStore::Impl& s, IntegrityReport* rep) {
+  std::vector<uint32_t> keyframe_ids;
+  check_rows(
+      s.db, "SELECT frame_id FROM keyframes ORDER BY frame_id;", "listing keyframes",
+      [&](const sql::Row& row) {
+        keyframe_ids.push_back(static_cast<uint32_t>(row.int64(0)));
+        return Status::ok();
+      },
+      rep);
+  for (uint32_t id : keyframe_ids) {
+    ++rep->keyframes_checked;
+    auto k = store.read_keyframe(id);
+    if (!k) rep->problems.push_back(k.status().message());
+  }
+  // Keyframe and checkpoint rows without a checksum (read above): written before schema 4, or
+  // altered.
+  struct Unchecked {
+    const char* table;
+    const char* key;
+    const char* meta_key;
+    const char* row;   // "keyframe" 12
+    const char* rows;  // "keyframe from frame" 1
+    size_t* count;
+  };
+  for (const Unchecked& u :
+       {Unchecked{"keyframes", "frame_id", "keyframe_checksums_from_frame", "keyframe",
+                  "keyframe from frame", &rep->keyframes_unchecked},
+        Unchecked{"checkpoints", "id", "checkpoint_checksums_from_id", "checkpoint",
+                  "checkpoint from id", &rep->checkpoints_unchecked}}) {
+    auto from = checksums_from(s, u.table, u.key, u.meta_key);
+    if (!from) {
+      rep->problems.push_back(from.status().message());
+      continue;
+    }
+    check_rows(
+        s.db, std::string("SELECT ") + u.key + " FROM " + u.table + " WHERE checksum IS NULL;",
+        std::string("listing unchecked ") + u.table,
+        [&](const sql::Row& row) {
+          if (row.int64(0) < *from) {
+            ++*u.count;
+            return Status::ok();
+          }
+          return corrupt(no_checksum(s.path, u.row + (" " + std::to_string(row.int64(0))),
+                                     u.rows, *from, 4));
+        },
+        rep);
+  }
+}
+
+void check_pose_rows(ScanStore::Impl& s, IntegrityReport* rep) {
+  // Every pose row: its checksum (schema 3), then its pose. Rows written before have none.
+  auto poses_from = checksums_from(s, "poses", "frame_id", "pose_checksums_from_frame");
+  if (!poses_from) rep->problems.push_back(poses_from.status().message());
+  check_rows(
+      s.db, std::string("SELECT ") + kPoseColumns + " FROM poses ORDER BY frame_id;", "reading poses",
+      [&](const sql::Row& row) -> Status {
+        ++rep->poses_checked;
+        bool checked = false;
+        auto p = s.pose_of(row, &checked);
+        if (checked || !poses_from) return p.status();
+        if (row.int64(0) < *poses_from) {
+          ++rep->poses_unchecked;
+          return p.status();
+        }
+        return corrupt(no_checksum(s.path, "pose of frame " + std::to_string(row.int64(0)),
+                                   "pose from frame", *poses_from, 3));
+      },
+      rep);
+}
+
+void check_graph(ScanStore& store, ScanStore::Impl& s, IntegrityReport* rep) {
+  // The pose graph: every keyframe row and the graph's row, checked and decoded as a resume reads
+  // them, and the graph and the deformation as a resume restores them.
+  auto graph = store.read_graph();
+  if (!graph) {
+    rep->problems.push_back(graph.status().message());
+  } else if (*graph) {
+    rep->graph_keyframes_checked = (*graph)->graph.keyframes.size();
+    ScanGraph restored(LoopClosureConfig{});
+    MapDeformation deformation;
+    const Status g = restored.restore((*graph)->graph);
+    if (!g) rep->problems.push_back(s.path + ": " + g.message());
+    const Status d = deformation.restore((*graph)->deformation);
+    if (!d) rep->problems.push_back(s.path + ": " + d.message());
+  }
+}
+
+void check_frame_log(ScanStore& store, IntegrityReport* rep) {
+  // The frame redo log after the last checkpoint: every record checked, as a resume reads it.
+  // A damaged record is named; the records before it are still replayed.
+  auto log = store.frame_log_summary();
+  if (log) rep->frame_log = *log;
+  else rep->problems.push_back(log.status().message());
+  const Status logged = store.for_each_logged_frame([&](LoggedFrame&) {
+    ++rep->log_records_checked;
+    return Status::ok();
+  });
+  if (!logged)
+    rep->problems.push_back(logged.message() + " (a resume replays the " +
+                           std::to_string(rep->log_records_checked) + " records before it)");
+}
+
 }  // namespace
 
 std::vector<std::string> ScanStore::frame_problems() {
@@ -117,127 +255,11 @@ Result<IntegrityReport> ScanStore::integrity_check(bool check_blobs) {
   if (!checked) return rep;
   for (std::string& p : frame_problems()) rep.problems.push_back(std::move(p));
   if (!check_blobs) return rep;
-  // Every chunk blob: decodes, checksums match, and its row's count and bounds agree.
-  auto chunks_from =
-      checksums_from(s, "chunks", "checkpoint_id", "chunk_checksums_from_checkpoint");
-  if (!chunks_from) rep.problems.push_back(chunks_from.status().message());
-  for (const bool staged : {false, true}) {
-    StoredChunk c;
-    check_rows(
-        s.db, select_chunks(staged, "data") + " ORDER BY x, y, z;",
-        staged ? "reading chunk_staging" : "reading chunks",
-        [&](const sql::Row& row) {
-          ++rep.chunks_checked;
-          DF_RETURN_IF_ERROR(s.decode_chunk_row(row, staged, &c));
-          if (!c.info.checksummed) {
-            // Rows older than schema 6 have none; a staged one cannot be (a writer's open empties
-            // the staging table after migrating).
-            if (!chunks_from || staged || c.info.checkpoint_id >= *chunks_from)
-              return corrupt(
-                  no_checksum(s.path, (staged ? "staged chunk " : "chunk ") + to_string(c.info.key),
-                              "chunk from checkpoint", chunks_from ? *chunks_from : 1, 6));
-            ++rep.chunks_unchecked;
-          }
-          if (c.info.point_count == 0) return Status::ok();
-          const Eigen::AlignedBox3f box = bounds_of(c.chunk.points);
-          if (!box.min().isApprox(c.info.bounds_m.min(), 1e-5f) ||
-              !box.max().isApprox(c.info.bounds_m.max(), 1e-5f))
-            return corrupt(s.path + ": chunk " + to_string(c.info.key) +
-                           ": stored bounds disagree with its points");
-          return Status::ok();
-        },
-        &rep);
-  }
-  std::vector<uint32_t> keyframe_ids;
-  check_rows(
-      s.db, "SELECT frame_id FROM keyframes ORDER BY frame_id;", "listing keyframes",
-      [&](const sql::Row& row) {
-        keyframe_ids.push_back(static_cast<uint32_t>(row.int64(0)));
-        return Status::ok();
-      },
-      &rep);
-  for (uint32_t id : keyframe_ids) {
-    ++rep.keyframes_checked;
-    auto k = read_keyframe(id);
-    if (!k) rep.problems.push_back(k.status().message());
-  }
-  // Keyframe and checkpoint rows without a checksum (read above): written before schema 4, or
-  // altered.
-  struct Unchecked {
-    const char* table;
-    const char* key;
-    const char* meta_key;
-    const char* row;   // "keyframe" 12
-    const char* rows;  // "keyframe from frame" 1
-    size_t* count;
-  };
-  for (const Unchecked& u :
-       {Unchecked{"keyframes", "frame_id", "keyframe_checksums_from_frame", "keyframe",
-                  "keyframe from frame", &rep.keyframes_unchecked},
-        Unchecked{"checkpoints", "id", "checkpoint_checksums_from_id", "checkpoint",
-                  "checkpoint from id", &rep.checkpoints_unchecked}}) {
-    auto from = checksums_from(s, u.table, u.key, u.meta_key);
-    if (!from) {
-      rep.problems.push_back(from.status().message());
-      continue;
-    }
-    check_rows(
-        s.db, std::string("SELECT ") + u.key + " FROM " + u.table + " WHERE checksum IS NULL;",
-        std::string("listing unchecked ") + u.table,
-        [&](const sql::Row& row) {
-          if (row.int64(0) < *from) {
-            ++*u.count;
-            return Status::ok();
-          }
-          return corrupt(no_checksum(s.path, u.row + (" " + std::to_string(row.int64(0))),
-                                     u.rows, *from, 4));
-        },
-        &rep);
-  }
-  // Every pose row: its checksum (schema 3), then its pose. Rows written before have none.
-  auto poses_from = checksums_from(s, "poses", "frame_id", "pose_checksums_from_frame");
-  if (!poses_from) rep.problems.push_back(poses_from.status().message());
-  check_rows(
-      s.db, std::string("SELECT ") + kPoseColumns + " FROM poses ORDER BY frame_id;", "reading poses",
-      [&](const sql::Row& row) -> Status {
-        ++rep.poses_checked;
-        bool checked = false;
-        auto p = s.pose_of(row, &checked);
-        if (checked || !poses_from) return p.status();
-        if (row.int64(0) < *poses_from) {
-          ++rep.poses_unchecked;
-          return p.status();
-        }
-        return corrupt(no_checksum(s.path, "pose of frame " + std::to_string(row.int64(0)),
-                                   "pose from frame", *poses_from, 3));
-      },
-      &rep);
-  // The pose graph: every keyframe row and the graph's row, checked and decoded as a resume reads
-  // them, and the graph and the deformation as a resume restores them.
-  auto graph = read_graph();
-  if (!graph) {
-    rep.problems.push_back(graph.status().message());
-  } else if (*graph) {
-    rep.graph_keyframes_checked = (*graph)->graph.keyframes.size();
-    ScanGraph restored(LoopClosureConfig{});
-    MapDeformation deformation;
-    const Status g = restored.restore((*graph)->graph);
-    if (!g) rep.problems.push_back(s.path + ": " + g.message());
-    const Status d = deformation.restore((*graph)->deformation);
-    if (!d) rep.problems.push_back(s.path + ": " + d.message());
-  }
-  // The frame redo log after the last checkpoint: every record checked, as a resume reads it.
-  // A damaged record is named; the records before it are still replayed.
-  auto log = frame_log_summary();
-  if (log) rep.frame_log = *log;
-  else rep.problems.push_back(log.status().message());
-  const Status logged = for_each_logged_frame([&](LoggedFrame&) {
-    ++rep.log_records_checked;
-    return Status::ok();
-  });
-  if (!logged)
-    rep.problems.push_back(logged.message() + " (a resume replays the " +
-                           std::to_string(rep.log_records_checked) + " records before it)");
+  check_chunk_rows(s, &rep);
+  check_keyframe_rows(*this, s, &rep);
+  check_pose_rows(s, &rep);
+  check_graph(*this, s, &rep);
+  check_frame_log(*this, &rep);
   auto meta = metadata();
   if (!meta) rep.problems.push_back(meta.status().message());
   return rep;
