@@ -6,12 +6,15 @@
 # daemon received and those its queue dropped (a checkpoint's cost shows there).
 #
 #   tools/bench/long_scan_rss.sh [--minutes M | --seconds S] [--bin DIR] [--lcm URL] [--frames N]
+#                                [--source SOURCE]
 #     --minutes M  length of the scan (default 20)
 #     --seconds S  a short scan instead, reported at its start and end only (70: two checkpoints;
 #                  run it for two builds, alternating, several times: one run says little)
 #     --bin DIR    the depthfuse binaries to measure (default: build/bin of this tree)
 #     --lcm URL    default: a private loopback port, so a running appliance is not disturbed
 #     --frames N   frames of one loop around the room (default 900: 30 s at 30 Hz)
+#     --source S   the capture's source instead (looped), e.g. a multi-lap walk without pose hints,
+#                  so that the pose graph grows: 'synthetic:furnished?frames=1200&hints=0' 
 # A benchmark, not a test: it prints figures and leaves the judging to the reader.
 set -euo pipefail
 
@@ -21,6 +24,7 @@ seconds=""
 bin="$here/build/bin"
 lcm_url="udpm://239.255.76.67:7689?ttl=0&recv_buf_size=4194304"
 frames=900
+source=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --minutes) minutes="$2"; shift 2 ;;
@@ -28,10 +32,12 @@ while [ $# -gt 0 ]; do
     --bin) bin="$2"; shift 2 ;;
     --lcm) lcm_url="$2"; shift 2 ;;
     --frames) frames="$2"; shift 2 ;;
+    --source) source="$2"; shift 2 ;;
     *) echo "unknown option $1" >&2; exit 2 ;;
   esac
 done
 
+[ -n "$source" ] || source="synthetic:room?frames=$frames"
 work="$(mktemp -d /tmp/depthfuse-long-scan.XXXXXX)"
 pids=()
 cleanup() {
@@ -48,7 +54,7 @@ pids+=($!)
 fusion_pid=$!
 pids+=($fusion_pid)
 sleep 1
-"$bin/depthfuse-capture" --lcm "$lcm_url" --key-file "" --source "synthetic:room?frames=$frames" --rate 30 --loop \
+"$bin/depthfuse-capture" --lcm "$lcm_url" --key-file "" --source "$source" --rate 30 --loop \
   >"$work/capture.log" 2>&1 &
 pids+=($!)
 
@@ -59,19 +65,21 @@ fused() {
     python3 -c 'import json, sys
 s = json.loads(sys.stdin.readline())
 d = [d for d in s["daemons"] if d["name"] == "fusion"]
-print(*[d[0][k] for k in ("frames_out", "output_rate_hz", "point_count", "frames_in", "frames_dropped")]) if d else print("- - - - -")' ||
-    echo "- - - - -"
+c = d[0].get("counters", {}) if d else {}
+print(*[d[0][k] for k in ("frames_out", "output_rate_hz", "point_count", "frames_in", "frames_dropped")],
+      *[int(c.get(k, 0)) for k in ("keyframes", "loop_closures")]) if d else print("- - - - - - -")' ||
+    echo "- - - - - - -"
 }
 
 if [ -n "$seconds" ]; then
   report_s=(0 "$seconds")
-  echo "# $bin, synthetic:room?frames=$frames at 30 Hz (looping) for $seconds s"
+  echo "# $bin, $source at 30 Hz (looping) for $seconds s"
 else
   report_s=()
   for ((m = 0; m <= minutes; m++)); do report_s+=($((m * 60))); done
-  echo "# $bin, synthetic:room?frames=$frames at 30 Hz (looping) for $minutes min"
+  echo "# $bin, $source at 30 Hz (looping) for $minutes min"
 fi
-echo "# second  fusion_rss_mib  frames_fused  fused_rate_hz  map_points  frames_received  frames_dropped"
+echo "# second  fusion_rss_mib  frames_fused  fused_rate_hz  map_points  frames_received  frames_dropped  keyframes  loop_closures"
 last=0
 for t in "${report_s[@]}"; do
   sleep $((t - last))
