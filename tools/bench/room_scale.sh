@@ -29,6 +29,8 @@
 #   SKIP=""            rows to leave out: any of truth live track daemons open3d
 #   BIN=build/bin      the binaries; PORT=7693 the loopback multicast port (not the appliance's)
 #   REUSE=1            keep what OUTDIR already has (a rerun after a failure)
+#   FUSION_CONFIG=F    a config file for the daemons' row's fusion daemon (e.g. another
+#                      fusion_daemon.memory_budget_mib)
 # Needs the multicast route on loopback (tools/lcm/route) and /usr/bin/python3 with Open3D and
 # numpy. A benchmark, not a test: it prints figures.
 set -euo pipefail
@@ -43,6 +45,7 @@ SKIP="${SKIP:-}"
 BIN="${BIN:-$here/build/bin}"
 PORT="${PORT:-7693}"
 REUSE="${REUSE:-0}"
+FUSION_CONFIG="${FUSION_CONFIG:-}"
 py=/usr/bin/python3
 url="udpm://239.255.76.67:$PORT?ttl=0&recv_buf_size=4194304"
 DF="$BIN/depthfuse"
@@ -107,7 +110,9 @@ daemons() {
     local key="$out/rig.key"
     [[ -s "$key" ]] || (umask 077; od -An -tx1 -N32 /dev/urandom | tr -d ' \n' > "$key")
     t0=$(now)
-    "$BIN/depthfuse-fusion" --lcm "$url" --key-file "$key" --scan-dir "$scans" --autostart "$scene" \
+    local config=()
+    [[ -n "$FUSION_CONFIG" ]] && config=(--config "$FUSION_CONFIG")
+    "$BIN/depthfuse-fusion" --lcm "$url" --key-file "$key" "${config[@]}" --scan-dir "$scans" --autostart "$scene" \
       > "$out/$tag.fusion.log" 2>&1 &
     local fusion=$!
     sleep 2
