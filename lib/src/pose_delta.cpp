@@ -39,4 +39,10 @@ Matrix6d delta_adjoint(const Pose& X_a_b) {
   return J;
 }
 
+Pose orthonormalised(const Pose& T) {
+  Pose out = T;
+  out.linear() = Eigen::Quaterniond(T.linear()).normalized().toRotationMatrix();
+  return out;
+}
+
 }  // namespace depthfuse

@@ -120,7 +120,8 @@ class NodeStates {
   size_t size() const { return t_world_node_.size() / 3; }
   Pose pose(size_t i) const {
     Pose T = Pose::Identity();
-    T.linear() = Eigen::Map<const Eigen::Quaterniond>(q(i)).toRotationMatrix();
+    // The solver keeps the quaternion on the unit sphere only to its tolerance.
+    T.linear() = Eigen::Map<const Eigen::Quaterniond>(q(i)).normalized().toRotationMatrix();
     T.translation() = Eigen::Map<const Eigen::Vector3d>(t(i));
     return T;
   }

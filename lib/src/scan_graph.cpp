@@ -126,7 +126,7 @@ AppliedCorrection ScanGraph::apply(const GraphCorrection& c) {
   for (size_t i = 0; i < keyframes_.size(); ++i) {
     // Keyframes made after the graph was given to the loop closer move with the last it optimised.
     if (i < c.T_world_kf.size()) motion = c.T_world_kf[i] * keyframes_[i].T_world_kf.inverse();
-    const Pose moved = motion * keyframes_[i].T_world_kf;
+    const Pose moved = orthonormalised(motion * keyframes_[i].T_world_kf);
     applied.max_translation_m =
         std::max(applied.max_translation_m,
                  (moved.translation() - keyframes_[i].T_world_kf.translation()).norm());

@@ -20,5 +20,9 @@ Pose apply_delta(const Pose& T_ref, const Vector6d& delta);
 // For a pose B = A * X_a_b: a small delta of A, with X_a_b held, is the delta
 // delta_adjoint(X_a_b) * delta_A of B. Covariances move with it: C_B = J C_A J^T.
 Matrix6d delta_adjoint(const Pose& X_a_b);
+// T with its rotation made orthonormal again: poses composed over and over (a keyframe moved by
+// correction after correction) drift off the rotations by rounding, and the map's deformation
+// refuses a pose that is not rigid.
+Pose orthonormalised(const Pose& T);
 
 }  // namespace depthfuse
