@@ -13,6 +13,7 @@
 #     --bin DIR    the depthfuse binaries to measure (default: build/bin of this tree)
 #     --lcm URL    default: a private loopback port, so a running appliance is not disturbed
 #     --frames N   frames of one loop around the room (default 900: 30 s at 30 Hz)
+#     --config F   a config file for the fusion daemon (e.g. another memory budget)
 #     --source S   the capture's source instead (looped), e.g. a multi-lap walk without pose hints,
 #                  so that the pose graph grows: 'synthetic:furnished?frames=1200&hints=0' 
 # A benchmark, not a test: it prints figures and leaves the judging to the reader.
@@ -25,6 +26,7 @@ bin="$here/build/bin"
 lcm_url="udpm://239.255.76.67:7689?ttl=0&recv_buf_size=4194304"
 frames=900
 source=""
+config=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --minutes) minutes="$2"; shift 2 ;;
@@ -33,6 +35,7 @@ while [ $# -gt 0 ]; do
     --lcm) lcm_url="$2"; shift 2 ;;
     --frames) frames="$2"; shift 2 ;;
     --source) source="$2"; shift 2 ;;
+    --config) config=(--config "$2"); shift 2 ;;
     *) echo "unknown option $1" >&2; exit 2 ;;
   esac
 done
@@ -49,7 +52,7 @@ trap cleanup EXIT
 
 "$bin/depthfuse-monitor" --lcm "$lcm_url" --key-file "" >"$work/monitor.log" 2>&1 &
 pids+=($!)
-"$bin/depthfuse-fusion" --lcm "$lcm_url" --key-file "" --scan-dir "$work/scans" --autostart long-scan \
+"$bin/depthfuse-fusion" --lcm "$lcm_url" --key-file "" "${config[@]}" --scan-dir "$work/scans" --autostart long-scan \
   >"$work/fusion.log" 2>&1 &
 fusion_pid=$!
 pids+=($fusion_pid)
