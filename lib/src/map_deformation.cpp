@@ -1,4 +1,5 @@
 #include "depthfuse/map_deformation.hpp"
+#include "depthfuse/pose_delta.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -36,8 +37,7 @@ constexpr double kRigidM = 0.5e-3;
 Status check_pose(const Pose& T, const std::string& what) {
   const Eigen::Matrix3d R = T.linear();
   if (!T.matrix().allFinite()) return invalid_argument(what + " is not finite");
-  if ((R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() > 1e-6 ||
-      R.determinant() <= 0)
+  if (orthonormality_error(T) > 1e-6 || R.determinant() <= 0)
     return invalid_argument(what + " is not a rotation and a translation");
   return Status::ok();
 }

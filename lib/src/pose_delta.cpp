@@ -39,6 +39,11 @@ Matrix6d delta_adjoint(const Pose& X_a_b) {
   return J;
 }
 
+double orthonormality_error(const Pose& T) {
+  const Eigen::Matrix3d R = T.linear();
+  return (R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
+}
+
 Pose orthonormalised(const Pose& T) {
   Pose out = T;
   out.linear() = Eigen::Quaterniond(T.linear()).normalized().toRotationMatrix();

@@ -14,6 +14,7 @@
 #include <ceres/solver.h>
 #include <Eigen/Eigenvalues>
 
+#include "depthfuse/pose_delta.hpp"
 #include "depthfuse/base/log.hpp"
 #include "pose_graph_error.hpp"
 #include "solver_log.hpp"
@@ -46,7 +47,7 @@ std::string pose_problem(const Pose& T) {
   if (!T.matrix().row(3).isApprox(Eigen::RowVector4d(0, 0, 0, 1)))
     return "has a last row that is not (0 0 0 1)";
   const Eigen::Matrix3d R = T.linear();
-  const double orthonormality = (R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
+  const double orthonormality = orthonormality_error(T);
   if (orthonormality > kRotationTolerance || R.determinant() < 0) {
     std::ostringstream why;
     why << "has a linear part that is not a rotation (|R^T R - I| = " << orthonormality

@@ -24,5 +24,7 @@ Matrix6d delta_adjoint(const Pose& X_a_b);
 // correction after correction) drift off the rotations by rounding, and the map's deformation
 // refuses a pose that is not rigid.
 Pose orthonormalised(const Pose& T);
+// How far T's linear part is from orthonormal: the largest |R^T R - I| entry (0 for a rotation).
+double orthonormality_error(const Pose& T);
 
 }  // namespace depthfuse
