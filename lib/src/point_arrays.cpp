@@ -61,6 +61,8 @@ void PointArrays::set(size_t i, const PointRecord& p) {
 }
 
 void PointArrays::append(const PointArrays& o) {
+  // As push_back(): no more room than the points need and an eighth.
+  if (size() + o.size() > position_m.capacity()) reserve(size() + o.size() + size() / 8 + 16);
   position_m.insert(position_m.end(), o.position_m.begin(), o.position_m.end());
   state.insert(state.end(), o.state.begin(), o.state.end());
 }

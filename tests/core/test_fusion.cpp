@@ -375,3 +375,23 @@ TEST(Fuser, NearViewsRefineASparseCloudWithoutSpreadingIt) {
   // measurement's noise won: rms 1.26 of the prediction, median |error| 0.15 mm against 0.12.
   expect_as_predicted(refine_wall(2.0, 1.0), 8000);
 }
+
+// The map's budget counts the capacity a chunk holds: a chunk loaded back holds exactly its points,
+// and one more must not double it (std::vector's growth), nor must appending a few.
+TEST(PointArrays, GrowsByAnEighthNotByDoubling) {
+  PointArrays a;
+  a.resize(8000);
+  a.position_m.shrink_to_fit();
+  a.state.shrink_to_fit();
+  ASSERT_EQ(a.memory_bytes(), 8000 * PointArrays::kBytesPerPoint);
+  a.push_back(Eigen::Vector3f(1, 2, 3), PointState{});
+  EXPECT_EQ(a.size(), 8001u);
+  EXPECT_LE(a.memory_bytes(), (8000 + 1000 + 16) * PointArrays::kBytesPerPoint);
+  PointArrays b;
+  b.resize(10);
+  const size_t before = a.position_m.capacity();
+  for (int i = 0; i < 200; ++i) a.append(b);
+  EXPECT_EQ(a.size(), 10001u);
+  EXPECT_LE(a.position_m.capacity(), 10001u + 10001u / 8 + 16);
+  EXPECT_GE(a.position_m.capacity(), before);
+}

@@ -49,7 +49,11 @@ struct PointArrays {
   void clear();
   void resize(size_t n);
   void push_back(const PointRecord& p);
+  // Grows by an eighth, not by the doubling std::vector would: the map's budget counts the
+  // capacity its chunks hold, and a chunk loaded back (exactly its size) that takes in a few points
+  // (fusion, or a loop closure moving its neighbours' points into it) would double at once.
   void push_back(const Eigen::Vector3f& position, const PointState& s) {
+    if (position_m.size() == position_m.capacity()) reserve(size() + size() / 8 + 16);
     position_m.push_back(position);
     state.push_back(s);
   }
