@@ -96,6 +96,8 @@ Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, Sc
     pager->set_bring_up_to_date([&reconstructor](PointMap* map, const ChunkKey& key) {
       reconstructor.deformation().update(map, {key});
     });
+    reconstructor.deformation().set_stored_elsewhere(
+        [pager](const ChunkKey& key) { return pager->is_evicted(key); });
   }
   if (!resume_) return Status::ok();
   std::unique_ptr<store::ResumePoint> at = std::move(resume_);
@@ -159,6 +161,24 @@ void SqliteCheckpointSink::keep_history_for_evicted(IncrementalReconstructor& re
                                                               : std::nullopt);
 }
 
+Status SqliteCheckpointSink::join_pending_points(IncrementalReconstructor& reconstructor) {
+  // A stale chunk loaded and updated may send points on into others that are out of date: again,
+  // until no chunk is left to join (a chunk is updated once per correction, so this ends).
+  Status loaded;
+  std::vector<ChunkKey> keys = reconstructor.deformation().pending_keys(), before;
+  while (!keys.empty() && keys != before) {
+    if (store::MapPager* pager = recorder_->pager()) {
+      Status st = pager->load_chunks(&reconstructor.map(), keys, reconstructor.next_frame_id());
+      if (!st && loaded) loaded = st;
+    }
+    reconstructor.deformation().update(&reconstructor.map(), keys);
+    before.swap(keys);
+    keys = reconstructor.deformation().pending_keys();
+  }
+  keep_history_for_evicted(reconstructor);
+  return loaded.with_context("loading the chunks that points moved into");
+}
+
 void SqliteCheckpointSink::keep_graph(GraphCheckpoint graph) {
   if (recorder_) recorder_->set_graph(std::move(graph));
 }
@@ -207,6 +227,8 @@ Status SqliteCheckpointSink::frame_fused(const Frame& frame, const FrameReport& 
 Status SqliteCheckpointSink::checkpoint(const std::string& reason, IncrementalReconstructor& reconstructor,
                                         const FusionProgress& progress) {
   if (!recorder_) return invalid_argument("no scan file is open");
+  if (Status st = join_pending_points(reconstructor); !st)
+    DF_LOG(Fusion, Warning) << st.to_string();
   // Periodic checkpoints come every second or so: written on the recorder's own thread from a copy
   // of what changed, so that fusion does not wait for the encoding and the fsync. Their failures
   // are counted when the next recorder call collects the outcome, whichever call that is (a frame's
@@ -256,6 +278,8 @@ double SqliteCheckpointSink::checkpoint_latency_s() const {
 Status SqliteCheckpointSink::end_scan(const std::string& reason, IncrementalReconstructor& reconstructor,
                                       const FusionProgress& progress) {
   if (!recorder_) return invalid_argument("no scan file is open");
+  if (Status st = join_pending_points(reconstructor); !st)
+    DF_LOG(Fusion, Warning) << st.to_string();
   auto r = recorder_->finish(&reconstructor.map(), counters_of(progress), reason);
   if (!r) {
     reported_failures_ = recorder_->status().checkpoint_failures;  // returned to the daemon
@@ -335,6 +359,8 @@ void SqliteCheckpointSink::add_counters(std::vector<std::pair<std::string, doubl
   // Paging activity since the scan (or its resume) began: chunks written out and brought back.
   counters->emplace_back("chunks_evicted_total", static_cast<double>(s.pager.total_evicted));
   counters->emplace_back("chunks_loaded_total", static_cast<double>(s.pager.total_loaded));
+  // Chunks loaded back where the map had made a new one meanwhile (the two are joined).
+  counters->emplace_back("chunk_load_collisions", static_cast<double>(s.pager.load_collisions));
 }
 
 }  // namespace depthfuse::fusiond

@@ -302,7 +302,7 @@ void add_points(const PointArrays& added, uint32_t frame_id, PointMap* map) {
     const ChunkKey key = map->key_for(added.position_m[i]);
     if (!last_chunk || key != last_key) {
       last_chunk = &map->get_or_create(key);
-      last_chunk->last_touched_frame = frame_id;
+      last_chunk->last_touched_frame = last_chunk->last_seen_frame = frame_id;
       last_chunk->dirty = true;
       last_key = key;
     }
@@ -354,7 +354,7 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
   // The chunks this frame observed: eviction keeps recently seen chunks, checkpoints write
   // changed ones.
   for (Chunk* c : proj.chunks()) {
-    c->last_touched_frame = frame_id;
+    c->last_touched_frame = c->last_seen_frame = frame_id;
     c->dirty = true;
   }
   return total;

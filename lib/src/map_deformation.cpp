@@ -268,18 +268,19 @@ void MapDeformation::send(PointMap* map, const ChunkKey& key, const PointArrays&
                           const Chunk& from_chunk) {
   ++stats_.points_crossed;
   Chunk* dest = map->find(key);
-  if (!dest) {
+  if (!dest && !(stored_elsewhere_ && stored_elsewhere_(key))) {
     dest = &map->get_or_create(key);  // at version_ (update_range() set the map's)
     dest->last_touched_frame = from_chunk.last_touched_frame;
+    dest->last_seen_frame = from_chunk.last_seen_frame;
   }
-  if (dest->version == version_) {
+  if (dest && dest->version == version_) {
     if (touched_.empty() || touched_.back().first != key)
       touched_.emplace_back(key, dest->points.size());
     dest->points.push_back(from.position_m[i], from.state[i]);
     touch(dest);
     return;
   }
-  // Not up to date: moving it would move this point a second time.
+  // Not up to date (moving it would move this point a second time), or out of memory.
   ++stats_.points_pending;
   std::vector<PendingGroup>& groups = pending_[key];
   if (groups.empty() || groups.back().version != version_) groups.push_back({version_, {}});
@@ -676,6 +677,14 @@ size_t MapDeformation::pending_points() const {
   for (const auto& kv : pending_)
     for (const PendingGroup& g : kv.second) n += g.points.size();
   return n;
+}
+
+std::vector<ChunkKey> MapDeformation::pending_keys() const {
+  std::vector<ChunkKey> keys;
+  keys.reserve(pending_.size());
+  for (const auto& kv : pending_) keys.push_back(kv.first);
+  std::sort(keys.begin(), keys.end(), key_less);
+  return keys;
 }
 
 size_t MapDeformation::memory_bytes() const {

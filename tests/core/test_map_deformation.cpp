@@ -83,6 +83,62 @@ int id_of(const PointArrays& a, size_t i) {
   return a.state[i].r | (a.state[i].g << 8);
 }
 
+// Every point of `original` once in `map`, moved by its keyframe's motion since version 0
+// (position, normal and information, in double).
+void expect_each_point_moved_once(const PointArrays& original, const PointMap& map,
+                                  const MapDeformation& deformation) {
+  const PointArrays after = map.gather();
+  ASSERT_EQ(after.size(), original.size());
+  std::vector<int> seen(original.size(), 0);
+  for (size_t i = 0; i < after.size(); ++i) {
+    const int j = id_of(after, i);
+    ASSERT_LT(j, static_cast<int>(original.size()));
+    ++seen[j];
+    const uint32_t frame = original.state[j].last_frame;
+    ASSERT_EQ(after.state[i].last_frame, frame);
+    const Pose M = deformation.motion(frame, 0);
+    const Eigen::Vector3d p = M * original.position_m[j].cast<double>();
+    EXPECT_LT((after.position_m[i].cast<double>() - p).norm(), 1e-6) << "point " << j;
+    const Eigen::Matrix3d R = M.linear();
+    EXPECT_LT((after.normal(i).cast<double>() - R * original.normal(j).cast<double>()).norm(),
+              1e-6);
+    const Eigen::Matrix3d L = R * information_matrix(original, j).cast<double>() * R.transpose();
+    EXPECT_LT((information_matrix(after, i).cast<double>() - L).norm(), 1e-6 * L.norm());
+  }
+  EXPECT_EQ(std::count(seen.begin(), seen.end(), 1), static_cast<long>(original.size()));
+  // No point left behind in a chunk it is not in.
+  map.for_each_chunk([&](const ChunkKey& k, const Chunk& c) {
+    EXPECT_EQ(c.version, 1u);
+    for (const Eigen::Vector3f& p : c.points.position_m) EXPECT_EQ(map.key_for(p), k);
+  });
+}
+
+// Chunk a = (0, 0, 0) with points near its +x face, chunk b = (1, 0, 0) throughout, from two
+// keyframes; a correction that moves a's points across into b.
+struct CrossingScene {
+  PointMap map{0.5};
+  PointArrays original;
+  MapDeformation deformation;
+  const ChunkKey a{0, 0, 0}, b{1, 0, 0};
+
+  CrossingScene() {
+    for (int i = 0; i < 40; ++i)
+      original.push_back(
+          point_at({0.42f + 0.002f * i, 0.1f + 0.005f * i, 0.2f}, i % 2 ? 3 : 12, i));
+    for (int i = 0; i < 40; ++i)
+      original.push_back(
+          point_at({0.55f + 0.01f * i, 0.2f, 0.3f + 0.002f * i}, i % 2 ? 5 : 15, 40 + i));
+    map.add_points(original);
+    EXPECT_EQ(map.chunk_count(), 2u);
+    EXPECT_TRUE(deformation.keyframe_added(0, 1, Pose::Identity()).is_ok());
+    EXPECT_TRUE(deformation.keyframe_added(1, 10, translation(1, 0, 0)).is_ok());
+    Pose T0 = Pose::Identity();
+    T0.linear() = Eigen::AngleAxisd(0.05, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    T0.translation() = Eigen::Vector3d(0.12, 0.0, 0.01);
+    EXPECT_TRUE(deformation.correct({T0, translation(1.1, 0.02, 0.0)}).is_ok());
+  }
+};
+
 }  // namespace
 
 // (a) Two views of a wall, the second fused at its keyframe's pose 5 cm off: the wall is doubled.
@@ -169,62 +225,34 @@ TEST(MapDeformation, ARigidMoveOfTheWholeMapMergesNothing) {
 // (b) Points that a correction moves into a chunk not yet up to date wait in its pending buffer
 // and are moved once: the result is every point moved directly by its keyframe's motion.
 TEST(MapDeformation, PointsCrossingIntoAStaleChunkWaitAndMoveOnce) {
-  PointMap map(0.5);
-  PointArrays original;
-  // Chunk (0, 0, 0) near its +x face, chunk (1, 0, 0) throughout; two keyframes' points.
-  for (int i = 0; i < 40; ++i)
-    original.push_back(point_at({0.42f + 0.002f * i, 0.1f + 0.005f * i, 0.2f}, i % 2 ? 3 : 12, i));
-  for (int i = 0; i < 40; ++i)
-    original.push_back(
-        point_at({0.55f + 0.01f * i, 0.2f, 0.3f + 0.002f * i}, i % 2 ? 5 : 15, 40 + i));
-  map.add_points(original);
-  const ChunkKey a{0, 0, 0}, b{1, 0, 0};
-  ASSERT_EQ(map.chunk_count(), 2u);
-
-  MapDeformation deformation;
-  ASSERT_TRUE(deformation.keyframe_added(0, 1, Pose::Identity()).is_ok());
-  ASSERT_TRUE(deformation.keyframe_added(1, 10, translation(1, 0, 0)).is_ok());
-  Pose T0 = Pose::Identity();
-  T0.linear() = Eigen::AngleAxisd(0.05, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-  T0.translation() = Eigen::Vector3d(0.12, 0.0, 0.01);
-  const Pose T1 = translation(1.1, 0.02, 0.0);
-  ASSERT_TRUE(deformation.correct({T0, T1}).is_ok());
-
-  deformation.update(&map, {a});
-  EXPECT_EQ(map.find(a)->version, 1u);
-  EXPECT_EQ(map.find(b)->version, 0u);
-  const size_t waiting = deformation.pending_points();
+  CrossingScene s;
+  s.deformation.update(&s.map, {s.a});
+  EXPECT_EQ(s.map.find(s.a)->version, 1u);
+  EXPECT_EQ(s.map.find(s.b)->version, 0u);
+  const size_t waiting = s.deformation.pending_points();
   EXPECT_GT(waiting, 20u);
-  EXPECT_EQ(deformation.stats().points_pending, waiting);
-  deformation.update(&map, {b});
-  EXPECT_EQ(deformation.pending_points(), 0u);
-  EXPECT_EQ(deformation.stats().points_updated, original.size());
+  EXPECT_EQ(s.deformation.stats().points_pending, waiting);
+  s.deformation.update(&s.map, {s.b});
+  EXPECT_EQ(s.deformation.pending_points(), 0u);
+  EXPECT_EQ(s.deformation.stats().points_updated, s.original.size());
+  expect_each_point_moved_once(s.original, s.map, s.deformation);
+}
 
-  // Every point directly: its keyframe's motion, in double.
-  const PointArrays after = map.gather();
-  ASSERT_EQ(after.size(), original.size());
-  std::vector<int> seen(original.size(), 0);
-  for (size_t i = 0; i < after.size(); ++i) {
-    const int j = id_of(after, i);
-    ASSERT_LT(j, static_cast<int>(original.size()));
-    ++seen[j];
-    const uint32_t frame = original.state[j].last_frame;
-    ASSERT_EQ(after.state[i].last_frame, frame);
-    const Pose M = deformation.motion(frame, 0);
-    const Eigen::Vector3d p = M * original.position_m[j].cast<double>();
-    EXPECT_LT((after.position_m[i].cast<double>() - p).norm(), 1e-6) << "point " << j;
-    const Eigen::Matrix3d R = M.linear();
-    EXPECT_LT((after.normal(i).cast<double>() - R * original.normal(j).cast<double>()).norm(),
-              1e-6);
-    const Eigen::Matrix3d L = R * information_matrix(original, j).cast<double>() * R.transpose();
-    EXPECT_LT((information_matrix(after, i).cast<double>() - L).norm(), 1e-6 * L.norm());
-  }
-  EXPECT_EQ(std::count(seen.begin(), seen.end(), 1), static_cast<long>(original.size()));
-  // No point left behind in a chunk it is not in.
-  map.for_each_chunk([&](const ChunkKey& k, const Chunk& c) {
-    EXPECT_EQ(c.version, 1u);
-    for (const Eigen::Vector3f& p : c.points.position_m) EXPECT_EQ(map.key_for(p), k);
-  });
+// Points crossing into a chunk the pager evicted wait for it rather than start a new chunk at its
+// key (which the pager would have to load the stored one into at once, over the budget).
+TEST(MapDeformation, PointsCrossingIntoAnEvictedChunkWaitUntilItIsLoaded) {
+  CrossingScene s;
+  Chunk stored;
+  s.map.extract(s.b, &stored);  // evicted, at version 0
+  s.deformation.set_stored_elsewhere([&](const ChunkKey& k) { return k == s.b; });
+  s.deformation.update(&s.map, {s.a});
+  EXPECT_EQ(s.map.find(s.b), nullptr);
+  EXPECT_EQ(s.deformation.pending_keys(), std::vector<ChunkKey>{s.b});
+  EXPECT_GT(s.deformation.pending_points(), 20u);
+  s.map.insert(s.b, std::move(stored));  // loaded back
+  s.deformation.update(&s.map, {s.b});
+  EXPECT_TRUE(s.deformation.pending_keys().empty());
+  expect_each_point_moved_once(s.original, s.map, s.deformation);
 }
 
 // (c) The lazy path through process(): the frame's chunks follow before it is registered, the

@@ -37,7 +37,7 @@ struct Walk {
         Chunk& ch = map.get_or_create(k);
         const PointArrays add = make_points(k, frame, 5);
         ch.points.append(add);
-        ch.last_touched_frame = frame;
+        ch.last_touched_frame = ch.last_seen_frame = frame;
         ch.dirty = true;
         reference[k].append(add);
       }
@@ -106,7 +106,7 @@ void fill_row(PointMap* map) {
   for (int x = -20; x <= 20; ++x) {
     Chunk& c = map->get_or_create({x, 0, 0});
     c.points = make_points({x, 0, 0}, 1, 50);
-    c.last_touched_frame = x == 15 ? 100 : x > 10 ? 95 : 50;
+    c.last_touched_frame = c.last_seen_frame = x == 15 ? 100 : x > 10 ? 95 : 50;
     c.dirty = true;
   }
 }
@@ -278,7 +278,7 @@ TEST(MapPager, AChunkCreatedOverAnEvictedOneKeepsTheStoredPoints) {
   const PointArrays stored = make_points(k, 1, 40), fresh = make_points(k, 2, 7);
   Chunk& c = map.get_or_create(k);
   c.points = stored;
-  c.last_touched_frame = 10;
+  c.last_touched_frame = c.last_seen_frame = 10;
   c.dirty = true;
   ASSERT_TRUE(pager.update(&map, kRowCamera, 100));
   ASSERT_EQ(map.find(k), nullptr);
@@ -286,7 +286,7 @@ TEST(MapPager, AChunkCreatedOverAnEvictedOneKeepsTheStoredPoints) {
   // Frame 101 fuses new points there without the chunk having been loaded.
   Chunk& created = map.get_or_create(k);
   created.points = fresh;
-  created.last_touched_frame = 101;
+  created.last_touched_frame = created.last_seen_frame = 101;
   created.dirty = true;
   ASSERT_TRUE(pager.update(&map, kRowCamera, 101)) << pager.stats().last_error;
   EXPECT_EQ(pager.stats().load_collisions, 1u);
@@ -325,7 +325,7 @@ TEST(MapPager, AChunkLoadedOverANewerOneIsBroughtUpToDateFirst) {
   const PointArrays stored = make_points(k, 1, 40), fresh = make_points(k, 2, 7);
   Chunk& c = map.get_or_create(k);
   c.points = stored;
-  c.last_touched_frame = 10;
+  c.last_touched_frame = c.last_seen_frame = 10;
   c.dirty = true;
   ASSERT_TRUE(pager.update(&map, kRowCamera, 100));
   ASSERT_TRUE(pager.is_evicted(k));
@@ -334,7 +334,7 @@ TEST(MapPager, AChunkLoadedOverANewerOneIsBroughtUpToDateFirst) {
   Chunk& created = map.get_or_create(k);
   EXPECT_EQ(created.version, 1u);
   created.points = fresh;
-  created.last_touched_frame = 101;
+  created.last_touched_frame = created.last_seen_frame = 101;
   created.dirty = true;
   ASSERT_TRUE(pager.update(&map, kRowCamera, 101)) << pager.stats().last_error;
   EXPECT_EQ(brought, 1u);

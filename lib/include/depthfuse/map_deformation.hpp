@@ -9,6 +9,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <unordered_map>
@@ -85,8 +86,8 @@ class MapDeformation {
   // the merge pass over them (lib/src/chunk_merge.hpp: pairs from two keyframes that the
   // correction moved apart). A point of a stale chunk moves by motion(): position, normal and
   // information (R L R^T). One that then falls in another chunk goes there if that chunk is up to
-  // date or new, otherwise into that chunk's pending buffer, applied when it is updated: no point
-  // moves twice. A chunk updated, or one that took points in, is dirty. Returns the points brought
+  // date or new, otherwise (stale, or stored out of memory: set_stored_elsewhere()) into that
+  // chunk's pending buffer, applied when it is updated: no point moves twice. A chunk updated, or one that took points in, is dirty. Returns the points brought
   // up to date (pending ones included).
   size_t update(PointMap* map, const std::vector<ChunkKey>& keys);
   // Before a frame is registered at T_world_cam: the chunks it sees from there (frame_chunk_keys(),
@@ -128,6 +129,16 @@ class MapDeformation {
   // The oldest version among chunks stored out of memory (evicted to the scan file), which keeps
   // the history they need; none: nothing stored.
   void set_oldest_stored_version(std::optional<uint32_t> version) { oldest_stored_ = version; }
+  // Which chunks absent from the map are in the scan file (evicted by the pager): points moved
+  // there wait in the chunk's pending buffer until it is loaded and updated, rather than start a
+  // new chunk at its key that the pager would have to load the stored one into at once. None set:
+  // every absent chunk is new.
+  void set_stored_elsewhere(std::function<bool(const ChunkKey&)> is_stored) {
+    stored_elsewhere_ = std::move(is_stored);
+  }
+  // The chunks with points pending, in key order (a checkpoint puts them in their chunks first:
+  // the scan file has no pending buffers).
+  std::vector<ChunkKey> pending_keys() const;
   // Drops the poses of versions before `version` (at most the current one). Returns how many.
   size_t forget_versions_before(uint32_t version);
 
@@ -218,6 +229,7 @@ class MapDeformation {
   std::vector<std::vector<StoredPose>> poses_;
   std::vector<double> max_motion_m_;
   std::optional<uint32_t> oldest_stored_;
+  std::function<bool(const ChunkKey&)> stored_elsewhere_;
 
   std::unordered_map<ChunkKey, std::vector<PendingGroup>, ChunkKeyHash> pending_;
 

@@ -30,7 +30,12 @@ struct ChunkKeyHash {
 
 struct Chunk {
   PointArrays points;
-  uint32_t last_touched_frame = 0;  // for eviction: the newest frame that observed this chunk
+  // The newest frame that changed it: observed it, added points to it, or moved them (the map's
+  // deformation). Checkpoints and the map's watchers go by it.
+  uint32_t last_touched_frame = 0;
+  // The newest frame that observed it or added points to it: the pager's recency. A loop closure's
+  // deformation moves chunks all over the map without the camera going near them.
+  uint32_t last_seen_frame = 0;
   bool dirty = true;                // changed since it was last written to a checkpoint
   // The pose graph's version the points are expressed in (MapDeformation): older than the map's
   // version() means a loop closure has moved their keyframes since, and they have not followed yet.

@@ -9,7 +9,10 @@
 #include <limits>
 #include <tuple>
 
+#include "depthfuse/base/log.hpp"
 #include "depthfuse/store/scan_store.hpp"
+
+DF_LOG_CATEGORY(Pager)
 
 namespace depthfuse::store {
 
@@ -97,15 +100,23 @@ Status MapPager::prepare(PointMap* map, const Frame& frame, const Pose& T, uint3
       const float radius = margin + 0.75f * static_cast<float>(step) * zmax * inv_fx;
       for (float z = 0.9f * zmin;; z += margin) {
         const float zs = std::min(z, zmax);
+        // Only the evicted keys are kept, as they come: the samples name a hundred thousand keys
+        // or more a frame, mostly resident ones, and sorting them all cost more than the rest of
+        // the frame.
+        const size_t first = keys_.size();
         map->keys_near(R * (zs * ray) + t, radius, &keys_);
+        keys_.erase(std::remove_if(keys_.begin() + static_cast<std::ptrdiff_t>(first), keys_.end(),
+                                   [&](const ChunkKey& k) { return !evicted_.count(k); }),
+                    keys_.end());
         if (zs >= zmax || !(margin > 0.0f)) break;
       }
     }
   }
   std::sort(keys_.begin(), keys_.end(), key_less);
   keys_.erase(std::unique(keys_.begin(), keys_.end()), keys_.end());
-  keys_.erase(std::remove_if(keys_.begin(), keys_.end(), [&](const ChunkKey& k) { return !evicted_.count(k); }),
-              keys_.end());
+  if (!keys_.empty())
+    DF_LOG(Pager, Debug) << "frame " << frame_id << ": loading " << keys_.size()
+                          << " chunks the frame can touch";
   return finish_call(load(map, keys_, frame_id));
 }
 
@@ -127,6 +138,14 @@ Status MapPager::load_around(PointMap* map, const Eigen::Vector3f& p, double rad
           if (evicted_.count(k) && distance_to_chunk_m(*map, k, p) <= radius) keys_.push_back(k);
   }
   std::sort(keys_.begin(), keys_.end(), key_less);
+  return finish_call(load(map, keys_, frame_id));
+}
+
+Status MapPager::load_chunks(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t frame_id) {
+  keys_.clear();
+  for (const ChunkKey& k : keys)
+    if (evicted_.count(k)) keys_.push_back(k);
+  if (keys_.empty()) return Status::ok();
   return finish_call(load(map, keys_, frame_id));
 }
 
@@ -156,6 +175,7 @@ Status MapPager::load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t
       Chunk& merged = map->get_or_create(k);
       merged.points.append(newer.points);
       merged.last_touched_frame = std::max(merged.last_touched_frame, newer.last_touched_frame);
+      merged.last_seen_frame = std::max(merged.last_seen_frame, newer.last_seen_frame);
       merged.dirty = true;
       ++stats_.load_collisions;
       loaded_at_[k] = frame_id;
@@ -167,6 +187,7 @@ Status MapPager::load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t
       // keep both sets of points.
       loaded.points.append(resident->points);
       loaded.last_touched_frame = std::max(loaded.last_touched_frame, resident->last_touched_frame);
+      loaded.last_seen_frame = std::max(loaded.last_seen_frame, resident->last_seen_frame);
       loaded.dirty = true;
       ++stats_.load_collisions;
     }
@@ -203,6 +224,8 @@ Status MapPager::update(PointMap* map, const Eigen::Vector3f& camera_position_m,
       if (evicted_.count(k)) keys_.push_back(k);
     });
     if (!keys_.empty()) {
+      DF_LOG(Pager, Debug) << "frame " << frame_id << ": " << keys_.size()
+                            << " chunks made at evicted keys are joined with their stored points";
       std::sort(keys_.begin(), keys_.end(), key_less);
       if (Status st = load(map, keys_, frame_id); !st) return finish_call(st);
     }
@@ -228,7 +251,7 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
   const float keep_distance = static_cast<float>(config_.evict_distance_m);
   const uint32_t min_age = static_cast<uint32_t>(config_.min_age_frames);
   map->for_each_chunk([&](const ChunkKey& k, const Chunk& c) {
-    uint32_t used = c.last_touched_frame;
+    uint32_t used = c.last_seen_frame;
     if (auto it = loaded_at_.find(k); it != loaded_at_.end()) used = std::max(used, it->second);
     if (used >= frame_id) return;  // observed by (or loaded for) this very frame
     const float d = distance_to_chunk_m(*map, k, cam);
@@ -284,6 +307,9 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
   stats_.total_evicted_recent += recent;
   stats_.resident_chunks = map->chunk_count();
   stats_.resident_bytes = resident - freed;
+  DF_LOG(Pager, Debug) << "frame " << frame_id << ": evicted " << n << " chunks (" << recent
+                        << " seen recently, " << writes.size() << " written), "
+                        << (resident >> 20) << " -> " << ((resident - freed) >> 20) << " MiB";
   if (config_.release_memory_to_os) malloc_trim(0);
   return Status::ok();
 }

@@ -161,7 +161,7 @@ Result<std::unique_ptr<ScanRecorder>> ScanRecorder::resume(const std::string& pa
     DF_RETURN_IF_ERROR(store.for_each_chunk([&](const ChunkInfo& info, PointArrays& points) {
       Chunk c;
       c.points = std::move(points);
-      c.last_touched_frame = info.last_touched_frame;
+      c.last_touched_frame = c.last_seen_frame = info.last_touched_frame;
       c.version = info.version;
       c.dirty = false;
       map->insert(info.key, std::move(c));

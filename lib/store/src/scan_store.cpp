@@ -174,7 +174,7 @@ Status ScanStore::Impl::decode_chunk_row(const sql::Row& row, bool staged, Store
   if (out->chunk.points.size() != info.point_count)
     return corrupt(what + ": holds " + std::to_string(out->chunk.points.size()) +
                    " points, its row says " + std::to_string(info.point_count));
-  out->chunk.last_touched_frame = info.last_touched_frame;
+  out->chunk.last_touched_frame = out->chunk.last_seen_frame = info.last_touched_frame;
   out->chunk.version = info.version;
   out->chunk.dirty = false;
   return Status::ok();

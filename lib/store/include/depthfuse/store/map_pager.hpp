@@ -4,7 +4,7 @@
 //    covers ICP's correction and the pipeline's own chunk margins), so fusion and registration see
 //    exactly the map an unbounded run would;
 //  - update() after it: when the resident chunks exceed the budget, the least recently touched
-//    ones (Chunk::last_touched_frame) that the camera has not seen for a while and that are not
+//    ones (Chunk::last_seen_frame) that the camera has not seen for a while and that are not
 //    right next to it are written to the scan file and dropped. When those are not enough, the
 //    recently seen ones go too, down to the budget; never the ones this frame observed or loaded,
 //    nor those near the camera.
@@ -88,6 +88,10 @@ class MapPager {
   // that the first frame's tracking has its map). Visits the cube of keys, or the evicted index
   // when that is smaller.
   Status load_around(PointMap* map, const Eigen::Vector3f& p_m, double radius_m, uint32_t frame_id);
+
+  // Loads those of `keys` that are evicted (a checkpoint puts the points the map's deformation
+  // holds for them in their chunks).
+  Status load_chunks(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t frame_id);
 
   // Resume: a chunk that is in the scan file but not in memory, its points in the pose graph's
   // `version` (ChunkInfo::version).

@@ -1,0 +1,213 @@
+// bench_scan_session: the fusion daemon's scan (ScanSession over the SQLite checkpoint sink, the
+// per-frame path the daemon's worker runs: predict, page, register, fuse, record, pose graph,
+// deformation, periodic checkpoints) over a long scan without LCM and without pacing, so that what
+// the scan costs per frame and in memory as it grows shows without the capture's rendering sharing
+// the cores. The source loops (reopened at its end) until --frames frames were processed.
+//
+//   bench_scan_session --source 'synthetic:furnished?frames=6000&hints=0' --frames 6000
+//   bench_scan_session --source tum:DIR --frames 4000 --config budget.toml
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include "depthfuse/app_config.hpp"
+#include "depthfuse/base/log.hpp"
+#include "depthfuse/source_factory.hpp"
+#include "scan_session.hpp"
+#include "sqlite_checkpoint_sink.hpp"
+
+using namespace depthfuse;
+using Clock = std::chrono::steady_clock;
+
+DF_LOG_CATEGORY(BenchScanSession)
+
+namespace {
+
+struct Options {
+  std::string source;
+  std::string config_path;
+  std::string dir;
+  long frames = 6000;
+  long report_every = 300;
+};
+
+void usage() {
+  std::printf(
+      "usage: bench_scan_session --source SPEC [--frames N] [--report-every N] [--config FILE]\n"
+      "                          [--dir DIR] [--log-level SPEC]\n"
+      "  --source SPEC       a frame source as depthfuse-capture takes it (looped)\n"
+      "  --frames N          frames to process in all (default 6000)\n"
+      "  --report-every N    a line of figures every N frames (default 300)\n"
+      "  --config FILE       the appliance's TOML (e.g. another fusion_daemon.memory_budget_mib)\n"
+      "  --dir DIR           where the scan file goes (default: a temporary directory, removed)\n"
+      "  --log-level SPEC    as the daemons take it, e.g. info,Pager=debug\n");
+}
+
+bool parse(int argc, char** argv, Options* o) {
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a == "--help" || a == "-h") return false;
+    if (i + 1 >= argc) {
+      std::fprintf(stderr, "%s needs a value\n", a.c_str());
+      return false;
+    }
+    const char* v = argv[++i];
+    if (a == "--source") o->source = v;
+    else if (a == "--config") o->config_path = v;
+    else if (a == "--dir") o->dir = v;
+    else if (a == "--frames") o->frames = std::atol(v);
+    else if (a == "--report-every") o->report_every = std::atol(v);
+    else if (a == "--log-level") {
+      std::string error;
+      if (!log::configure(v, &error)) {
+        std::fprintf(stderr, "--log-level: %s\n", error.c_str());
+        return false;
+      }
+    }
+    else {
+      std::fprintf(stderr, "unknown option %s\n", a.c_str());
+      return false;
+    }
+  }
+  if (o->source.empty()) std::fprintf(stderr, "--source is required\n");
+  return !o->source.empty() && o->frames > 0 && o->report_every > 0;
+}
+
+double rss_mib() {
+  std::ifstream in("/proc/self/status");
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind("VmRSS:", 0) == 0) return std::atof(line.c_str() + 6) / 1024.0;
+  return 0.0;
+}
+
+double counter(const fusiond::CheckpointSink& sink, const std::string& name) {
+  std::vector<std::pair<std::string, double>> counters;
+  sink.add_counters(&counters);
+  for (const auto& [n, v] : counters)
+    if (n == name) return v;
+  return 0.0;
+}
+
+// Figures since the last report.
+struct Block {
+  long frames = 0;
+  double seconds = 0, max_ms = 0;
+  void add(double s) {
+    ++frames;
+    seconds += s;
+    if (s * 1e3 > max_ms) max_ms = s * 1e3;
+  }
+};
+
+void report(long frame, double wall_s, const Block& b, const fusiond::ScanSession& session,
+            const fusiond::CheckpointSink& sink) {
+  const IncrementalReconstructor& r = *session.reconstructor();
+  const MapDeformation& d = r.deformation();
+  const FramePath& path = *session.path();
+  std::printf("%6ld %7.1f %7.1f %7.1f %7.1f %9zu %7.1f %7.1f %7.0f %7.0f %7.0f %5u %5u %8zu %9llu "
+              "%5zu %5zu\n",
+              frame, wall_s, b.frames ? b.seconds * 1e3 / b.frames : 0.0, b.max_ms, rss_mib(),
+              r.map().point_count(), counter(sink, "resident_mib"),
+              d.memory_bytes() / (1024.0 * 1024.0), counter(sink, "chunks_evicted_total"),
+              counter(sink, "chunks_loaded_total"), counter(sink, "chunk_load_collisions"), d.version(),
+              d.oldest_version(), d.pending_points(),
+              static_cast<unsigned long long>(d.stats().points_merged),
+              path.graph().keyframes().size(), path.graph().loops().size());
+  std::fflush(stdout);
+}
+
+int run(const Options& o) {
+  AppConfig config;
+  if (!o.config_path.empty()) {
+    auto loaded = load_app_config(o.config_path);
+    if (!loaded) {
+      DF_LOG(BenchScanSession, Error) << loaded.status().to_string();
+      return 2;
+    }
+    config = std::move(loaded).value();
+  }
+  const bool temporary = o.dir.empty();
+  const std::string dir =
+      temporary ? (std::filesystem::temp_directory_path() /
+                   ("bench-scan-session-" + std::to_string(::getpid())))
+                      .string()
+                : o.dir;
+  std::filesystem::create_directories(dir);
+  config.fusion.scan_dir = dir;
+  fusiond::SqliteCheckpointSink sink(config, fusiond::SqliteSinkOptions{dir + "/scan.dfscan"});
+  fusiond::ScanSession session(config, sink);
+  auto started = session.start("bench");
+  if (!started) {
+    DF_LOG(BenchScanSession, Error) << started.status().to_string();
+    return 1;
+  }
+  std::printf("# %s, %ld frames, config %s, scan file %s/scan.dfscan\n", o.source.c_str(), o.frames,
+              o.config_path.empty() ? "(defaults)" : o.config_path.c_str(), dir.c_str());
+  std::printf("# frame  wall_s ms_mean  ms_max rss_mib map_points res_mib def_mib evicted  loaded "
+              "collide  vers  oldest  pending    merged   kfs loops\n");
+  const Clock::time_point t0 = Clock::now();
+  std::unique_ptr<FrameSource> source;
+  Block block;
+  fusiond::FusionProgress progress;
+  for (long n = 0; n < o.frames;) {
+    if (!source) {
+      auto opened = open_frame_source(o.source, config);
+      if (!opened) {
+        DF_LOG(BenchScanSession, Error) << opened.status().to_string();
+        return 2;
+      }
+      source = std::move(opened).value();
+    }
+    auto frame = source->next();
+    if (frame.status().code() == StatusCode::kEndOfStream) {
+      source.reset();  // the loop's next lap
+      continue;
+    }
+    if (!frame) {
+      DF_LOG(BenchScanSession, Error) << frame.status().to_string();
+      return 1;
+    }
+    const Clock::time_point f0 = Clock::now();
+    auto outcome = session.process(*frame);
+    if (!outcome) {
+      DF_LOG(BenchScanSession, Error) << "frame " << n << ": " << outcome.status().to_string();
+      return 1;
+    }
+    if (!outcome->store_status)
+      DF_LOG(BenchScanSession, Warning) << "frame " << n << ": " << outcome->store_status.to_string();
+    ++progress.frames_received;
+    ++progress.frames_fused;
+    if (session.checkpoint_due()) {
+      if (Status st = session.checkpoint("periodic", progress); !st)
+        DF_LOG(BenchScanSession, Warning) << "checkpoint: " << st.to_string();
+    }
+    block.add(std::chrono::duration<double>(Clock::now() - f0).count());
+    if (++n % o.report_every == 0 || n == o.frames) {
+      report(n, std::chrono::duration<double>(Clock::now() - t0).count(), block, session, sink);
+      block = {};
+    }
+  }
+  auto saved = session.stop("final", progress);
+  if (!saved) DF_LOG(BenchScanSession, Error) << "stop: " << saved.status().to_string();
+  else std::printf("# %s\n", saved->message.c_str());
+  if (temporary) std::filesystem::remove_all(dir);
+  return saved ? 0 : 1;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  log::set_program_name("bench_scan_session");
+  Options o;
+  if (!parse(argc, argv, &o)) {
+    usage();
+    return 2;
+  }
+  return run(o);
+}
