@@ -224,6 +224,17 @@ Status SqliteCheckpointSink::frame_fused(const Frame& frame, const FrameReport& 
   return st;
 }
 
+Status SqliteCheckpointSink::frame_not_fused(const FrameReport& report,
+                                             const Pose& T_world_cam_initial,
+                                             IncrementalReconstructor& reconstructor) {
+  if (!recorder_) return invalid_argument("no scan file is open");
+  Status st = recorder_->keep_within_budget(&reconstructor.map(),
+                                            T_world_cam_initial.translation().cast<float>(),
+                                            reconstructor.next_frame_id(), report.graph_memory_bytes);
+  keep_history_for_evicted(reconstructor);
+  return st;
+}
+
 Status SqliteCheckpointSink::checkpoint(const std::string& reason, IncrementalReconstructor& reconstructor,
                                         const FusionProgress& progress) {
   if (!recorder_) return invalid_argument("no scan file is open");

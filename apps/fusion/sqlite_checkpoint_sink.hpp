@@ -30,6 +30,8 @@ class SqliteCheckpointSink : public CheckpointSink {
   void poses_corrected(const AppliedCorrection& correction, uint32_t before_frame) override;
   Status prepare_frame(const Frame& frame, const Pose& T_world_cam_initial,
                        IncrementalReconstructor& reconstructor) override;
+  Status frame_not_fused(const FrameReport& report, const Pose& T_world_cam_initial,
+                         IncrementalReconstructor& reconstructor) override;
   Status frame_fused(const Frame& frame, const FrameReport& report,
                      IncrementalReconstructor& reconstructor) override;
   Status checkpoint(const std::string& reason, IncrementalReconstructor& reconstructor,

@@ -26,16 +26,18 @@ Result<FrameOutcome> FramePath::run(const Frame& frame) {
   const std::optional<Pose> prediction =
       frame.T_world_cam_hint ? std::nullopt
                              : reconstructor_.constant_velocity_prediction(frame.utime);
-  if (store_)
-    outcome.store_status = store_->prepare_frame(
-        frame, reconstructor_.initial_pose(frame, prediction), reconstructor_);
+  const Pose T_world_cam_initial = reconstructor_.initial_pose(frame, prediction);
+  if (store_) outcome.store_status = store_->prepare_frame(frame, T_world_cam_initial, reconstructor_);
   Result<FrameReport> report = reconstructor_.process(frame, prediction);
   if (!report) return report.status();
   outcome.report = std::move(*report);
   outcome.report.graph_memory_bytes =
       graph_.memory_bytes() + reconstructor_.deformation().memory_bytes();
-  if (store_ && outcome.report.fused()) {
-    Status recorded = store_->frame_fused(frame, outcome.report, reconstructor_);
+  if (store_) {
+    Status recorded =
+        outcome.report.fused()
+            ? store_->frame_fused(frame, outcome.report, reconstructor_)
+            : store_->frame_not_fused(outcome.report, T_world_cam_initial, reconstructor_);
     if (outcome.store_status.is_ok()) outcome.store_status = std::move(recorded);
   }
   join_graph(frame, outcome.report, &outcome);

@@ -196,6 +196,41 @@ Frame elsewhere(const Pose& T) {
 
 }  // namespace
 
+// The frame path tells its store of every frame: a lost one too, so that a pager can keep the
+// chunks it loaded for it within the budget while the camera stays lost.
+TEST(FramePath, TheStoreHearsOfALostFrameWithThePoseItWasTriedAt) {
+  struct Recording : FrameStore {
+    std::vector<std::string> calls;
+    Pose tried_at = Pose::Identity();
+    Status prepare_frame(const Frame&, const Pose&, IncrementalReconstructor&) override {
+      calls.push_back("prepare");
+      return Status::ok();
+    }
+    Status frame_fused(const Frame&, const FrameReport&, IncrementalReconstructor&) override {
+      calls.push_back("fused");
+      return Status::ok();
+    }
+    Status frame_not_fused(const FrameReport&, const Pose& T_world_cam_initial,
+                           IncrementalReconstructor&) override {
+      calls.push_back("not fused");
+      tried_at = T_world_cam_initial;
+      return Status::ok();
+    }
+  } store;
+  const Pose stop = test::look_at({2.4 * std::cos(0.6), 2.4 * std::sin(0.6), 1.4}, {0.3, 0.3, 0.3});
+  IncrementalReconstructor rec{ReconstructionConfig{}};
+  FramePath path(rec, &store);
+  ASSERT_TRUE(path.run(test::render_corner(stop)).is_ok());
+  const Pose first = *rec.last_pose();
+  Frame away = elsewhere(stop);
+  away.utime = 33000;
+  auto lost = path.run(away);
+  ASSERT_TRUE(lost.is_ok()) << lost.status().to_string();
+  EXPECT_FALSE(lost->report.fused());
+  EXPECT_EQ(store.calls, (std::vector<std::string>{"prepare", "fused", "prepare", "not fused"}));
+  EXPECT_TRUE(store.tried_at.isApprox(first));  // no motion yet: the prediction is the last pose
+}
+
 TEST(Incremental, ALostFrameIsReportedAndNotFusedAndTrackingResumesWhenTheViewReturns) {
   const Pose stop = test::look_at({2.4 * std::cos(0.6), 2.4 * std::sin(0.6), 1.4}, {0.3, 0.3, 0.3});
   IncrementalReconstructor rec{ReconstructionConfig{}};

@@ -39,6 +39,15 @@ class FrameStore {
   // After process(), for a frame that was fused.
   virtual Status frame_fused(const Frame& frame, const FrameReport& report,
                              IncrementalReconstructor& reconstructor) = 0;
+  // After process(), for a frame that was not (tracking lost): what prepare_frame() loaded for it
+  // must not stay over the budget while the camera is lost for many frames.
+  virtual Status frame_not_fused(const FrameReport& report, const Pose& T_world_cam_initial,
+                                 IncrementalReconstructor& reconstructor) {
+    (void)report;
+    (void)T_world_cam_initial;
+    (void)reconstructor;
+    return Status::ok();
+  }
 };
 
 struct FrameOutcome {

@@ -257,6 +257,15 @@ Status ScanRecorder::prepare_frame(const Frame& frame, const Pose& T_world_cam_i
   return note(st);
 }
 
+Status ScanRecorder::keep_within_budget(PointMap* map, const Eigen::Vector3f& camera_m,
+                                        uint32_t frame_id, size_t other_bytes) {
+  if (!pager_) return Status::ok();
+  pager_->set_other_bytes(other_bytes);
+  Status st = pager_->update(map, camera_m, frame_id);
+  status_.pager = pager_->stats();
+  return note(st);
+}
+
 Status ScanRecorder::record_frame(const Frame& frame, const FrameReport& report, PointMap* map) {
   if (replay_pending_)
     return note(invalid_argument(store_->path() + ": the frame log's records are not replayed yet "

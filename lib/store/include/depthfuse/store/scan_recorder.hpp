@@ -189,6 +189,11 @@ class ScanRecorder {
   // After IncrementalReconstructor::process: buffers the pose, writes a keyframe every n frames,
   // and lets the pager evict what the budget cannot hold.
   Status record_frame(const Frame& frame, const FrameReport& report, PointMap* map);
+  // For a frame that was not fused (tracking lost): nothing is recorded, but the pager evicts
+  // what the budget cannot hold, around the pose the frame was tried at. `frame_id`: the id
+  // prepare_frame() loaded for; `other_bytes`: FrameReport::graph_memory_bytes.
+  Status keep_within_budget(PointMap* map, const Eigen::Vector3f& camera_m, uint32_t frame_id,
+                            size_t other_bytes);
 
   // The pose graph the next checkpoint writes (FramePath::checkpoint_state()), in the same
   // transaction as the chunks: a resume finds the two agreeing. An empty graph (no keyframes yet,
