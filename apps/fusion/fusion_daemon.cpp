@@ -382,6 +382,7 @@ void FusionDaemon::count_tracking(const FrameReport& rep) {
   const TrackingState state = rep.tracking;
   tracking_state_ = static_cast<int>(state);
   if (rep.relocalised) ++relocalisations_;
+  relocalisations_refused_ += rep.relocalisations_out_of_reach;
   switch (state) {
     case TrackingState::kTracked: ++frames_tracked_; break;
     case TrackingState::kUncertain: ++frames_uncertain_; break;
@@ -522,6 +523,9 @@ void FusionDaemon::publish_heartbeat() {
     daemon::add_counter(&hb, "frames_lost_tracking", static_cast<double>(frames_lost_tracking_.load()));
     // Frames whose tracking was lost and that were found among the keyframes (counted as tracked).
     daemon::add_counter(&hb, "relocalisations", static_cast<double>(relocalisations_.load()));
+    // Places found for a lost frame that the camera cannot have got to in the time lost.
+    daemon::add_counter(&hb, "relocalisations_refused",
+                        static_cast<double>(relocalisations_refused_.load()));
     daemon::add_counter(&hb, "sequence_restarts", static_cast<double>(counters_.sequence_restarts));
     daemon::add_counter(&hb, "pose_hints_refused", static_cast<double>(counters_.pose_hints_refused));
     for (const auto& [counter, value] : sink_counters_) daemon::add_counter(&hb, counter, value);

@@ -47,12 +47,28 @@ size_t IncrementalReconstructor::relocalisation_bytes(const RelocalisationConfig
   return Relocaliser::memory_bound_bytes(config, pixels);
 }
 
-void IncrementalReconstructor::relocalise(FrameReport* report) {
+bool IncrementalReconstructor::reachable(const Pose& T_world_cam, int64_t utime) const {
+  if (!fused_last_) return true;
+  // The last fused frame's own error and ICP's: a tenth of a metre, ten degrees.
+  constexpr double kSlackM = 0.1, kSlackDeg = 10.0;
+  const double dt_s = std::max<double>(0.0, static_cast<double>(utime - fused_last_->utime) * 1e-6);
+  const Pose delta = fused_last_->T_world_cam.inverse() * T_world_cam;
+  const double turned_deg = Eigen::AngleAxisd(delta.linear()).angle() * 180.0 / M_PI;
+  const RelocalisationConfig& c = config_.relocalisation;
+  return delta.translation().norm() <= c.max_speed_m_s * dt_s + kSlackM &&
+         turned_deg <= c.max_turn_deg_s * dt_s + kSlackDeg;
+}
+
+void IncrementalReconstructor::relocalise(int64_t utime, FrameReport* report) {
   const auto t0 = Clock::now();
   const auto found = relocaliser_->search(scratch_, [&](const Pose& candidate) {
     const RegistrationResult r = registrar_.track(scratch_, *map_, candidate);
     frames_since_model_ = 1;  // the track rendered the map around the candidate
     if (!relocalisation_verified(r, config_.registration, model_fitness_reference())) return false;
+    if (!reachable(r.T_world_cam, utime)) {
+      ++report->relocalisations_out_of_reach;
+      return false;
+    }
     report->registration = r;
     return true;
   });
@@ -201,7 +217,7 @@ void IncrementalReconstructor::register_frame(const Frame& frame,
     report->tracking = classify_tracking(report->registration, config_.registration, reference);
   else if (!report->registered)
     report->tracking = TrackingState::kUncertain;
-  if (report->tracking == TrackingState::kLost && !hint) relocalise(report);
+  if (report->tracking == TrackingState::kLost && !hint) relocalise(frame.utime, report);
   if (report->registered) *T_world_cam = report->registration.T_world_cam;
   if (prior && report->registered && !report->relocalised &&
       report->tracking != TrackingState::kLost)

@@ -82,6 +82,8 @@ void expect_config_eq(const AppConfig& a, const AppConfig& b) {
   EXPECT_EQ(la.sac_iterations, lb.sac_iterations);
   EXPECT_EQ(la.sac_inlier_m, lb.sac_inlier_m);
   EXPECT_EQ(la.sac_inlier_fraction, lb.sac_inlier_fraction);
+  EXPECT_EQ(la.max_speed_m_s, lb.max_speed_m_s);
+  EXPECT_EQ(la.max_turn_deg_s, lb.max_turn_deg_s);
   EXPECT_EQ(ra.pipeline.method, rb.pipeline.method);
   EXPECT_EQ(ra.pipeline.outer_iterations, rb.pipeline.outer_iterations);
   EXPECT_EQ(ra.pipeline.converged_translation_m, rb.pipeline.converged_translation_m);

@@ -22,11 +22,15 @@ constexpr int kReturnFrames = 10;
 
 struct Outcome {
   std::vector<FrameReport> away, back;
+  int refused = 0;  // places found that the camera cannot have reached in the time
   size_t points_before_away = 0, points_after_away = 0, points_end = 0;
   std::vector<double> back_error_m;  // from the truth, in the first camera's frame
 };
 
-Outcome run(const synthetic::SyntheticSequence& seq, bool relocalise) {
+// The camera is away from `away_s` after the last frame of the loop on, and back `back_s` after
+// it: a relocalisation needs the time to have got there (RelocalisationConfig::max_speed_m_s).
+Outcome run(const synthetic::SyntheticSequence& seq, bool relocalise, double away_s = 1.0,
+            double back_s = 5.0) {
   ReconstructionConfig c;
   c.relocalisation.enabled = relocalise;
   IncrementalReconstructor rec(c);
@@ -37,23 +41,33 @@ Outcome run(const synthetic::SyntheticSequence& seq, bool relocalise) {
     EXPECT_TRUE(r.is_ok()) << r.status().to_string();
     return r.is_ok() ? *r : FrameReport{};
   };
+  int64_t last_utime = 0;
   for (int i = 0; i < kLoopFrames; i += kStride) {
-    const FrameReport r = process(seq.render(static_cast<size_t>(i)));
+    const Frame f = seq.render(static_cast<size_t>(i));
+    last_utime = f.utime;
+    const FrameReport r = process(f);
     EXPECT_NE(r.tracking, TrackingState::kLost) << "frame " << i;
   }
+  const auto after = [&](double s, int k) {
+    return last_utime + static_cast<int64_t>(s * 1e6) + k * 100000;  // 10 Hz
+  };
   out.points_before_away = rec.map().point_count();
   // Carried off to look down at the floor beyond the corner, where the map has nothing.
   const Pose away = synthetic::look_at({3.2, 3.2, 1.2}, {4.5, 4.5, 0.0});
   for (int k = 0; k < kAway; ++k) {
     Frame f = seq.render(0);
     seq.renderer().render(away, 1000 + k, true, &f.depth, &f.color);
+    f.utime = after(away_s, k);
     out.away.push_back(process(f));
   }
   out.points_after_away = rec.map().point_count();
   const Pose T_0_world = seq.T_world_cam_true(0).inverse();  // tracking starts at the identity
   for (int k = 0; k < kReturnFrames; ++k) {
     const size_t i = static_cast<size_t>(kReturnAt + k * kStride);
-    out.back.push_back(process(seq.render(i)));
+    Frame f = seq.render(i);
+    f.utime = after(back_s, k);
+    out.back.push_back(process(f));
+    out.refused += out.back.back().relocalisations_out_of_reach;
     const Pose truth = T_0_world * seq.T_world_cam_true(i);
     out.back_error_m.push_back((out.back.back().T_world_cam.translation() - truth.translation()).norm());
   }
@@ -106,4 +120,27 @@ TEST(Relocalisation, ALostCameraIsReportedAndFoundAgainWhenItComesBack) {
         EXPECT_TRUE(!r.back[k].fused() || r.back_error_m[k] > 0.05) << "back " << k;
     }
   }
+}
+
+// Found again where the camera cannot have got to in the time lost (back 0.1 s after the last frame
+// fused, 2.4 m away): refused, and not fused there; once enough time has passed, found.
+TEST(Relocalisation, APlaceTheCameraCannotHaveReachedInTheTimeLostIsRefused) {
+  synthetic::SyntheticConfig sc;
+  sc.frames = kLoopFrames;
+  auto seq = synthetic::SyntheticSequence::create(sc);
+  ASSERT_TRUE(seq.is_ok()) << seq.status().to_string();
+  const Outcome soon = run(*seq, true, 0.033, 0.066);
+  EXPECT_GT(soon.refused, 0);
+  // The return frames come 0.1 s apart: the reach grows by 0.15 m a frame, and the first ones
+  // are refused.
+  ASSERT_FALSE(soon.back.empty());
+  EXPECT_FALSE(soon.back[0].relocalised);
+  EXPECT_FALSE(soon.back[0].fused());
+  int found = -1;
+  for (size_t k = 0; k < soon.back.size(); ++k)
+    if (found < 0 && soon.back[k].relocalised) found = static_cast<int>(k);
+  for (int k = 0; k < (found < 0 ? static_cast<int>(soon.back.size()) : found); ++k)
+    EXPECT_FALSE(soon.back[k].fused()) << "back " << k;
+  const Outcome later = run(*seq, true);
+  EXPECT_EQ(later.refused, 0);
 }

@@ -153,6 +153,8 @@ void read_relocalisation(TableReader& r, RelocalisationConfig* c) {
   r.read("sac_iterations", &c->sac_iterations, closed(1, 1000000));
   r.read("sac_inlier_m", &c->sac_inlier_m, positive());
   r.read("sac_inlier_fraction", &c->sac_inlier_fraction, closed(0.0, 1.0));
+  r.read("max_speed_m_s", &c->max_speed_m_s, positive());
+  r.read("max_turn_deg_s", &c->max_turn_deg_s, positive());
   r.reject_unknown();
 }
 

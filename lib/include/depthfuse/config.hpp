@@ -149,6 +149,12 @@ struct RelocalisationConfig {
   // sac_inlier_m of the keyframe's.
   double sac_inlier_m = 0.03;
   double sac_inlier_fraction = 0.3;
+  // A pose found is believed only where the camera can have got to since the last frame fused:
+  // within max_speed_m_s and max_turn_deg_s times the time since (and a tenth of a metre and ten
+  // degrees for that frame's own error). A place that only looks like the camera's (a twin room,
+  // a repeated shelf) is refused while the loss is short, rather than fused into.
+  double max_speed_m_s = 1.5;
+  double max_turn_deg_s = 180.0;
 };
 
 // Keyframes, the pose graph and loop closure (frames tracked without pose hints; see ScanGraph in

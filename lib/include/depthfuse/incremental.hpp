@@ -27,6 +27,9 @@ struct FrameReport {
   // Tracking was lost and the camera was found among the keyframes (the frame is kTracked and
   // fused at the pose found).
   bool relocalised = false;
+  // Places the search found and ICP verified that the camera cannot have got to since the last
+  // frame fused (RelocalisationConfig::max_speed_m_s): refused.
+  int relocalisations_out_of_reach = 0;
   // Without a pose hint, how far the tracked pose can be trusted (classify_tracking()); with one,
   // tracked if its ICP converged, else uncertain (the hint is fused). A lost frame is not fused.
   TrackingState tracking = TrackingState::kTracked;
@@ -164,7 +167,11 @@ class IncrementalReconstructor {
   void learn_motion(const MotionPrior& prior, const RegistrationResult& r);
   // The keyframes' candidates for a lost frame, each tracked against the map; the first that
   // tracks well is the frame's pose.
-  void relocalise(FrameReport* report);
+  // `utime`: the frame's, for how far the camera can have gone since the last frame fused.
+  void relocalise(int64_t utime, FrameReport* report);
+  // Whether the camera can have got to T_world_cam by `utime` from the last frame fused
+  // (RelocalisationConfig::max_speed_m_s, max_turn_deg_s); true before any.
+  bool reachable(const Pose& T_world_cam, int64_t utime) const;
   bool keeps_keyframes() const;
   // After a frame tracked without a hint at T_world_cam: the relocaliser's keyframes, and the
   // model fitness the lost rule is scaled by.
