@@ -34,18 +34,20 @@ struct Options {
   std::string dir;
   long frames = 6000;
   long report_every = 300;
+  double slow_ms = 0;  // a line for every frame slower than this (0: none)
 };
 
 void usage() {
   std::printf(
       "usage: bench_scan_session --source SPEC [--frames N] [--report-every N] [--config FILE]\n"
-      "                          [--dir DIR] [--log-level SPEC]\n"
+      "                          [--dir DIR] [--log-level SPEC] [--slow-ms MS]\n"
       "  --source SPEC       a frame source as depthfuse-capture takes it (looped)\n"
       "  --frames N          frames to process in all (default 6000)\n"
       "  --report-every N    a line of figures every N frames (default 300)\n"
       "  --config FILE       the appliance's TOML (e.g. another fusion_daemon.memory_budget_mib)\n"
       "  --dir DIR           where the scan file goes (default: a temporary directory, removed)\n"
-      "  --log-level SPEC    as the daemons take it, e.g. info,Pager=debug\n");
+      "  --log-level SPEC    as the daemons take it, e.g. info,Pager=debug\n"
+      "  --slow-ms MS        a line for every frame slower than MS: where its time went\n");
 }
 
 bool parse(int argc, char** argv, Options* o) {
@@ -62,6 +64,7 @@ bool parse(int argc, char** argv, Options* o) {
     else if (a == "--dir") o->dir = v;
     else if (a == "--frames") o->frames = std::atol(v);
     else if (a == "--report-every") o->report_every = std::atol(v);
+    else if (a == "--slow-ms") o->slow_ms = std::atof(v);
     else if (a == "--log-level") {
       std::string error;
       if (!log::configure(v, &error)) {
@@ -175,6 +178,7 @@ int run(const Options& o) {
     }
     const Clock::time_point f0 = Clock::now();
     auto outcome = session.process(*frame);
+    const double process_s = std::chrono::duration<double>(Clock::now() - f0).count();
     if (!outcome) {
       DF_LOG(BenchScanSession, Error) << "frame " << n << ": " << outcome.status().to_string();
       return 1;
@@ -187,7 +191,20 @@ int run(const Options& o) {
       if (Status st = session.checkpoint("periodic", progress); !st)
         DF_LOG(BenchScanSession, Warning) << "checkpoint: " << st.to_string();
     }
-    block.add(std::chrono::duration<double>(Clock::now() - f0).count());
+    const double frame_s = std::chrono::duration<double>(Clock::now() - f0).count();
+    block.add(frame_s);
+    if (o.slow_ms > 0 && frame_s * 1e3 > o.slow_ms) {
+      const FrameReport& r = outcome->report;
+      const double in_process_ms =
+          r.prefilter_ms + r.registration_ms + r.deformation_ms + r.fusion_ms;
+      std::printf("# slow frame %ld: %.0f ms; prefilter %.0f, registration %.0f (relocalisation "
+                  "%.0f), deformation %.0f, fusion %.0f, the rest of process %.0f (the store: "
+                  "pager, recorder), checkpoint %.0f; %s%s%s\n",
+                  n, frame_s * 1e3, r.prefilter_ms, r.registration_ms, r.relocalisation_ms,
+                  r.deformation_ms, r.fusion_ms, process_s * 1e3 - in_process_ms,
+                  (frame_s - process_s) * 1e3, outcome->correction ? "after a correction " : "",
+                  outcome->keyframe ? "keyframe " : "", r.fused() ? "" : "lost");
+    }
     if (++n % o.report_every == 0 || n == o.frames) {
       report(n, std::chrono::duration<double>(Clock::now() - t0).count(), block, session, sink);
       block = {};

@@ -46,6 +46,7 @@ Status MapPager::validate(const MapPagerConfig& c) {
     return invalid_argument("low_watermark_fraction must be in (0, 1]");
   if (!(c.evict_distance_m >= 0.0)) return invalid_argument("evict_distance_m must be >= 0");
   if (c.min_age_frames < 0) return invalid_argument("min_age_frames must be >= 0");
+  if (!(c.max_evict_mib_per_call > 0.0)) return invalid_argument("max_evict_mib_per_call must be positive");
   if (!(c.load_margin_m >= 0.0)) return invalid_argument("load_margin_m must be >= 0");
   if (c.load_subsample_px < 1) return invalid_argument("load_subsample_px must be >= 1");
   return Status::ok();
@@ -241,7 +242,10 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
   stats_.resident_chunks = map->chunk_count();
   stats_.resident_bytes = resident;
   stats_.unevictable_bytes = 0;
-  if (resident <= budget) return Status::ok();
+  const size_t target = static_cast<size_t>(static_cast<double>(budget) * config_.low_watermark_fraction);
+  if (resident <= target) return Status::ok();
+  const bool over_budget = resident > budget;
+  if (!over_budget && staging_would_wait_ && staging_would_wait_()) return Status::ok();
   if (skip_eviction_calls_ > 0) {
     --skip_eviction_calls_;
     return Status::ok();
@@ -263,14 +267,17 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
     if (a.last_used_frame != b.last_used_frame) return a.last_used_frame < b.last_used_frame;
     return a.distance_m > b.distance_m;
   });
-  // Chunks not seen for min_age_frames go first, down to the low watermark. Only when they do not
+  // Chunks not seen for min_age_frames go first, towards the low watermark, at most
+  // max_evict_mib_per_call beyond what brings the map within the budget. Only when they do not
   // bring the map under the budget itself do recently seen ones go too (just down to the budget,
   // as the next frames may load them back): the views of the last min_age_frames frames can hold
   // more than the budget (a walk back into mapped rooms loads their full chunks), and the budget
   // must hold anyway. What stays is this frame's chunks and those near the camera.
-  const size_t target = static_cast<size_t>(static_cast<double>(budget) * config_.low_watermark_fraction);
+  const size_t step = static_cast<size_t>(config_.max_evict_mib_per_call * 1024.0 * 1024.0);
+  const size_t to_free =
+      std::min(resident - target, (over_budget ? resident - budget : 0) + step);
   size_t n = 0, freed = 0, recent = 0;
-  while (n < candidates_.size() && !candidates_[n].recent && resident - freed > target)
+  while (n < candidates_.size() && !candidates_[n].recent && freed < to_free)
     freed += candidates_[n++].bytes;
   while (n < candidates_.size() && resident - freed > budget) {
     freed += candidates_[n++].bytes;

@@ -24,6 +24,7 @@ ScanRecorder::ScanRecorder(std::unique_ptr<ScanStore> store, const RecorderConfi
     pager_->set_before_staging([this] {
       if (writer_) writer_->wait_idle();
     });
+    pager_->set_staging_would_wait([this] { return writer_ && writer_->busy(); });
   }
 }
 

@@ -3,9 +3,11 @@
 //    the chunks around its back-projected depth (at the predicted pose, dilated by a margin that
 //    covers ICP's correction and the pipeline's own chunk margins), so fusion and registration see
 //    exactly the map an unbounded run would;
-//  - update() after it: when the resident chunks exceed the budget, the least recently touched
+//  - update() after it: when the resident chunks exceed the low watermark, the least recently seen
 //    ones (Chunk::last_seen_frame) that the camera has not seen for a while and that are not
-//    right next to it are written to the scan file and dropped. When those are not enough, the
+//    right next to it are written to the scan file and dropped, a little a frame
+//    (max_evict_mib_per_call), and not while a background checkpoint is being written (staging
+//    would wait for it). Over the budget, whatever it takes: when those are not enough, the
 //    recently seen ones go too, down to the budget; never the ones this frame observed or loaded,
 //    nor those near the camera.
 // Per-call cost follows the frame, not the map: prepare() visits a subsample of the frame's
@@ -34,7 +36,11 @@ class ScanStore;
 
 struct MapPagerConfig {
   double memory_budget_mib = 256.0;       // resident point data of the map
-  double low_watermark_fraction = 0.85;   // evict down to this fraction of the budget
+  double low_watermark_fraction = 0.85;   // above this fraction of the budget, evict
+  // Above the low watermark and within the budget, at most this much a call: encoding and staging
+  // chunks costs the frame's thread, and 20 MiB at once held a frame for 80 ms, long enough for
+  // the daemon's queue to drop frames. Over the budget, whatever it takes.
+  double max_evict_mib_per_call = 2.0;
   double evict_distance_m = 1.5;          // chunks nearer to the camera than this stay resident
   // Chunks touched (or loaded) this recently are evicted only when evicting the older ones does
   // not bring the map under the budget.
@@ -118,6 +124,9 @@ class MapPager {
   // then could replace such a staged copy before the checkpoint took it, so the recorder waits
   // for the checkpoint here.
   void set_before_staging(std::function<void()> fn) { before_staging_ = std::move(fn); }
+  // Whether before_staging would wait now (a checkpoint is being written): eviction within the
+  // budget waits for a later frame instead.
+  void set_staging_would_wait(std::function<bool()> fn) { staging_would_wait_ = std::move(fn); }
 
   // Brings the chunk at a key of the map up to the pose graph's current version (the map's
   // deformation). A chunk loaded where fusion or the deformation made a new one while it was
@@ -152,6 +161,7 @@ class MapPager {
   PagerStats stats_;
   int skip_eviction_calls_ = 0;
   std::function<void()> before_staging_;
+  std::function<bool()> staging_would_wait_;
   std::function<void(PointMap*, const ChunkKey&)> bring_up_to_date_;
   struct Candidate {
     ChunkKey key;
