@@ -42,10 +42,6 @@ Status check_pose(const Pose& T, const std::string& what) {
   return Status::ok();
 }
 
-bool key_less(const ChunkKey& a, const ChunkKey& b) {
-  return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
-}
-
 // The last keyframe whose first frame is at most frame_id (0 before the first), by a binary search
 // without branches.
 uint32_t segment_of(const std::vector<uint32_t>& first_frame, uint32_t frame_id) {
@@ -374,7 +370,7 @@ bool MapDeformation::moved_rigidly(const PointArrays& a, const Eigen::Vector3f& 
 
 void MapDeformation::merge_updated(PointMap* map, bool defer) {
   const auto by_key = [](const UpdatedChunk& a, const UpdatedChunk& b) {
-    return key_less(a.key, b.key);
+    return a.key < b.key;
   };
   std::sort(updated_.begin(), updated_.end(), by_key);
   const auto job = [&](const MergeJob& j) {
@@ -396,9 +392,7 @@ void MapDeformation::merge_updated(PointMap* map, bool defer) {
   for (const UpdatedChunk& u : updated_) job({u.key, 0, u.from});
   // Chunks up to date before that took points in: the points taken in against all of theirs, for
   // the last correction.
-  std::sort(touched_.begin(), touched_.end(), [](const auto& a, const auto& b) {
-    return key_less(a.first, b.first) || (a.first == b.first && a.second < b.second);
-  });
+  std::sort(touched_.begin(), touched_.end());
   for (size_t t = 0; t < touched_.size(); ++t) {
     const ChunkKey& k = touched_[t].first;
     if (t > 0 && touched_[t - 1].first == k) continue;  // the first has the lowest index
@@ -487,7 +481,7 @@ void MapDeformation::update_visible_now(PointMap* map, const MeasurementImage& m
         for (n.y = k.y - r; n.y <= k.y + r; ++n.y)
           for (n.z = k.z - r; n.z <= k.z + r; ++n.z) near_.push_back(n);
     }
-    std::sort(near_.begin(), near_.end(), key_less);
+    std::sort(near_.begin(), near_.end());
     near_.erase(std::unique(near_.begin(), near_.end()), near_.end());
     keys_.swap(near_);
     covered_spare_m_ = r * size - (margin - kPoseSlackM);
@@ -526,9 +520,7 @@ size_t MapDeformation::sweep_now(PointMap* map, const Eigen::Vector3d& camera_m,
       const Eigen::Vector3f centre = map->chunk_origin_m(k) + Eigen::Vector3f::Constant(half);
       by_distance.emplace_back((centre - cam).squaredNorm(), k);
     });
-    std::sort(by_distance.begin(), by_distance.end(), [](const auto& a, const auto& b) {
-      return a.first < b.first || (a.first == b.first && key_less(a.second, b.second));
-    });
+    std::sort(by_distance.begin(), by_distance.end());
     sweep_keys_.clear();
     for (const auto& e : by_distance) sweep_keys_.push_back(e.second);
     sweep_done_ = false;
@@ -553,7 +545,7 @@ size_t MapDeformation::bring_all_up_to_date(PointMap* map) {
     if (c.version != version_ || (!pending_.empty() && pending_.count(k))) keys_.push_back(k);
   });
   // In key order: the result does not depend on the hash table's.
-  std::sort(keys_.begin(), keys_.end(), key_less);
+  std::sort(keys_.begin(), keys_.end());
   size_t updated = 0;
   update_range(map, keys_.data(), keys_.size(), std::numeric_limits<size_t>::max(), false,
                &updated);
@@ -683,7 +675,7 @@ std::vector<ChunkKey> MapDeformation::pending_keys() const {
   std::vector<ChunkKey> keys;
   keys.reserve(pending_.size());
   for (const auto& kv : pending_) keys.push_back(kv.first);
-  std::sort(keys.begin(), keys.end(), key_less);
+  std::sort(keys.begin(), keys.end());
   return keys;
 }
 

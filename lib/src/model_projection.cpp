@@ -50,9 +50,7 @@ void frame_chunk_keys(const PointMap& map, const MeasurementImage& m, const Pose
       }
     }
   }
-  std::sort(keys->begin(), keys->end(), [](const ChunkKey& a, const ChunkKey& b) {
-    return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
-  });
+  std::sort(keys->begin(), keys->end());
   keys->erase(std::unique(keys->begin(), keys->end()), keys->end());
 }
 

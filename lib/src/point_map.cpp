@@ -87,9 +87,7 @@ std::vector<ChunkKey> PointMap::keys() const {
   std::vector<ChunkKey> k;
   k.reserve(chunks_.size());
   for (const auto& kv : chunks_) k.push_back(kv.first);
-  std::sort(k.begin(), k.end(), [](const ChunkKey& a, const ChunkKey& b) {
-    return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
-  });
+  std::sort(k.begin(), k.end());
   return k;
 }
 

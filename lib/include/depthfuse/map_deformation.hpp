@@ -87,8 +87,9 @@ class MapDeformation {
   // correction moved apart). A point of a stale chunk moves by motion(): position, normal and
   // information (R L R^T). One that then falls in another chunk goes there if that chunk is up to
   // date or new, otherwise (stale, or stored out of memory: set_stored_elsewhere()) into that
-  // chunk's pending buffer, applied when it is updated: no point moves twice. A chunk updated, or one that took points in, is dirty. Returns the points brought
-  // up to date (pending ones included).
+  // chunk's pending buffer, applied when it is updated: no point moves twice. A chunk updated, or
+  // one that took points in, is dirty. Returns the points brought up to date (pending ones
+  // included).
   size_t update(PointMap* map, const std::vector<ChunkKey>& keys);
   // Before a frame is registered at T_world_cam: the chunks it sees from there (frame_chunk_keys(),
   // sampled as fusion samples them) and those holding points within reach_m() of it, which may

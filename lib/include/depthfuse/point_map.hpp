@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdint>
+#include <tuple>
 #include <functional>
 #include <memory>
 #include <unordered_map>
@@ -17,6 +18,8 @@ struct ChunkKey {
   int32_t x = 0, y = 0, z = 0;
   bool operator==(const ChunkKey& o) const { return x == o.x && y == o.y && z == o.z; }
   bool operator!=(const ChunkKey& o) const { return !(*this == o); }
+  // x, then y, then z: the one order chunk keys are listed and sorted in.
+  bool operator<(const ChunkKey& o) const { return std::tie(x, y, z) < std::tie(o.x, o.y, o.z); }
 };
 
 struct ChunkKeyHash {

@@ -49,14 +49,7 @@ Status restore_deformation(ScanStore& store, MapDeformation* deformation) {
 }
 
 // The replacing map's chunks in key order (written after the file's).
-std::vector<ChunkKey> sorted_keys(const PointMap* map) {
-  if (!map) return {};
-  std::vector<ChunkKey> keys = map->keys();
-  std::sort(keys.begin(), keys.end(), [](const ChunkKey& a, const ChunkKey& b) {
-    return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
-  });
-  return keys;
-}
+std::vector<ChunkKey> sorted_keys(const PointMap* map) { return map ? map->keys() : std::vector<ChunkKey>{}; }
 
 }  // namespace
 

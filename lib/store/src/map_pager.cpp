@@ -21,9 +21,6 @@ namespace {
 // std::unordered_map node and bucket overhead per chunk, roughly.
 constexpr size_t kChunkOverheadBytes = sizeof(Chunk) + sizeof(ChunkKey) + 4 * sizeof(void*);
 
-bool key_less(const ChunkKey& a, const ChunkKey& b) {
-  return std::tie(a.x, a.y, a.z) < std::tie(b.x, b.y, b.z);
-}
 
 }  // namespace
 
@@ -113,7 +110,7 @@ Status MapPager::prepare(PointMap* map, const Frame& frame, const Pose& T, uint3
       }
     }
   }
-  std::sort(keys_.begin(), keys_.end(), key_less);
+  std::sort(keys_.begin(), keys_.end());
   keys_.erase(std::unique(keys_.begin(), keys_.end()), keys_.end());
   if (!keys_.empty())
     DF_LOG(Pager, Debug) << "frame " << frame_id << ": loading " << keys_.size()
@@ -138,7 +135,7 @@ Status MapPager::load_around(PointMap* map, const Eigen::Vector3f& p, double rad
         for (k.z = c.z - reach; k.z <= c.z + reach; ++k.z)
           if (evicted_.count(k) && distance_to_chunk_m(*map, k, p) <= radius) keys_.push_back(k);
   }
-  std::sort(keys_.begin(), keys_.end(), key_less);
+  std::sort(keys_.begin(), keys_.end());
   return finish_call(load(map, keys_, frame_id));
 }
 
@@ -227,7 +224,7 @@ Status MapPager::update(PointMap* map, const Eigen::Vector3f& camera_position_m,
     if (!keys_.empty()) {
       DF_LOG(Pager, Debug) << "frame " << frame_id << ": " << keys_.size()
                             << " chunks made at evicted keys are joined with their stored points";
-      std::sort(keys_.begin(), keys_.end(), key_less);
+      std::sort(keys_.begin(), keys_.end());
       if (Status st = load(map, keys_, frame_id); !st) return finish_call(st);
     }
   }
