@@ -254,7 +254,8 @@ Result<std::vector<Pose>> initial_poses(Input& in, std::vector<Frame>& frames,
     frames = std::move(kept);
     *pose_note = "tracked from the first frame: " + std::to_string(tracked->uncertain) +
                  " frames uncertain, " + std::to_string(tracked->lost) + " lost (left out), " +
-                 std::to_string(tracked->relocalised) + " relocalised; " +
+                 std::to_string(tracked->relocalised) + " relocalised (" +
+                 std::to_string(tracked->ambiguous) + " places refused as ambiguous); " +
                  std::to_string(tracked->keyframes) + " keyframes, " +
                  std::to_string(tracked->loops) + " loop closures (the poses moved " +
                  std::to_string(tracked->corrections) + " times)";

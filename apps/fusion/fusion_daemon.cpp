@@ -383,6 +383,7 @@ void FusionDaemon::count_tracking(const FrameReport& rep) {
   tracking_state_ = static_cast<int>(state);
   if (rep.relocalised) ++relocalisations_;
   relocalisations_refused_ += rep.relocalisations_out_of_reach;
+  relocalisations_ambiguous_ += rep.relocalisations_ambiguous;
   switch (state) {
     case TrackingState::kTracked: ++frames_tracked_; break;
     case TrackingState::kUncertain: ++frames_uncertain_; break;
@@ -526,6 +527,9 @@ void FusionDaemon::publish_heartbeat() {
     // Places found for a lost frame that the camera cannot have got to in the time lost.
     daemon::add_counter(&hb, "relocalisations_refused",
                         static_cast<double>(relocalisations_refused_.load()));
+    // Places found for a lost frame that another mapped place fits as well (a twin room).
+    daemon::add_counter(&hb, "relocalisations_ambiguous",
+                        static_cast<double>(relocalisations_ambiguous_.load()));
     daemon::add_counter(&hb, "sequence_restarts", static_cast<double>(counters_.sequence_restarts));
     daemon::add_counter(&hb, "pose_hints_refused", static_cast<double>(counters_.pose_hints_refused));
     for (const auto& [counter, value] : sink_counters_) daemon::add_counter(&hb, counter, value);

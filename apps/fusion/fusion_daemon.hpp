@@ -108,7 +108,7 @@ class FusionDaemon {
   // Frames by the tracking state the worker gave them, and the last one's state.
   std::atomic<int64_t> frames_tracked_{0}, frames_uncertain_{0}, frames_lost_tracking_{0};
   std::atomic<int64_t> relocalisations_{0};
-  std::atomic<int64_t> relocalisations_refused_{0};
+  std::atomic<int64_t> relocalisations_refused_{0}, relocalisations_ambiguous_{0};
   std::atomic<int64_t> graph_keyframes_{0}, graph_loops_{0}, graph_corrections_{0};
   std::atomic<int64_t> loop_candidates_{0}, loops_gated_{0}, loops_rejected_{0};
   std::atomic<double> last_correction_mm_{0.0};

@@ -225,6 +225,7 @@ Result<TrackedSequence> track_sequence(const std::vector<Frame>& frames,
     DF_LOG(Tracking, Debug) << "frame " << i << " " << to_string(r.tracking)
                             << (r.tracking_retried ? " retried" : "")
                             << (r.relocalised ? " relocalised" : "")
+                            << (r.relocalisations_ambiguous > 0 ? " ambiguous" : "")
                             << (outcome->keyframe ? " keyframe" : "")
                             << " fitness " << r.registration.fitness << " model_fitness "
                             << r.registration.model_fitness << " rmse_mm "
@@ -239,6 +240,7 @@ Result<TrackedSequence> track_sequence(const std::vector<Frame>& frames,
     if (r.tracking == TrackingState::kUncertain) ++out.uncertain;
     if (!r.fused()) ++out.lost;
     if (r.relocalised) ++out.relocalised;
+    out.ambiguous += static_cast<size_t>(r.relocalisations_ambiguous);
     if (progress) progress("tracking", i + 1, frames.size());
   }
   if (const std::optional<AppliedCorrection> last = path.finish()) corrected(*last);

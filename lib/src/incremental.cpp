@@ -61,18 +61,26 @@ bool IncrementalReconstructor::reachable(const Pose& T_world_cam, int64_t utime)
 
 void IncrementalReconstructor::relocalise(int64_t utime, FrameReport* report) {
   const auto t0 = Clock::now();
-  const auto found = relocaliser_->search(scratch_, [&](const Pose& candidate) {
-    const RegistrationResult r = registrar_.track(scratch_, *map_, candidate);
-    frames_since_model_ = 1;  // the track rendered the map around the candidate
-    if (!relocalisation_verified(r, config_.registration, model_fitness_reference())) return false;
-    if (!reachable(r.T_world_cam, utime)) {
-      ++report->relocalisations_out_of_reach;
-      return false;
-    }
-    report->registration = r;
-    return true;
-  });
+  std::optional<RegistrationResult> first;  // the place search returns the first one verified
+  bool ambiguous = false;
+  const auto found = relocaliser_->search(
+      scratch_,
+      [&](const Pose& candidate) -> std::optional<Pose> {
+        const RegistrationResult r = registrar_.track(scratch_, *map_, candidate);
+        frames_since_model_ = 1;  // the track rendered the map around the candidate
+        if (!relocalisation_verified(r, config_.registration, model_fitness_reference()))
+          return std::nullopt;
+        if (!reachable(r.T_world_cam, utime)) {
+          ++report->relocalisations_out_of_reach;
+          return std::nullopt;
+        }
+        if (!first) first = r;
+        return r.T_world_cam;
+      },
+      &ambiguous);
+  if (ambiguous) ++report->relocalisations_ambiguous;
   if (found) {
+    report->registration = *first;
     report->registered = true;
     report->tracking = TrackingState::kTracked;
     report->relocalised = true;

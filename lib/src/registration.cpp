@@ -201,12 +201,12 @@ CameraIntrinsics model_intrinsics(const CameraIntrinsics& K, int factor) {
 }  // namespace
 
 void Registrar::render_model(const MeasurementImage& m, const PointMap& map, const Pose& T_world_cam,
-                             double band_m, double max_corr_m) {
+                             double band_m, double max_corr_m, int downsample) {
   ModelProjection& proj = *projection_;
   proj.set_threads(config_.threads);
   // The map is only read; the projection's chunk pointers are non-const for fusion's sake.
   proj.select_chunks(const_cast<PointMap&>(map), m, T_world_cam, static_cast<float>(max_corr_m) + 0.05f);
-  proj.render_surface(T_world_cam, model_intrinsics(m.intrinsics, config_.model_downsample),
+  proj.render_surface(T_world_cam, model_intrinsics(m.intrinsics, downsample),
                       static_cast<float>(band_m), &view_);
   if (proj.rendered_points() == 0) view_.clear();
 }
@@ -435,7 +435,8 @@ size_t Registrar::min_pairs(int level) const {
 
 RegistrationResult Registrar::refine(const MeasurementImage& m, const PointMap& map,
                                      const Pose& T_world_cam_initial) {
-  render_model(m, map, T_world_cam_initial, config_.model_band_m, config_.max_correspondence_m);
+  render_model(m, map, T_world_cam_initial, config_.model_band_m, config_.max_correspondence_m,
+               config_.model_downsample);
   return refine(m, view_, T_world_cam_initial);
 }
 
@@ -449,7 +450,7 @@ RegistrationResult Registrar::track(const MeasurementImage& m, const PointMap& m
                                     const Pose& T_world_cam_initial, const MotionPrior& prior) {
   const int levels = std::max(1, config_.tracking_levels);
   render_model(m, map, T_world_cam_initial, config_.tracking_model_band_m,
-               config_.max_correspondence_m * (1 << (levels - 1)));
+               config_.max_correspondence_m * (1 << (levels - 1)), config_.tracking_model_downsample);
   return track(m, view_, T_world_cam_initial, prior);
 }
 
@@ -470,7 +471,7 @@ RegistrationResult Registrar::track(const MeasurementImage& m, const PointMap& m
   // every level: associations go through the rendered camera whatever the current estimate.
   const int levels = std::max(1, config_.tracking_levels);
   render_model(m, map, T_world_cam_initial, config_.tracking_model_band_m,
-               config_.max_correspondence_m * (1 << (levels - 1)));
+               config_.max_correspondence_m * (1 << (levels - 1)), config_.tracking_model_downsample);
   return coarse_to_fine(m, view_, T_world_cam_initial, hold_for(T_world_cam_held));
 }
 

@@ -15,8 +15,11 @@
 #include <numeric>
 #include <optional>
 
+#include "depthfuse/base/log.hpp"
 #include "depthfuse/scan_graph.hpp"
 #include "thumbnail.hpp"
+
+DF_LOG_CATEGORY(Relocalisation)
 
 namespace depthfuse {
 
@@ -153,10 +156,6 @@ std::optional<Pose> align_by_features(const KeyframeCloud& source, const Keyfram
   return sample_consensus(s, fs, t, ft, config, seed);
 }
 
-namespace {
-
-}  // namespace
-
 struct Relocaliser::Keyframe {
   Pose T_world_cam;
   uint32_t frame_id = 0;
@@ -246,8 +245,36 @@ void Relocaliser::frame_tracked(const MeasurementImage& m, const Pose& T_world_c
   keyframes_.erase(keyframes_.begin() + static_cast<std::ptrdiff_t>(drop));
 }
 
-std::optional<Pose> Relocaliser::search(const MeasurementImage& m,
-                                        const std::function<bool(const Pose&)>& verify) {
+struct Relocaliser::FrameCloud {
+  bool made = false;
+  Cloud::Ptr cloud;
+  Features::Ptr features;
+};
+
+std::optional<Pose> Relocaliser::try_keyframe(Keyframe& k, const MeasurementImage& m,
+                                              FrameCloud* frame, const Verify& verify,
+                                              unsigned seed) {
+  // The keyframe's own pose first: a camera back near a keyframe is within ICP's reach from
+  // there, and that costs one track; sample consensus is for a camera further off.
+  if (std::optional<Pose> T = verify(k.T_world_cam)) return T;
+  if (!frame->made) {
+    frame->made = true;
+    frame->cloud = downsample(m, config_);
+    if (frame->cloud->size() >= kMinPoints)
+      frame->features = describe(&frame->cloud, config_.feature_radius_m);
+  }
+  if (frame->cloud->size() < kMinPoints) return std::nullopt;
+  if (!k.features) k.features = describe(&k.cloud, config_.feature_radius_m);
+  if (k.cloud->size() < kMinPoints) return std::nullopt;
+  const std::optional<Pose> T_kf_cam =
+      sample_consensus(frame->cloud, frame->features, k.cloud, k.features, config_, seed);
+  if (!T_kf_cam) return std::nullopt;
+  return verify(k.T_world_cam * *T_kf_cam);
+}
+
+std::optional<Pose> Relocaliser::search(const MeasurementImage& m, const Verify& verify,
+                                        bool* ambiguous) {
+  *ambiguous = false;
   if (!config_.enabled || keyframes_.empty()) return std::nullopt;
   const int attempt = lost_frames_++;
   const int every = std::max(1, config_.every_n_lost_frames);
@@ -261,34 +288,44 @@ std::optional<Pose> Relocaliser::search(const MeasurementImage& m,
   std::iota(ranked.begin(), ranked.end(), 0);
   std::stable_sort(ranked.begin(), ranked.end(), [&](size_t a, size_t b) { return score[a] > score[b]; });
 
-  Cloud::Ptr cloud;  // the frame's points and features, made once the first keyframe needs them
-  Features::Ptr features;
+  FrameCloud frame;
+  const unsigned seed = static_cast<unsigned>(attempt) + 1u;
   // Every other try goes to the best-ranked keyframe, the others down the ranking: the thumbnail
   // is usually right, but not always.
   const size_t n = ranked.size();
   const size_t tries = std::min<size_t>(std::max(1, config_.candidates_per_frame), n);
-  for (size_t t = 0; t < tries; ++t) {
+  std::optional<Pose> found;
+  size_t found_rank = 0;
+  for (size_t t = 0; t < tries && !found; ++t) {
     const size_t a = static_cast<size_t>(round) * tries + t;
-    const size_t rank = a % 2 == 0 || n == 1 ? 0 : 1 + (a / 2) % (n - 1);
-    Keyframe& k = *keyframes_[ranked[rank]];
-    // The keyframe's own pose first: a camera back near a keyframe is within ICP's reach from
-    // there, and that costs one track; sample consensus is for a camera further off.
-    if (verify(k.T_world_cam)) return k.T_world_cam;
-    if (!cloud) {
-      cloud = downsample(m, config_);
-      if (cloud->size() < kMinPoints) return std::nullopt;
-      features = describe(&cloud, config_.feature_radius_m);
-      if (cloud->size() < kMinPoints) return std::nullopt;
-    }
-    if (!k.features) k.features = describe(&k.cloud, config_.feature_radius_m);
-    if (k.cloud->size() < kMinPoints) continue;
-    const std::optional<Pose> T_kf_cam = sample_consensus(cloud, features, k.cloud, k.features,
-                                                          config_, static_cast<unsigned>(attempt) + 1u);
-    if (!T_kf_cam) continue;
-    const Pose T_world_cam = k.T_world_cam * *T_kf_cam;
-    if (verify(T_world_cam)) return T_world_cam;
+    found_rank = a % 2 == 0 || n == 1 ? 0 : 1 + (a / 2) % (n - 1);
+    found = try_keyframe(*keyframes_[ranked[found_rank]], m, &frame, verify, seed);
   }
-  return std::nullopt;
+  if (!found) return std::nullopt;
+  DF_LOG(Relocalisation, Debug) << "found at " << found->translation().transpose() << " by keyframe "
+                                << keyframes_[ranked[found_rank]]->frame_id << " (rank " << found_rank
+                                << " of " << n << ")";
+
+  // A place is believed when it is the only one that fits. Rivals are the keyframes most alike
+  // the frame that stand somewhere else: one that is verified too, away from the place found,
+  // means the view fits both (look-alike rooms), and either may be wrong.
+  int rivals = 0;
+  for (size_t r = 0; r < n && rivals < config_.ambiguity_rivals; ++r) {
+    Keyframe& k = *keyframes_[ranked[r]];
+    if (r == found_rank ||
+        (k.T_world_cam.translation() - found->translation()).norm() <= config_.ambiguity_m)
+      continue;
+    ++rivals;
+    const std::optional<Pose> rival = try_keyframe(k, m, &frame, verify, seed);
+    DF_LOG(Relocalisation, Debug) << "rival keyframe " << k.frame_id << " at "
+                                  << k.T_world_cam.translation().transpose() << ": "
+                                  << (rival ? "verified" : "not verified");
+    if (rival && (rival->translation() - found->translation()).norm() > config_.ambiguity_m) {
+      *ambiguous = true;
+      return std::nullopt;
+    }
+  }
+  return found;
 }
 
 }  // namespace depthfuse

@@ -49,10 +49,13 @@ class Relocaliser {
   // For a lost frame: where the camera is, or nothing. At most candidates_per_frame keyframes are
   // tried, on every every_n_lost_frames-th lost frame in a row. Keyframes are ranked by how alike
   // their depth thumbnails are to this frame's; the best is tried on every other attempt, the
-  // others in turn. For a keyframe, two candidate poses go to `verify` (tracking against the map):
-  // the keyframe's own, then the keyframe's pose times the FPFH sample-consensus alignment of the
-  // frame's points to the keyframe's. The first that `verify` accepts is returned.
-  std::optional<Pose> search(const MeasurementImage& m, const std::function<bool(const Pose&)>& verify);
+  // others in turn. For a keyframe, two candidate poses go to `verify` (tracking against the map;
+  // the pose it tracked to, or nothing): the keyframe's own, then the keyframe's pose times the
+  // FPFH sample-consensus alignment of the frame's points to the keyframe's. The first place
+  // verified is returned only if none of up to ambiguity_rivals other keyframes, the most alike
+  // first, is verified too more than ambiguity_m from it; `*ambiguous` says it was refused so.
+  using Verify = std::function<std::optional<Pose>(const Pose& candidate)>;
+  std::optional<Pose> search(const MeasurementImage& m, const Verify& verify, bool* ambiguous);
 
   void clear();
   size_t keyframe_count() const { return keyframes_.size(); }
@@ -64,6 +67,11 @@ class Relocaliser {
   struct Keyframe;
   std::unique_ptr<Keyframe> make_keyframe(const MeasurementImage& m, const Pose& T_world_cam,
                                           uint32_t frame_id) const;
+  // The frame's points and features for sample consensus, made once per search.
+  struct FrameCloud;
+  // Where the frame is by keyframe k (its pose, then sample consensus), as verified, or nothing.
+  std::optional<Pose> try_keyframe(Keyframe& k, const MeasurementImage& m, FrameCloud* frame,
+                                   const Verify& verify, unsigned seed);
   RelocalisationConfig config_;
   std::vector<std::unique_ptr<Keyframe>> keyframes_;
   int lost_frames_ = 0;  // in a row, since the last tracked frame

@@ -60,6 +60,8 @@ void expect_config_eq(const AppConfig& a, const AppConfig& b) {
   EXPECT_EQ(ra.registration.degenerate_ratio, rb.registration.degenerate_ratio);
   EXPECT_EQ(ra.registration.model_band_m, rb.registration.model_band_m);
   EXPECT_EQ(ra.registration.tracking_model_band_m, rb.registration.tracking_model_band_m);
+  EXPECT_EQ(ra.registration.model_downsample, rb.registration.model_downsample);
+  EXPECT_EQ(ra.registration.tracking_model_downsample, rb.registration.tracking_model_downsample);
   EXPECT_EQ(ra.registration.tracking_levels, rb.registration.tracking_levels);
   EXPECT_EQ(ra.registration.tracking_retry_fitness, rb.registration.tracking_retry_fitness);
   EXPECT_EQ(ra.registration.tracking_degenerate_ratio, rb.registration.tracking_degenerate_ratio);
@@ -84,6 +86,8 @@ void expect_config_eq(const AppConfig& a, const AppConfig& b) {
   EXPECT_EQ(la.sac_inlier_fraction, lb.sac_inlier_fraction);
   EXPECT_EQ(la.max_speed_m_s, lb.max_speed_m_s);
   EXPECT_EQ(la.max_turn_deg_s, lb.max_turn_deg_s);
+  EXPECT_EQ(la.ambiguity_rivals, lb.ambiguity_rivals);
+  EXPECT_EQ(la.ambiguity_m, lb.ambiguity_m);
   EXPECT_EQ(ra.pipeline.method, rb.pipeline.method);
   EXPECT_EQ(ra.pipeline.outer_iterations, rb.pipeline.outer_iterations);
   EXPECT_EQ(ra.pipeline.converged_translation_m, rb.pipeline.converged_translation_m);

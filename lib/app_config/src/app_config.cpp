@@ -120,6 +120,7 @@ void read_registration(TableReader& r, RegistrationConfig* g) {
   r.read("model_band_m", &g->model_band_m, positive());
   r.read("tracking_model_band_m", &g->tracking_model_band_m, positive());
   r.read("model_downsample", &g->model_downsample, closed(1, 8));
+  r.read("tracking_model_downsample", &g->tracking_model_downsample, closed(1, 8));
   r.read("threads", &g->threads, closed(1, 2));
   r.read("tracking_levels", &g->tracking_levels, closed(1, 8));  // pixel steps grow as 2^level
   r.read("tracking_iterations_per_level", &g->tracking_iterations_per_level, non_negative());
@@ -155,6 +156,8 @@ void read_relocalisation(TableReader& r, RelocalisationConfig* c) {
   r.read("sac_inlier_fraction", &c->sac_inlier_fraction, closed(0.0, 1.0));
   r.read("max_speed_m_s", &c->max_speed_m_s, positive());
   r.read("max_turn_deg_s", &c->max_turn_deg_s, positive());
+  r.read("ambiguity_rivals", &c->ambiguity_rivals, closed(0, 1000));
+  r.read("ambiguity_m", &c->ambiguity_m, positive());
   r.reject_unknown();
 }
 

@@ -81,6 +81,7 @@ struct TrackedSequence {
   std::vector<TrackingState> state;    // one per frame
   size_t uncertain = 0, lost = 0;      // frames in those states
   size_t relocalised = 0;              // frames found among the keyframes after a loss
+  size_t ambiguous = 0;                // places found for them and refused: another fits too
   size_t keyframes = 0, loops = 0;     // the pose graph's
   size_t corrections = 0;              // loop closures that moved the poses
 };

@@ -78,6 +78,10 @@ struct RegistrationConfig {
   double tracking_model_band_m = 0.1;
   // The model is rendered this many times coarser than the depth camera (1 = full resolution).
   int model_downsample = 1;
+  // The same for tracking. Each map point covers one model pixel, and the map keeps a surface at
+  // the density of the view that first saw it: a camera walking towards a wall it saw from across
+  // the room sees it through a model with holes, and finds pairs for a fraction of its samples.
+  int tracking_model_downsample = 2;
   int threads = 2;                           // 1 or 2: model rendering and ICP in two halves
   // Tracking without a pose hint: coarse-to-fine levels (subsample 4, 2, 1 ...), iterations each.
   int tracking_levels = 3;
@@ -155,6 +159,12 @@ struct RelocalisationConfig {
   // a repeated shelf) is refused while the loss is short, rather than fused into.
   double max_speed_m_s = 1.5;
   double max_turn_deg_s = 180.0;
+  // A place found is believed only when it is the one place that fits: up to ambiguity_rivals
+  // other keyframes, the most alike first, are tried too, and if one of them is verified more than
+  // ambiguity_m from the place found (also within reach), the frame could be in either (twin
+  // rooms, a repeated shelf) and stays lost. 0 rivals: the first place verified is taken.
+  int ambiguity_rivals = 3;
+  double ambiguity_m = 0.5;
 };
 
 // Keyframes, the pose graph and loop closure (frames tracked without pose hints; see ScanGraph in

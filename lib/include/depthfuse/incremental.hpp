@@ -30,6 +30,9 @@ struct FrameReport {
   // Places the search found and ICP verified that the camera cannot have got to since the last
   // frame fused (RelocalisationConfig::max_speed_m_s): refused.
   int relocalisations_out_of_reach = 0;
+  // A place found that another keyframe's place fits as well (RelocalisationConfig::ambiguity_m):
+  // refused, the frame stays lost.
+  int relocalisations_ambiguous = 0;
   // Without a pose hint, how far the tracked pose can be trusted (classify_tracking()); with one,
   // tracked if its ICP converged, else uncertain (the hint is fused). A lost frame is not fused.
   TrackingState tracking = TrackingState::kTracked;

@@ -138,10 +138,11 @@ class Registrar {
   void forget_photometric_reference();
 
  private:
-  // Projects the map around the frame's measurements into the camera at T_world_cam: view_, the
-  // consensus surface of the points within band_m behind the front-most, for pairs up to max_corr_m.
+  // Projects the map around the frame's measurements into the camera at T_world_cam, `downsample`
+  // times coarser: view_, the consensus surface of the points within band_m behind the front-most,
+  // for pairs up to max_corr_m.
   void render_model(const MeasurementImage& m, const PointMap& map, const Pose& T_world_cam,
-                    double band_m, double max_corr_m);
+                    double band_m, double max_corr_m, int downsample);
   // Where the directions ICP cannot determine are held: at `anchor` (nullptr: their current
   // value), below `degenerate_ratio` (see solve_step() in registration.cpp); or, with a motion
   // prior, none are held: the prior's normal equations join the depth's.
