@@ -155,15 +155,21 @@ std::optional<GraphCorrection> LoopCloser::process(const GraphSnapshot& s, size_
       }
       stats_.loops = loops_.size();
       double moved_m = 0, turned_deg = 0;
+      size_t most_moved = 0;
       for (size_t i = 0; i < poses.size(); ++i) {
-        moved_m = std::max(moved_m, (r->T_world_node[i].translation() - poses[i].translation()).norm());
+        const double d = (r->T_world_node[i].translation() - poses[i].translation()).norm();
+        if (d > moved_m) {
+          moved_m = d;
+          most_moved = i;
+        }
         turned_deg = std::max(turned_deg, rotation_between_deg(r->T_world_node[i], poses[i]));
       }
       if (moved_m >= kMinCorrectionM || turned_deg >= kMinCorrectionDeg) {
         correction = GraphCorrection{std::move(r->T_world_node), loops_};
         DF_LOG(LoopClosure, Info) << "loop closed at keyframe " << s.keyframes.size() - 1 << ": "
                                   << loops_.size() << " loops, keyframes moved up to "
-                                  << moved_m * 1e3 << " mm, " << turned_deg << " deg";
+                                  << moved_m * 1e3 << " mm (keyframe " << most_moved << "), "
+                                  << turned_deg << " deg";
       }
     }
   }

@@ -300,6 +300,10 @@ Result<PoseGraphResult> optimise_pose_graph(const std::vector<Pose>& T_world_nod
     DF_LOG(PoseGraph, Debug) << "round " << round << ": " << *iterations << " iterations, "
                              << result.loops_rejected << " loops rejected so far";
     if (!rejected) break;
+    // The next round starts again from the initial poses, not from this solution: a direction
+    // that no edge left in use sees gets no step (solver_options()) and would stay where the
+    // rejected loops pulled it, so that a wrong loop, rejected, would still bend the map.
+    states = NodeStates(T_world_node_initial);
   }
   result.final_cost = cost(edges, result.edge_used, result.edge_chi2, options.loop_loss_scale);
   result.T_world_node.reserve(states.size());

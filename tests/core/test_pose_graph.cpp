@@ -187,6 +187,23 @@ TEST(PoseGraph, WrongLoopAloneIsRejectedAndThePosesStayTheOdometrys) {
   expect_poses_near(r->T_world_node, g.T_world_initial, 1e-4, 1e-5);
 }
 
+// Where the odometry was blind, a wrong loop pulls the nodes beyond it along the blind direction
+// before it is rejected; nothing pulls them back (a direction no edge sees gets no step), so the
+// solution without it must start again from the initial poses, or the rejected loop bends the map.
+TEST(PoseGraph, ARejectedLoopLeavesNoTraceWhereTheOdometryWasBlind) {
+  for (const double blind_x : {0.0, 1e-6}) {
+    SCOPED_TRACE("information along the blind edge's x: " + std::to_string(blind_x));
+    Graph g = drifted_square(blind_x);
+    // Across the square, off by 1 m along the blind direction and 0.5 m across it.
+    g.edges.push_back(loop_edge(g.T_world_truth, 3, 11, translation(1.0, 0.5, 0)));
+    const Result<PoseGraphResult> r = optimise_pose_graph(g.T_world_initial, g.edges);
+    ASSERT_TRUE(r.is_ok()) << r.status().to_string();
+    EXPECT_FALSE(r->edge_used.back());
+    EXPECT_EQ(r->loops_rejected, 1u);
+    expect_poses_near(r->T_world_node, g.T_world_initial, 1e-4, 1e-5);
+  }
+}
+
 // One edge, node 0 fixed, node 1 started `offset` (in the measurement's frame) away from where the
 // edge puts it; the information is blind along the unit direction `blind` of the translation.
 void check_blind_direction(const Eigen::Vector3d& blind) {
