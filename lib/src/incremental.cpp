@@ -261,11 +261,12 @@ std::optional<MotionPrior> IncrementalReconstructor::motion_prior(
   Vector6d sigma;
   for (int k = 0; k < 6; ++k)
     sigma(k) = std::max(k < 3 ? min_rad : c.motion_prior_min_m, std::sqrt(motion_error_sq_(k)));
-  // The prediction is the last step stretched to this frame's time: after dropped frames its error
-  // grows with the stretch.
+  // The prediction is the last step stretched to this frame's time. After dropped frames its error
+  // grows as a constant-velocity model's does, with the square of the stretch: the error of the
+  // velocity times the time, and the acceleration's half its square.
   const double period = static_cast<double>(fused_last_->utime - fused_before_last_->utime);
   const double stretch = period > 0 ? static_cast<double>(utime - fused_last_->utime) / period : 1.0;
-  sigma *= std::max(1.0, stretch);
+  sigma *= std::max(1.0, stretch * stretch);
   MotionPrior prior;
   prior.T_world_cam = *prediction;
   prior.information = sigma.cwiseAbs2().cwiseInverse().asDiagonal();
@@ -308,7 +309,16 @@ std::optional<CameraVelocity> IncrementalReconstructor::camera_velocity_through_
 }
 
 std::optional<Pose> IncrementalReconstructor::constant_velocity_prediction(int64_t utime) const {
-  if (!camera_velocity_through_next(utime)) return std::nullopt;  // the gap rule
+  // Across a gap of up to a second (frames dropped while the fusion thread waited), the last
+  // step still says more about where a hand-held camera went than that it stood still, which is
+  // what tracking without a prediction holds in the directions the view does not constrain; the
+  // motion prior widens with the gap (motion_prior()). Beyond a second it says little.
+  constexpr int64_t kMaxPredictionGapUs = 1000000;
+  if (!fused_before_last_ || !fused_last_) return std::nullopt;
+  const int64_t between_us = fused_last_->utime - fused_before_last_->utime;
+  if (between_us <= 0 || between_us > kMaxPredictionGapUs || utime <= fused_last_->utime ||
+      utime - fused_last_->utime > kMaxPredictionGapUs)
+    return std::nullopt;
   const double scale = static_cast<double>(utime - fused_last_->utime) /
                        static_cast<double>(fused_last_->utime - fused_before_last_->utime);
   // The step between the last two, as a rotation about one axis and a translation, stretched to

@@ -372,7 +372,7 @@ TEST(Incremental, ARollingShutterIsUndoneWithTheMotionOfTheLastTwoFrames) {
 }
 
 // A live stream's prediction: the last two frames' motion (a step along and about the camera's
-// axes), scaled to the time since the last, none before two frames or across a gap.
+// axes), scaled to the time since the last, none before two frames or across a gap of a second.
 TEST(Incremental, TheLivePredictionScalesTheLastMotionToTheFramesTime) {
   const Pose T0 = test::look_at({2.4 * std::cos(0.6), 2.4 * std::sin(0.6), 1.4}, {0.3, 0.3, 0.3});
   Pose step = Pose::Identity();
@@ -409,7 +409,9 @@ TEST(Incremental, TheLivePredictionScalesTheLastMotionToTheFramesTime) {
     EXPECT_LT(Eigen::AngleAxisd(p->linear().transpose() * expected.linear()).angle(), 1e-6)
         << periods;
   }
-  EXPECT_FALSE(rec.constant_velocity_prediction(kStartUs + kPeriodUs + 300000)) << "a gap";
+  // Across frames dropped for 0.3 s it still predicts; beyond a second nothing is predicted.
+  EXPECT_TRUE(rec.constant_velocity_prediction(kStartUs + kPeriodUs + 300000)) << "dropped frames";
+  EXPECT_FALSE(rec.constant_velocity_prediction(kStartUs + kPeriodUs + 1100000)) << "a gap";
   EXPECT_FALSE(rec.constant_velocity_prediction(kStartUs + kPeriodUs)) << "not after the last";
 }
 

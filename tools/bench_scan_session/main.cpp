@@ -3,17 +3,25 @@
 // deformation, periodic checkpoints) over a long scan without LCM and without pacing, so that what
 // the scan costs per frame and in memory as it grows shows without the capture's rendering sharing
 // the cores. The source loops (reopened at its end) until --frames frames were processed.
+// With --rate, frames come as from the capture daemon instead: a thread of their own reads them at
+// that rate into a queue of --queue frames that drops the oldest when full, as the daemon's does,
+// so that slow frames cost dropped frames (and the loop closer's thread the time it has live).
 //
 //   bench_scan_session --source 'synthetic:furnished?frames=6000&hints=0' --frames 6000
 //   bench_scan_session --source tum:DIR --frames 4000 --config budget.toml
+//   bench_scan_session --source 'synthetic:furnished?frames=36000&hints=0' --frames 36000 --rate 30
 #include <unistd.h>
 
 #include <chrono>
+#include <condition_variable>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <deque>
 #include <fstream>
+#include <mutex>
 #include <string>
+#include <thread>
 
 #include "depthfuse/app_config.hpp"
 #include "depthfuse/base/log.hpp"
@@ -35,19 +43,24 @@ struct Options {
   long frames = 6000;
   long report_every = 300;
   double slow_ms = 0;  // a line for every frame slower than this (0: none)
+  double rate_hz = 0;  // frames paced at this rate through a dropping queue (0: every frame, unpaced)
+  size_t queue = 4;
 };
 
 void usage() {
   std::printf(
       "usage: bench_scan_session --source SPEC [--frames N] [--report-every N] [--config FILE]\n"
-      "                          [--dir DIR] [--log-level SPEC] [--slow-ms MS]\n"
+      "                          [--dir DIR] [--log-level SPEC] [--slow-ms MS] [--rate HZ [--queue N]]\n"
       "  --source SPEC       a frame source as depthfuse-capture takes it (looped)\n"
       "  --frames N          frames to process in all (default 6000)\n"
       "  --report-every N    a line of figures every N frames (default 300)\n"
       "  --config FILE       the appliance's TOML (e.g. another fusion_daemon.memory_budget_mib)\n"
       "  --dir DIR           where the scan file goes (default: a temporary directory, removed)\n"
       "  --log-level SPEC    as the daemons take it, e.g. info,Pager=debug\n"
-      "  --slow-ms MS        a line for every frame slower than MS: where its time went\n");
+      "  --slow-ms MS        a line for every frame slower than MS: where its time went\n"
+      "  --rate HZ           frames come at HZ, as from the capture daemon, into a queue that drops\n"
+      "                      the oldest when full (default: every frame, as fast as it is fused)\n"
+      "  --queue N           that queue's frames (default 4, the daemon's queue_capacity_frames)\n");
 }
 
 bool parse(int argc, char** argv, Options* o) {
@@ -65,6 +78,8 @@ bool parse(int argc, char** argv, Options* o) {
     else if (a == "--frames") o->frames = std::atol(v);
     else if (a == "--report-every") o->report_every = std::atol(v);
     else if (a == "--slow-ms") o->slow_ms = std::atof(v);
+    else if (a == "--rate") o->rate_hz = std::atof(v);
+    else if (a == "--queue") o->queue = static_cast<size_t>(std::max(1L, std::atol(v)));
     else if (a == "--log-level") {
       std::string error;
       if (!log::configure(v, &error)) {
@@ -109,21 +124,103 @@ struct Block {
 };
 
 void report(long frame, double wall_s, const Block& b, const fusiond::ScanSession& session,
-            const fusiond::CheckpointSink& sink) {
+            const fusiond::CheckpointSink& sink, uint64_t dropped) {
   const IncrementalReconstructor& r = *session.reconstructor();
   const MapDeformation& d = r.deformation();
   const FramePath& path = *session.path();
   std::printf("%6ld %7.1f %7.1f %7.1f %7.1f %9zu %7.1f %7.1f %7.0f %7.0f %7.0f %5u %5u %8zu %9llu "
-              "%5zu %5zu\n",
+              "%5zu %5zu %7llu\n",
               frame, wall_s, b.frames ? b.seconds * 1e3 / b.frames : 0.0, b.max_ms, rss_mib(),
               r.map().point_count(), counter(sink, "resident_mib"),
               d.memory_bytes() / (1024.0 * 1024.0), counter(sink, "chunks_evicted_total"),
               counter(sink, "chunks_loaded_total"), counter(sink, "chunk_load_collisions"), d.version(),
               d.oldest_version(), d.pending_points(),
               static_cast<unsigned long long>(d.stats().points_merged),
-              path.graph().keyframes().size(), path.graph().loops().size());
+              path.graph().keyframes().size(), path.graph().loops().size(),
+              static_cast<unsigned long long>(dropped));
   std::fflush(stdout);
 }
+
+// The frames to fuse, from the source reopened at its end: read on demand, or (rate_hz > 0) read
+// by a thread of their own at that rate into a queue that drops the oldest frame when full.
+class FrameFeed {
+ public:
+  FrameFeed(const Options& o, const AppConfig& config) : options_(o), config_(config) {
+    if (o.rate_hz > 0) thread_ = std::thread([this] { produce(); });
+  }
+  ~FrameFeed() {
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      stop_ = true;
+    }
+    cv_.notify_all();
+    if (thread_.joinable()) thread_.join();
+  }
+  FrameFeed(const FrameFeed&) = delete;
+  FrameFeed& operator=(const FrameFeed&) = delete;
+
+  Result<Frame> next() {
+    if (options_.rate_hz <= 0) return read();
+    std::unique_lock<std::mutex> lock(mu_);
+    cv_.wait(lock, [&] { return !queue_.empty() || !error_; });
+    if (queue_.empty()) return error_;
+    Frame f = std::move(queue_.front());
+    queue_.pop_front();
+    return f;
+  }
+  uint64_t dropped() const {
+    std::lock_guard<std::mutex> lock(mu_);
+    return dropped_;
+  }
+
+ private:
+  Result<Frame> read() {
+    for (;;) {
+      if (!source_) {
+        auto opened = open_frame_source(options_.source, config_);
+        if (!opened) return opened.status();
+        source_ = std::move(opened).value();
+      }
+      auto frame = source_->next();
+      if (frame.status().code() != StatusCode::kEndOfStream) return frame;
+      source_.reset();  // the loop's next lap
+    }
+  }
+  void produce() {
+    const auto period = std::chrono::duration_cast<Clock::duration>(
+        std::chrono::duration<double>(1.0 / options_.rate_hz));
+    Clock::time_point due = Clock::now();
+    for (;;) {
+      Result<Frame> frame = read();
+      std::this_thread::sleep_until(due);
+      due += period;
+      std::lock_guard<std::mutex> lock(mu_);
+      if (stop_) return;
+      if (!frame) {
+        error_ = frame.status();
+        cv_.notify_all();
+        return;
+      }
+      if (queue_.size() >= options_.queue) {
+        queue_.pop_front();
+        ++dropped_;
+      }
+      queue_.push_back(std::move(frame).value());
+      cv_.notify_all();
+    }
+  }
+
+  const Options& options_;
+  const AppConfig& config_;
+  std::unique_ptr<FrameSource> source_;
+  mutable std::mutex mu_;
+  std::condition_variable cv_;
+  std::deque<Frame> queue_;
+  Status error_;
+  uint64_t dropped_ = 0;
+  bool stop_ = false;
+  std::thread thread_;
+};
 
 int run(const Options& o) {
   AppConfig config;
@@ -153,25 +250,13 @@ int run(const Options& o) {
   std::printf("# %s, %ld frames, config %s, scan file %s/scan.dfscan\n", o.source.c_str(), o.frames,
               o.config_path.empty() ? "(defaults)" : o.config_path.c_str(), dir.c_str());
   std::printf("# frame  wall_s ms_mean  ms_max rss_mib map_points res_mib def_mib evicted  loaded "
-              "collide  vers  oldest  pending    merged   kfs loops\n");
+              "collide  vers  oldest  pending    merged   kfs loops dropped\n");
   const Clock::time_point t0 = Clock::now();
-  std::unique_ptr<FrameSource> source;
   Block block;
   fusiond::FusionProgress progress;
+  FrameFeed feed(o, config);
   for (long n = 0; n < o.frames;) {
-    if (!source) {
-      auto opened = open_frame_source(o.source, config);
-      if (!opened) {
-        DF_LOG(BenchScanSession, Error) << opened.status().to_string();
-        return 2;
-      }
-      source = std::move(opened).value();
-    }
-    auto frame = source->next();
-    if (frame.status().code() == StatusCode::kEndOfStream) {
-      source.reset();  // the loop's next lap
-      continue;
-    }
+    auto frame = feed.next();
     if (!frame) {
       DF_LOG(BenchScanSession, Error) << frame.status().to_string();
       return 1;
@@ -206,7 +291,8 @@ int run(const Options& o) {
                   outcome->keyframe ? "keyframe " : "", r.fused() ? "" : "lost");
     }
     if (++n % o.report_every == 0 || n == o.frames) {
-      report(n, std::chrono::duration<double>(Clock::now() - t0).count(), block, session, sink);
+      report(n, std::chrono::duration<double>(Clock::now() - t0).count(), block, session, sink,
+             feed.dropped());
       block = {};
     }
   }
