@@ -261,12 +261,13 @@ std::optional<MotionPrior> IncrementalReconstructor::motion_prior(
   Vector6d sigma;
   for (int k = 0; k < 6; ++k)
     sigma(k) = std::max(k < 3 ? min_rad : c.motion_prior_min_m, std::sqrt(motion_error_sq_(k)));
-  // The prediction is the last step stretched to this frame's time. After dropped frames its error
-  // grows as a constant-velocity model's does, with the square of the stretch: the error of the
-  // velocity times the time, and the acceleration's half its square.
+  // The prediction is the last step stretched to this frame's time: after dropped frames its error
+  // grows with the stretch. Not with its square: after a gap of a second the prior would then say
+  // nothing of a direction the view does not see (metres), and neither would the odometry edge the
+  // pose graph gets, so that any loop's weak pull along that direction would move the keyframe.
   const double period = static_cast<double>(fused_last_->utime - fused_before_last_->utime);
   const double stretch = period > 0 ? static_cast<double>(utime - fused_last_->utime) / period : 1.0;
-  sigma *= std::max(1.0, stretch * stretch);
+  sigma *= std::max(1.0, stretch);
   MotionPrior prior;
   prior.T_world_cam = *prediction;
   prior.information = sigma.cwiseAbs2().cwiseInverse().asDiagonal();

@@ -70,8 +70,10 @@ s = json.loads(sys.stdin.readline())
 d = [d for d in s["daemons"] if d["name"] == "fusion"]
 c = d[0].get("counters", {}) if d else {}
 print(*[d[0][k] for k in ("frames_out", "output_rate_hz", "point_count", "frames_in", "frames_dropped")],
-      *[int(c.get(k, 0)) for k in ("keyframes", "loop_closures")]) if d else print("- - - - - - -")' ||
-    echo "- - - - - - -"
+      *[int(c.get(k, 0)) for k in ("keyframes", "loop_closures", "frames_lost_tracking",
+                                    "chunks_evicted_total")],
+      "%.1f" % c.get("last_correction_mm", 0)) if d else print("- - - - - - - - - -")' ||
+    echo "- - - - - - - - - -"
 }
 
 if [ -n "$seconds" ]; then
@@ -82,7 +84,7 @@ else
   for ((m = 0; m <= minutes; m++)); do report_s+=($((m * 60))); done
   echo "# $bin, $source at 30 Hz (looping) for $minutes min"
 fi
-echo "# second  fusion_rss_mib  frames_fused  fused_rate_hz  map_points  frames_received  frames_dropped  keyframes  loop_closures"
+echo "# second  fusion_rss_mib  frames_fused  fused_rate_hz  map_points  frames_received  frames_dropped  keyframes  loop_closures  frames_lost_tracking  chunks_evicted  last_correction_mm"
 last=0
 for t in "${report_s[@]}"; do
   sleep $((t - last))
