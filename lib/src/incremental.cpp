@@ -295,18 +295,21 @@ Vector6d IncrementalReconstructor::initial_motion_error_sq() const {
   return v;
 }
 
+bool IncrementalReconstructor::last_step_spans(int64_t utime, int64_t max_gap_us) const {
+  if (!fused_before_last_ || !fused_last_) return false;
+  const int64_t between_us = fused_last_->utime - fused_before_last_->utime;
+  return between_us > 0 && between_us <= max_gap_us && utime > fused_last_->utime &&
+         utime - fused_last_->utime <= max_gap_us;
+}
+
 std::optional<CameraVelocity> IncrementalReconstructor::camera_velocity_through_next(
     int64_t utime) const {
-  if (!fused_before_last_ || !fused_last_) return std::nullopt;
   // Across a gap (frames lost, dropped by a full queue, or a stride of more than a few frames) the
-  // last motion says little about this frame's.
-  constexpr int64_t kMaxGapUs = 200000;
-  const int64_t between_us = fused_last_->utime - fused_before_last_->utime;
-  if (between_us <= 0 || between_us > kMaxGapUs || utime <= fused_last_->utime ||
-      utime - fused_last_->utime > kMaxGapUs)
-    return std::nullopt;
+  // last motion says little about the shear of this frame's readout.
+  if (!last_step_spans(utime, 200000)) return std::nullopt;
   return camera_velocity(fused_before_last_->T_world_cam, fused_last_->T_world_cam,
-                         static_cast<double>(between_us) * 1e-6, fused_last_->T_world_cam);
+                         static_cast<double>(fused_last_->utime - fused_before_last_->utime) * 1e-6,
+                         fused_last_->T_world_cam);
 }
 
 std::optional<Pose> IncrementalReconstructor::constant_velocity_prediction(int64_t utime) const {
@@ -314,12 +317,7 @@ std::optional<Pose> IncrementalReconstructor::constant_velocity_prediction(int64
   // step still says more about where a hand-held camera went than that it stood still, which is
   // what tracking without a prediction holds in the directions the view does not constrain; the
   // motion prior widens with the gap (motion_prior()). Beyond a second it says little.
-  constexpr int64_t kMaxPredictionGapUs = 1000000;
-  if (!fused_before_last_ || !fused_last_) return std::nullopt;
-  const int64_t between_us = fused_last_->utime - fused_before_last_->utime;
-  if (between_us <= 0 || between_us > kMaxPredictionGapUs || utime <= fused_last_->utime ||
-      utime - fused_last_->utime > kMaxPredictionGapUs)
-    return std::nullopt;
+  if (!last_step_spans(utime, 1000000)) return std::nullopt;
   const double scale = static_cast<double>(utime - fused_last_->utime) /
                        static_cast<double>(fused_last_->utime - fused_before_last_->utime);
   // The step between the last two, as a rotation about one axis and a translation, stretched to

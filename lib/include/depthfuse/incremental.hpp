@@ -182,6 +182,9 @@ class IncrementalReconstructor {
   // Where the camera's motion was steady: the velocity of the last two frames fused, in the
   // camera frame of the last; none across a gap of more than a few frame periods.
   std::optional<CameraVelocity> camera_velocity_through_next(int64_t utime) const;
+  // Whether there are two frames fused, at most max_gap_us apart, and `utime` is after the last by
+  // at most that: the last step may be carried on to it.
+  bool last_step_spans(int64_t utime, int64_t max_gap_us) const;
   void fused_at(int64_t utime, const Pose& T_world_cam);
 
   ReconstructionConfig config_;

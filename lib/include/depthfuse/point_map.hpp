@@ -3,9 +3,9 @@
 #pragma once
 
 #include <cstdint>
-#include <tuple>
 #include <functional>
 #include <memory>
+#include <tuple>
 #include <unordered_map>
 #include <vector>
 
