@@ -112,15 +112,21 @@ double counter(const fusiond::CheckpointSink& sink, const std::string& name) {
   return 0.0;
 }
 
-// Figures since the last report.
+// Figures since the last report: the frame's whole time and where it went.
 struct Block {
   long frames = 0;
   double seconds = 0, max_ms = 0;
-  void add(double s) {
+  double registration_ms = 0, fusion_ms = 0, store_ms = 0, checkpoint_ms = 0;
+  void add(double s, const FrameReport& r, double process_s) {
     ++frames;
     seconds += s;
     if (s * 1e3 > max_ms) max_ms = s * 1e3;
+    registration_ms += r.registration_ms;
+    fusion_ms += r.prefilter_ms + r.deformation_ms + r.fusion_ms;
+    store_ms += process_s * 1e3 - (r.prefilter_ms + r.registration_ms + r.deformation_ms + r.fusion_ms);
+    checkpoint_ms += (s - process_s) * 1e3;
   }
+  double mean(double total) const { return frames ? total / frames : 0.0; }
 };
 
 void report(long frame, double wall_s, const Block& b, const fusiond::ScanSession& session,
@@ -128,9 +134,10 @@ void report(long frame, double wall_s, const Block& b, const fusiond::ScanSessio
   const IncrementalReconstructor& r = *session.reconstructor();
   const MapDeformation& d = r.deformation();
   const FramePath& path = *session.path();
-  std::printf("%6ld %7.1f %7.1f %7.1f %7.1f %9zu %7.1f %7.1f %7.0f %7.0f %7.0f %5u %5u %8zu %9llu "
-              "%5zu %5zu %7llu\n",
-              frame, wall_s, b.frames ? b.seconds * 1e3 / b.frames : 0.0, b.max_ms, rss_mib(),
+  std::printf("%6ld %7.1f %7.1f %7.1f %7.1f %7.1f %8.1f %7.1f %7.1f %9zu %7.1f %7.1f %7.0f %7.0f "
+              "%7.0f %5u %5u %8zu %9llu %5zu %5zu %7llu\n",
+              frame, wall_s, b.mean(b.seconds * 1e3), b.max_ms, b.mean(b.registration_ms),
+              b.mean(b.fusion_ms), b.mean(b.store_ms), b.mean(b.checkpoint_ms), rss_mib(),
               r.map().point_count(), counter(sink, "resident_mib"),
               d.memory_bytes() / (1024.0 * 1024.0), counter(sink, "chunks_evicted_total"),
               counter(sink, "chunks_loaded_total"), counter(sink, "chunk_load_collisions"), d.version(),
@@ -249,7 +256,7 @@ int run(const Options& o) {
   }
   std::printf("# %s, %ld frames, config %s, scan file %s/scan.dfscan\n", o.source.c_str(), o.frames,
               o.config_path.empty() ? "(defaults)" : o.config_path.c_str(), dir.c_str());
-  std::printf("# frame  wall_s ms_mean  ms_max rss_mib map_points res_mib def_mib evicted  loaded "
+  std::printf("# frame  wall_s ms_mean  ms_max  reg_ms fuse_ms store_ms ckpt_ms rss_mib map_points res_mib def_mib evicted  loaded "
               "collide  vers  oldest  pending    merged   kfs loops dropped\n");
   const Clock::time_point t0 = Clock::now();
   Block block;
@@ -277,7 +284,7 @@ int run(const Options& o) {
         DF_LOG(BenchScanSession, Warning) << "checkpoint: " << st.to_string();
     }
     const double frame_s = std::chrono::duration<double>(Clock::now() - f0).count();
-    block.add(frame_s);
+    block.add(frame_s, outcome->report, process_s);
     if (o.slow_ms > 0 && frame_s * 1e3 > o.slow_ms) {
       const FrameReport& r = outcome->report;
       const double in_process_ms =
