@@ -266,10 +266,18 @@ inline void exec_sql(const std::string& path, const std::string& sql) {
   sqlite3_close(db);
 }
 
+// SQL that turns a file of the current schema into what schema 6 wrote: every stored pose in the
+// world frame, no graph_keyframe columns, user_version 6.
+inline std::string as_schema_6_sql() {
+  return "DROP INDEX poses_in_world; DROP INDEX keyframes_in_world; "
+         "ALTER TABLE poses DROP COLUMN graph_keyframe; "
+         "ALTER TABLE keyframes DROP COLUMN graph_keyframe; PRAGMA user_version = 6;";
+}
+
 // SQL that turns a file of the current schema into what schema 5 wrote: chunk tables without the
 // version and checksum columns, no pose graph tables, user_version 5.
 inline std::string as_schema_5_sql() {
-  std::string sql;
+  std::string sql = as_schema_6_sql();
   for (const char* table : {"chunks", "chunk_staging"}) {
     const std::string owner = std::string(table) == "chunks" ? "checkpoint_id" : "staged_utime";
     const std::string t = table;

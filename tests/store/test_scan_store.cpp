@@ -6,6 +6,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <random>
 
 #include "depthfuse/store/blob_codec.hpp"
@@ -872,4 +873,172 @@ TEST(ScanStore, ANullChecksumInARowThatMustHaveOneIsDamage) {
       << out;
   EXPECT_EQ(run(cli + " inspect " + old, &out), 0) << out;
   EXPECT_NE(out.find("2 unchecked (written before schema 3"), std::string::npos) << out;
+}
+
+namespace {
+
+// A graph of keyframes at `frames`, placed at `T_world_kf`, as a checkpoint writes it.
+GraphCheckpoint graph_of(const std::vector<uint32_t>& frames, const std::vector<Pose>& T_world_kf,
+                         uint32_t version) {
+  GraphCheckpoint g;
+  for (size_t k = 0; k < frames.size(); ++k) {
+    GraphKeyframe kf;
+    kf.frame_id = frames[k];
+    kf.T_world_kf = T_world_kf[k];
+    kf.cloud = std::make_shared<const KeyframeCloud>();
+    g.graph.keyframes.push_back(kf);
+    if (k > 0) {
+      PoseGraphEdge odometry;
+      odometry.T_from_to = T_world_kf[k - 1].inverse() * T_world_kf[k];
+      g.graph.odometry.push_back(odometry);
+      g.graph.odometry_covariance.push_back(Matrix6d::Identity());
+    }
+  }
+  g.graph.version = version;
+  g.deformation.keyframe_first_frame = frames;
+  g.deformation.oldest_version = version;
+  g.deformation.T_world_kf = {T_world_kf};
+  g.deformation.max_motion_m = {0.0};
+  return g;
+}
+
+// The stored rows of the poses table, as bytes: frame id -> (pose blob, anchor, checksum).
+std::map<int64_t, std::string> pose_rows(const std::string& path) {
+  std::map<int64_t, std::string> rows;
+  sqlite3* db = nullptr;
+  EXPECT_EQ(sqlite3_open_v2(path.c_str(), &db, SQLITE_OPEN_READONLY, nullptr), SQLITE_OK);
+  sqlite3_stmt* st = nullptr;
+  EXPECT_EQ(sqlite3_prepare_v2(db, "SELECT frame_id, T_world_cam, quote(graph_keyframe), checksum "
+                                   "FROM poses;", -1, &st, nullptr),
+            SQLITE_OK);
+  while (sqlite3_step(st) == SQLITE_ROW) {
+    const auto* blob = static_cast<const char*>(sqlite3_column_blob(st, 1));
+    std::string row(blob, static_cast<size_t>(sqlite3_column_bytes(st, 1)));
+    row += "|" + std::string(reinterpret_cast<const char*>(sqlite3_column_text(st, 2))) + "|" +
+           std::to_string(sqlite3_column_int64(st, 3));
+    rows[sqlite3_column_int64(st, 0)] = row;
+  }
+  sqlite3_finalize(st);
+  sqlite3_close(db);
+  return rows;
+}
+
+double pose_error(const Pose& a, const Pose& b) { return (a.matrix() - b.matrix()).norm(); }
+
+}  // namespace
+
+// A loop closure moves keyframes all over the scan. The stored poses follow the graph's keyframes
+// (each relative to the keyframe of its segment), so a correction rewrites the graph's row, not
+// every pose row of the scan: that rewrite grew with the scan and held the file for longer at
+// every closure.
+TEST(ScanStore, ACorrectionMovesTheStoredPosesWithoutRewritingTheirRows) {
+  TempDir dir;
+  const std::string path = dir.file("anchored.db");
+  std::vector<Pose> W(22);
+  for (uint32_t f = 1; f <= 21; ++f) W[f] = some_pose(f * 0.1);
+  auto s = ScanStore::open(path, OpenMode::kCreate);
+  ASSERT_TRUE(s) << s.status().to_string();
+  auto checkpoint = [&](uint32_t first, uint32_t last, const std::vector<Pose>& fused,
+                        const std::vector<PoseCorrection>& corrections, const GraphCheckpoint& g) {
+    ASSERT_TRUE((*s)->begin_checkpoint());
+    std::vector<PoseRecord> poses;
+    for (uint32_t f = first; f <= last; ++f) {
+      PoseRecord p;
+      p.frame_id = f;
+      p.utime = f;
+      p.T_world_cam = fused[f];
+      poses.push_back(p);
+    }
+    ASSERT_TRUE((*s)->write_poses(poses, corrections, g.graph.keyframes));
+    ASSERT_TRUE((*s)->write_graph(g));
+    CheckpointInfo info;
+    info.last_frame_id = last;
+    info.frames_fused = last;
+    ASSERT_TRUE((*s)->commit_checkpoint(info));
+  };
+  // Frames 1..20, keyframes at frames 1 and 11.
+  checkpoint(1, 20, W, {}, graph_of({1, 11}, {W[1], W[11]}, 0));
+  const std::map<int64_t, std::string> before = pose_rows(path);
+  auto poses = (*s)->read_poses();
+  ASSERT_TRUE(poses) << poses.status().to_string();
+  ASSERT_EQ(poses->size(), 20u);
+  for (const PoseRecord& p : *poses) EXPECT_LT(pose_error(p.T_world_cam, W[p.frame_id]), 1e-12);
+
+  // A correction moves keyframe 1 (frames 11 on) by M; frame 21 is fused after it.
+  Pose M = Pose::Identity();
+  M.translation() = Eigen::Vector3d(0.0, 0.1, 0.0);
+  M.linear() = Eigen::AngleAxisd(0.02, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  PoseCorrection c;
+  c.correction.first_frame_id = {1, 11};
+  c.correction.motion = {Pose::Identity(), M};
+  c.before_frame = 21;
+  std::vector<Pose> fused = W;
+  fused[21] = M * W[21];
+  checkpoint(21, 21, fused, {c}, graph_of({1, 11}, {W[1], M * W[11]}, 1));
+
+  std::map<int64_t, std::string> after = pose_rows(path);
+  ASSERT_EQ(after.erase(21), 1u);
+  EXPECT_TRUE(after == before) << "a stored pose row was rewritten by the correction";
+  poses = (*s)->read_poses();
+  ASSERT_TRUE(poses) << poses.status().to_string();
+  ASSERT_EQ(poses->size(), 21u);
+  for (const PoseRecord& p : *poses) {
+    const Pose expected = p.frame_id < 11 ? W[p.frame_id] : Pose(M * W[p.frame_id]);
+    EXPECT_LT(pose_error(p.T_world_cam, expected), 1e-9) << "frame " << p.frame_id;
+  }
+  auto integrity = (*s)->integrity_check();
+  ASSERT_TRUE(integrity);
+  EXPECT_TRUE(integrity->ok()) << integrity->problems.front();
+}
+
+// A file of schema 6 stored every pose in the world frame and rewrote them at each correction.
+// Migrated, its rows are anchored by the next checkpoint, the correction applied to them first.
+TEST(ScanStore, ASchemaSixFileHasItsPosesAnchoredByTheNextCheckpoint) {
+  TempDir dir;
+  const std::string path = dir.file("v6.db");
+  std::vector<Pose> W(12);
+  for (uint32_t f = 1; f <= 11; ++f) W[f] = some_pose(f * 0.1);
+  {
+    auto s = ScanStore::open(path, OpenMode::kCreate);
+    ASSERT_TRUE(s);
+    ASSERT_TRUE((*s)->begin_checkpoint());
+    for (uint32_t f = 1; f <= 10; ++f) {
+      PoseRecord p;
+      p.frame_id = f;
+      p.T_world_cam = W[f];
+      ASSERT_TRUE((*s)->write_pose(p));
+    }
+    CheckpointInfo info;
+    info.last_frame_id = 10;
+    ASSERT_TRUE((*s)->commit_checkpoint(info));
+  }
+  test::exec_sql(path, test::as_schema_6_sql());
+  auto s = ScanStore::open(path, OpenMode::kReadWrite);
+  ASSERT_TRUE(s) << s.status().to_string();
+  EXPECT_EQ((*s)->open_report().found_schema_version, 6);
+  Pose M = Pose::Identity();
+  M.translation() = Eigen::Vector3d(0.2, 0.0, 0.0);
+  PoseCorrection c;
+  c.correction.first_frame_id = {1, 6};
+  c.correction.motion = {Pose::Identity(), M};
+  c.before_frame = 11;
+  ASSERT_TRUE((*s)->begin_checkpoint());
+  PoseRecord p;
+  p.frame_id = 11;
+  p.T_world_cam = M * W[11];
+  const GraphCheckpoint g = graph_of({1, 6}, {W[1], M * W[6]}, 1);
+  ASSERT_TRUE((*s)->write_poses({p}, {c}, g.graph.keyframes));
+  ASSERT_TRUE((*s)->write_graph(g));
+  CheckpointInfo info;
+  info.last_frame_id = 11;
+  ASSERT_TRUE((*s)->commit_checkpoint(info));
+  for (const auto& [frame, row] : pose_rows(path))
+    EXPECT_EQ(row.find("|NULL|"), std::string::npos) << "frame " << frame << " is not anchored";
+  auto poses = (*s)->read_poses();
+  ASSERT_TRUE(poses) << poses.status().to_string();
+  ASSERT_EQ(poses->size(), 11u);
+  for (const PoseRecord& r : *poses) {
+    const Pose expected = r.frame_id < 6 ? W[r.frame_id] : Pose(M * W[r.frame_id]);
+    EXPECT_LT(pose_error(r.T_world_cam, expected), 1e-9) << "frame " << r.frame_id;
+  }
 }

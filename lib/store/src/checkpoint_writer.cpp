@@ -96,8 +96,9 @@ void CheckpointWriter::write_loop() {
       auto body = [&]() -> Status {
         for (const EncodedChunk& c : encoded) DF_RETURN_IF_ERROR(store_->write_chunk(c));
         for (const ChunkKey& k : job.removed) DF_RETURN_IF_ERROR(store_->delete_chunk(k));
-        for (const PoseRecord& p : job.poses) DF_RETURN_IF_ERROR(store_->write_pose(p));
-        DF_RETURN_IF_ERROR(store_->correct_poses(job.corrections));
+        DF_RETURN_IF_ERROR(store_->write_poses(
+            job.poses, job.corrections,
+            job.graph ? job.graph->graph.keyframes : std::vector<GraphKeyframe>{}));
         if (job.graph) DF_RETURN_IF_ERROR(store_->write_graph(*job.graph));
         return Status::ok();
       };

@@ -483,8 +483,9 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
         }
       }
     }
-    for (const PoseRecord& p : pending_poses_) DF_RETURN_IF_ERROR(store.write_pose(p));
-    DF_RETURN_IF_ERROR(store.correct_poses(corrections_));
+    DF_RETURN_IF_ERROR(store.write_poses(
+        pending_poses_, corrections_,
+        graph_ && !graph_->empty() ? graph_->graph.keyframes : std::vector<GraphKeyframe>{}));
     if (graph_ && !graph_->empty()) DF_RETURN_IF_ERROR(store.write_graph(*graph_));
     return Status::ok();
   };

@@ -235,7 +235,37 @@ Status check_row_checksum(const sql::Row& row, int column, uint32_t computed, co
   return Status::ok();
 }
 
-Status ScanStore::Impl::keyframe_head_of(const sql::Row& row, Keyframe* k, bool* unchecked) {
+Result<PoseAnchor> read_anchor(const sql::Row& row, int column, const std::string& what) {
+  if (row.is_null(column)) return PoseAnchor();
+  const int64_t k = row.int64(column);
+  if (k < 0 || k > UINT32_MAX)
+    return corrupt(what + ": pose graph keyframe " + std::to_string(k) + " is out of range");
+  return PoseAnchor(static_cast<uint32_t>(k));
+}
+
+void bind_anchor(sql::Statement& st, int param, const PoseAnchor& anchor) {
+  if (anchor) st.bind(param, *anchor);
+  else st.bind_null(param);
+}
+
+uint32_t with_anchor(uint32_t checksum, const PoseAnchor& anchor) {
+  if (!anchor) return checksum;
+  return RowCrc().add(checksum).add(*anchor).value();
+}
+
+Status ScanStore::Impl::resolve_anchor(const PoseAnchor& anchor, const std::vector<Pose>& T_world_kf,
+                                       Pose* T, const std::string& what) const {
+  if (!anchor) return Status::ok();
+  if (*anchor >= T_world_kf.size())
+    return corrupt(what + ": relative to pose graph keyframe " + std::to_string(*anchor) +
+                   ", which the graph (" + std::to_string(T_world_kf.size()) +
+                   " keyframes) does not have");
+  *T = T_world_kf[*anchor] * *T;
+  return Status::ok();
+}
+
+Status ScanStore::Impl::keyframe_head_of(const sql::Row& row, const std::vector<Pose>& T_world_kf,
+                                         Keyframe* k, bool* unchecked) {
   const int64_t frame_id = row.int64(KeyframeCol::kFrameId);
   const std::string what = path + ": keyframe " + std::to_string(frame_id);
   if (frame_id < 1 || frame_id >= kAllFrames) return corrupt(what + ": the frame id is out of range");
@@ -244,12 +274,17 @@ Status ScanStore::Impl::keyframe_head_of(const sql::Row& row, Keyframe* k, bool*
   k->sensor_serial = row.text(KeyframeCol::kSensorSerial);
   k->intrinsics = read_intrinsics_columns(row, KeyframeCol::kWidth);
   if (!k->intrinsics.valid()) return corrupt(what + ": invalid intrinsics");
+  auto anchor = read_anchor(row, KeyframeCol::kAnchor, what);
+  if (!anchor) return anchor.status();
   const void* pose = row.blob(KeyframeCol::kPose);
   const size_t pose_size = row.blob_size(KeyframeCol::kPose);
   DF_RETURN_IF_ERROR(check_row_checksum(
       row, KeyframeCol::kChecksum,
-      keyframe_row_checksum(k->frame_id, k->utime, k->intrinsics, pose, pose_size), what, unchecked));
-  return decode_pose(pose, pose_size, what + " pose", &k->T_world_cam);
+      with_anchor(keyframe_row_checksum(k->frame_id, k->utime, k->intrinsics, pose, pose_size),
+                  *anchor),
+      what, unchecked));
+  DF_RETURN_IF_ERROR(decode_pose(pose, pose_size, what + " pose", &k->T_world_cam));
+  return resolve_anchor(*anchor, T_world_kf, &k->T_world_cam, what + " pose");
 }
 
 Result<CheckpointRecord> ScanStore::Impl::checkpoint_of(const sql::Row& row) {
@@ -316,23 +351,27 @@ void bind_intrinsics(sql::Statement& st, int first, const CameraIntrinsics& K) {
   st.bind(first + 4, K.cx).bind(first + 5, K.cy);
 }
 
-Result<PoseRecord> ScanStore::Impl::pose_of(const sql::Row& row, bool* checked) {
+Result<PoseRecord> ScanStore::Impl::pose_of(const sql::Row& row, const std::vector<Pose>& T_world_kf,
+                                            bool* checked) {
   PoseRecord p;
   const int64_t frame_id = row.int64(PoseCol::kFrameId);
   const std::string what = path + ": pose of frame " + std::to_string(frame_id);
   if (frame_id < 1 || frame_id >= kAllFrames)
     return corrupt(what + ": the frame id is out of range (1 to " + std::to_string(kAllFrames - 1) + ")");
   read_pose_columns(row, &p);
+  auto anchor = read_anchor(row, PoseCol::kAnchor, what);
+  if (!anchor) return anchor.status();
   bool unchecked = false;
   const void* pose = row.blob(PoseCol::kPose);
   const size_t pose_size = row.blob_size(PoseCol::kPose);
   // `checked` is set before a mismatch returns: a row with a wrong checksum still has one.
-  const Status sum = check_row_checksum(row, PoseCol::kChecksum,
-                                        pose_record_checksum(pose_fields(p), pose, pose_size), what,
-                                        &unchecked);
+  const Status sum = check_row_checksum(
+      row, PoseCol::kChecksum,
+      with_anchor(pose_record_checksum(pose_fields(p), pose, pose_size), *anchor), what, &unchecked);
   if (checked) *checked = !unchecked;
   DF_RETURN_IF_ERROR(sum);
   DF_RETURN_IF_ERROR(decode_pose(pose, pose_size, what, &p.T_world_cam));
+  DF_RETURN_IF_ERROR(resolve_anchor(*anchor, T_world_kf, &p.T_world_cam, what));
   return p;
 }
 

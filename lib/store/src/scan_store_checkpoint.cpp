@@ -107,43 +107,55 @@ Status ScanStore::write_pose(const PoseRecord& p) {
   if (p.frame_id == 0 || p.frame_id == kAllFrames)
     return invalid_argument(impl_->path + ": pose with frame id " + std::to_string(p.frame_id));
   DF_RETURN_IF_ERROR(impl_->require_writable("write_pose"));
-  return impl_->in_transaction("writing poses", [&]() -> Status {
-    auto st = impl_->db.prepare(std::string("INSERT OR REPLACE INTO poses (") + kPoseColumns +
-                                    ") VALUES (?, ?, ?, ?, ?, ?, ?, ?);",
-                                "writing the pose of frame " + std::to_string(p.frame_id));
-    if (!st) return st.status();
-    const std::vector<uint8_t> pose = encode_pose(p.T_world_cam);
-    st->bind(param(PoseCol::kFrameId), p.frame_id).bind(param(PoseCol::kUtime), p.utime);
-    st->bind_blob(param(PoseCol::kPose), pose).bind(param(PoseCol::kRegistered), p.registered ? 1 : 0);
-    st->bind(param(PoseCol::kFitness), p.fitness).bind(param(PoseCol::kRmse), p.rmse_m);
-    st->bind(param(PoseCol::kCorrespondences), p.correspondences);
-    st->bind(param(PoseCol::kChecksum), pose_record_checksum(pose_fields(p), pose.data(), pose.size()));
-    return st->run();
-  });
+  return impl_->in_transaction("writing poses", [&] { return impl_->write_pose_row(p, PoseAnchor()); });
+}
+
+Status ScanStore::Impl::write_pose_row(const PoseRecord& p, const PoseAnchor& anchor) {
+  auto st = db.prepare(std::string("INSERT OR REPLACE INTO poses (") + kPoseColumns +
+                           ") VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?);",
+                       "writing the pose of frame " + std::to_string(p.frame_id));
+  if (!st) return st.status();
+  const std::vector<uint8_t> pose = encode_pose(p.T_world_cam);
+  st->bind(param(PoseCol::kFrameId), p.frame_id).bind(param(PoseCol::kUtime), p.utime);
+  st->bind_blob(param(PoseCol::kPose), pose).bind(param(PoseCol::kRegistered), p.registered ? 1 : 0);
+  st->bind(param(PoseCol::kFitness), p.fitness).bind(param(PoseCol::kRmse), p.rmse_m);
+  st->bind(param(PoseCol::kCorrespondences), p.correspondences);
+  bind_anchor(*st, param(PoseCol::kAnchor), anchor);
+  st->bind(param(PoseCol::kChecksum),
+           with_anchor(pose_record_checksum(pose_fields(p), pose.data(), pose.size()), anchor));
+  return st->run();
 }
 
 Status ScanStore::update_keyframe_pose(uint32_t frame_id, const Pose& T_world_cam) {
   DF_RETURN_IF_ERROR(impl_->require_writable("update_keyframe_pose"));
-  const std::string ctx = "updating the pose of keyframe " + std::to_string(frame_id);
-  return impl_->in_transaction(ctx, [&]() -> Status {
-    // The checksum covers the values the pose is used with: read them back.
-    auto row = impl_->db.prepare(
-        "SELECT utime, width, height, fx, fy, cx, cy FROM keyframes WHERE frame_id = ?;", ctx);
-    if (!row) return row.status();
-    row->bind(1, frame_id);
-    auto found = row->step();
-    if (!found) return found.status();
-    if (!*found) return not_found(impl_->path + ": no keyframe " + std::to_string(frame_id));
-    const sql::Row r = row->row();
-    const CameraIntrinsics K = read_intrinsics_columns(r, 1);
-    const std::vector<uint8_t> pose = encode_pose(T_world_cam);
-    const uint32_t checksum = keyframe_row_checksum(frame_id, r.int64(0), K, pose.data(), pose.size());
-    auto st = impl_->db.prepare(
-        "UPDATE keyframes SET T_world_cam = ?, checksum = ? WHERE frame_id = ?;", ctx);
-    if (!st) return st.status();
-    st->bind_blob(1, pose).bind(2, checksum).bind(3, frame_id);
-    return st->run();
+  return impl_->in_transaction("updating the pose of keyframe " + std::to_string(frame_id), [&] {
+    return impl_->set_keyframe_pose(frame_id, T_world_cam, PoseAnchor());
   });
+}
+
+Status ScanStore::Impl::set_keyframe_pose(uint32_t frame_id, const Pose& T, const PoseAnchor& anchor) {
+  const std::string ctx = "updating the pose of keyframe " + std::to_string(frame_id);
+  // The checksum covers the values the pose is used with: read them back.
+  auto row = db.prepare("SELECT utime, width, height, fx, fy, cx, cy FROM keyframes WHERE frame_id = ?;",
+                        ctx);
+  if (!row) return row.status();
+  row->bind(1, frame_id);
+  auto found = row->step();
+  if (!found) return found.status();
+  if (!*found) return not_found(path + ": no keyframe " + std::to_string(frame_id));
+  const sql::Row r = row->row();
+  const CameraIntrinsics K = read_intrinsics_columns(r, 1);
+  const std::vector<uint8_t> pose = encode_pose(T);
+  const uint32_t checksum =
+      with_anchor(keyframe_row_checksum(frame_id, r.int64(0), K, pose.data(), pose.size()), anchor);
+  auto st = db.prepare("UPDATE keyframes SET T_world_cam = ?, graph_keyframe = ?, checksum = ? "
+                       "WHERE frame_id = ?;",
+                       ctx);
+  if (!st) return st.status();
+  st->bind_blob(1, pose);
+  bind_anchor(*st, 2, anchor);
+  st->bind(3, checksum).bind(4, frame_id);
+  return st->run();
 }
 
 Status ScanStore::write_keyframe(const Keyframe& k) {
@@ -159,13 +171,14 @@ Status ScanStore::write_keyframe(const Keyframe& k) {
   return impl_->in_transaction(ctx, [&]() -> Status {
     auto st = impl_->db.prepare(std::string("INSERT OR REPLACE INTO keyframes (") +
                                     kKeyframeColumns +
-                                    ", depth, color) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?);",
+                                    ", depth, color) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?);",
                                 ctx);
     if (!st) return st.status();
     st->bind(param(KeyframeCol::kFrameId), k.frame_id).bind(param(KeyframeCol::kUtime), k.utime);
     st->bind(param(KeyframeCol::kSensorSerial), k.sensor_serial);
     bind_intrinsics(*st, param(KeyframeCol::kWidth), k.intrinsics);
     st->bind_blob(param(KeyframeCol::kPose), pose);
+    st->bind_null(param(KeyframeCol::kAnchor));  // anchored by the checkpoint that holds it
     st->bind(param(KeyframeCol::kChecksum),
              keyframe_row_checksum(k.frame_id, k.utime, k.intrinsics, pose.data(), pose.size()));
     st->bind_blob(param(KeyframeCol::kDepth), depth);

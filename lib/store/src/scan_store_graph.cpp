@@ -256,19 +256,13 @@ Status ScanStore::write_graph(const GraphCheckpoint& g) {
   const std::string ctx = "writing the pose graph";
   const std::vector<GraphKeyframe>& keyframes = g.graph.keyframes;
   // Keyframes are appended: those stored are the graph's first ones, unless the graph was
-  // replaced (a refine), which the last stored keyframe's frame tells.
-  auto stored = s.db.query_int("SELECT COUNT(*) FROM graph_keyframes;", ctx);
+  // replaced.
+  auto stored = s.stored_graph_keyframes(keyframes);
   if (!stored) return stored.status();
-  size_t first = static_cast<size_t>(*stored);
-  if (first > 0) {
-    auto last = s.db.query_int(
-        "SELECT frame_id FROM graph_keyframes WHERE keyframe = " + std::to_string(first - 1) + ";",
-        ctx);
-    if (!last) return last.status();
-    if (first > keyframes.size() || keyframes[first - 1].frame_id != static_cast<uint32_t>(*last)) {
-      DF_RETURN_IF_ERROR(s.db.exec("DELETE FROM graph_keyframes;", ctx));
-      first = 0;
-    }
+  size_t first = *stored;
+  if (first == Impl::kReplaced) {
+    DF_RETURN_IF_ERROR(s.db.exec("DELETE FROM graph_keyframes;", ctx));
+    first = 0;
   }
   if (first < keyframes.size()) {
     auto ins = s.db.prepare(
@@ -317,49 +311,161 @@ Status ScanStore::write_graph(const GraphCheckpoint& g) {
   return row->run();
 }
 
-Status ScanStore::correct_poses(const std::vector<PoseCorrection>& corrections) {
+Result<size_t> ScanStore::Impl::stored_graph_keyframes(const std::vector<GraphKeyframe>& keyframes) {
+  const std::string ctx = "reading the pose graph's keyframes";
+  auto stored = db.query_int("SELECT COUNT(*) FROM graph_keyframes;", ctx);
+  if (!stored) return stored.status();
+  const auto n = static_cast<size_t>(*stored);
+  if (n == 0) return n;
+  // The last stored keyframe's frame tells a graph that continues the stored one.
+  auto last = db.query_int(
+      "SELECT frame_id FROM graph_keyframes WHERE keyframe = " + std::to_string(n - 1) + ";", ctx);
+  if (!last) return last.status();
+  if (n > keyframes.size() || keyframes[n - 1].frame_id != static_cast<uint32_t>(*last))
+    return kReplaced;
+  return n;
+}
+
+Status ScanStore::write_poses(const std::vector<PoseRecord>& fused,
+                              const std::vector<PoseCorrection>& corrections,
+                              const std::vector<GraphKeyframe>& keyframes) {
   Impl& s = *impl_;
-  if (!s.in_checkpoint) return invalid_argument(s.path + ": correct_poses outside a checkpoint");
-  if (corrections.empty()) return Status::ok();
-  uint32_t before = 0;
-  for (const PoseCorrection& c : corrections) before = std::max(before, c.before_frame);
+  if (!s.in_checkpoint) return invalid_argument(s.path + ": write_poses outside a checkpoint");
+  for (const PoseRecord& p : fused)
+    if (p.frame_id == 0 || p.frame_id == kAllFrames)
+      return invalid_argument(s.path + ": pose with frame id " + std::to_string(p.frame_id));
+  // A graph that replaces the stored one numbers its keyframes anew: the rows anchored to the
+  // stored one go back to the world frame first, as its keyframes have them.
+  auto stored = s.stored_graph_keyframes(keyframes);
+  if (!stored) return stored.status();
+  if (*stored == Impl::kReplaced) DF_RETURN_IF_ERROR(s.unanchor_poses());
+  // Before the first keyframe a correction moves nothing, and no keyframe anchors a pose.
+  const uint32_t first = keyframes.empty() ? kAllFrames : keyframes.front().frame_id;
   auto moved = [&](uint32_t frame_id, Pose T) {
     for (const PoseCorrection& c : corrections)
       if (frame_id < c.before_frame) T = c.correction.motion_of(frame_id) * T;
     return T;
   };
-  // Read first, then write: a statement still reading the table would see the rows it rewrote. A
-  // row that fails its checksum is left as it is (a new checksum would hide the damage from
-  // inspect), and does not stop the checkpoint.
+  // The keyframe whose segment holds the frame: the last one made at or before it.
+  auto anchor_of = [&](uint32_t frame_id) {
+    const auto it = std::upper_bound(
+        keyframes.begin(), keyframes.end(), frame_id,
+        [](uint32_t f, const GraphKeyframe& k) { return f < k.frame_id; });
+    return static_cast<uint32_t>(it - keyframes.begin()) - 1;
+  };
+  auto relative = [&](uint32_t frame_id, const Pose& T_world_cam) {
+    const uint32_t k = anchor_of(frame_id);
+    return std::make_pair(k, Pose(keyframes[k].T_world_kf.inverse() * moved(frame_id, T_world_cam)));
+  };
+  for (const PoseRecord& p : fused) {
+    if (p.frame_id < first) {
+      DF_RETURN_IF_ERROR(s.write_pose_row(p, PoseAnchor()));
+      continue;
+    }
+    PoseRecord r = p;
+    const auto [k, T_kf_cam] = relative(p.frame_id, p.T_world_cam);
+    r.T_world_cam = T_kf_cam;
+    DF_RETURN_IF_ERROR(s.write_pose_row(r, k));
+  }
+  if (keyframes.empty()) return Status::ok();
+  // The rows still in the world frame (keyframes written since the last checkpoint, rows of files
+  // written before schema 7 or by refine) by the partial indexes on them: read first, then
+  // written, as a statement still reading the table would see the rows it rewrote. A row that
+  // fails its checksum is left as it is (a new checksum would hide the damage from inspect), and
+  // does not stop the checkpoint.
+  const std::vector<Pose> none;
   std::vector<PoseRecord> poses;
   {
-    auto st = s.db.prepare(
-        std::string("SELECT ") + kPoseColumns + " FROM poses WHERE frame_id < ? ORDER BY frame_id;",
-        "reading the poses to correct");
+    auto st = s.db.prepare(std::string("SELECT ") + kPoseColumns +
+                               " FROM poses WHERE graph_keyframe IS NULL AND frame_id >= ? "
+                               "ORDER BY frame_id;",
+                           "reading the poses to anchor");
     if (!st) return st.status();
-    st->bind(1, before);
+    st->bind(1, first);
     for (const sql::Row& row : st->rows())
-      if (auto p = s.pose_of(row)) poses.push_back(*p);
+      if (auto p = s.pose_of(row, none)) poses.push_back(*p);
     DF_RETURN_IF_ERROR(st->status());
   }
   for (PoseRecord& p : poses) {
-    p.T_world_cam = moved(p.frame_id, p.T_world_cam);
-    DF_RETURN_IF_ERROR(write_pose(p));
+    const auto [k, T_kf_cam] = relative(p.frame_id, p.T_world_cam);
+    p.T_world_cam = T_kf_cam;
+    DF_RETURN_IF_ERROR(s.write_pose_row(p, k));
   }
-  std::vector<std::pair<uint32_t, Pose>> keyframes;
+  std::vector<std::pair<uint32_t, Pose>> keyframe_poses;
   {
-    auto st = s.db.prepare(
-        std::string("SELECT ") + kKeyframeColumns + " FROM keyframes WHERE frame_id < ?;",
-        "reading the keyframe poses to correct");
+    auto st = s.db.prepare(std::string("SELECT ") + kKeyframeColumns +
+                               " FROM keyframes WHERE graph_keyframe IS NULL AND frame_id >= ?;",
+                           "reading the keyframe poses to anchor");
     if (!st) return st.status();
-    st->bind(1, before);
+    st->bind(1, first);
     Keyframe k;
     for (const sql::Row& row : st->rows())
-      if (s.keyframe_head_of(row, &k)) keyframes.emplace_back(k.frame_id, k.T_world_cam);
+      if (s.keyframe_head_of(row, none, &k)) keyframe_poses.emplace_back(k.frame_id, k.T_world_cam);
     DF_RETURN_IF_ERROR(st->status());
   }
-  for (const auto& [id, T] : keyframes) DF_RETURN_IF_ERROR(update_keyframe_pose(id, moved(id, T)));
+  for (const auto& [id, T] : keyframe_poses) {
+    const auto [k, T_kf_cam] = relative(id, T);
+    DF_RETURN_IF_ERROR(s.set_keyframe_pose(id, T_kf_cam, k));
+  }
   return Status::ok();
+}
+
+Status ScanStore::Impl::unanchor_poses() {
+  auto anchors = graph_anchors();
+  if (!anchors) return anchors.status();
+  const std::vector<Pose> T_world_kf = **anchors;
+  std::vector<PoseRecord> poses;
+  {
+    auto st = db.prepare(std::string("SELECT ") + kPoseColumns +
+                             " FROM poses WHERE graph_keyframe IS NOT NULL;",
+                         "reading the anchored poses");
+    if (!st) return st.status();
+    for (const sql::Row& row : st->rows()) {
+      auto p = pose_of(row, T_world_kf);
+      if (!p) return p.status();  // not stored again in a frame that would hide the damage
+      poses.push_back(*p);
+    }
+    DF_RETURN_IF_ERROR(st->status());
+  }
+  for (const PoseRecord& p : poses) DF_RETURN_IF_ERROR(write_pose_row(p, PoseAnchor()));
+  std::vector<std::pair<uint32_t, Pose>> keyframe_poses;
+  {
+    auto st = db.prepare(std::string("SELECT ") + kKeyframeColumns +
+                             " FROM keyframes WHERE graph_keyframe IS NOT NULL;",
+                         "reading the anchored keyframe poses");
+    if (!st) return st.status();
+    Keyframe k;
+    for (const sql::Row& row : st->rows()) {
+      DF_RETURN_IF_ERROR(keyframe_head_of(row, T_world_kf, &k));
+      keyframe_poses.emplace_back(k.frame_id, k.T_world_cam);
+    }
+    DF_RETURN_IF_ERROR(st->status());
+  }
+  for (const auto& [id, T] : keyframe_poses) DF_RETURN_IF_ERROR(set_keyframe_pose(id, T, PoseAnchor()));
+  return Status::ok();
+}
+
+Result<const std::vector<Pose>*> ScanStore::Impl::graph_anchors() {
+  auto st = db.prepare("SELECT checkpoint_id, checksum FROM graph WHERE id = 1;",
+                       "reading the pose graph's row");
+  if (!st) return st.status();
+  auto found = st->step();
+  if (!found) return found.status();
+  if (!*found) {
+    anchors = Anchors{};
+    return &anchors.T_world_kf;
+  }
+  const int64_t id = st->row().int64(0), checksum = st->row().int64(1);
+  if (id == anchors.checkpoint_id && checksum == anchors.checksum) return &anchors.T_world_kf;
+  GraphCheckpoint g;
+  GraphSummary summary;
+  bool present = false;
+  DF_RETURN_IF_ERROR(read_graph_row(*this, &g, &summary, &present));
+  anchors.T_world_kf.clear();
+  for (const GraphKeyframe& k : g.graph.keyframes) anchors.T_world_kf.push_back(k.T_world_kf);
+  anchors.checkpoint_id = id;
+  anchors.checksum = checksum;
+  return &anchors.T_world_kf;
 }
 
 Result<std::optional<GraphSummary>> ScanStore::graph_summary() {

@@ -147,12 +147,16 @@ void check_pose_rows(ScanStore::Impl& s, IntegrityReport* rep) {
   // Every pose row: its checksum (schema 3), then its pose. Rows written before have none.
   auto poses_from = checksums_from(s, "poses", "frame_id", "pose_checksums_from_frame");
   if (!poses_from) rep->problems.push_back(poses_from.status().message());
+  // Anchored poses are checked against the graph row's keyframes (a damaged row is the graph's
+  // own problem, reported there; then none is resolved).
+  std::vector<Pose> anchors;
+  if (auto a = s.graph_anchors()) anchors = **a;
   check_rows(
       s.db, std::string("SELECT ") + kPoseColumns + " FROM poses ORDER BY frame_id;", "reading poses",
       [&](const sql::Row& row) -> Status {
         ++rep->poses_checked;
         bool checked = false;
-        auto p = s.pose_of(row, &checked);
+        auto p = s.pose_of(row, anchors, &checked);
         if (checked || !poses_from) return p.status();
         if (row.int64(0) < *poses_from) {
           ++rep->poses_unchecked;

@@ -90,19 +90,21 @@ static_assert(columns_named(kChunkColumns, ChunkCol::kCheckpointId, {{ChunkCol::
               {ChunkCol::kLastTouchedFrame, "last_touched_frame"}, {ChunkCol::kVersion, "version"},
               {ChunkCol::kChecksum, "checksum"}}));
 
-// A row of the poses table.
+// A row of the poses table. The pose is T_world_cam, or T_kf_cam where graph_keyframe names the
+// pose-graph keyframe it is relative to (PoseAnchor).
 inline constexpr const char* kPoseColumns =
-    "frame_id, utime, T_world_cam, registered, fitness, rmse_m, correspondences, checksum";
+    "frame_id, utime, T_world_cam, registered, fitness, rmse_m, correspondences, graph_keyframe, "
+    "checksum";
 struct PoseCol {
   enum : int {
-    kFrameId, kUtime, kPose, kRegistered, kFitness, kRmse, kCorrespondences, kChecksum
+    kFrameId, kUtime, kPose, kRegistered, kFitness, kRmse, kCorrespondences, kAnchor, kChecksum
   };
 };
 static_assert(columns_named(kPoseColumns, PoseCol::kChecksum + 1, {{PoseCol::kFrameId, "frame_id"},
               {PoseCol::kUtime, "utime"}, {PoseCol::kPose, "T_world_cam"},
               {PoseCol::kRegistered, "registered"}, {PoseCol::kFitness, "fitness"},
               {PoseCol::kRmse, "rmse_m"}, {PoseCol::kCorrespondences, "correspondences"},
-              {PoseCol::kChecksum, "checksum"}}));
+              {PoseCol::kAnchor, "graph_keyframe"}, {PoseCol::kChecksum, "checksum"}}));
 
 // A row of the checkpoints table.
 inline constexpr const char* kCheckpointColumns =
@@ -122,13 +124,14 @@ static_assert(columns_named(kCheckpointColumns, CheckpointCol::kChecksum + 1, {
               {CheckpointCol::kChecksum, "checksum"}}));
 
 // Of a keyframe up to its images; a row read with them has the depth and the colour next (or
-// expressions on them, such as their lengths).
+// expressions on them, such as their lengths). The pose is anchored as a pose row's is.
 inline constexpr const char* kKeyframeColumns =
-    "frame_id, utime, sensor_serial, width, height, fx, fy, cx, cy, T_world_cam, checksum";
+    "frame_id, utime, sensor_serial, width, height, fx, fy, cx, cy, T_world_cam, graph_keyframe, "
+    "checksum";
 struct KeyframeCol {
   enum : int {
-    kFrameId, kUtime, kSensorSerial, kWidth, kHeight, kFx, kFy, kCx, kCy, kPose, kChecksum, kDepth,
-    kColor
+    kFrameId, kUtime, kSensorSerial, kWidth, kHeight, kFx, kFy, kCx, kCy, kPose, kAnchor, kChecksum,
+    kDepth, kColor
   };
 };
 static_assert(columns_named(kKeyframeColumns, KeyframeCol::kDepth, {
@@ -136,7 +139,8 @@ static_assert(columns_named(kKeyframeColumns, KeyframeCol::kDepth, {
               {KeyframeCol::kSensorSerial, "sensor_serial"}, {KeyframeCol::kWidth, "width"},
               {KeyframeCol::kHeight, "height"}, {KeyframeCol::kFx, "fx"}, {KeyframeCol::kFy, "fy"},
               {KeyframeCol::kCx, "cx"}, {KeyframeCol::kCy, "cy"},
-              {KeyframeCol::kPose, "T_world_cam"}, {KeyframeCol::kChecksum, "checksum"}}));
+              {KeyframeCol::kPose, "T_world_cam"}, {KeyframeCol::kAnchor, "graph_keyframe"},
+              {KeyframeCol::kChecksum, "checksum"}}));
 
 // A row of the frame redo log.
 inline constexpr const char* kFrameLogColumns =
@@ -214,6 +218,19 @@ CameraIntrinsics read_intrinsics_columns(const sql::Row& row, int first);
 // And into six parameters starting at `first`.
 void bind_intrinsics(sql::Statement& st, int first, const CameraIntrinsics& K);
 
+// The frame a stored pose (poses, keyframes) is in: none, the world; k, the pose graph's keyframe
+// k as the file's graph row has it (the blob is then T_kf_cam). A checkpoint stores the poses of a
+// keyframe's segment relative to it, so that a correction, which moves the keyframes in the graph
+// row, moves every stored pose without rewriting its row: the rows a correction rewrote grew with
+// the scan, and the checkpoint after each closure held the file for longer and longer.
+using PoseAnchor = std::optional<uint32_t>;
+// The row's anchor column; a value out of range is damage.
+Result<PoseAnchor> read_anchor(const sql::Row& row, int column, const std::string& what);
+void bind_anchor(sql::Statement& st, int param, const PoseAnchor& anchor);
+// A row checksum that covers the row's anchor too: unchanged for a row in the world frame (as
+// rows were written before schema 7), else the CRC-32 of (that checksum u32, the keyframe u32).
+uint32_t with_anchor(uint32_t checksum, const PoseAnchor& anchor);
+
 // "<what>: checksum mismatch (stored 0x…, computed 0x…)"
 Status checksum_mismatch(const std::string& what, uint32_t stored, uint32_t computed);
 // The row's checksum column at `column` against `computed`; NULL (written before the column
@@ -240,6 +257,12 @@ struct ScanStore::Impl {
   uint32_t checkpoint_up_to_frame = kAllFrames;  // of the open checkpoint
   int read_depth = 0;              // nested begin_read calls
   EncodedChunk encoded;            // scratch for encoding chunks
+  // The graph row's keyframe poses that anchored poses are relative to, and the row they were
+  // read from (its checkpoint id and checksum: a new checkpoint replaces the row).
+  struct Anchors {
+    int64_t checkpoint_id = -1, checksum = -1;
+    std::vector<Pose> T_world_kf;
+  } anchors;
 
   explicit Impl(int level) : codec(level) {}
   ~Impl();
@@ -265,6 +288,10 @@ struct ScanStore::Impl {
   Result<std::optional<std::string>> get_meta(const std::string& key);
   Status write_chunk_row(bool staged, const ChunkKey& key, const Chunk& chunk, int64_t last_column);
   Status write_chunk_row(bool staged, const EncodedChunk& chunk, int64_t last_column);
+  // scan_store_checkpoint.cpp: a pose row, and a keyframe row's pose; `p.T_world_cam` and `T` are
+  // as stored (T_kf_cam when anchored).
+  Status write_pose_row(const PoseRecord& p, const PoseAnchor& anchor);
+  Status set_keyframe_pose(uint32_t frame_id, const Pose& T, const PoseAnchor& anchor);
   // Inside a checkpoint: deletes the staged copy of `key` unless a frame after the checkpoint's
   // touched it, and with `committed` the checkpointed row too.
   Status delete_chunk_rows(const ChunkKey& key, bool committed);
@@ -273,12 +300,27 @@ struct ScanStore::Impl {
   // The first columns of a keyframe row (kKeyframeColumns): everything but the images, the
   // intrinsics valid, the checksum checked (`*unchecked` when the row has none) and the pose
   // decoded.
-  Status keyframe_head_of(const sql::Row& row, Keyframe* out, bool* unchecked = nullptr);
+  // The pose is in the world frame (an anchored one resolved with `T_world_kf`, graph_anchors()).
+  Status keyframe_head_of(const sql::Row& row, const std::vector<Pose>& T_world_kf, Keyframe* out,
+                          bool* unchecked = nullptr);
   // A row of kCheckpointColumns, its checksum checked.
   Result<CheckpointRecord> checkpoint_of(const sql::Row& row);
   // A row of kPoseColumns: decoded and, when it has one, its checksum checked. `*checked` says
-  // whether it had one.
-  Result<PoseRecord> pose_of(const sql::Row& row, bool* checked = nullptr);
+  // whether it had one. The pose is in the world frame, as keyframe_head_of's.
+  Result<PoseRecord> pose_of(const sql::Row& row, const std::vector<Pose>& T_world_kf,
+                             bool* checked = nullptr);
+  // The keyframe poses of the graph row, which anchored poses are relative to (none without a
+  // graph); read again only when the row has changed. Inside the caller's read snapshot.
+  Result<const std::vector<Pose>*> graph_anchors();
+  // How many of the stored graph's keyframes `keyframes` begins with: all of them, or kReplaced
+  // when it does not continue the stored graph (scan_store_graph.cpp).
+  static constexpr size_t kReplaced = ~size_t{0};
+  Result<size_t> stored_graph_keyframes(const std::vector<GraphKeyframe>& keyframes);
+  // Every anchored pose back into the world frame, as the stored graph row has its keyframes.
+  Status unanchor_poses();
+  // An anchored pose (T_kf_cam) into the world frame; an anchor the graph does not have is damage.
+  Status resolve_anchor(const PoseAnchor& anchor, const std::vector<Pose>& T_world_kf, Pose* T,
+                        const std::string& what) const;
 
   // scan_store_open.cpp
   Status open_existing();

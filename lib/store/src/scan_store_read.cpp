@@ -140,15 +140,21 @@ Status ScanStore::for_each_chunk(const std::function<Status(const ChunkInfo&, Po
 
 Result<std::vector<PoseRecord>> ScanStore::read_poses() {
   Impl& s = *impl_;
+  ScopedRead snapshot(*this);  // the graph row the anchored poses are relative to, and the rows
+  auto anchors = s.graph_anchors();
+  if (!anchors) return anchors.status();
   return s.db.collect<PoseRecord>(
       std::string("SELECT ") + kPoseColumns + " FROM poses WHERE " + kCommittedFrames +
           " ORDER BY frame_id;",
-      "reading poses", [&](const sql::Row& row) { return s.pose_of(row); });
+      "reading poses", [&](const sql::Row& row) { return s.pose_of(row, **anchors); });
 }
 
 Result<std::vector<KeyframeInfo>> ScanStore::list_keyframes(
     const std::function<void(const Status&)>& on_damaged) {
   Impl& s = *impl_;
+  ScopedRead snapshot(*this);
+  auto anchors = s.graph_anchors();
+  if (!anchors) return anchors.status();
   auto st = s.db.prepare(std::string("SELECT ") + kKeyframeColumns +
                              ", length(depth), COALESCE(length(color), 0) FROM keyframes WHERE " +
                              kCommittedFrames + " ORDER BY frame_id;",
@@ -157,7 +163,7 @@ Result<std::vector<KeyframeInfo>> ScanStore::list_keyframes(
   std::vector<KeyframeInfo> out;
   for (const sql::Row& row : st->rows()) {
     Keyframe head;
-    Status checked = s.keyframe_head_of(row, &head);
+    Status checked = s.keyframe_head_of(row, **anchors, &head);
     if (!checked) {
       if (!on_damaged) return checked;
       on_damaged(checked);
@@ -180,6 +186,9 @@ Result<std::vector<KeyframeInfo>> ScanStore::list_keyframes(
 Result<Keyframe> ScanStore::read_keyframe(uint32_t frame_id) {
   Impl& s = *impl_;
   const std::string what = s.path + ": keyframe " + std::to_string(frame_id);
+  ScopedRead snapshot(*this);
+  auto anchors = s.graph_anchors();
+  if (!anchors) return anchors.status();
   auto st = s.db.prepare(std::string("SELECT ") + kKeyframeColumns +
                              ", depth, color FROM keyframes WHERE frame_id = ?;",
                          "reading keyframe " + std::to_string(frame_id));
@@ -190,7 +199,7 @@ Result<Keyframe> ScanStore::read_keyframe(uint32_t frame_id) {
   if (!*found) return not_found(s.path + ": no keyframe " + std::to_string(frame_id));
   const sql::Row row = st->row();
   Keyframe k;
-  DF_RETURN_IF_ERROR(s.keyframe_head_of(row, &k));
+  DF_RETURN_IF_ERROR(s.keyframe_head_of(row, **anchors, &k));
   DF_RETURN_IF_ERROR(s.codec.decode_depth(row.blob(KeyframeCol::kDepth), row.blob_size(KeyframeCol::kDepth),
                                           what + " depth", &k.depth));
   if (k.depth.width != k.intrinsics.width || k.depth.height != k.intrinsics.height)

@@ -69,8 +69,9 @@ CREATE TABLE poses (
 );
 )sql";
 
-// The keyframes table of schema 2, and of schema 4 with the row's checksum before the images.
-std::string keyframes_table(bool with_checksum) {
+// The keyframes table of schema 2, of schema 4 with the row's checksum before the images, and of
+// schema 7 with the pose's anchor before them too.
+std::string keyframes_table(bool with_checksum, bool with_anchor = false) {
   return std::string(R"sql(
 CREATE TABLE keyframes (
   frame_id INTEGER PRIMARY KEY,
@@ -82,7 +83,8 @@ CREATE TABLE keyframes (
   fy REAL NOT NULL,
   cx REAL NOT NULL,
   cy REAL NOT NULL,
-  T_world_cam BLOB NOT NULL,)sql") + (with_checksum ? "\n  checksum INTEGER," : "") + R"sql(
+  T_world_cam BLOB NOT NULL,)sql") + (with_anchor ? "\n  graph_keyframe INTEGER," : "") +
+         (with_checksum ? "\n  checksum INTEGER," : "") + R"sql(
   depth BLOB NOT NULL,
   color BLOB
 );
@@ -245,6 +247,29 @@ PRAGMA user_version = 6;
 )sql", ctx);
 }
 
+// Schema 6 -> 7: a stored pose may be relative to a keyframe of the pose graph
+// (`graph_keyframe`; NULL, as every row before, is the world frame), so that a correction moves
+// the stored poses by moving the graph's keyframes instead of rewriting every row. The keyframes
+// table is rebuilt so that the column sits before the images. The partial indexes find the rows
+// a checkpoint has yet to anchor without reading the others.
+Status migrate_6_to_7(sql::Database& db) {
+  const std::string ctx = "migrating schema 6 to 7";
+  DF_RETURN_IF_ERROR(db.exec("ALTER TABLE keyframes RENAME TO keyframes_v6;", ctx));
+  DF_RETURN_IF_ERROR(db.exec(keyframes_table(/*with_checksum=*/true, /*with_anchor=*/true), ctx));
+  return db.exec(R"sql(
+INSERT INTO keyframes (frame_id, utime, sensor_serial, width, height, fx, fy, cx, cy, T_world_cam,
+                       checksum, depth, color)
+SELECT frame_id, utime, sensor_serial, width, height, fx, fy, cx, cy, T_world_cam, checksum, depth,
+       color
+FROM keyframes_v6;
+DROP TABLE keyframes_v6;
+ALTER TABLE poses ADD COLUMN graph_keyframe INTEGER;
+CREATE INDEX poses_in_world ON poses (frame_id) WHERE graph_keyframe IS NULL;
+CREATE INDEX keyframes_in_world ON keyframes (frame_id) WHERE graph_keyframe IS NULL;
+PRAGMA user_version = 7;
+)sql", ctx);
+}
+
 }  // namespace
 
 Status create_current(sql::Database& db) {
@@ -257,13 +282,14 @@ Status create_current(sql::Database& db) {
   DF_RETURN_IF_ERROR(migrate_3_to_4(db));
   DF_RETURN_IF_ERROR(migrate_4_to_5(db));
   DF_RETURN_IF_ERROR(migrate_5_to_6(db));
+  DF_RETURN_IF_ERROR(migrate_6_to_7(db));
   DF_RETURN_IF_ERROR(db.exec("PRAGMA application_id = " + std::to_string(kApplicationId) + ";", ctx));
   DF_RETURN_IF_ERROR(db.exec("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";", ctx));
   return Status::ok();
 }
 
 Status migrate(sql::Database& db, int from_version) {
-  static_assert(kSchemaVersion == 6, "add the migration step to the new version here");
+  static_assert(kSchemaVersion == 7, "add the migration step to the new version here");
   int v = from_version;
   if (v == 1) {
     DF_RETURN_IF_ERROR(migrate_1_to_2(db));
@@ -284,6 +310,10 @@ Status migrate(sql::Database& db, int from_version) {
   if (v == 5) {
     DF_RETURN_IF_ERROR(migrate_5_to_6(db));
     v = 6;
+  }
+  if (v == 6) {
+    DF_RETURN_IF_ERROR(migrate_6_to_7(db));
+    v = 7;
   }
   if (v != kSchemaVersion)
     return unsupported(db.path() + ": no migration from schema version " +

@@ -35,7 +35,7 @@
 
 namespace depthfuse::store {
 
-constexpr int kSchemaVersion = 6;                 // PRAGMA user_version of files written now
+constexpr int kSchemaVersion = 7;                 // PRAGMA user_version of files written now
 constexpr int32_t kApplicationId = 0x44465343;    // PRAGMA application_id: "DFSC"
 
 enum class OpenMode {
@@ -182,7 +182,7 @@ struct GraphSummary {
 };
 
 // A loop closure applied to the poses of the frames before `before_frame` (the first frame fused
-// after it), for the poses already written (ScanStore::correct_poses).
+// after it), for the poses already written (ScanStore::write_poses).
 struct PoseCorrection {
   AppliedCorrection correction;
   uint32_t before_frame = 0;
@@ -295,10 +295,16 @@ class ScanStore {
   // stored yet (a keyframe's cloud and odometry edge never change), replaces the keyframes'
   // poses, the loop edges, the version and the deformation's history.
   Status write_graph(const GraphCheckpoint& graph);
-  // Inside a checkpoint: moves the stored pose of every frame before each correction's
-  // before_frame (poses, keyframes), corrections in order, so that the file's poses are the
-  // corrected ones.
-  Status correct_poses(const std::vector<PoseCorrection>& corrections);
+  // Inside a checkpoint, with the graph's `keyframes` as the checkpoint writes them: the poses of
+  // the checkpoint's frames (`fused`, as they were fused) and every stored pose (poses, keyframes)
+  // still in the world frame, from the first keyframe's frame on, move by the corrections made
+  // after their frame was fused (those whose before_frame is later, in order) and are stored
+  // relative to the keyframe whose segment holds their frame. Readers see them moved by every
+  // later correction of that keyframe without their rows being written again. Without keyframes,
+  // the poses are stored as they are.
+  Status write_poses(const std::vector<PoseRecord>& fused,
+                     const std::vector<PoseCorrection>& corrections,
+                     const std::vector<GraphKeyframe>& keyframes);
   // The last checkpoint's graph, every row's checksum and blob checked (kCorrupt naming the row);
   // none when the scan has none.
   Result<std::optional<GraphCheckpoint>> read_graph();
