@@ -352,3 +352,53 @@ TEST(MapPager, AChunkLoadedOverANewerOneIsBroughtUpToDateFirst) {
   ASSERT_TRUE(in_file) << in_file.status().to_string();
   EXPECT_EQ(in_file->chunk.version, 1u);
 }
+
+// A checkpoint written in the background promotes the chunks staged before its snapshot. Staging
+// such a chunk again while it is in flight would replace the copy the checkpoint is to promote
+// (and lose what it held if the new copy is of later frames): within the budget it waits for a
+// later frame, other changed chunks go as usual and nothing waits for the checkpoint. Over the
+// budget it goes, after the checkpoint is done.
+TEST(MapPager, AChunkOfTheCheckpointInFlightIsNotStagedAgainUntilItIsDone) {
+  TempDir dir;
+  auto store = ScanStore::open(dir.file("scan.db"), OpenMode::kCreate);
+  ASSERT_TRUE(store);
+  PointMap map(0.5);
+  fill_row(&map);
+  const size_t chunk = MapPager::chunk_bytes(*map.find({0, 0, 0}));
+  MapPager pager(row_config(25.0 * chunk / (1024.0 * 1024.0)), store->get());
+  int waits = 0;
+  pager.set_checkpoint_hooks([] { return false; }, [&] { ++waits; });
+  ASSERT_TRUE(pager.update(&map, kRowCamera, 100));  // stages the 20 old far chunks
+  const ChunkKey staged{-20, 0, 0};
+  ASSERT_TRUE(pager.is_evicted(staged));
+  ASSERT_TRUE(pager.load_chunks(&map, {staged}, 30));
+  Chunk& again = map.get_or_create(staged);
+  again.points.append(make_points(staged, 61, 10));  // changed by a frame after the snapshot
+  again.dirty = true;
+  Chunk& fresh = map.get_or_create({-30, 0, 0});  // never staged
+  fresh.points = make_points({-30, 0, 0}, 40, 50);
+  fresh.last_touched_frame = fresh.last_seen_frame = 40;
+  fresh.dirty = true;
+  Chunk& fresh2 = map.get_or_create({-31, 0, 0});
+  fresh2.points = make_points({-31, 0, 0}, 40, 50);
+  fresh2.last_touched_frame = fresh2.last_seen_frame = 40;
+  fresh2.dirty = true;
+
+  pager.checkpoint_snapshot();
+  ASSERT_TRUE(pager.update(&map, kRowCamera, 101));  // above the low watermark, within the budget
+  EXPECT_NE(map.find(staged), nullptr) << "staged again while the checkpoint was in flight";
+  EXPECT_TRUE(pager.is_evicted({-30, 0, 0}));
+  EXPECT_EQ(waits, 0);
+  auto in_file = (*store)->read_chunk(staged, /*include_staged=*/true);
+  ASSERT_TRUE(in_file);
+  EXPECT_EQ(in_file->chunk.points.size(), 50u) << "the staged copy was replaced";
+
+  pager.set_other_bytes(20 * chunk);  // over the budget: it must go, once the checkpoint is done
+  ASSERT_TRUE(pager.update(&map, kRowCamera, 102));
+  EXPECT_TRUE(pager.is_evicted(staged));
+  EXPECT_EQ(waits, 1);
+  pager.checkpoint_done(true);
+  in_file = (*store)->read_chunk(staged, /*include_staged=*/true);
+  ASSERT_TRUE(in_file);
+  EXPECT_EQ(in_file->chunk.points.size(), 60u);
+}

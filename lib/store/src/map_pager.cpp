@@ -196,6 +196,19 @@ Status MapPager::load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t
   return first_error;
 }
 
+void MapPager::checkpoint_snapshot() {
+  promoting_ = staged_;
+  checkpoint_in_flight_ = true;
+}
+
+void MapPager::checkpoint_done(bool committed) {
+  // Committed, it promoted every chunk staged before its snapshot; failed, they wait for the next.
+  if (committed)
+    for (const ChunkKey& k : promoting_) staged_.erase(k);
+  promoting_.clear();
+  checkpoint_in_flight_ = false;
+}
+
 void MapPager::note_evicted(const ChunkKey& key, uint32_t version) {
   note_loaded(key);  // evicted again: its version is the new one
   evicted_.insert(key);
@@ -242,7 +255,6 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
   const size_t target = static_cast<size_t>(static_cast<double>(budget) * config_.low_watermark_fraction);
   if (resident <= target) return Status::ok();
   const bool over_budget = resident > budget;
-  if (!over_budget && staging_would_wait_ && staging_would_wait_()) return Status::ok();
   if (skip_eviction_calls_ > 0) {
     --skip_eviction_calls_;
     return Status::ok();
@@ -251,13 +263,17 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
   candidates_.clear();
   const float keep_distance = static_cast<float>(config_.evict_distance_m);
   const uint32_t min_age = static_cast<uint32_t>(config_.min_age_frames);
+  const bool file_held = checkpoint_in_flight_ && file_held_ && file_held_();
   map->for_each_chunk([&](const ChunkKey& k, const Chunk& c) {
     uint32_t used = c.last_seen_frame;
     if (auto it = loaded_at_.find(k); it != loaded_at_.end()) used = std::max(used, it->second);
     if (used >= frame_id) return;  // observed by (or loaded for) this very frame
     const float d = distance_to_chunk_m(*map, k, cam);
     if (d <= keep_distance) return;
-    candidates_.push_back({k, used, d, chunk_bytes(c), used + min_age >= frame_id});
+    const bool waits = c.dirty && (file_held || promoting_.count(k) != 0);
+    // Within the budget, a chunk that would wait stays for a later frame.
+    if (waits && !over_budget) return;
+    candidates_.push_back({k, used, d, chunk_bytes(c), used + min_age >= frame_id, waits});
   });
   // Least recently used first; among equals, the farthest. The recently seen come last.
   std::sort(candidates_.begin(), candidates_.end(), [](const Candidate& a, const Candidate& b) {
@@ -285,17 +301,24 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
 
   // Changed chunks go to the scan file first, all in one transaction; only then are they dropped.
   std::vector<std::pair<ChunkKey, const Chunk*>> writes;
+  bool wait = false;
   for (size_t i = 0; i < n; ++i) {
     const Chunk* c = map->find(candidates_[i].key);
     if (c->dirty) writes.emplace_back(candidates_[i].key, c);
+    wait |= c->dirty && promoting_.count(candidates_[i].key) != 0;
   }
-  if (before_staging_ && !writes.empty()) before_staging_();
+  // Once the checkpoint is done its promotion is too: the chunks of its snapshot may be staged.
+  if (wait && wait_for_checkpoint_) wait_for_checkpoint_();
   Status st = store_->stage_chunks(writes);
   if (!st) {
     skip_eviction_calls_ = config_.retry_after_failure_calls;
     return st.with_context("evicting " + std::to_string(n) + " chunks (they stay in memory)");
   }
   stats_.total_written += writes.size();
+  for (const auto& w : writes) {
+    staged_.insert(w.first);
+    promoting_.erase(w.first);  // staged again after that checkpoint: for the next one to promote
+  }
   for (size_t i = 0; i < n; ++i) {
     const ChunkKey& k = candidates_[i].key;
     const Chunk* c = map->find(k);

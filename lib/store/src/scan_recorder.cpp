@@ -21,10 +21,10 @@ ScanRecorder::ScanRecorder(std::unique_ptr<ScanStore> store, const RecorderConfi
   status_.path = store_->path();
   if (config_.bounded_memory) {
     pager_ = std::make_unique<MapPager>(config_.pager, store_.get());
-    pager_->set_before_staging([this] {
-      if (writer_) writer_->wait_idle();
-    });
-    pager_->set_staging_would_wait([this] { return writer_ && writer_->busy(); });
+    pager_->set_checkpoint_hooks([this] { return writer_ && writer_->writing(); },
+                                 [this] {
+                                   if (writer_) writer_->wait_idle();
+                                 });
   }
 }
 
@@ -406,6 +406,7 @@ bool ScanRecorder::checkpoint_in_background(PointMap* map, const std::string& re
                                                  config_.background_compression_level);
   }
   writer_->start(std::move(job));
+  if (pager_) pager_->checkpoint_snapshot();
   status_.last_snapshot_seconds = static_cast<double>(steady_ns() - t0_ns) * 1e-9;
   return true;
 }
@@ -415,6 +416,7 @@ void ScanRecorder::collect_background(PointMap* map, bool clear_dirty) {
   std::optional<CheckpointOutcome> out = writer_->take_outcome();
   if (!out) return;
   CheckpointJob& job = out->job;
+  if (pager_) pager_->checkpoint_done(out->record.is_ok());
   status_.last_encode_seconds = out->encode_seconds;
   status_.last_write_seconds = out->write_seconds;
   status_.total_encode_seconds += out->encode_seconds;
@@ -502,6 +504,10 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
     resident.push_back(k);
   });
   for (const ChunkKey& k : emptied_evicted) pager_->forget(k);
+  if (pager_) {  // it promoted every staged chunk
+    pager_->checkpoint_snapshot();
+    pager_->checkpoint_done(true);
+  }
   pending_poses_.clear();
   corrections_.clear();
   status_.pending_poses = 0;

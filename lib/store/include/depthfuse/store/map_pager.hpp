@@ -6,10 +6,11 @@
 //  - update() after it: when the resident chunks exceed the low watermark, the least recently seen
 //    ones (Chunk::last_seen_frame) that the camera has not seen for a while and that are not
 //    right next to it are written to the scan file and dropped, a little a frame
-//    (max_evict_mib_per_call), and not while a background checkpoint is being written (staging
-//    would wait for it). Over the budget, whatever it takes: when those are not enough, the
-//    recently seen ones go too, down to the budget; never the ones this frame observed or loaded,
-//    nor those near the camera.
+//    (max_evict_mib_per_call). While a background checkpoint is in flight, changed chunks that
+//    cannot be staged without waiting for it stay for a later frame (checkpoint_snapshot()).
+//    Over the budget, whatever it takes: when those are not enough, the recently seen ones go
+//    too, down to the budget; never the ones this frame observed or loaded, nor those near the
+//    camera.
 // Per-call cost follows the frame, not the map: prepare() visits a subsample of the frame's
 // pixels and looks their chunk keys up in the evicted index; update() scans only resident chunks,
 // whose number the budget bounds.
@@ -119,14 +120,20 @@ class MapPager {
     unloadable_.erase(key);
   }
 
-  // Called before evicted chunks are staged. A checkpoint written in the background holds the map
-  // as of an earlier frame and promotes the chunks staged up to that frame: a chunk staged since
-  // then could replace such a staged copy before the checkpoint took it, so the recorder waits
-  // for the checkpoint here.
-  void set_before_staging(std::function<void()> fn) { before_staging_ = std::move(fn); }
-  // Whether before_staging would wait now (a checkpoint is being written): eviction within the
-  // budget waits for a later frame instead.
-  void set_staging_would_wait(std::function<bool()> fn) { staging_would_wait_ = std::move(fn); }
+  // A checkpoint written in the background holds the map as of an earlier frame F and promotes
+  // the chunks staged up to F. The recorder says when its snapshot is taken and when it is done
+  // (a synchronous checkpoint, which promotes every staged chunk, says both). While it is in
+  // flight, a chunk staged before the snapshot is not staged again: the new copy would replace
+  // the one the checkpoint is to promote. Other changed chunks are staged as usual, unless the
+  // checkpoint's transaction holds the file (`file_held`): then they wait for a later frame
+  // rather than hold the fusion thread. Over the budget, eviction stages whatever it must and
+  // calls `wait_for_checkpoint` first when that includes a chunk of the snapshot.
+  void checkpoint_snapshot();
+  void checkpoint_done(bool committed);
+  void set_checkpoint_hooks(std::function<bool()> file_held, std::function<void()> wait_for_checkpoint) {
+    file_held_ = std::move(file_held);
+    wait_for_checkpoint_ = std::move(wait_for_checkpoint);
+  }
 
   // Brings the chunk at a key of the map up to the pose graph's current version (the map's
   // deformation). A chunk loaded where fusion or the deformation made a new one while it was
@@ -160,8 +167,12 @@ class MapPager {
   std::unordered_map<ChunkKey, uint32_t, ChunkKeyHash> loaded_at_;  // frame a chunk was loaded at
   PagerStats stats_;
   int skip_eviction_calls_ = 0;
-  std::function<void()> before_staging_;
-  std::function<bool()> staging_would_wait_;
+  // Keys staged since the last checkpoint that promoted them, and of those the ones the checkpoint
+  // in flight is to promote (checkpoint_snapshot()).
+  std::unordered_set<ChunkKey, ChunkKeyHash> staged_, promoting_;
+  bool checkpoint_in_flight_ = false;
+  std::function<bool()> file_held_;
+  std::function<void()> wait_for_checkpoint_;
   std::function<void(PointMap*, const ChunkKey&)> bring_up_to_date_;
   struct Candidate {
     ChunkKey key;
@@ -169,6 +180,7 @@ class MapPager {
     float distance_m;
     size_t bytes;
     bool recent;  // used within min_age_frames
+    bool waits;   // changed, and staging it now would wait for the checkpoint in flight
   };
   std::vector<Candidate> candidates_;
   std::vector<ChunkKey> keys_;
