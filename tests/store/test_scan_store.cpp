@@ -1042,3 +1042,39 @@ TEST(ScanStore, ASchemaSixFileHasItsPosesAnchoredByTheNextCheckpoint) {
     EXPECT_LT(pose_error(r.T_world_cam, expected), 1e-9) << "frame " << r.frame_id;
   }
 }
+
+// A keyframe of a frame after the checkpoint's (written while a background checkpoint was in
+// flight) may already be in a later graph version than the checkpoint's: anchored to the
+// checkpoint's graph, a correction made before it was fused would move it a second time. It stays
+// in the world frame for the checkpoint that holds its frame.
+TEST(ScanStore, AKeyframeOfALaterFrameIsLeftForItsOwnCheckpoint) {
+  TempDir dir;
+  const std::string path = dir.file("later.db");
+  auto s = ScanStore::open(path, OpenMode::kCreate);
+  ASSERT_TRUE(s);
+  ASSERT_TRUE((*s)->write_keyframe(some_keyframe(5)));
+  ASSERT_TRUE((*s)->write_keyframe(some_keyframe(12)));
+  ASSERT_TRUE((*s)->begin_checkpoint(10));
+  const GraphCheckpoint g = graph_of({1}, {some_pose(0.1)}, 0);
+  ASSERT_TRUE((*s)->write_poses({}, {}, g.graph.keyframes));
+  ASSERT_TRUE((*s)->write_graph(g));
+  CheckpointInfo info;
+  info.last_frame_id = 10;
+  ASSERT_TRUE((*s)->commit_checkpoint(info));
+  std::string anchors;
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open_v2(path.c_str(), &db, SQLITE_OPEN_READONLY, nullptr), SQLITE_OK);
+  sqlite3_stmt* st = nullptr;
+  ASSERT_EQ(sqlite3_prepare_v2(db, "SELECT frame_id, quote(graph_keyframe) FROM keyframes "
+                                   "ORDER BY frame_id;", -1, &st, nullptr),
+            SQLITE_OK);
+  while (sqlite3_step(st) == SQLITE_ROW)
+    anchors += std::to_string(sqlite3_column_int64(st, 0)) + ":" +
+               reinterpret_cast<const char*>(sqlite3_column_text(st, 1)) + " ";
+  sqlite3_finalize(st);
+  sqlite3_close(db);
+  EXPECT_EQ(anchors, "5:0 12:NULL ");
+  auto k = (*s)->read_keyframe(5);
+  ASSERT_TRUE(k) << k.status().to_string();
+  EXPECT_LT(pose_error(k->T_world_cam, some_pose(0.5)), 1e-9);
+}

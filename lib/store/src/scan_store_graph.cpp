@@ -370,18 +370,21 @@ Status ScanStore::write_poses(const std::vector<PoseRecord>& fused,
   if (keyframes.empty()) return Status::ok();
   // The rows still in the world frame (keyframes written since the last checkpoint, rows of files
   // written before schema 7 or by refine) by the partial indexes on them: read first, then
-  // written, as a statement still reading the table would see the rows it rewrote. A row that
-  // fails its checksum is left as it is (a new checksum would hide the damage from inspect), and
-  // does not stop the checkpoint.
+  // written, as a statement still reading the table would see the rows it rewrote. Only those of
+  // the checkpoint's frames: a keyframe of a later frame (written while a background checkpoint
+  // was in flight) may be in a graph version after this one, and waits for its own checkpoint. A
+  // row that fails its checksum is left as it is (a new checksum would hide the damage from
+  // inspect), and does not stop the checkpoint.
+  const uint32_t last = s.checkpoint_up_to_frame;
   const std::vector<Pose> none;
   std::vector<PoseRecord> poses;
   {
     auto st = s.db.prepare(std::string("SELECT ") + kPoseColumns +
                                " FROM poses WHERE graph_keyframe IS NULL AND frame_id >= ? "
-                               "ORDER BY frame_id;",
+                               "AND frame_id <= ? ORDER BY frame_id;",
                            "reading the poses to anchor");
     if (!st) return st.status();
-    st->bind(1, first);
+    st->bind(1, first).bind(2, last);
     for (const sql::Row& row : st->rows())
       if (auto p = s.pose_of(row, none)) poses.push_back(*p);
     DF_RETURN_IF_ERROR(st->status());
@@ -394,10 +397,11 @@ Status ScanStore::write_poses(const std::vector<PoseRecord>& fused,
   std::vector<std::pair<uint32_t, Pose>> keyframe_poses;
   {
     auto st = s.db.prepare(std::string("SELECT ") + kKeyframeColumns +
-                               " FROM keyframes WHERE graph_keyframe IS NULL AND frame_id >= ?;",
+                               " FROM keyframes WHERE graph_keyframe IS NULL AND frame_id >= ? "
+                               "AND frame_id <= ?;",
                            "reading the keyframe poses to anchor");
     if (!st) return st.status();
-    st->bind(1, first);
+    st->bind(1, first).bind(2, last);
     Keyframe k;
     for (const sql::Row& row : st->rows())
       if (s.keyframe_head_of(row, none, &k)) keyframe_poses.emplace_back(k.frame_id, k.T_world_cam);
