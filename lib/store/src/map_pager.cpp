@@ -270,10 +270,10 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
     if (used >= frame_id) return;  // observed by (or loaded for) this very frame
     const float d = distance_to_chunk_m(*map, k, cam);
     if (d <= keep_distance) return;
-    const bool waits = c.dirty && (file_held || promoting_.count(k) != 0);
-    // Within the budget, a chunk that would wait stays for a later frame.
-    if (waits && !over_budget) return;
-    candidates_.push_back({k, used, d, chunk_bytes(c), used + min_age >= frame_id, waits});
+    // Within the budget, a changed chunk whose staging would wait for the checkpoint in flight
+    // stays for a later frame.
+    if (!over_budget && c.dirty && (file_held || promoting_.count(k) != 0)) return;
+    candidates_.push_back({k, used, d, chunk_bytes(c), used + min_age >= frame_id});
   });
   // Least recently used first; among equals, the farthest. The recently seen come last.
   std::sort(candidates_.begin(), candidates_.end(), [](const Candidate& a, const Candidate& b) {

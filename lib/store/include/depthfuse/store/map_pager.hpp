@@ -180,7 +180,6 @@ class MapPager {
     float distance_m;
     size_t bytes;
     bool recent;  // used within min_age_frames
-    bool waits;   // changed, and staging it now would wait for the checkpoint in flight
   };
   std::vector<Candidate> candidates_;
   std::vector<ChunkKey> keys_;
