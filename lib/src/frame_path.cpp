@@ -64,6 +64,7 @@ void FramePath::join_graph(const Frame& frame, const FrameReport& report, FrameO
   if (!added) DF_LOG(Graph, Error) << "the map cannot follow keyframe " << keyframes.size() - 1
                                    << ": " << added.message();
   submit_graph();
+  graph_.forget_redundant_clouds(closer_->searched());
 }
 
 void FramePath::submit_graph() {

@@ -66,6 +66,7 @@ void LoopCloser::submit(GraphSnapshot snapshot) {
     std::optional<GraphCorrection> c = process(snapshot, first);
     std::lock_guard<std::mutex> lock(mutex_);
     if (c) correction_ = std::move(c);
+    done_ = searched_;
     return;
   }
   {
@@ -79,6 +80,7 @@ void LoopCloser::restore(std::vector<PoseGraphEdge> loops, size_t searched) {
   std::lock_guard<std::mutex> lock(mutex_);
   loops_ = std::move(loops);
   searched_ = searched;
+  done_ = searched;
   stats_.loops = loops_.size();
 }
 
@@ -97,6 +99,11 @@ void LoopCloser::wait_idle() {
 LoopClosureStats LoopCloser::stats() const {
   std::lock_guard<std::mutex> lock(mutex_);
   return stats_;
+}
+
+size_t LoopCloser::searched() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return done_;
 }
 
 void LoopCloser::run() {
@@ -118,6 +125,7 @@ void LoopCloser::run() {
     {
       std::lock_guard<std::mutex> lock(mutex_);
       if (c) correction_ = std::move(c);
+      done_ = searched_;
       busy_ = false;
     }
     idle_.notify_all();
@@ -181,7 +189,9 @@ std::optional<GraphCorrection> LoopCloser::process(const GraphSnapshot& s, size_
 
 void LoopCloser::search(const GraphSnapshot& s, size_t k, std::vector<PoseGraphEdge>* found) {
   const GraphKeyframe& K = s.keyframes[k];
-  if (!K.cloud || k == 0) return;
+  // A keyframe whose points were given up (ScanGraph::forget_redundant_clouds) is no candidate.
+  const auto has_points = [](const GraphKeyframe& g) { return g.cloud && g.cloud->size() > 0; };
+  if (!has_points(K) || k == 0) return;
   // Walking back along the odometry: the covariance of keyframe k relative to each older one (in
   // k's frame), and the camera path between them.
   struct Candidate {
@@ -202,8 +212,9 @@ void LoopCloser::search(const GraphSnapshot& s, size_t k, std::vector<PoseGraphE
     path_covariance[j] = covariance;
     if (k - j < static_cast<size_t>(std::max(1, config_.min_keyframes_back)) || path_m < config_.min_path_m)
       continue;
-    eligible[j] = true;
     const GraphKeyframe& J = s.keyframes[j];
+    if (!has_points(J)) continue;
+    eligible[j] = true;
     const double d = (J.T_world_kf.translation() - K.T_world_kf.translation()).norm();
     const double sigma_m = std::sqrt(std::max(0.0, covariance.bottomRightCorner<3, 3>().trace()));
     const double radius = std::max(config_.search_radius_m, 3.0 * sigma_m);
@@ -225,7 +236,7 @@ void LoopCloser::search(const GraphSnapshot& s, size_t k, std::vector<PoseGraphE
   double best = 0.5;  // below this the thumbnails are not alike
   std::optional<size_t> best_i;
   for (size_t i = 0; i < k; ++i) {
-    if (!eligible[i] || !s.keyframes[i].cloud ||
+    if (!eligible[i] ||
         std::find(tried.begin(), tried.end(), i) != tried.end())
       continue;
     const double sim = similarity(K.cloud->thumbnail, s.keyframes[i].cloud->thumbnail);

@@ -48,6 +48,9 @@ class LoopCloser {
   // Waits until everything submitted has been searched (the end of an offline run).
   void wait_idle();
   LoopClosureStats stats() const;
+  // Keyframes [0, searched()) have been searched: a keyframe's points are not needed as the new
+  // one's any more (ScanGraph::forget_redundant_clouds).
+  size_t searched() const;
 
  private:
   void run();
@@ -64,7 +67,8 @@ class LoopCloser {
   RelocalisationConfig place_search_;
   bool background_;
   std::vector<PoseGraphEdge> loops_;  // every loop edge believed and kept by the optimiser
-  size_t searched_ = 0;               // keyframes searched so far
+  size_t searched_ = 0;               // keyframes searched so far, or being searched
+  size_t done_ = 0;                   // keyframes searched so far (under mutex_)
   mutable std::mutex mutex_;
   std::condition_variable wake_, idle_;
   std::optional<GraphSnapshot> pending_;

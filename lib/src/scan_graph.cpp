@@ -77,6 +77,7 @@ void ScanGraph::clear() {
   since_keyframe_.setZero();
   last_fused_.reset();
   version_ = 0;
+  clouds_checked_ = 0;
 }
 
 bool ScanGraph::frame_fused(uint32_t frame_id, int64_t utime, const Pose& T_world_cam,
@@ -141,6 +142,29 @@ AppliedCorrection ScanGraph::apply(const GraphCorrection& c) {
   return applied;
 }
 
+size_t ScanGraph::forget_redundant_clouds(size_t searched) {
+  const auto has_points = [](const GraphKeyframe& k) { return k.cloud && k.cloud->size() > 0; };
+  size_t forgotten = 0;
+  for (searched = std::min(searched, keyframes_.size()); clouds_checked_ < searched; ++clouds_checked_) {
+    GraphKeyframe& k = keyframes_[clouds_checked_];
+    if (!has_points(k)) continue;
+    for (size_t i = 0; i < clouds_checked_; ++i) {
+      const GraphKeyframe& older = keyframes_[i];
+      if (!has_points(older) ||
+          (older.T_world_kf.translation() - k.T_world_kf.translation()).norm() >= config_.cloud_spacing_m ||
+          rotation_between_deg(older.T_world_kf, k.T_world_kf) >= config_.cloud_spacing_deg)
+        continue;
+      // A new cloud rather than a cleared one: the loop closer's snapshots share the old one.
+      auto thumbnail_only = std::make_shared<KeyframeCloud>();
+      thumbnail_only->thumbnail = k.cloud->thumbnail;
+      k.cloud = std::move(thumbnail_only);
+      ++forgotten;
+      break;
+    }
+  }
+  return forgotten;
+}
+
 ScanGraphState ScanGraph::state() const {
   return ScanGraphState{keyframes_, odometry_, odometry_covariance_, loops_, version_};
 }
@@ -173,6 +197,8 @@ Status ScanGraph::restore(ScanGraphState s) {
   odometry_covariance_ = std::move(s.odometry_covariance);
   loops_ = std::move(s.loops);
   version_ = s.version;
+  clouds_checked_ = 0;
+  forget_redundant_clouds(keyframes_.size());
   since_keyframe_.setZero();
   last_fused_.reset();
   if (!keyframes_.empty()) last_fused_ = keyframes_.back().T_world_kf;

@@ -133,3 +133,75 @@ TEST(LoopCloser, RefusesAnIdenticalPlaceTheOdometryPutsElsewhere) {
   EXPECT_GE(stats.gated, 1u) << "the twin was never aligned: the test tests nothing";
   EXPECT_EQ(stats.loops, 0u);
 }
+
+// Out along the arc and back past the same places, each frame a keyframe, the loop closer
+// searching each as it comes: a keyframe gives its points up once it has been searched and an
+// older one that kept its points covers its place. The way back keeps none, so the graph's memory
+// stays what the way out needed, and the way back still closes loops against the way out.
+TEST(ScanGraph, KeepsOneCloudAPlaceAndStillClosesLoops) {
+  LoopClosureConfig c;
+  c.min_keyframes_back = 4;
+  c.min_path_m = 0.5;
+  std::vector<Pose> poses;
+  for (int k = 0; k <= 10; ++k) poses.push_back(on_arc(15 + 6 * k));
+  const size_t way_out = poses.size();
+  for (int k = 8; k >= 0; --k) poses.push_back(on_arc(15 + 6 * k + 2, 1.42));
+  ScanGraph graph(c);
+  LoopCloser closer(c, RelocalisationConfig{}, /*background=*/false);
+  size_t bytes_after_way_out = 0;
+  for (size_t k = 0; k < poses.size(); ++k) {
+    MeasurementImage m;
+    ASSERT_TRUE(backproject(test::render_corner(poses[k]), SensorModelConfig{}, FusionConfig{}, &m).is_ok());
+    ASSERT_TRUE(graph.frame_fused(static_cast<uint32_t>(1 + k), static_cast<int64_t>(k) * 33000,
+                                  poses[k], Matrix6d::Identity() * 1e-8, m))
+        << "frame " << k << " is no keyframe: the test's spacing is wrong";
+    // Not searched yet: the newest keyframe keeps its points whatever is near.
+    graph.forget_redundant_clouds(k);
+    EXPECT_GT(graph.keyframes().back().cloud->size(), 0u) << k;
+    GraphSnapshot s;
+    s.keyframes = graph.keyframes();
+    s.odometry = graph.odometry();
+    s.odometry_covariance = graph.odometry_covariance();
+    closer.submit(std::move(s));
+    ASSERT_EQ(closer.searched(), k + 1);
+    graph.forget_redundant_clouds(closer.searched());
+    if (k + 1 == way_out) bytes_after_way_out = graph.memory_bytes();
+  }
+  const std::vector<GraphKeyframe>& kfs = graph.keyframes();
+  size_t kept_out = 0, kept_back = 0;
+  for (size_t k = 0; k < kfs.size(); ++k) {
+    ASSERT_TRUE(kfs[k].cloud);
+    EXPECT_GT(*std::max_element(kfs[k].cloud->thumbnail.begin(), kfs[k].cloud->thumbnail.end()), 0.0f)
+        << "keyframe " << k << " lost its thumbnail too";
+    if (kfs[k].cloud->size() == 0) continue;
+    (k < way_out ? kept_out : kept_back) += 1;
+    for (size_t i = 0; i < k; ++i)  // no two kept clouds share a place
+      if (kfs[i].cloud->size() > 0)
+        EXPECT_FALSE((kfs[i].T_world_kf.translation() - kfs[k].T_world_kf.translation()).norm() <
+                         c.cloud_spacing_m &&
+                     angle_deg(kfs[i].T_world_kf, kfs[k].T_world_kf) < c.cloud_spacing_deg)
+            << "keyframes " << i << " and " << k;
+  }
+  EXPECT_GE(kept_out, 4u);
+  EXPECT_LT(kept_out, way_out) << "0.25 m apart, neighbours on the way out share a place";
+  EXPECT_EQ(kept_back, 0u);
+  // The way back's keyframes cost their poses, edges and thumbnails: far less than their clouds.
+  EXPECT_LT(graph.memory_bytes() - bytes_after_way_out,
+            (kfs.size() - way_out) * kfs[0].cloud->memory_bytes() / 4);
+  EXPECT_GE(closer.stats().loops, 3u) << "the way back no longer closes against the way out";
+
+  // A resumed graph gives up the same points, whatever its file held; 0: every keyframe keeps its
+  // points.
+  ScanGraphState full = graph.state();
+  for (GraphKeyframe& k : full.keyframes)
+    if (k.cloud->size() == 0) k.cloud = kfs[0].cloud;
+  ScanGraph resumed(c);
+  ASSERT_TRUE(resumed.restore(full).is_ok());
+  size_t kept_resumed = 0;
+  for (const GraphKeyframe& k : resumed.keyframes()) kept_resumed += k.cloud->size() > 0;
+  EXPECT_EQ(kept_resumed, kept_out + kept_back);
+  c.cloud_spacing_m = 0;
+  ScanGraph all(c);
+  ASSERT_TRUE(all.restore(full).is_ok());
+  for (const GraphKeyframe& k : all.keyframes()) EXPECT_GT(k.cloud->size(), 0u);
+}

@@ -179,6 +179,11 @@ struct LoopClosureConfig {
   // max_points of them, in its camera frame.
   double voxel_m = 0.03;
   int max_points = 1500;
+  // Once the loop closer has searched a keyframe, it gives its points up (keeping its thumbnail)
+  // when an older keyframe's camera within both of these of its own kept them: one cloud a place,
+  // so that the graph's memory follows the space scanned, not the scan's length.
+  double cloud_spacing_m = 0.3;
+  double cloud_spacing_deg = 20.0;
   // Candidates for a new keyframe: older keyframes at least min_keyframes_back keyframes and
   // min_path_m of camera path before it, whose camera lies within search_radius_m of it (or three
   // times the position uncertainty the odometry has accumulated between them, if more) and looks

@@ -96,6 +96,11 @@ class ScanGraph {
   bool frame_fused(uint32_t frame_id, int64_t utime, const Pose& T_world_cam,
                    const Matrix6d& covariance, const MeasurementImage& m);
   AppliedCorrection apply(const GraphCorrection& correction);
+  // Keyframes [0, searched) have been searched for loops (LoopCloser::searched()). Each of them, once,
+  // gives up its points (not its thumbnail) when an older keyframe that kept its own has its camera
+  // within loop_closure.cloud_spacing_m and _deg: later closures at that place are found against
+  // the older one. Returns how many gave them up.
+  size_t forget_redundant_clouds(size_t searched);
 
   const std::vector<GraphKeyframe>& keyframes() const { return keyframes_; }
   // Odometry edges (i -> i + 1) and the covariance each was made from, and the loop edges.
@@ -109,7 +114,8 @@ class ScanGraph {
   ScanGraphState state() const;
   // Replaces the graph by `s` (a resumed scan); the next frame's uncertainty is accumulated from
   // the last keyframe. An error (edges that do not join keyframes i and i + 1, a loop edge out of
-  // range, frame ids out of order, a missing cloud) changes nothing.
+  // range, frame ids out of order, a missing cloud) changes nothing. Its keyframes have been
+  // searched: their redundant clouds go (forget_redundant_clouds), as they did before the restart.
   Status restore(ScanGraphState s);
 
  private:
@@ -121,6 +127,7 @@ class ScanGraph {
   Matrix6d since_keyframe_ = Matrix6d::Zero();
   std::optional<Pose> last_fused_;
   uint32_t version_ = 0;
+  size_t clouds_checked_ = 0;  // keyframes forget_redundant_clouds() has looked at
 };
 
 }  // namespace depthfuse
