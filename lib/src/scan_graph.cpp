@@ -144,8 +144,13 @@ AppliedCorrection ScanGraph::apply(const GraphCorrection& c) {
 
 size_t ScanGraph::forget_redundant_clouds(size_t searched) {
   const auto has_points = [](const GraphKeyframe& k) { return k.cloud && k.cloud->size() > 0; };
+  const size_t bound = static_cast<size_t>(config_.max_cloud_mib * 1024.0 * 1024.0);
+  size_t bytes = 0;
+  for (const GraphKeyframe& k : keyframes_)
+    if (k.cloud) bytes += k.cloud->memory_bytes();
   size_t forgotten = 0;
-  for (searched = std::min(searched, keyframes_.size()); clouds_checked_ < searched; ++clouds_checked_) {
+  for (searched = std::min(searched, keyframes_.size()); clouds_checked_ < searched && bytes > bound;
+       ++clouds_checked_) {
     GraphKeyframe& k = keyframes_[clouds_checked_];
     if (!has_points(k)) continue;
     for (size_t i = 0; i < clouds_checked_; ++i) {
@@ -157,6 +162,7 @@ size_t ScanGraph::forget_redundant_clouds(size_t searched) {
       // A new cloud rather than a cleared one: the loop closer's snapshots share the old one.
       auto thumbnail_only = std::make_shared<KeyframeCloud>();
       thumbnail_only->thumbnail = k.cloud->thumbnail;
+      bytes = bytes - k.cloud->memory_bytes() + thumbnail_only->memory_bytes();
       k.cloud = std::move(thumbnail_only);
       ++forgotten;
       break;

@@ -135,13 +135,15 @@ TEST(LoopCloser, RefusesAnIdenticalPlaceTheOdometryPutsElsewhere) {
 }
 
 // Out along the arc and back past the same places, each frame a keyframe, the loop closer
-// searching each as it comes: a keyframe gives its points up once it has been searched and an
-// older one that kept its points covers its place. The way back keeps none, so the graph's memory
-// stays what the way out needed, and the way back still closes loops against the way out.
+// searching each as it comes, the clouds over their memory bound from the start: a keyframe gives
+// its points up once it has been searched and an older one that kept its points covers its place.
+// The way back keeps none, so the graph's memory stays what the way out needed, and the way back
+// still closes loops against the way out.
 TEST(ScanGraph, KeepsOneCloudAPlaceAndStillClosesLoops) {
   LoopClosureConfig c;
   c.min_keyframes_back = 4;
   c.min_path_m = 0.5;
+  c.max_cloud_mib = 0;
   std::vector<Pose> poses;
   for (int k = 0; k <= 10; ++k) poses.push_back(on_arc(15 + 6 * k));
   const size_t way_out = poses.size();
@@ -204,4 +206,26 @@ TEST(ScanGraph, KeepsOneCloudAPlaceAndStillClosesLoops) {
   ScanGraph all(c);
   ASSERT_TRUE(all.restore(full).is_ok());
   for (const GraphKeyframe& k : all.keyframes()) EXPECT_GT(k.cloud->size(), 0u);
+
+  // Within the bound every keyframe keeps its points; just over it, the oldest redundant ones go
+  // until the clouds are within it again.
+  c.cloud_spacing_m = LoopClosureConfig{}.cloud_spacing_m;
+  c.max_cloud_mib = 1.0;
+  ScanGraph roomy(c);
+  ASSERT_TRUE(roomy.restore(full).is_ok());
+  for (const GraphKeyframe& k : roomy.keyframes()) EXPECT_GT(k.cloud->size(), 0u);
+  size_t clouds_bytes = 0;
+  for (const GraphKeyframe& k : full.keyframes) clouds_bytes += k.cloud->memory_bytes();
+  const size_t one_cloud = kfs[0].cloud->memory_bytes();
+  c.max_cloud_mib = static_cast<double>(clouds_bytes - 2 * one_cloud) / (1024.0 * 1024.0);
+  ScanGraph tight(c);
+  ASSERT_TRUE(tight.restore(full).is_ok());
+  size_t kept_tight = 0, tight_bytes = 0;
+  for (const GraphKeyframe& k : tight.keyframes()) {
+    kept_tight += k.cloud->size() > 0;
+    tight_bytes += k.cloud->memory_bytes();
+  }
+  EXPECT_LT(kept_tight, full.keyframes.size());
+  EXPECT_GT(kept_tight, kept_out + kept_back) << "more went than the bound asked";
+  EXPECT_LE(tight_bytes, clouds_bytes - 2 * one_cloud);
 }

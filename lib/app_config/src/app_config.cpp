@@ -167,6 +167,7 @@ void read_loop_closure(TableReader& r, LoopClosureConfig* c) {
   r.read("keyframe_spacing_deg", &c->keyframe_spacing_deg, open_closed(0.0, 180.0));
   r.read("voxel_m", &c->voxel_m, closed(0.005, 0.5));
   r.read("max_points", &c->max_points, closed(50, 100000));  // fewer carry no shape to match
+  r.read("max_cloud_mib", &c->max_cloud_mib, non_negative());
   r.read("cloud_spacing_m", &c->cloud_spacing_m, non_negative());
   r.read("cloud_spacing_deg", &c->cloud_spacing_deg, closed(0.0, 180.0));
   r.read("min_keyframes_back", &c->min_keyframes_back, closed(1, 100000));

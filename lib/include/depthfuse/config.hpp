@@ -179,9 +179,11 @@ struct LoopClosureConfig {
   // max_points of them, in its camera frame.
   double voxel_m = 0.03;
   int max_points = 1500;
-  // Once the loop closer has searched a keyframe, it gives its points up (keeping its thumbnail)
-  // when an older keyframe's camera within both of these of its own kept them: one cloud a place,
-  // so that the graph's memory follows the space scanned, not the scan's length.
+  // While the keyframes' points take more than max_cloud_mib, searched keyframes give theirs up
+  // (keeping their thumbnails), the oldest first, where an older keyframe whose camera lies within
+  // both cloud_spacing_m and _deg of theirs kept its own: one cloud a place, so that the graph's
+  // memory follows the space scanned, not the scan's length.
+  double max_cloud_mib = 8.0;
   double cloud_spacing_m = 0.3;
   double cloud_spacing_deg = 20.0;
   // Candidates for a new keyframe: older keyframes at least min_keyframes_back keyframes and

@@ -96,10 +96,11 @@ class ScanGraph {
   bool frame_fused(uint32_t frame_id, int64_t utime, const Pose& T_world_cam,
                    const Matrix6d& covariance, const MeasurementImage& m);
   AppliedCorrection apply(const GraphCorrection& correction);
-  // Keyframes [0, searched) have been searched for loops (LoopCloser::searched()). Each of them, once,
-  // gives up its points (not its thumbnail) when an older keyframe that kept its own has its camera
-  // within loop_closure.cloud_spacing_m and _deg: later closures at that place are found against
-  // the older one. Returns how many gave them up.
+  // Keyframes [0, searched) have been searched for loops (LoopCloser::searched()). While the
+  // keyframes' clouds take more than loop_closure.max_cloud_mib, each of them in turn, once, gives
+  // up its points (not its thumbnail) when an older keyframe that kept its own has its camera within
+  // loop_closure.cloud_spacing_m and _deg: later closures at that place are found against the
+  // older one. Returns how many gave them up.
   size_t forget_redundant_clouds(size_t searched);
 
   const std::vector<GraphKeyframe>& keyframes() const { return keyframes_; }
@@ -127,7 +128,7 @@ class ScanGraph {
   Matrix6d since_keyframe_ = Matrix6d::Zero();
   std::optional<Pose> last_fused_;
   uint32_t version_ = 0;
-  size_t clouds_checked_ = 0;  // keyframes forget_redundant_clouds() has looked at
+  size_t clouds_checked_ = 0;  // forget_redundant_clouds() has looked at keyframes [0, this)
 };
 
 }  // namespace depthfuse
