@@ -402,3 +402,37 @@ TEST(MapPager, AChunkOfTheCheckpointInFlightIsNotStagedAgainUntilItIsDone) {
   ASSERT_TRUE(in_file);
   EXPECT_EQ(in_file->chunk.points.size(), 60u);
 }
+
+// Over the budget, a changed chunk of the checkpoint in flight goes last even when it is the least
+// recently used: staging it waits for the checkpoint's encoding and transaction, half a second on
+// a long scan, while the other candidates go at once.
+TEST(MapPager, OverTheBudgetAChunkOfTheCheckpointInFlightGoesLast) {
+  TempDir dir;
+  auto store = ScanStore::open(dir.file("scan.db"), OpenMode::kCreate);
+  ASSERT_TRUE(store);
+  PointMap map(0.5);
+  fill_row(&map);
+  const size_t chunk = MapPager::chunk_bytes(*map.find({0, 0, 0}));
+  MapPager pager(row_config(25.0 * chunk / (1024.0 * 1024.0)), store->get());
+  int waits = 0;
+  pager.set_checkpoint_hooks([] { return false; }, [&] { ++waits; });
+  ASSERT_TRUE(pager.update(&map, kRowCamera, 100));  // stages the 20 old far chunks
+  const ChunkKey staged{-20, 0, 0};
+  ASSERT_TRUE(pager.is_evicted(staged));
+  ASSERT_TRUE(pager.load_chunks(&map, {staged}, 30));  // the least recently used of all
+  Chunk& again = map.get_or_create(staged);
+  again.points.append(make_points(staged, 61, 10));
+  again.dirty = true;
+  Chunk& fresh = map.get_or_create({-30, 0, 0});
+  fresh.points = make_points({-30, 0, 0}, 40, 50);
+  fresh.last_touched_frame = fresh.last_seen_frame = 40;
+  fresh.dirty = true;
+
+  pager.checkpoint_snapshot();
+  pager.set_other_bytes(3 * chunk);  // a chunk or so over the budget
+  ASSERT_TRUE(pager.update(&map, kRowCamera, 101));
+  EXPECT_EQ(waits, 0) << "waited for the checkpoint though other chunks could go";
+  EXPECT_NE(map.find(staged), nullptr);
+  EXPECT_TRUE(pager.is_evicted({-30, 0, 0}));
+  EXPECT_LE(pager.stats().resident_bytes, static_cast<size_t>(25 * chunk));
+}

@@ -272,11 +272,15 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
     if (d <= keep_distance) return;
     // Within the budget, a changed chunk whose staging would wait for the checkpoint in flight
     // stays for a later frame.
-    if (!over_budget && c.dirty && (file_held || promoting_.count(k) != 0)) return;
-    candidates_.push_back({k, used, d, chunk_bytes(c), used + min_age >= frame_id});
+    const bool waits = c.dirty && promoting_.count(k) != 0;
+    if (!over_budget && c.dirty && (file_held || waits)) return;
+    candidates_.push_back({k, used, d, chunk_bytes(c), used + min_age >= frame_id, waits});
   });
-  // Least recently used first; among equals, the farthest. The recently seen come last.
+  // Least recently used first; among equals, the farthest. The recently seen come after, and last
+  // those that would wait for the checkpoint in flight: over the budget, a chunk loaded back soon
+  // after costs a read, the wait holds the frame for the checkpoint's encoding and transaction.
   std::sort(candidates_.begin(), candidates_.end(), [](const Candidate& a, const Candidate& b) {
+    if (a.waits != b.waits) return b.waits;
     if (a.last_used_frame != b.last_used_frame) return a.last_used_frame < b.last_used_frame;
     return a.distance_m > b.distance_m;
   });
@@ -290,7 +294,7 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
   const size_t to_free =
       std::min(resident - target, (over_budget ? resident - budget : 0) + step);
   size_t n = 0, freed = 0, recent = 0;
-  while (n < candidates_.size() && !candidates_[n].recent && freed < to_free)
+  while (n < candidates_.size() && !candidates_[n].recent && !candidates_[n].waits && freed < to_free)
     freed += candidates_[n++].bytes;
   while (n < candidates_.size() && resident - freed > budget) {
     freed += candidates_[n++].bytes;
@@ -305,7 +309,7 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
   for (size_t i = 0; i < n; ++i) {
     const Chunk* c = map->find(candidates_[i].key);
     if (c->dirty) writes.emplace_back(candidates_[i].key, c);
-    wait |= c->dirty && promoting_.count(candidates_[i].key) != 0;
+    wait |= candidates_[i].waits;
   }
   // Once the checkpoint is done its promotion is too: the chunks of its snapshot may be staged.
   if (wait && wait_for_checkpoint_) wait_for_checkpoint_();

@@ -9,8 +9,8 @@
 //    (max_evict_mib_per_call). While a background checkpoint is in flight, changed chunks that
 //    cannot be staged without waiting for it stay for a later frame (checkpoint_snapshot()).
 //    Over the budget, whatever it takes: when those are not enough, the recently seen ones go
-//    too, down to the budget; never the ones this frame observed or loaded, nor those near the
-//    camera.
+//    too, down to the budget, then those that wait for the checkpoint; never the ones this frame
+//    observed or loaded, nor those near the camera.
 // Per-call cost follows the frame, not the map: prepare() visits a subsample of the frame's
 // pixels and looks their chunk keys up in the evicted index; update() scans only resident chunks,
 // whose number the budget bounds.
@@ -126,8 +126,8 @@ class MapPager {
   // flight, a chunk staged before the snapshot is not staged again: the new copy would replace
   // the one the checkpoint is to promote. Other changed chunks are staged as usual, unless the
   // checkpoint's transaction holds the file (`file_held`): then they wait for a later frame
-  // rather than hold the fusion thread. Over the budget, eviction stages whatever it must and
-  // calls `wait_for_checkpoint` first when that includes a chunk of the snapshot.
+  // rather than hold the fusion thread. Over the budget, eviction stages whatever it must, chunks
+  // of the snapshot last, and calls `wait_for_checkpoint` first when that includes one of them.
   void checkpoint_snapshot();
   void checkpoint_done(bool committed);
   void set_checkpoint_hooks(std::function<bool()> file_held, std::function<void()> wait_for_checkpoint) {
@@ -180,6 +180,7 @@ class MapPager {
     float distance_m;
     size_t bytes;
     bool recent;  // used within min_age_frames
+    bool waits;   // staging it waits for the checkpoint in flight (a changed chunk of its snapshot)
   };
   std::vector<Candidate> candidates_;
   std::vector<ChunkKey> keys_;
