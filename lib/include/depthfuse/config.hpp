@@ -183,7 +183,7 @@ struct LoopClosureConfig {
   // (keeping their thumbnails), the oldest first, where an older keyframe whose camera lies within
   // both cloud_spacing_m and _deg of theirs kept its own: one cloud a place, so that the graph's
   // memory follows the space scanned, not the scan's length.
-  double max_cloud_mib = 8.0;
+  double max_cloud_mib = 2.0;
   double cloud_spacing_m = 0.3;
   double cloud_spacing_deg = 20.0;
   // Candidates for a new keyframe: older keyframes at least min_keyframes_back keyframes and
