@@ -353,52 +353,72 @@ TEST(MapPager, AChunkLoadedOverANewerOneIsBroughtUpToDateFirst) {
   EXPECT_EQ(in_file->chunk.version, 1u);
 }
 
+namespace {
+
+// A changed chunk of 50 points at `key`, last seen at `frame`, never staged.
+void add_changed_chunk(PointMap* map, const ChunkKey& key, uint32_t frame) {
+  Chunk& c = map->get_or_create(key);
+  c.points = make_points(key, frame, 50);
+  c.last_touched_frame = c.last_seen_frame = frame;
+  c.dirty = true;
+}
+
+// The row of chunks with a budget of 25 of them: frame 100 stages the 20 old far ones, and one of
+// those, `staged`, is loaded back at frame 30 and changed (by a frame after the next snapshot).
+struct StagedRow {
+  TempDir dir;
+  std::unique_ptr<ScanStore> store;
+  PointMap map{0.5};
+  size_t chunk = 0;
+  std::unique_ptr<MapPager> pager;
+  int waits = 0;  // calls of wait_for_checkpoint
+  const ChunkKey staged{-20, 0, 0};
+
+  void SetUp() {
+    auto opened = ScanStore::open(dir.file("scan.db"), OpenMode::kCreate);
+    ASSERT_TRUE(opened);
+    store = std::move(*opened);
+    fill_row(&map);
+    chunk = MapPager::chunk_bytes(*map.find({0, 0, 0}));
+    pager = std::make_unique<MapPager>(row_config(25.0 * chunk / (1024.0 * 1024.0)), store.get());
+    pager->set_checkpoint_hooks([] { return false; }, [this] { ++waits; });
+    ASSERT_TRUE(pager->update(&map, kRowCamera, 100));
+    ASSERT_TRUE(pager->is_evicted(staged));
+    ASSERT_TRUE(pager->load_chunks(&map, {staged}, 30));  // the least recently used of all
+    Chunk& again = map.get_or_create(staged);
+    again.points.append(make_points(staged, 61, 10));
+    again.dirty = true;
+  }
+};
+
+}  // namespace
+
 // A checkpoint written in the background promotes the chunks staged before its snapshot. Staging
 // such a chunk again while it is in flight would replace the copy the checkpoint is to promote
 // (and lose what it held if the new copy is of later frames): within the budget it waits for a
 // later frame, other changed chunks go as usual and nothing waits for the checkpoint. Over the
 // budget it goes, after the checkpoint is done.
 TEST(MapPager, AChunkOfTheCheckpointInFlightIsNotStagedAgainUntilItIsDone) {
-  TempDir dir;
-  auto store = ScanStore::open(dir.file("scan.db"), OpenMode::kCreate);
-  ASSERT_TRUE(store);
-  PointMap map(0.5);
-  fill_row(&map);
-  const size_t chunk = MapPager::chunk_bytes(*map.find({0, 0, 0}));
-  MapPager pager(row_config(25.0 * chunk / (1024.0 * 1024.0)), store->get());
-  int waits = 0;
-  pager.set_checkpoint_hooks([] { return false; }, [&] { ++waits; });
-  ASSERT_TRUE(pager.update(&map, kRowCamera, 100));  // stages the 20 old far chunks
-  const ChunkKey staged{-20, 0, 0};
-  ASSERT_TRUE(pager.is_evicted(staged));
-  ASSERT_TRUE(pager.load_chunks(&map, {staged}, 30));
-  Chunk& again = map.get_or_create(staged);
-  again.points.append(make_points(staged, 61, 10));  // changed by a frame after the snapshot
-  again.dirty = true;
-  Chunk& fresh = map.get_or_create({-30, 0, 0});  // never staged
-  fresh.points = make_points({-30, 0, 0}, 40, 50);
-  fresh.last_touched_frame = fresh.last_seen_frame = 40;
-  fresh.dirty = true;
-  Chunk& fresh2 = map.get_or_create({-31, 0, 0});
-  fresh2.points = make_points({-31, 0, 0}, 40, 50);
-  fresh2.last_touched_frame = fresh2.last_seen_frame = 40;
-  fresh2.dirty = true;
+  StagedRow r;
+  ASSERT_NO_FATAL_FAILURE(r.SetUp());
+  add_changed_chunk(&r.map, {-30, 0, 0}, 40);
+  add_changed_chunk(&r.map, {-31, 0, 0}, 40);
 
-  pager.checkpoint_snapshot();
-  ASSERT_TRUE(pager.update(&map, kRowCamera, 101));  // above the low watermark, within the budget
-  EXPECT_NE(map.find(staged), nullptr) << "staged again while the checkpoint was in flight";
-  EXPECT_TRUE(pager.is_evicted({-30, 0, 0}));
-  EXPECT_EQ(waits, 0);
-  auto in_file = (*store)->read_chunk(staged, /*include_staged=*/true);
+  r.pager->checkpoint_snapshot();
+  ASSERT_TRUE(r.pager->update(&r.map, kRowCamera, 101));  // above the low watermark, within the budget
+  EXPECT_NE(r.map.find(r.staged), nullptr) << "staged again while the checkpoint was in flight";
+  EXPECT_TRUE(r.pager->is_evicted({-30, 0, 0}));
+  EXPECT_EQ(r.waits, 0);
+  auto in_file = r.store->read_chunk(r.staged, /*include_staged=*/true);
   ASSERT_TRUE(in_file);
   EXPECT_EQ(in_file->chunk.points.size(), 50u) << "the staged copy was replaced";
 
-  pager.set_other_bytes(20 * chunk);  // over the budget: it must go, once the checkpoint is done
-  ASSERT_TRUE(pager.update(&map, kRowCamera, 102));
-  EXPECT_TRUE(pager.is_evicted(staged));
-  EXPECT_EQ(waits, 1);
-  pager.checkpoint_done(true);
-  in_file = (*store)->read_chunk(staged, /*include_staged=*/true);
+  r.pager->set_other_bytes(20 * r.chunk);  // over the budget: it must go, once the checkpoint is done
+  ASSERT_TRUE(r.pager->update(&r.map, kRowCamera, 102));
+  EXPECT_TRUE(r.pager->is_evicted(r.staged));
+  EXPECT_EQ(r.waits, 1);
+  r.pager->checkpoint_done(true);
+  in_file = r.store->read_chunk(r.staged, /*include_staged=*/true);
   ASSERT_TRUE(in_file);
   EXPECT_EQ(in_file->chunk.points.size(), 60u);
 }
@@ -407,32 +427,15 @@ TEST(MapPager, AChunkOfTheCheckpointInFlightIsNotStagedAgainUntilItIsDone) {
 // recently used: staging it waits for the checkpoint's encoding and transaction, half a second on
 // a long scan, while the other candidates go at once.
 TEST(MapPager, OverTheBudgetAChunkOfTheCheckpointInFlightGoesLast) {
-  TempDir dir;
-  auto store = ScanStore::open(dir.file("scan.db"), OpenMode::kCreate);
-  ASSERT_TRUE(store);
-  PointMap map(0.5);
-  fill_row(&map);
-  const size_t chunk = MapPager::chunk_bytes(*map.find({0, 0, 0}));
-  MapPager pager(row_config(25.0 * chunk / (1024.0 * 1024.0)), store->get());
-  int waits = 0;
-  pager.set_checkpoint_hooks([] { return false; }, [&] { ++waits; });
-  ASSERT_TRUE(pager.update(&map, kRowCamera, 100));  // stages the 20 old far chunks
-  const ChunkKey staged{-20, 0, 0};
-  ASSERT_TRUE(pager.is_evicted(staged));
-  ASSERT_TRUE(pager.load_chunks(&map, {staged}, 30));  // the least recently used of all
-  Chunk& again = map.get_or_create(staged);
-  again.points.append(make_points(staged, 61, 10));
-  again.dirty = true;
-  Chunk& fresh = map.get_or_create({-30, 0, 0});
-  fresh.points = make_points({-30, 0, 0}, 40, 50);
-  fresh.last_touched_frame = fresh.last_seen_frame = 40;
-  fresh.dirty = true;
+  StagedRow r;
+  ASSERT_NO_FATAL_FAILURE(r.SetUp());
+  add_changed_chunk(&r.map, {-30, 0, 0}, 40);
 
-  pager.checkpoint_snapshot();
-  pager.set_other_bytes(3 * chunk);  // a chunk or so over the budget
-  ASSERT_TRUE(pager.update(&map, kRowCamera, 101));
-  EXPECT_EQ(waits, 0) << "waited for the checkpoint though other chunks could go";
-  EXPECT_NE(map.find(staged), nullptr);
-  EXPECT_TRUE(pager.is_evicted({-30, 0, 0}));
-  EXPECT_LE(pager.stats().resident_bytes, static_cast<size_t>(25 * chunk));
+  r.pager->checkpoint_snapshot();
+  r.pager->set_other_bytes(3 * r.chunk);  // a chunk or so over the budget
+  ASSERT_TRUE(r.pager->update(&r.map, kRowCamera, 101));
+  EXPECT_EQ(r.waits, 0) << "waited for the checkpoint though other chunks could go";
+  EXPECT_NE(r.map.find(r.staged), nullptr);
+  EXPECT_TRUE(r.pager->is_evicted({-30, 0, 0}));
+  EXPECT_LE(r.pager->stats().resident_bytes, static_cast<size_t>(25 * r.chunk));
 }
