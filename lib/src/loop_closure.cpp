@@ -189,9 +189,7 @@ std::optional<GraphCorrection> LoopCloser::process(const GraphSnapshot& s, size_
 
 void LoopCloser::search(const GraphSnapshot& s, size_t k, std::vector<PoseGraphEdge>* found) {
   const GraphKeyframe& K = s.keyframes[k];
-  // A keyframe whose points were given up (ScanGraph::forget_redundant_clouds) is no candidate.
-  const auto has_points = [](const GraphKeyframe& g) { return g.cloud && g.cloud->size() > 0; };
-  if (!has_points(K) || k == 0) return;
+  if (!K.has_points() || k == 0) return;
   // Walking back along the odometry: the covariance of keyframe k relative to each older one (in
   // k's frame), and the camera path between them.
   struct Candidate {
@@ -213,7 +211,7 @@ void LoopCloser::search(const GraphSnapshot& s, size_t k, std::vector<PoseGraphE
     if (k - j < static_cast<size_t>(std::max(1, config_.min_keyframes_back)) || path_m < config_.min_path_m)
       continue;
     const GraphKeyframe& J = s.keyframes[j];
-    if (!has_points(J)) continue;
+    if (!J.has_points()) continue;
     eligible[j] = true;
     const double d = (J.T_world_kf.translation() - K.T_world_kf.translation()).norm();
     const double sigma_m = std::sqrt(std::max(0.0, covariance.bottomRightCorner<3, 3>().trace()));

@@ -143,7 +143,6 @@ AppliedCorrection ScanGraph::apply(const GraphCorrection& c) {
 }
 
 size_t ScanGraph::forget_redundant_clouds(size_t searched) {
-  const auto has_points = [](const GraphKeyframe& k) { return k.cloud && k.cloud->size() > 0; };
   const size_t bound = static_cast<size_t>(config_.max_cloud_mib * 1024.0 * 1024.0);
   size_t bytes = 0;
   for (const GraphKeyframe& k : keyframes_)
@@ -152,10 +151,10 @@ size_t ScanGraph::forget_redundant_clouds(size_t searched) {
   for (searched = std::min(searched, keyframes_.size()); clouds_checked_ < searched && bytes > bound;
        ++clouds_checked_) {
     GraphKeyframe& k = keyframes_[clouds_checked_];
-    if (!has_points(k)) continue;
+    if (!k.has_points()) continue;
     for (size_t i = 0; i < clouds_checked_; ++i) {
       const GraphKeyframe& older = keyframes_[i];
-      if (!has_points(older) ||
+      if (!older.has_points() ||
           (older.T_world_kf.translation() - k.T_world_kf.translation()).norm() >= config_.cloud_spacing_m ||
           rotation_between_deg(older.T_world_kf, k.T_world_kf) >= config_.cloud_spacing_deg)
         continue;

@@ -43,6 +43,9 @@ struct GraphKeyframe {
   int64_t utime = 0;
   Pose T_world_kf = Pose::Identity();
   std::shared_ptr<const KeyframeCloud> cloud;  // shared with the loop closer's snapshots
+
+  // False once it gave its points up (ScanGraph::forget_redundant_clouds): no closure candidate.
+  bool has_points() const { return cloud && cloud->size() > 0; }
 };
 
 // The loop closer's result: the optimised poses of keyframes [0, T_world_kf.size()) of the graph it
