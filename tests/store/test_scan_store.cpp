@@ -1072,8 +1072,19 @@ TEST(ScanStore, AKeyframeOfALaterFrameIsLeftForItsOwnCheckpoint) {
     anchors += std::to_string(sqlite3_column_int64(st, 0)) + ":" +
                reinterpret_cast<const char*>(sqlite3_column_text(st, 1)) + " ";
   sqlite3_finalize(st);
-  sqlite3_close(db);
   EXPECT_EQ(anchors, "5:0 12:NULL ");
+  // The summary (`depthfuse inspect`) counts and sizes the checkpoint's keyframes only.
+  ASSERT_EQ(sqlite3_prepare_v2(db, "SELECT length(depth) + COALESCE(length(color), 0) FROM keyframes "
+                                   "WHERE frame_id = 5;", -1, &st, nullptr),
+            SQLITE_OK);
+  ASSERT_EQ(sqlite3_step(st), SQLITE_ROW);
+  const sqlite3_int64 committed_bytes = sqlite3_column_int64(st, 0);
+  sqlite3_finalize(st);
+  sqlite3_close(db);
+  auto sum = (*s)->summary();
+  ASSERT_TRUE(sum) << sum.status().to_string();
+  EXPECT_EQ(sum->keyframe_count, 1u);
+  EXPECT_EQ(sum->keyframe_bytes, static_cast<uint64_t>(committed_bytes));
   auto k = (*s)->read_keyframe(5);
   ASSERT_TRUE(k) << k.status().to_string();
   EXPECT_LT(pose_error(k->T_world_cam, some_pose(0.5)), 1e-9);

@@ -276,7 +276,8 @@ Result<StoreSummary> ScanStore::summary() {
   DF_RETURN_IF_ERROR(count("SELECT COUNT(*) FROM keyframes WHERE " + kCommittedFrames + ";",
                            "counting keyframes", &sum.keyframe_count));
   DF_RETURN_IF_ERROR(
-      count("SELECT COALESCE(SUM(length(depth) + COALESCE(length(color), 0)), 0) FROM keyframes;",
+      count("SELECT COALESCE(SUM(length(depth) + COALESCE(length(color), 0)), 0) FROM keyframes "
+            "WHERE " + kCommittedFrames + ";",
             "measuring keyframes", &sum.keyframe_bytes));
   DF_RETURN_IF_ERROR(count("SELECT COUNT(*) FROM checkpoints;", "counting checkpoints",
                            &sum.checkpoint_count));
