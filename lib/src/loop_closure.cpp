@@ -84,8 +84,14 @@ void LoopCloser::restore(std::vector<PoseGraphEdge> loops, size_t searched) {
   stats_.loops = loops_.size();
 }
 
-std::optional<GraphCorrection> LoopCloser::take() {
+std::optional<GraphCorrection> LoopCloser::take(std::optional<int64_t> utime) {
+  const auto min_interval_us = static_cast<int64_t>(config_.min_correction_interval_s * 1e6);
   std::lock_guard<std::mutex> lock(mutex_);
+  if (!correction_) return std::nullopt;
+  if (utime && taken_utime_ && *utime >= *taken_utime_ && *utime - *taken_utime_ < min_interval_us &&
+      correction_->max_translation_m <= config_.urgent_correction_m)
+    return std::nullopt;
+  if (utime) taken_utime_ = utime;
   std::optional<GraphCorrection> c = std::move(correction_);
   correction_.reset();
   return c;
@@ -173,7 +179,7 @@ std::optional<GraphCorrection> LoopCloser::process(const GraphSnapshot& s, size_
         turned_deg = std::max(turned_deg, rotation_between_deg(r->T_world_node[i], poses[i]));
       }
       if (moved_m >= kMinCorrectionM || turned_deg >= kMinCorrectionDeg) {
-        correction = GraphCorrection{std::move(r->T_world_node), loops_};
+        correction = GraphCorrection{std::move(r->T_world_node), loops_, moved_m};
         DF_LOG(LoopClosure, Info) << "loop closed at keyframe " << s.keyframes.size() - 1 << ": "
                                   << loops_.size() << " loops, keyframes moved up to "
                                   << moved_m * 1e3 << " mm (keyframe " << most_moved << "), "
