@@ -19,7 +19,7 @@ FramePath::~FramePath() = default;
 
 Result<FrameOutcome> FramePath::run(const Frame& frame) {
   FrameOutcome outcome;
-  outcome.correction = apply_correction(frame.utime);
+  outcome.correction = apply_correction();
   // Without a hint, tracking starts where the camera's last motion puts it, scaled to the frame's
   // time: a start at the last pose is a whole step away, two or three once frames are dropped, and
   // ICP then needs more iterations per frame.
@@ -88,9 +88,9 @@ Status FramePath::restore(ScanGraphState graph) {
   return Status::ok();
 }
 
-std::optional<AppliedCorrection> FramePath::apply_correction(std::optional<int64_t> utime) {
+std::optional<AppliedCorrection> FramePath::apply_correction() {
   if (!closer_) return std::nullopt;
-  std::optional<GraphCorrection> c = closer_->take(utime);
+  std::optional<GraphCorrection> c = closer_->take();
   if (!c) return std::nullopt;
   AppliedCorrection applied = graph_.apply(*c);
   reconstructor_.apply_correction(applied);
@@ -107,7 +107,7 @@ std::optional<AppliedCorrection> FramePath::apply_correction(std::optional<int64
 std::optional<AppliedCorrection> FramePath::finish() {
   if (!closer_) return std::nullopt;
   closer_->wait_idle();
-  return apply_correction(std::nullopt);
+  return apply_correction();
 }
 
 LoopClosureStats FramePath::loop_closure_stats() const {

@@ -36,39 +36,6 @@ Matrix6d capped_covariance(const Matrix6d& information) {
   return es.eigenvectors() * inv.asDiagonal() * es.eigenvectors().transpose();
 }
 
-// How far a set of keyframe poses moved from another: the largest translation (and whose) and the
-// largest rotation.
-struct KeyframeMotion {
-  double max_m = 0;
-  size_t most_moved = 0;
-  double max_deg = 0;
-};
-
-KeyframeMotion motion_between(const std::vector<Pose>& from, const std::vector<Pose>& to) {
-  KeyframeMotion m;
-  for (size_t i = 0; i < from.size() && i < to.size(); ++i) {
-    const double d = (to[i].translation() - from[i].translation()).norm();
-    if (d > m.max_m) {
-      m.max_m = d;
-      m.most_moved = i;
-    }
-    m.max_deg = std::max(m.max_deg, rotation_between_deg(to[i], from[i]));
-  }
-  return m;
-}
-
-// Where a correction that waits puts the snapshot's keyframes: its own poses, and the newer
-// keyframes moved with its last one (as ScanGraph::apply moves them).
-std::vector<Pose> as_corrected(const std::vector<Pose>& snapshot, const GraphCorrection& waiting) {
-  std::vector<Pose> poses = snapshot;
-  const size_t n = std::min(waiting.T_world_kf.size(), poses.size());
-  if (n == 0) return poses;
-  const Pose last_motion = waiting.T_world_kf[n - 1] * snapshot[n - 1].inverse();
-  for (size_t i = 0; i < poses.size(); ++i)
-    poses[i] = i < n ? waiting.T_world_kf[i] : last_motion * snapshot[i];
-  return poses;
-}
-
 double angle_deg(const Pose& a, const Pose& b) {
   // Between the optical axes.
   const double c = a.linear().col(2).dot(b.linear().col(2));
@@ -117,14 +84,8 @@ void LoopCloser::restore(std::vector<PoseGraphEdge> loops, size_t searched) {
   stats_.loops = loops_.size();
 }
 
-std::optional<GraphCorrection> LoopCloser::take(std::optional<int64_t> utime) {
-  const auto min_interval_us = static_cast<int64_t>(config_.min_correction_interval_s * 1e6);
+std::optional<GraphCorrection> LoopCloser::take() {
   std::lock_guard<std::mutex> lock(mutex_);
-  if (!correction_) return std::nullopt;
-  if (utime && taken_utime_ && *utime >= *taken_utime_ && *utime - *taken_utime_ < min_interval_us &&
-      correction_->max_translation_m <= config_.urgent_correction_m)
-    return std::nullopt;
-  if (utime) taken_utime_ = utime;
   std::optional<GraphCorrection> c = std::move(correction_);
   correction_.reset();
   return c;
@@ -201,18 +162,22 @@ std::optional<GraphCorrection> LoopCloser::process(const GraphSnapshot& s, size_
           ++stats_.rejected;
       }
       stats_.loops = loops_.size();
-      // Worth handing over if it moves a keyframe from where the graph will be when it is taken:
-      // the snapshot, or where a correction that still waits puts it (LoopCloser::take holds
-      // corrections; measured from the snapshot alone, each newer one would seem worth it).
-      const KeyframeMotion moved = motion_between(poses, r->T_world_node);
-      const KeyframeMotion news =
-          correction_ ? motion_between(as_corrected(poses, *correction_), r->T_world_node) : moved;
-      if (news.max_m >= kMinCorrectionM || news.max_deg >= kMinCorrectionDeg) {
-        correction = GraphCorrection{std::move(r->T_world_node), loops_, moved.max_m};
+      double moved_m = 0, turned_deg = 0;
+      size_t most_moved = 0;
+      for (size_t i = 0; i < poses.size(); ++i) {
+        const double d = (r->T_world_node[i].translation() - poses[i].translation()).norm();
+        if (d > moved_m) {
+          moved_m = d;
+          most_moved = i;
+        }
+        turned_deg = std::max(turned_deg, rotation_between_deg(r->T_world_node[i], poses[i]));
+      }
+      if (moved_m >= kMinCorrectionM || turned_deg >= kMinCorrectionDeg) {
+        correction = GraphCorrection{std::move(r->T_world_node), loops_};
         DF_LOG(LoopClosure, Info) << "loop closed at keyframe " << s.keyframes.size() - 1 << ": "
                                   << loops_.size() << " loops, keyframes moved up to "
-                                  << moved.max_m * 1e3 << " mm (keyframe " << moved.most_moved
-                                  << "), " << moved.max_deg << " deg";
+                                  << moved_m * 1e3 << " mm (keyframe " << most_moved << "), "
+                                  << turned_deg << " deg";
       }
     }
   }

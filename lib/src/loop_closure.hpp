@@ -43,12 +43,8 @@ class LoopCloser {
   // Before the first submit() of a resumed scan: the loop edges it believed before, and the
   // keyframes it had searched (the next snapshot's older ones are candidates, not searched again).
   void restore(std::vector<PoseGraphEdge> loops, size_t searched);
-  // The newest correction found and not yet taken, before the frame of `utime`; never waits. Held
-  // (none) while the last one was taken less than min_correction_interval_s before `utime`, unless
-  // it moves a keyframe more than urgent_correction_m; a newer one may replace it meanwhile, and
-  // nothing is lost, since it holds every loop. Without a stamp (the end of a scan), or with one
-  // before the last (a replay started again), never held.
-  std::optional<GraphCorrection> take(std::optional<int64_t> utime = std::nullopt);
+  // The newest correction found and not yet taken; never waits.
+  std::optional<GraphCorrection> take();
   // Waits until everything submitted has been searched (the end of an offline run).
   void wait_idle();
   LoopClosureStats stats() const;
@@ -77,7 +73,6 @@ class LoopCloser {
   std::condition_variable wake_, idle_;
   std::optional<GraphSnapshot> pending_;
   std::optional<GraphCorrection> correction_;
-  std::optional<int64_t> taken_utime_;  // the stamp of the last take() that handed one over
   bool busy_ = false, stop_ = false;
   LoopClosureStats stats_;
   std::thread thread_;

@@ -184,8 +184,6 @@ void read_loop_closure(TableReader& r, LoopClosureConfig* c) {
   r.read("model_error_m", &c->model_error_m, closed(0.0, 0.1));
   r.read("loop_loss_scale", &c->loop_loss_scale, positive());
   r.read("loop_chi2_reject", &c->loop_chi2_reject, positive());
-  r.read("min_correction_interval_s", &c->min_correction_interval_s, non_negative());
-  r.read("urgent_correction_m", &c->urgent_correction_m, non_negative());
   r.reject_unknown();
 }
 

@@ -214,14 +214,6 @@ struct LoopClosureConfig {
   // The optimiser (optimise_pose_graph): its robust loss scale and rejection threshold for loops.
   double loop_loss_scale = 4.0;
   double loop_chi2_reject = 16.8;
-  // A correction is applied at most once every min_correction_interval_s of the frames' time; one
-  // found sooner waits with the loop closer, and a newer one replaces it (a correction holds the
-  // keyframes' poses, not a step: the newest carries every loop). Going round a room a second time
-  // the closer finds a loop at nearly every keyframe, and each correction moves the whole map and
-  // asks the fusion daemon for a checkpoint at once. One that moves a keyframe more than
-  // urgent_correction_m is applied at once: the camera may be tracking against the map it moves.
-  double min_correction_interval_s = 5.0;
-  double urgent_correction_m = 0.02;
 };
 
 enum class Method { kKyostila13, kYlimaki17, kFull };

@@ -10,8 +10,7 @@
 //   graph     a frame tracked without a hint joins the pose graph (ScanGraph): a keyframe when the
 //             camera has moved far enough, which the loop closer then searches; a correction the
 //             loop closer found is applied before the next frame is predicted (the keyframes, the
-//             camera's last poses and the map move with it), at most one every
-//             loop_closure.min_correction_interval_s
+//             camera's last poses and the map move with it)
 //
 // The caller publishes what it needs of the report, and moves its own copies of past poses with a
 // correction (FrameOutcome::correction).
@@ -98,8 +97,7 @@ class FramePath {
   LoopClosureStats loop_closure_stats() const;
 
  private:
-  // Before the frame of `utime` (none: the end of a scan), what LoopCloser::take() hands over.
-  std::optional<AppliedCorrection> apply_correction(std::optional<int64_t> utime);
+  std::optional<AppliedCorrection> apply_correction();
   void join_graph(const Frame& frame, const FrameReport& report, FrameOutcome* outcome);
   void submit_graph();
 

@@ -53,7 +53,6 @@ struct GraphKeyframe {
 struct GraphCorrection {
   std::vector<Pose> T_world_kf;
   std::vector<PoseGraphEdge> loops;
-  double max_translation_m = 0;  // the largest keyframe motion from the graph the closer was given
 };
 
 // A correction once applied: how each keyframe, and so each of its frames, moved.
