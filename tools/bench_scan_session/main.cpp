@@ -20,12 +20,15 @@
 #include <deque>
 #include <fstream>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 
 #include "depthfuse/app_config.hpp"
 #include "depthfuse/base/log.hpp"
 #include "depthfuse/source_factory.hpp"
+#include "depthfuse/synthetic/synthetic_sequence.hpp"
+#include "depthfuse/synthetic/synthetic_source.hpp"
 #include "scan_session.hpp"
 #include "sqlite_checkpoint_sink.hpp"
 
@@ -117,8 +120,12 @@ struct Block {
   long frames = 0;
   double seconds = 0, max_ms = 0;
   double registration_ms = 0, fusion_ms = 0, store_ms = 0, checkpoint_ms = 0;
+  double points_added = 0;
+  double error_mm = -1;  // the last frame's tracking error (synthetic sources), -1: not known
+  LoopClosureStats closer_before;  // the loop closer's totals when the block began
   void add(double s, const FrameReport& r, double process_s) {
     ++frames;
+    points_added += static_cast<double>(r.fusion.added);
     seconds += s;
     if (s * 1e3 > max_ms) max_ms = s * 1e3;
     registration_ms += r.registration_ms;
@@ -134,8 +141,9 @@ void report(long frame, double wall_s, const Block& b, const fusiond::ScanSessio
   const IncrementalReconstructor& r = *session.reconstructor();
   const MapDeformation& d = r.deformation();
   const FramePath& path = *session.path();
+  const LoopClosureStats closer = path.loop_closure_stats();
   std::printf("%6ld %7.1f %7.1f %7.1f %7.1f %7.1f %8.1f %7.1f %7.1f %9zu %7.1f %7.1f %7.0f %7.0f "
-              "%7.0f %5u %5u %8zu %9llu %5zu %5zu %7llu\n",
+              "%7.0f %5u %5u %8zu %9llu %5zu %5zu %7llu %7.0f %7.1f %6.1f %5llu\n",
               frame, wall_s, b.mean(b.seconds * 1e3), b.max_ms, b.mean(b.registration_ms),
               b.mean(b.fusion_ms), b.mean(b.store_ms), b.mean(b.checkpoint_ms), rss_mib(),
               r.map().point_count(), counter(sink, "resident_mib"),
@@ -144,7 +152,9 @@ void report(long frame, double wall_s, const Block& b, const fusiond::ScanSessio
               d.oldest_version(), d.pending_points(),
               static_cast<unsigned long long>(d.stats().points_merged),
               path.graph().keyframes().size(), path.graph().loops().size(),
-              static_cast<unsigned long long>(dropped));
+              static_cast<unsigned long long>(dropped), b.mean(b.points_added), b.error_mm,
+              closer.seconds - b.closer_before.seconds,
+              static_cast<unsigned long long>(closer.optimisations - b.closer_before.optimisations));
   std::fflush(stdout);
 }
 
@@ -229,6 +239,36 @@ class FrameFeed {
   std::thread thread_;
 };
 
+// How far the tracked camera is from the truth, for a synthetic source (whose walk is known): the
+// track aligned to the truth at the first frame, as the scan starts wherever the camera is. It
+// tells a drifting track from a long scan's cost, which the other columns cannot.
+class TruthWitness {
+ public:
+  explicit TruthWitness(const std::string& source) {
+    const std::string prefix = "synthetic:";
+    if (source.rfind(prefix, 0) != 0) return;
+    auto config = synthetic::parse_synthetic_spec(source.substr(prefix.size()));
+    if (!config) return;
+    auto sequence = synthetic::SyntheticSequence::create(*config);
+    if (sequence) sequence_.emplace(std::move(sequence).value());
+  }
+  // The error of frame `sequence` fused at T_world_cam, mm; -1 without a truth.
+  double error_mm(uint32_t sequence, const Pose& T_world_cam) {
+    if (!sequence_ || sequence >= sequence_->size()) return -1;
+    const Pose T_true = sequence_->T_world_cam_true(sequence);
+    if (!aligned_) {
+      T_true_est_ = T_true * T_world_cam.inverse();
+      aligned_ = true;
+    }
+    return ((T_true_est_ * T_world_cam).translation() - T_true.translation()).norm() * 1e3;
+  }
+
+ private:
+  std::optional<synthetic::SyntheticSequence> sequence_;
+  bool aligned_ = false;
+  Pose T_true_est_ = Pose::Identity();
+};
+
 int run(const Options& o) {
   AppConfig config;
   if (!o.config_path.empty()) {
@@ -257,11 +297,12 @@ int run(const Options& o) {
   std::printf("# %s, %ld frames, config %s, scan file %s/scan.dfscan\n", o.source.c_str(), o.frames,
               o.config_path.empty() ? "(defaults)" : o.config_path.c_str(), dir.c_str());
   std::printf("# frame  wall_s ms_mean  ms_max  reg_ms fuse_ms store_ms ckpt_ms rss_mib map_points res_mib def_mib evicted  loaded "
-              "collide  vers  oldest  pending    merged   kfs loops dropped\n");
+              "collide  vers  oldest  pending    merged   kfs loops dropped   added  err_mm  lc_s   opt\n");
   const Clock::time_point t0 = Clock::now();
   Block block;
   fusiond::FusionProgress progress;
   FrameFeed feed(o, config);
+  TruthWitness truth(o.source);
   for (long n = 0; n < o.frames;) {
     auto frame = feed.next();
     if (!frame) {
@@ -285,6 +326,8 @@ int run(const Options& o) {
     }
     const double frame_s = std::chrono::duration<double>(Clock::now() - f0).count();
     block.add(frame_s, outcome->report, process_s);
+    if (outcome->report.fused())
+      block.error_mm = truth.error_mm(frame->sequence, outcome->report.T_world_cam);
     if (o.slow_ms > 0 && frame_s * 1e3 > o.slow_ms) {
       const FrameReport& r = outcome->report;
       const double in_process_ms =
@@ -301,6 +344,7 @@ int run(const Options& o) {
       report(n, std::chrono::duration<double>(Clock::now() - t0).count(), block, session, sink,
              feed.dropped());
       block = {};
+      block.closer_before = session.path()->loop_closure_stats();
     }
   }
   auto saved = session.stop("final", progress);
