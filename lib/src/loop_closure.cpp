@@ -36,6 +36,16 @@ Matrix6d capped_covariance(const Matrix6d& information) {
   return es.eigenvectors() * inv.asDiagonal() * es.eigenvectors().transpose();
 }
 
+// Whether the graph already relates the loop's two keyframes as its edge does, to within what a
+// correction must move to be applied: then an optimisation would leave the map where it is, and
+// only costs the loop closer's time, which grows with the graph.
+bool agrees_with_graph(const GraphSnapshot& s, const PoseGraphEdge& e) {
+  const Pose T_from_to = s.keyframes[e.from].T_world_kf.inverse() * s.keyframes[e.to].T_world_kf;
+  const Pose residual = T_from_to.inverse() * e.T_from_to;
+  return residual.translation().norm() < kMinCorrectionM &&
+         Eigen::AngleAxisd(residual.linear()).angle() * 180.0 / M_PI < kMinCorrectionDeg;
+}
+
 double angle_deg(const Pose& a, const Pose& b) {
   // Between the optical axes.
   const double c = a.linear().col(2).dot(b.linear().col(2));
@@ -137,7 +147,15 @@ std::optional<GraphCorrection> LoopCloser::process(const GraphSnapshot& s, size_
   std::vector<PoseGraphEdge> found;
   for (size_t k = first; k < s.keyframes.size(); ++k) search(s, k, &found);
   std::optional<GraphCorrection> correction;
-  if (!found.empty()) {
+  if (!found.empty() &&
+      std::all_of(found.begin(), found.end(),
+                  [&](const PoseGraphEdge& e) { return agrees_with_graph(s, e); })) {
+    // Kept without a solve: the next optimisation has them, and may still refuse them then.
+    std::lock_guard<std::mutex> lock(mutex_);
+    loops_.insert(loops_.end(), found.begin(), found.end());
+    stats_.loops = loops_.size();
+    ++stats_.loops_agreed;
+  } else if (!found.empty()) {
     std::vector<PoseGraphEdge> loops = loops_;
     loops.insert(loops.end(), found.begin(), found.end());
     std::vector<Pose> poses;
@@ -148,6 +166,9 @@ std::optional<GraphCorrection> LoopCloser::process(const GraphSnapshot& s, size_
     PoseGraphOptions options;
     options.loop_loss_scale = config_.loop_loss_scale;
     options.loop_chi2_reject = config_.loop_chi2_reject;
+    const size_t window = static_cast<size_t>(std::max(0, config_.optimise_window_keyframes));
+    if (window > 0 && poses.size() > window)
+      options.first_free_node = static_cast<uint32_t>(poses.size() - window);
     Result<PoseGraphResult> r = optimise_pose_graph(poses, edges, options);
     std::lock_guard<std::mutex> lock(mutex_);
     ++stats_.optimisations;

@@ -100,6 +100,9 @@ Status check_options(const PoseGraphOptions& options, size_t nodes) {
       return invalid_argument("fixed node " + std::to_string(node) + " is out of range (" +
                               std::to_string(nodes) + " nodes)");
   }
+  if (options.first_free_node >= nodes && nodes > 0)
+    return invalid_argument("first free node " + std::to_string(options.first_free_node) +
+                            " is out of range (" + std::to_string(nodes) + " nodes)");
   return Status::ok();
 }
 
@@ -191,6 +194,12 @@ Result<std::vector<pose_graph::EdgeError>> checked_edges(const std::vector<Pose>
   return errors;
 }
 
+// Whether the solve moves an end of the edge (PoseGraphOptions::first_free_node): the others are
+// left out of it, and a loop among fixed nodes is not judged again.
+bool touches_free_node(const PoseGraphEdge& edge, const PoseGraphOptions& options) {
+  return std::max(edge.from, edge.to) >= options.first_free_node;
+}
+
 // Ceres's cost of the edges in use: half the sum of their chi2, through the Cauchy loss of
 // `loop_scale` for loops.
 double cost(const std::vector<PoseGraphEdge>& edges, const std::vector<bool>& edge_used,
@@ -215,7 +224,8 @@ Result<int> solve(const std::vector<PoseGraphEdge>& edges,
                   const PoseGraphOptions& options, NodeStates* states) {
   bool least_squares_first = false;
   for (size_t i = 0; i < edges.size(); ++i) {
-    if (edge_used[i] && edges[i].kind == PoseGraphEdge::Kind::kLoop)
+    if (edge_used[i] && edges[i].kind == PoseGraphEdge::Kind::kLoop &&
+        touches_free_node(edges[i], options))
       least_squares_first |= chi2(errors[i], edges[i], *states) >
                              options.loop_loss_scale * options.loop_loss_scale;
   }
@@ -227,7 +237,7 @@ Result<int> solve(const std::vector<PoseGraphEdge>& edges,
   problem_options.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   ceres::Problem problem(problem_options);
   for (size_t i = 0; i < edges.size(); ++i) {
-    if (!edge_used[i]) continue;
+    if (!edge_used[i] || !touches_free_node(edges[i], options)) continue;
     const PoseGraphEdge& edge = edges[i];
     auto* cost = new ceres::AutoDiffCostFunction<pose_graph::EdgeError, 6, 4, 3, 4, 3>(
         new pose_graph::EdgeError(errors[i]));
@@ -239,11 +249,14 @@ Result<int> solve(const std::vector<PoseGraphEdge>& edges,
     if (problem.HasParameterBlock(states->q(node)))
       problem.SetManifold(states->q(node), &quaternion_manifold);
   }
-  for (const uint32_t node : options.fixed_nodes) {
-    if (!problem.HasParameterBlock(states->q(node))) continue;  // in no edge: it stays anyway
+  auto fix = [&](size_t node) {
+    if (!problem.HasParameterBlock(states->q(node))) return;  // in no edge: it stays anyway
     problem.SetParameterBlockConstant(states->q(node));
     problem.SetParameterBlockConstant(states->t(node));
-  }
+  };
+  for (const uint32_t node : options.fixed_nodes) fix(node);
+  for (size_t node = 0; node < std::min<size_t>(options.first_free_node, states->size()); ++node)
+    fix(node);
   const ceres::Solver::Options solver = solver_options(options);
   int iterations = 0;
   for (const bool robust : {false, true}) {
@@ -291,7 +304,7 @@ Result<PoseGraphResult> optimise_pose_graph(const std::vector<Pose>& T_world_nod
       result.edge_chi2[i] = chi2((*errors)[i], edges[i], states);
       const bool disagrees = !(result.edge_chi2[i] <= options.loop_chi2_reject);
       if (round < kMaxRounds && result.edge_used[i] && disagrees &&
-          edges[i].kind == PoseGraphEdge::Kind::kLoop) {
+          edges[i].kind == PoseGraphEdge::Kind::kLoop && touches_free_node(edges[i], options)) {
         result.edge_used[i] = false;
         ++result.loops_rejected;
         rejected = true;

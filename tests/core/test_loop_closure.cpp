@@ -96,6 +96,58 @@ TEST(LoopCloser, ClosesADriftedLoopWhereTheOdometryWasBlind) {
   EXPECT_LT((r->T_world_kf.back().translation() - truth.back().translation()).norm(), 5e-3);
 }
 
+// Out along the arc and back, the odometry right: every loop the way back finds agrees with the
+// graph as it stands. They are kept, and no optimisation runs for them: in a long scan of one room
+// most keyframes find such loops, and a solve costs time that grows with the graph.
+TEST(LoopCloser, KeepsLoopsThatAgreeWithTheGraphWithoutOptimising) {
+  LoopClosureConfig c;
+  c.min_keyframes_back = 6;
+  c.min_path_m = 0.5;
+  GraphSnapshot s;
+  Matrix6d cov = Matrix6d::Identity() * 1e-8;
+  cov(5, 5) = 1e-4;  // 1 cm a step along the camera's z, which the odometry does not see
+  std::vector<Pose> truth;
+  for (int k = 0; k <= 10; ++k) truth.push_back(on_arc(15 + 6 * k));
+  for (int k = 9; k >= 0; --k) truth.push_back(on_arc(15 + 6 * k));  // the same places
+  for (size_t k = 0; k < truth.size(); ++k) {
+    GraphKeyframe kf;
+    kf.frame_id = static_cast<uint32_t>(1 + 10 * k);
+    kf.T_world_kf = truth[k];
+    kf.cloud = std::make_shared<const KeyframeCloud>(cloud_of(truth[k], c));
+    s.keyframes.push_back(kf);
+    if (k > 0) {
+      PoseGraphEdge e;
+      e.from = static_cast<uint32_t>(k - 1);
+      e.to = static_cast<uint32_t>(k);
+      e.T_from_to = truth[k - 1].inverse() * truth[k];
+      e.information = cov.inverse();
+      s.odometry.push_back(e);
+      s.odometry_covariance.push_back(cov);
+    }
+  }
+  LoopCloser closer(c, RelocalisationConfig{}, /*background=*/false);
+  closer.submit(s);
+  EXPECT_FALSE(closer.take().has_value());
+  LoopClosureStats stats = closer.stats();
+  EXPECT_GE(stats.loops, 3u) << "no loop found: the test tests nothing";
+  EXPECT_EQ(stats.optimisations, 0u);
+  EXPECT_GE(stats.loops_agreed, 1u);
+
+  // The way back's last keyframe drifted 2 cm along its optical axis, where the odometry is blind:
+  // its loop disagrees, and the optimisation that follows has the loops that agreed as well.
+  s.keyframes.back().T_world_kf = truth.back() * Eigen::Translation3d(0, 0, 0.02);
+  s.odometry.back().T_from_to =
+      s.keyframes[s.keyframes.size() - 2].T_world_kf.inverse() * s.keyframes.back().T_world_kf;
+  LoopCloser again(c, RelocalisationConfig{}, /*background=*/false);
+  again.submit(s);
+  const std::optional<GraphCorrection> r = again.take();
+  ASSERT_TRUE(r.has_value());
+  stats = again.stats();
+  EXPECT_EQ(stats.optimisations, 1u);
+  EXPECT_EQ(r->loops.size(), stats.loops);
+  EXPECT_LT((r->T_world_kf.back().translation() - truth.back().translation()).norm(), 5e-3);
+}
+
 // The same view of a corner twice, three metres apart by the odometry, which knows where it went
 // to a centimetre: the place search finds the first view alike and ICP aligns the two perfectly,
 // but the correction is far beyond what the odometry allows. Refused: no loop, no correction.

@@ -288,6 +288,29 @@ TEST(PoseGraph, EdgeErrorDerivativesMatchFiniteDifferences) {
   }
 }
 
+// A window of the newest nodes solved (the loop closer's, in a long scan): the nodes before it stay
+// where they were, a loop between two of them is neither solved nor judged (a wrong one, 1 m off,
+// here), and the free nodes close the square against them, the blind edge taking the drift.
+TEST(PoseGraph, NodesBeforeTheFirstFreeOneStayAndTheirLoopsAreLeftOut) {
+  Graph g = drifted_square(1e-6);
+  close_square(&g);
+  g.edges.push_back(loop_edge(g.T_world_truth, 1, 3, translation(1.0, 0, 0)));
+  PoseGraphOptions options;
+  options.first_free_node = kBlindEdge + 1;
+  const Result<PoseGraphResult> r = optimise_pose_graph(g.T_world_initial, g.edges, options);
+  ASSERT_TRUE(r.is_ok()) << r.status().to_string();
+  for (uint32_t k = 0; k < options.first_free_node; ++k)
+    EXPECT_TRUE(r->T_world_node[k].isApprox(g.T_world_initial[k], 1e-12)) << "node " << k;
+  expect_poses_near(r->T_world_node, g.T_world_truth, 1e-4, 1e-5);
+  EXPECT_EQ(r->loops_rejected, 0u);
+  EXPECT_TRUE(r->edge_used.back()) << "a loop among fixed nodes was judged";
+
+  // The whole graph free: the wrong loop is found out.
+  const Result<PoseGraphResult> all = optimise_pose_graph(g.T_world_initial, g.edges);
+  ASSERT_TRUE(all.is_ok()) << all.status().to_string();
+  EXPECT_FALSE(all->edge_used.back());
+}
+
 // A valid little graph for the bad-input cases to spoil one thing each.
 struct Small {
   std::vector<Pose> T_world_node{Pose::Identity(), translation(1, 0, 0), translation(2, 0, 0)};
@@ -376,6 +399,11 @@ TEST(PoseGraph, BadInputIsAnErrorNamingTheEdgeOrNode) {
     Small s;
     s.options.max_iterations = 0;
     expect_invalid(s, "max_iterations", "");
+  }
+  {
+    Small s;
+    s.options.first_free_node = 3;
+    expect_invalid(s, "first free node 3", "out of range");
   }
 }
 

@@ -184,6 +184,7 @@ void read_loop_closure(TableReader& r, LoopClosureConfig* c) {
   r.read("model_error_m", &c->model_error_m, closed(0.0, 0.1));
   r.read("loop_loss_scale", &c->loop_loss_scale, positive());
   r.read("loop_chi2_reject", &c->loop_chi2_reject, positive());
+  r.read("optimise_window_keyframes", &c->optimise_window_keyframes, closed(0, 1000000));
   r.reject_unknown();
 }
 

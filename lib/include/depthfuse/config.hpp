@@ -214,6 +214,10 @@ struct LoopClosureConfig {
   // The optimiser (optimise_pose_graph): its robust loss scale and rejection threshold for loops.
   double loop_loss_scale = 4.0;
   double loop_chi2_reject = 16.8;
+  // It moves the newest optimise_window_keyframes keyframes only; the older ones hold them (and
+  // their loops) in place. A solve then costs the same however long the scan; a loop longer than
+  // the window has its correction spread over the window's part of it. 0: the whole graph.
+  int optimise_window_keyframes = 150;
 };
 
 enum class Method { kKyostila13, kYlimaki17, kFull };

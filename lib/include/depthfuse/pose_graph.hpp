@@ -49,6 +49,10 @@ struct PoseGraphOptions {
   double loop_chi2_reject = 16.8;
   int max_iterations = 50;                   // per solve (each round has one or two)
   std::vector<uint32_t> fixed_nodes = {0};   // the gauge: at least one
+  // Nodes before this one stay where they are, as fixed nodes do, and the edges between two of
+  // them are left out: they cost the same at any solution. Solving the newest nodes only keeps a
+  // solve's cost with the window's size, not the graph's. 0: every node but the fixed ones free.
+  uint32_t first_free_node = 0;
 };
 
 struct PoseGraphResult {

@@ -77,6 +77,8 @@ struct LoopClosureStats {
   uint64_t loops = 0;            // loop edges the optimiser kept
   uint64_t rejected = 0;         // loop edges the optimiser rejected
   uint64_t optimisations = 0;
+  // Keyframes whose new loops all agreed with the graph as it stood: kept, no optimisation run.
+  uint64_t loops_agreed = 0;
   double seconds = 0;            // thread time spent
 };
 
