@@ -46,6 +46,7 @@ struct Options {
   long frames = 6000;
   long report_every = 300;
   double slow_ms = 0;  // a line for every frame slower than this (0: none)
+  double drift_mm = 0;  // a line for every frame further than this from the truth (0: none)
   double rate_hz = 0;  // frames paced at this rate through a dropping queue (0: every frame, unpaced)
   size_t queue = 4;
 };
@@ -53,7 +54,8 @@ struct Options {
 void usage() {
   std::printf(
       "usage: bench_scan_session --source SPEC [--frames N] [--report-every N] [--config FILE]\n"
-      "                          [--dir DIR] [--log-level SPEC] [--slow-ms MS] [--rate HZ [--queue N]]\n"
+      "                          [--dir DIR] [--log-level SPEC] [--slow-ms MS] [--drift-mm MM]\n"
+      "                          [--rate HZ [--queue N]]\n"
       "  --source SPEC       a frame source as depthfuse-capture takes it (looped)\n"
       "  --frames N          frames to process in all (default 6000)\n"
       "  --report-every N    a line of figures every N frames (default 300)\n"
@@ -61,6 +63,8 @@ void usage() {
       "  --dir DIR           where the scan file goes (default: a temporary directory, removed)\n"
       "  --log-level SPEC    as the daemons take it, e.g. info,Pager=debug\n"
       "  --slow-ms MS        a line for every frame slower than MS: where its time went\n"
+      "  --drift-mm MM       a synthetic source: a line for every frame tracked further than MM\n"
+      "                      from the truth, with what tracking said of it\n"
       "  --rate HZ           frames come at HZ, as from the capture daemon, into a queue that drops\n"
       "                      the oldest when full (default: every frame, as fast as it is fused)\n"
       "  --queue N           that queue's frames (default 4, the daemon's queue_capacity_frames)\n");
@@ -81,6 +85,7 @@ bool parse(int argc, char** argv, Options* o) {
     else if (a == "--frames") o->frames = std::atol(v);
     else if (a == "--report-every") o->report_every = std::atol(v);
     else if (a == "--slow-ms") o->slow_ms = std::atof(v);
+    else if (a == "--drift-mm") o->drift_mm = std::atof(v);
     else if (a == "--rate") o->rate_hz = std::atof(v);
     else if (a == "--queue") o->queue = static_cast<size_t>(std::max(1L, std::atol(v)));
     else if (a == "--log-level") {
@@ -121,7 +126,7 @@ struct Block {
   double seconds = 0, max_ms = 0;
   double registration_ms = 0, fusion_ms = 0, store_ms = 0, checkpoint_ms = 0;
   double points_added = 0;
-  double error_mm = -1;  // the last frame's tracking error (synthetic sources), -1: not known
+  double error_mm = -1;  // the largest tracking error (synthetic sources), -1: not known
   LoopClosureStats closer_before;  // the loop closer's totals when the block began
   void add(double s, const FrameReport& r, double process_s) {
     ++frames;
@@ -326,8 +331,18 @@ int run(const Options& o) {
     }
     const double frame_s = std::chrono::duration<double>(Clock::now() - f0).count();
     block.add(frame_s, outcome->report, process_s);
-    if (outcome->report.fused())
-      block.error_mm = truth.error_mm(frame->sequence, outcome->report.T_world_cam);
+    if (outcome->report.fused()) {
+      const FrameReport& r = outcome->report;
+      const double error_mm = truth.error_mm(frame->sequence, r.T_world_cam);
+      block.error_mm = std::max(block.error_mm, error_mm);
+      if (o.drift_mm > 0 && error_mm > o.drift_mm)
+        std::printf("# drift frame %ld (sequence %u): %.1f mm from the truth; %s, depth's share "
+                    "%.2f, fitness %.2f (model %.2f), conditioning %.3g%s%s\n",
+                    n, frame->sequence, error_mm, to_string(r.tracking), r.registration.data_share,
+                    r.registration.fitness, r.registration.model_fitness,
+                    r.registration.conditioning, outcome->correction ? ", after a correction" : "",
+                    outcome->keyframe ? ", keyframe" : "");
+    }
     if (o.slow_ms > 0 && frame_s * 1e3 > o.slow_ms) {
       const FrameReport& r = outcome->report;
       const double in_process_ms =
