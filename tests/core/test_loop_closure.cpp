@@ -31,6 +31,27 @@ double angle_deg(const Pose& a, const Pose& b) {
   return Eigen::AngleAxisd(a.linear().transpose() * b.linear()).angle() * 180.0 / M_PI;
 }
 
+// The next keyframe of `s`: where the graph puts it, the points of the view from T_world_view,
+// and after the first the odometry edge from the keyframe before, as the graph has the two, of
+// covariance `cov`.
+void append_keyframe(GraphSnapshot* s, const Pose& T_world_kf, const Pose& T_world_view,
+                     const Matrix6d& cov, const LoopClosureConfig& c) {
+  const size_t k = s->keyframes.size();
+  GraphKeyframe kf;
+  kf.frame_id = static_cast<uint32_t>(1 + 10 * k);
+  kf.T_world_kf = T_world_kf;
+  kf.cloud = std::make_shared<const KeyframeCloud>(cloud_of(T_world_view, c));
+  s->keyframes.push_back(kf);
+  if (k == 0) return;
+  PoseGraphEdge e;
+  e.from = static_cast<uint32_t>(k - 1);
+  e.to = static_cast<uint32_t>(k);
+  e.T_from_to = s->keyframes[k - 1].T_world_kf.inverse() * T_world_kf;
+  e.information = cov.inverse();
+  s->odometry.push_back(e);
+  s->odometry_covariance.push_back(cov);
+}
+
 }  // namespace
 
 TEST(CloudIcp, RecoversTheRelativePoseOfTwoViews) {
@@ -68,20 +89,7 @@ TEST(LoopCloser, ClosesADriftedLoopWhereTheOdometryWasBlind) {
     Pose d = k == 0 ? truth[0] : drifted.back() * (truth[k - 1].inverse() * truth[k]);
     if (k > 0) d = d * Eigen::Translation3d(0, 0, 0.008);
     drifted.push_back(d);
-    GraphKeyframe kf;
-    kf.frame_id = static_cast<uint32_t>(1 + 10 * k);
-    kf.T_world_kf = d;
-    kf.cloud = std::make_shared<const KeyframeCloud>(cloud_of(truth[k], c));
-    s.keyframes.push_back(kf);
-    if (k > 0) {
-      PoseGraphEdge e;
-      e.from = static_cast<uint32_t>(k - 1);
-      e.to = static_cast<uint32_t>(k);
-      e.T_from_to = drifted[k - 1].inverse() * drifted[k];
-      e.information = cov.inverse();
-      s.odometry.push_back(e);
-      s.odometry_covariance.push_back(cov);
-    }
+    append_keyframe(&s, d, truth[k], cov, c);
   }
   const double drift_before = (drifted.back().translation() - truth.back().translation()).norm();
   ASSERT_GT(drift_before, 0.1);
@@ -109,22 +117,7 @@ TEST(LoopCloser, KeepsLoopsThatAgreeWithTheGraphWithoutOptimising) {
   std::vector<Pose> truth;
   for (int k = 0; k <= 10; ++k) truth.push_back(on_arc(15 + 6 * k));
   for (int k = 9; k >= 0; --k) truth.push_back(on_arc(15 + 6 * k));  // the same places
-  for (size_t k = 0; k < truth.size(); ++k) {
-    GraphKeyframe kf;
-    kf.frame_id = static_cast<uint32_t>(1 + 10 * k);
-    kf.T_world_kf = truth[k];
-    kf.cloud = std::make_shared<const KeyframeCloud>(cloud_of(truth[k], c));
-    s.keyframes.push_back(kf);
-    if (k > 0) {
-      PoseGraphEdge e;
-      e.from = static_cast<uint32_t>(k - 1);
-      e.to = static_cast<uint32_t>(k);
-      e.T_from_to = truth[k - 1].inverse() * truth[k];
-      e.information = cov.inverse();
-      s.odometry.push_back(e);
-      s.odometry_covariance.push_back(cov);
-    }
-  }
+  for (const Pose& T : truth) append_keyframe(&s, T, T, cov, c);
   LoopCloser closer(c, RelocalisationConfig{}, /*background=*/false);
   closer.submit(s);
   EXPECT_FALSE(closer.take().has_value());
@@ -160,22 +153,9 @@ TEST(LoopCloser, RefusesAnIdenticalPlaceTheOdometryPutsElsewhere) {
   const Matrix6d cov = Matrix6d::Identity() * 1e-6;
   const Pose view = on_arc(45);
   for (int k = 0; k <= 8; ++k) {
-    GraphKeyframe kf;
-    kf.frame_id = static_cast<uint32_t>(1 + 10 * k);
-    kf.T_world_kf = Eigen::Translation3d(0.375 * k, -0.375 * k, 0) * view;  // 3 m in all
     // The first and the last see the same (twin) corner from the same place relative to it.
-    kf.cloud = std::make_shared<const KeyframeCloud>(
-        cloud_of(k == 0 || k == 8 ? view : on_arc(45 + 5 * k, 1.2 + 0.05 * k), c));
-    s.keyframes.push_back(kf);
-    if (k > 0) {
-      PoseGraphEdge e;
-      e.from = static_cast<uint32_t>(k - 1);
-      e.to = static_cast<uint32_t>(k);
-      e.T_from_to = s.keyframes[k - 1].T_world_kf.inverse() * kf.T_world_kf;
-      e.information = cov.inverse();
-      s.odometry.push_back(e);
-      s.odometry_covariance.push_back(cov);
-    }
+    append_keyframe(&s, Eigen::Translation3d(0.375 * k, -0.375 * k, 0) * view,  // 3 m in all
+                    k == 0 || k == 8 ? view : on_arc(45 + 5 * k, 1.2 + 0.05 * k), cov, c);
   }
   LoopCloser closer(c, RelocalisationConfig{}, /*background=*/false);
   closer.submit(s);
@@ -229,12 +209,13 @@ TEST(ScanGraph, KeepsOneCloudAPlaceAndStillClosesLoops) {
         << "keyframe " << k << " lost its thumbnail too";
     if (kfs[k].cloud->size() == 0) continue;
     (k < way_out ? kept_out : kept_back) += 1;
-    for (size_t i = 0; i < k; ++i)  // no two kept clouds share a place
-      if (kfs[i].cloud->size() > 0)
-        EXPECT_FALSE((kfs[i].T_world_kf.translation() - kfs[k].T_world_kf.translation()).norm() <
-                         c.cloud_spacing_m &&
-                     angle_deg(kfs[i].T_world_kf, kfs[k].T_world_kf) < c.cloud_spacing_deg)
-            << "keyframes " << i << " and " << k;
+    for (size_t i = 0; i < k; ++i) {  // no two kept clouds share a place
+      if (kfs[i].cloud->size() == 0) continue;
+      EXPECT_FALSE((kfs[i].T_world_kf.translation() - kfs[k].T_world_kf.translation()).norm() <
+                       c.cloud_spacing_m &&
+                   angle_deg(kfs[i].T_world_kf, kfs[k].T_world_kf) < c.cloud_spacing_deg)
+          << "keyframes " << i << " and " << k;
+    }
   }
   EXPECT_GE(kept_out, 4u);
   EXPECT_LT(kept_out, way_out) << "0.25 m apart, neighbours on the way out share a place";
