@@ -41,9 +41,8 @@ Matrix6d capped_covariance(const Matrix6d& information) {
 // only costs the loop closer's time, which grows with the graph.
 bool agrees_with_graph(const GraphSnapshot& s, const PoseGraphEdge& e) {
   const Pose T_from_to = s.keyframes[e.from].T_world_kf.inverse() * s.keyframes[e.to].T_world_kf;
-  const Pose residual = T_from_to.inverse() * e.T_from_to;
-  return residual.translation().norm() < kMinCorrectionM &&
-         Eigen::AngleAxisd(residual.linear()).angle() * 180.0 / M_PI < kMinCorrectionDeg;
+  return (T_from_to.inverse() * e.T_from_to).translation().norm() < kMinCorrectionM &&
+         rotation_between_deg(T_from_to, e.T_from_to) < kMinCorrectionDeg;
 }
 
 double angle_deg(const Pose& a, const Pose& b) {
@@ -147,9 +146,10 @@ std::optional<GraphCorrection> LoopCloser::process(const GraphSnapshot& s, size_
   std::vector<PoseGraphEdge> found;
   for (size_t k = first; k < s.keyframes.size(); ++k) search(s, k, &found);
   std::optional<GraphCorrection> correction;
-  if (!found.empty() &&
-      std::all_of(found.begin(), found.end(),
-                  [&](const PoseGraphEdge& e) { return agrees_with_graph(s, e); })) {
+  const bool agreed = std::all_of(found.begin(), found.end(), [&](const PoseGraphEdge& e) {
+    return agrees_with_graph(s, e);
+  });
+  if (!found.empty() && agreed) {
     // Kept without a solve: the next optimisation has them, and may still refuse them then.
     std::lock_guard<std::mutex> lock(mutex_);
     loops_.insert(loops_.end(), found.begin(), found.end());
