@@ -352,6 +352,10 @@ void SqliteCheckpointSink::add_counters(std::vector<std::pair<std::string, doubl
   // Frames not logged: after failures beyond its memory bound the log stops until a checkpoint
   // holds every frame it dropped (a crash before then loses them).
   counters->emplace_back("frame_log_dropped", static_cast<double>(s.frame_log.frames_dropped));
+  // And frames fused after a loop closure before the checkpoint that holds it (a crash then loses
+  // them: the log cannot replay them over the map of before the correction).
+  counters->emplace_back("frame_log_skipped_after_correction",
+                         static_cast<double>(s.frames_not_logged_after_correction));
   counters->emplace_back("frame_log_encode_s", s.frame_log.encode_seconds);
   counters->emplace_back("frame_log_write_s", s.frame_log.write_seconds);
   counters->emplace_back("frame_log_cpu_s", s.frame_log.cpu_seconds);

@@ -1,7 +1,8 @@
 // The frame redo log (docs/checkpoint-format.md): a recorder killed after log-only commits resumes
 // to exactly the map, next frame id and pose it had; export of the killed file folds the logged
-// frames in; a damaged record is named and the records before it still count; a schema-4 file
-// opens (migrated); the fusion thread exports and checkpoints while the log's thread commits.
+// frames in; frames after a correction wait for the checkpoint that takes it; a damaged record is
+// named and the records before it still count; a schema-4 file opens (migrated); the fusion thread
+// exports and checkpoints while the log's thread commits.
 #include <gtest/gtest.h>
 #include <sqlite3.h>
 
@@ -246,6 +247,44 @@ TEST(FrameLog, ACheckpointDropsItsRecordsWithoutWritingThemAgain) {
   const auto wal_bytes = std::filesystem::file_size(path + "-wal");
   EXPECT_LT(wal_bytes, logged_bytes / 20) << "the checkpoint wrote " << wal_bytes
                                            << " bytes to drop " << logged_bytes;
+}
+
+// The log holds poses, not corrections: a frame fused after a correction and replayed over the
+// map of before it would land where that map was. Such frames are left out until a checkpoint
+// takes the correction; the frames after that checkpoint are logged again.
+TEST(FrameLog, FramesAfterACorrectionAreLoggedOnlyOnceACheckpointTookIt) {
+  TempDir dir;
+  const std::string path = dir.file("scan.db");
+  test::Corridor corridor;
+  IncrementalReconstructor live(config());
+  ScanMetadata meta;
+  meta.scan_id = "corrected";
+  meta.chunk_size_m = config().fusion.chunk_size_m;
+  auto rec = ScanRecorder::create(path, meta, "", "", logging_config());
+  ASSERT_TRUE(rec) << rec.status().to_string();
+  constexpr int n = 15, corrected_after = 4, checkpoint_after = 9;
+  AppliedCorrection correction;
+  correction.version = 1;
+  correction.first_frame_id = {1};
+  correction.motion = {Pose::Identity()};
+  for (int i = 0; i < n; ++i) {
+    const Frame f = corridor.render(corridor.pose(i, n), test::small_camera(), static_cast<uint32_t>(i));
+    ASSERT_TRUE((*rec)->prepare_frame(f, live.initial_pose(f, std::nullopt), live));
+    auto rep = live.process(f);
+    ASSERT_TRUE(rep && rep->fused());
+    ASSERT_TRUE((*rec)->record_frame(f, *rep, &live.map()));
+    if (i == corrected_after) (*rec)->poses_corrected(correction, rep->frame_id + 1);
+    if (i == checkpoint_after) ASSERT_TRUE((*rec)->checkpoint(&live.map(), "periodic"));
+  }
+  ASSERT_TRUE((*rec)->flush_frame_log());
+  EXPECT_EQ((*rec)->status().frames_not_logged_after_correction,
+            static_cast<uint64_t>(checkpoint_after - corrected_after));
+  auto store = ScanStore::open(path, OpenMode::kReadOnly);
+  ASSERT_TRUE(store) << store.status().to_string();
+  auto log = (*store)->frame_log_summary();
+  ASSERT_TRUE(log);
+  EXPECT_EQ(log->count, static_cast<size_t>(n - 1 - checkpoint_after));
+  EXPECT_EQ(log->first_frame_id, static_cast<uint32_t>(checkpoint_after + 2));
 }
 
 TEST(FrameLog, DamagedRecordIsNamedAndTheRecordsBeforeItAreReplayed) {

@@ -116,6 +116,8 @@ class MapDeformation {
   // to the current version where they lie, none sent to another chunk and none merged. Returns the
   // points moved (0 when the chunk is current or older than the history kept).
   size_t move_in_place(PointArrays* points, uint32_t from_version);
+  // Whether the sweep has chunks left to bring up to date since the last correction.
+  bool sweeping() const { return version_ != 0 && (sweep_version_ != version_ || !sweep_done_); }
   // Every resident chunk (end of scan, export): the whole map in the current version, pending
   // buffers applied (except those of chunks not in memory), the history no chunk needs dropped.
   // Returns the points brought up to date.

@@ -281,7 +281,12 @@ Status ScanRecorder::record_frame(const Frame& frame, const FrameReport& report,
   p.correspondences = static_cast<uint32_t>(report.registration.correspondences);
   pending_poses_.push_back(p);
   // A copy to the log's thread, which encodes and commits it (replayed frames are logged already).
-  if (frame_log_ && !replaying_) {
+  // Not a frame fused after a correction that no checkpoint has taken yet: the log holds poses, not
+  // corrections, and replayed over the map of before the correction the frame would land where
+  // that map was. A crash before the checkpoint loses it instead.
+  if (frame_log_ && !replaying_ && !corrections_.empty()) {
+    ++status_.frames_not_logged_after_correction;
+  } else if (frame_log_ && !replaying_) {
     frame_log_->push(p, frame);
     status_.frame_log = frame_log_->stats();
   }

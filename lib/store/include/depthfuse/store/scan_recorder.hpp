@@ -111,6 +111,9 @@ struct RecorderStatus {
   // checkpoint's failure and then commit a checkpoint of its own.
   Status last_checkpoint_failure;
   FrameLogStats frame_log;                   // the frame redo log's thread (when it runs)
+  // Frames fused after a correction that no checkpoint held yet, left out of the frame log
+  // (ScanRecorder::record_frame).
+  uint64_t frames_not_logged_after_correction = 0;
 };
 
 // Where a resumed scan continues.
