@@ -44,6 +44,14 @@ ChunkContents contents(const PointMap& map) {
   return out;
 }
 
+// A new scan file at `path` recording with logging_config().
+Result<std::unique_ptr<ScanRecorder>> new_recorder(const std::string& path, const std::string& scan_id) {
+  ScanMetadata meta;
+  meta.scan_id = scan_id;
+  meta.chunk_size_m = config().fusion.chunk_size_m;
+  return ScanRecorder::create(path, meta, "", "", logging_config());
+}
+
 // What the live reconstructor had when its recorder was "killed".
 struct Killed {
   ChunkContents cloud;
@@ -61,10 +69,7 @@ Killed run_and_kill(const std::string& path, int n, int checkpoint_after) {
   test::Corridor corridor;
   corridor.length_m = 8.0;
   IncrementalReconstructor live(config());
-  ScanMetadata meta;
-  meta.scan_id = "log";
-  meta.chunk_size_m = config().fusion.chunk_size_m;
-  auto rec = ScanRecorder::create(path, meta, "", "", logging_config());
+  auto rec = new_recorder(path, "log");
   EXPECT_TRUE(rec) << rec.status().to_string();
   if (!rec) return k;
   for (int i = 0; i < n; ++i) {
@@ -257,10 +262,7 @@ TEST(FrameLog, FramesAfterACorrectionAreLoggedOnlyOnceACheckpointTookIt) {
   const std::string path = dir.file("scan.db");
   test::Corridor corridor;
   IncrementalReconstructor live(config());
-  ScanMetadata meta;
-  meta.scan_id = "corrected";
-  meta.chunk_size_m = config().fusion.chunk_size_m;
-  auto rec = ScanRecorder::create(path, meta, "", "", logging_config());
+  auto rec = new_recorder(path, "corrected");
   ASSERT_TRUE(rec) << rec.status().to_string();
   constexpr int n = 15, corrected_after = 4, checkpoint_after = 9;
   AppliedCorrection correction;
@@ -274,7 +276,9 @@ TEST(FrameLog, FramesAfterACorrectionAreLoggedOnlyOnceACheckpointTookIt) {
     ASSERT_TRUE(rep && rep->fused());
     ASSERT_TRUE((*rec)->record_frame(f, *rep, &live.map()));
     if (i == corrected_after) (*rec)->poses_corrected(correction, rep->frame_id + 1);
-    if (i == checkpoint_after) ASSERT_TRUE((*rec)->checkpoint(&live.map(), "periodic"));
+    if (i == checkpoint_after) {
+      ASSERT_TRUE((*rec)->checkpoint(&live.map(), "periodic"));
+    }
   }
   ASSERT_TRUE((*rec)->flush_frame_log());
   EXPECT_EQ((*rec)->status().frames_not_logged_after_correction,

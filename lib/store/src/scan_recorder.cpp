@@ -284,11 +284,13 @@ Status ScanRecorder::record_frame(const Frame& frame, const FrameReport& report,
   // Not a frame fused after a correction that no checkpoint has taken yet: the log holds poses, not
   // corrections, and replayed over the map of before the correction the frame would land where
   // that map was. A crash before the checkpoint loses it instead.
-  if (frame_log_ && !replaying_ && !corrections_.empty()) {
-    ++status_.frames_not_logged_after_correction;
-  } else if (frame_log_ && !replaying_) {
-    frame_log_->push(p, frame);
-    status_.frame_log = frame_log_->stats();
+  if (frame_log_ && !replaying_) {
+    if (!corrections_.empty()) {
+      ++status_.frames_not_logged_after_correction;
+    } else {
+      frame_log_->push(p, frame);
+      status_.frame_log = frame_log_->stats();
+    }
   }
   last_frame_id_ = report.frame_id;
   last_pose_ = report.T_world_cam;
