@@ -11,6 +11,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -308,40 +309,61 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
     EXPECT_NEAR(coordinate_sum(c.points), std::get<2>(it->second), 1e-6) << store::to_string(key);
   });
   EXPECT_GT(resident, 0u);
-  // The trajectory knows its frames: a correction after the resume moves a pose from before the
-  // crash with its keyframe. The last frame before the crash, and its keyframe.
+  // The trajectory knows its frames: a correction after the resume moves every pose from before
+  // the crash with its keyframe (the last keyframe at or before the frame).
   ASSERT_EQ(session.trajectory().size(), stored_frames.size());
-  const size_t pre_crash = stored_frames.size() - 1;
-  const Pose pose_before = session.trajectory()[pre_crash].T_world_cam;
-  size_t keyframe = 0;
-  while (keyframe + 1 < g.keyframes().size() &&
-         g.keyframes()[keyframe + 1].frame_id <= stored_frames[pre_crash])
-    ++keyframe;
-  const Pose keyframe_before = g.keyframes()[keyframe].T_world_kf;
+  std::vector<Pose> poses_before;
+  for (const StampedPose& p : session.trajectory()) poses_before.push_back(p.T_world_cam);
+  std::vector<Pose> keyframes_before;
+  for (const GraphKeyframe& k : g.keyframes()) keyframes_before.push_back(k.T_world_kf);
+  const auto keyframe_of = [&](uint32_t frame_id) {
+    size_t k = 0;
+    while (k + 1 < keyframes_before.size() && g.keyframes()[k + 1].frame_id <= frame_id) ++k;
+    return k;
+  };
+  const auto motion_of = [&](size_t k) {
+    return Pose(g.keyframes()[k].T_world_kf * keyframes_before[k].inverse());
+  };
+  const auto largest_motion_m = [&] {
+    double m = 0;
+    for (size_t k = 0; k < keyframes_before.size(); ++k)
+      m = std::max(m, motion_of(k).translation().norm());
+    return m;
+  };
 
   // On from where the checkpoint left the camera: out along the arc and back again, over the
-  // keyframes of before the crash, until a closure on them is applied.
+  // keyframes of before the crash, until a closure on them is applied. A closure whose loops agree
+  // with the odometry may move them by microns: the walk stands until one has moved them
+  // measurably (a few closures at most).
   Walk walk(&session);
   walk.sequence_ = held.next_sequence;
   ASSERT_TRUE(walk.go(2, 45, 0.75) && walk.go(45, 2, 0.75)) << walk.last_problem;
   EXPECT_GE(walk.fused, walk.processed * 9 / 10) << walk.last_problem;
-  ASSERT_TRUE(walk.until_version_above(held.graph_version, 2)) << "no closure after the resume: " <<
-      [&] {
-        const LoopClosureStats st = session.path()->loop_closure_stats();
-        return std::to_string(g.keyframes().size()) + " keyframes, " +
-               std::to_string(st.keyframes_searched) + " searched, " +
-               std::to_string(st.candidates) + " candidates, " + std::to_string(st.aligned) +
-               " aligned, " + std::to_string(st.gated) + " gated, " + std::to_string(st.rejected) +
-               " rejected, " + std::to_string(st.optimisations) + " optimisations";
-      }();
+  const auto closure_stats = [&] {
+    const LoopClosureStats st = session.path()->loop_closure_stats();
+    return std::to_string(g.keyframes().size()) + " keyframes, " +
+           std::to_string(st.keyframes_searched) + " searched, " + std::to_string(st.candidates) +
+           " candidates, " + std::to_string(st.aligned) + " aligned, " + std::to_string(st.gated) +
+           " gated, " + std::to_string(st.rejected) + " rejected, " +
+           std::to_string(st.optimisations) + " optimisations";
+  };
+  ASSERT_TRUE(walk.until_version_above(held.graph_version, 2))
+      << "no closure after the resume: " << closure_stats();
   ASSERT_TRUE(walk.frame(2));
+  for (int closures = 1; closures < 4 && largest_motion_m() <= 1e-4; ++closures) {
+    ASSERT_TRUE(walk.until_version_above(g.version(), 2))
+        << "no further closure after the resume: " << closure_stats();
+    ASSERT_TRUE(walk.frame(2));
+  }
   EXPECT_GT(session.reconstructor()->deformation().version(), held.deformation_version);
-  const Pose motion = g.keyframes()[keyframe].T_world_kf * keyframe_before.inverse();
-  ASSERT_GT(motion.translation().norm(), 1e-4) << "the closure did not move keyframe " << keyframe;
-  const Pose pose_after = session.trajectory()[pre_crash].T_world_cam;
-  EXPECT_LT((pose_after.translation() - (motion * pose_before).translation()).norm(), 1e-6)
-      << "the pose of frame " << stored_frames[pre_crash] << " did not move with keyframe "
-      << keyframe;
+  ASSERT_GT(largest_motion_m(), 1e-4) << "the closures did not move the keyframes of before the crash";
+  for (size_t i = 0; i < stored_frames.size(); ++i) {
+    const size_t k = keyframe_of(stored_frames[i]);
+    const Pose expected = motion_of(k) * poses_before[i];
+    EXPECT_LT((session.trajectory()[i].T_world_cam.translation() - expected.translation()).norm(),
+              1e-6)
+        << "the pose of frame " << stored_frames[i] << " did not move with keyframe " << k;
+  }
   // The points fused before the crash followed it: chunks from the file brought up to date.
   EXPECT_GT(session.reconstructor()->deformation().stats().points_updated, 0u);
 }
