@@ -1,8 +1,11 @@
 #include "cloud_icp.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <unordered_map>
 #include <vector>
+
+#include <Eigen/Eigenvalues>
 
 namespace depthfuse {
 
@@ -51,6 +54,24 @@ class CubeGrid {
 
 constexpr double kCosMaxNormalAngle = 0.8191520;  // 35 degrees
 
+Eigen::Matrix3d skew(const Eigen::Vector3d& v) {
+  Eigen::Matrix3d m;
+  m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
+  return m;
+}
+
+// H less its noise N, in H's eigen-directions: each eigenvalue less N's share along it, at least 0.
+Matrix6d without_noise(const Matrix6d& H, const Matrix6d& N) {
+  const Eigen::SelfAdjointEigenSolver<Matrix6d> eig(0.5 * (H + H.transpose()));
+  if (eig.info() != Eigen::Success) return H;
+  Vector6d kept;
+  for (int d = 0; d < 6; ++d) {
+    const auto u = eig.eigenvectors().col(d);
+    kept(d) = std::max(0.0, eig.eigenvalues()(d) - u.dot(N * u));
+  }
+  return eig.eigenvectors() * kept.asDiagonal() * eig.eigenvectors().transpose();
+}
+
 }  // namespace
 
 CloudAlignment align_clouds(const KeyframeCloud& source, const KeyframeCloud& target,
@@ -60,6 +81,10 @@ CloudAlignment align_clouds(const KeyframeCloud& source, const KeyframeCloud& ta
   if (source.size() < 50 || target.size() < 50) return out;
   Pose T = T_target_source_initial;
   Matrix6d H = Matrix6d::Zero();
+  // For the share of H that the normals' noise makes (see below): the sum of what a tilt of
+  // variance 1 rad^2 would add to the pairs' J J^T, and the pairs' squared normal differences.
+  Matrix6d H_unit_tilt = Matrix6d::Zero();
+  double sq_tilt = 0;
   double sq_residual = 0, weight_sum = 0;
   size_t pairs = 0;
   for (int level = 2; level >= 0; --level) {
@@ -71,6 +96,8 @@ CloudAlignment align_clouds(const KeyframeCloud& source, const KeyframeCloud& ta
       sq_residual = 0;
       weight_sum = 0;
       pairs = 0;
+      H_unit_tilt.setZero();
+      sq_tilt = 0;
       const Eigen::Matrix3f R = T.linear().cast<float>();
       const Eigen::Vector3f t = T.translation().cast<float>();
       for (size_t i = 0; i < source.size(); ++i) {
@@ -88,6 +115,16 @@ CloudAlignment align_clouds(const KeyframeCloud& source, const KeyframeCloud& ta
         const double w = std::abs(r) <= 0.5f * gate ? 1.0 : 0.5 * gate / std::abs(r);
         H += w * J * J.transpose();
         b += w * J * r;
+        // A tilt e of the normal (e across n_s) adds [p x e; e] to J: in H, w times its
+        // covariance, which is (tilt^2 / 2) (I - n n^T) for a tilt equally likely in any direction.
+        const Eigen::Matrix3d P =
+            Eigen::Matrix3d::Identity() - n_s.cast<double>() * n_s.cast<double>().transpose();
+        const Eigen::Matrix3d X = skew(p.cast<double>());
+        H_unit_tilt.topLeftCorner<3, 3>() += w * X * P * X.transpose();
+        H_unit_tilt.topRightCorner<3, 3>() += w * X * P;
+        H_unit_tilt.bottomLeftCorner<3, 3>() += w * P * X.transpose();
+        H_unit_tilt.bottomRightCorner<3, 3>() += w * P;
+        sq_tilt += (R * source.normal[i] - n_t).squaredNorm();
         sq_residual += static_cast<double>(r) * r;
         weight_sum += w;
         ++pairs;
@@ -105,7 +142,16 @@ CloudAlignment align_clouds(const KeyframeCloud& source, const KeyframeCloud& ta
   out.overlap = static_cast<double>(pairs) / source.size();
   out.rmse_m = std::sqrt(sq_residual / pairs);
   const double noise2 = std::max(sq_residual / pairs, 2.5e-7);
-  out.information = H / (noise2 + config.model_error_m * config.model_error_m * weight_sum);
+  // The normals are the cubes' and carry noise; H, built from them, then has curvature where the
+  // cost has none: along a bare wall, a tilt of the normals pairs the motion along the wall with a
+  // residual. A loop edge would then hold whatever the initial pose said along the wall (the
+  // odometry's drift) as if it had measured it. The tilt's variance is measured from the pairs
+  // (two normals of one surface differ by two tilts), and its share of H taken out, direction by
+  // direction, none left below zero.
+  const double tilt2 = sq_tilt / (2.0 * pairs);
+  const double pair_variance = noise2 + config.model_error_m * config.model_error_m * weight_sum;
+  out.information = without_noise(H, 0.5 * tilt2 * H_unit_tilt) / pair_variance;
+  out.followed_information = H / pair_variance;
   return out;
 }
 

@@ -20,8 +20,11 @@ struct CloudAlignment {
   double overlap = 0;  // pairs / source points
   double rmse_m = 0;
   // Of the source's pose in the target's frame, as a right perturbation (pose_delta.hpp): the
-  // normal equations over the variance of a pair (the residual's, and config.model_error_m's).
+  // normal equations less the share the normals' noise makes, over the variance of a pair (the
+  // residual's, and config.model_error_m's).
   Matrix6d information = Matrix6d::Zero();
+  // The same with the normals' noise left in: the curvature the ICP itself followed.
+  Matrix6d followed_information = Matrix6d::Zero();
 };
 
 // Coarse to fine from T_target_source_initial: gates of 4, 2 and 1 times

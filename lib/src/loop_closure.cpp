@@ -291,9 +291,12 @@ bool LoopCloser::believe(const GraphSnapshot& s, size_t i, size_t k, const Pose&
   ++stats_.aligned;
   // The correction the loop asks of the graph, against what the odometry between the two allows
   // (inflated: the odometry's covariance is the tracking's estimate of itself) and the loop's own.
+  // The loop's is the curvature the ICP followed, the normals' noise in it: how far an ICP moves
+  // along a direction that only the noise curves is the noise's doing, and a loop whose ICP went
+  // far that way (a look-alike place) is refused.
   const Vector6d e = pose_delta(I.T_world_kf.inverse() * K.T_world_kf, a.T_target_source);
   const double g = config_.gate_inflation;
-  const Matrix6d S = g * g * path_covariance + capped_covariance(a.information);
+  const Matrix6d S = g * g * path_covariance + capped_covariance(a.followed_information);
   const double chi2 = e.dot(S.ldlt().solve(e));
   if (!(chi2 <= config_.gate_chi2)) {
     ++stats_.gated;

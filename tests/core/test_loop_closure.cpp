@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Eigenvalues>
+#include <random>
 
 #include "cloud_icp.hpp"
 #include "core_test_util.hpp"
@@ -69,6 +70,41 @@ TEST(CloudIcp, RecoversTheRelativePoseOfTwoViews) {
   EXPECT_LT(angle_deg(r.T_target_source, truth), 0.2);
   // Three planes constrain every direction.
   EXPECT_GT(Eigen::SelfAdjointEigenSolver<Matrix6d>(r.information).eigenvalues()(0), 1.0);
+}
+
+// A bare wall seen from two places along it, with noise: the depth says nothing of the motion
+// along the wall, and the alignment must not claim it did. The normals' noise gives the normal
+// equations curvature along the wall; the information keeps only what the cost shows.
+TEST(CloudIcp, ClaimsNothingAlongABareWall) {
+  const LoopClosureConfig c;
+  const Eigen::Vector3d n(0, 1, 0);  // the wall y = 0
+  const Pose A = test::look_at({1.0, 2.5, 1.4}, {1.0, 0.0, 1.4});
+  const Pose B = test::look_at({1.137, 2.5, 1.4}, {1.137, 0.0, 1.4});
+  std::mt19937 rng(7);
+  std::normal_distribution<float> noise_m(0.0f, 0.003f);
+  const auto noisy_cloud = [&](const Pose& T_world_cam) {
+    Frame f = test::render_plane(T_world_cam, n, 0.0);
+    for (float& d : f.depth.depth_m)
+      if (d > 0) d += noise_m(rng);
+    MeasurementImage m;
+    EXPECT_TRUE(backproject(f, SensorModelConfig{}, FusionConfig{}, &m).is_ok());
+    return make_keyframe_cloud(m, c);
+  };
+  const KeyframeCloud a = noisy_cloud(A), b = noisy_cloud(B);
+  ASSERT_GT(a.size(), 500u);
+  const Pose truth = A.inverse() * B;
+  // The graph's guess is 10 cm off along the wall (the camera's x in both views).
+  const Pose guess = truth * Eigen::Translation3d(0.10, 0, 0);
+  const CloudAlignment r = align_clouds(b, a, guess, c);
+  ASSERT_TRUE(r.converged);
+  // In B's frame: along the wall (x), and the wall's normal (z, the optical axis).
+  Vector6d along = Vector6d::Zero(), normal = Vector6d::Zero();
+  along(3) = 1;
+  normal(5) = 1;
+  EXPECT_LT(along.dot(r.information * along), 1000.0) << "a sigma under 3 cm along the wall";
+  EXPECT_GT(normal.dot(r.information * normal), 1e4) << "a sigma over 1 cm across the wall";
+  // What the alignment does say, it says right: the distance to the wall.
+  EXPECT_LT(std::abs(r.T_target_source.translation().z() - truth.translation().z()), 3e-3);
 }
 
 // Out along the arc and back: the odometry drifts upwards (a direction it was told it could not

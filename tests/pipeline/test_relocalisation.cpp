@@ -194,7 +194,9 @@ TEST(Relocalisation, AViewThatFitsTwoMappedPlacesIsRefused) {
       ASSERT_TRUE(r.is_ok());
       ambiguous += r->relocalisations_ambiguous;
       relocalised += r->relocalised ? 1 : 0;
-      if (rivals > 0) EXPECT_FALSE(r->fused()) << "back " << k;
+      if (rivals > 0) {
+        EXPECT_FALSE(r->fused()) << "back " << k;
+      }
     }
     std::printf("rivals %d: %d relocalised, %d refused as ambiguous\n", rivals, relocalised, ambiguous);
     if (rivals > 0) {
