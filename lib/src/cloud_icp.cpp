@@ -54,12 +54,6 @@ class CubeGrid {
 
 constexpr double kCosMaxNormalAngle = 0.8191520;  // 35 degrees
 
-Eigen::Matrix3d skew(const Eigen::Vector3d& v) {
-  Eigen::Matrix3d m;
-  m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
-  return m;
-}
-
 // H less its noise N, in H's eigen-directions: each eigenvalue less N's share along it, at least 0.
 Matrix6d without_noise(const Matrix6d& H, const Matrix6d& N) {
   const Eigen::SelfAdjointEigenSolver<Matrix6d> eig(0.5 * (H + H.transpose()));
@@ -117,14 +111,17 @@ CloudAlignment align_clouds(const KeyframeCloud& source, const KeyframeCloud& ta
         b += w * J * r;
         // A tilt e of the normal (e across n_s) adds [p x e; e] to J: in H, w times its
         // covariance, which is (tilt^2 / 2) (I - n n^T) for a tilt equally likely in any direction.
-        const Eigen::Matrix3d P =
-            Eigen::Matrix3d::Identity() - n_s.cast<double>() * n_s.cast<double>().transpose();
-        const Eigen::Matrix3d X = skew(p.cast<double>());
-        H_unit_tilt.topLeftCorner<3, 3>() += w * X * P * X.transpose();
-        H_unit_tilt.topRightCorner<3, 3>() += w * X * P;
-        H_unit_tilt.bottomLeftCorner<3, 3>() += w * P * X.transpose();
-        H_unit_tilt.bottomRightCorner<3, 3>() += w * P;
-        sq_tilt += (R * source.normal[i] - n_t).squaredNorm();
+        // Only the last pass's is used, and that is always on the finest level.
+        if (level == 0) {
+          const Eigen::Matrix3d P =
+              Eigen::Matrix3d::Identity() - n_s.cast<double>() * n_s.cast<double>().transpose();
+          const Eigen::Matrix3d X = skew(p.cast<double>());
+          H_unit_tilt.topLeftCorner<3, 3>() += w * X * P * X.transpose();
+          H_unit_tilt.topRightCorner<3, 3>() += w * X * P;
+          H_unit_tilt.bottomLeftCorner<3, 3>() += w * P * X.transpose();
+          H_unit_tilt.bottomRightCorner<3, 3>() += w * P;
+          sq_tilt += (R * source.normal[i] - n_t).squaredNorm();
+        }
         sq_residual += static_cast<double>(r) * r;
         weight_sum += w;
         ++pairs;

@@ -2,15 +2,11 @@
 
 namespace depthfuse {
 
-namespace {
-
 Eigen::Matrix3d skew(const Eigen::Vector3d& v) {
   Eigen::Matrix3d S;
   S << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
   return S;
 }
-
-}  // namespace
 
 Vector6d pose_delta(const Pose& T_ref, const Pose& T) {
   const Eigen::Matrix3d R = T_ref.linear().transpose() * T.linear();

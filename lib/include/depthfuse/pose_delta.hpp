@@ -17,6 +17,8 @@ using Matrix6d = Eigen::Matrix<double, 6, 6>;
 Vector6d pose_delta(const Pose& T_ref, const Pose& T);
 // T_ref moved by delta.
 Pose apply_delta(const Pose& T_ref, const Vector6d& delta);
+// The cross-product matrix: skew(v) * w = v x w.
+Eigen::Matrix3d skew(const Eigen::Vector3d& v);
 // For a pose B = A * X_a_b: a small delta of A, with X_a_b held, is the delta
 // delta_adjoint(X_a_b) * delta_A of B. Covariances move with it: C_B = J C_A J^T.
 Matrix6d delta_adjoint(const Pose& X_a_b);
