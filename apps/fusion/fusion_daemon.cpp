@@ -311,8 +311,8 @@ void FusionDaemon::execute(const command_t& cmd) {
   publish_heartbeat();  // the acknowledgement, at once
 }
 
-void FusionDaemon::fuse(QueuedFrame& item) {
-  Result<FrameOutcome> outcome = session_.process(item.frame);
+void FusionDaemon::fuse(QueuedFrame& item, FrameWork work) {
+  Result<FrameOutcome> outcome = session_.process(item.frame, work);
   if (!outcome) {
     ++process_errors_;
     set_error("frame " + std::to_string(item.frame.sequence) + ": " + outcome.status().to_string());
@@ -331,6 +331,8 @@ void FusionDaemon::fuse(QueuedFrame& item) {
     preview_.frame_fused(item.frame.sequence, rep.T_world_cam, rep.registered);
     if (rep.registered) ++registered_;
     else if (session_.trajectory().size() > 1) ++icp_failures_;
+  } else if (rep.fusion_shed) {
+    ++frames_fusion_shed_;
   }
   publish_frame(item, rep);
 }
@@ -423,7 +425,11 @@ void FusionDaemon::worker_loop() {
     auto item = queue_.pop(std::chrono::milliseconds(50));
     if (item && state_.load() == heartbeat_t::STATE_RUNNING && session_.active()) {
       worker_busy_since_ns_ = steady_ns();
-      fuse(*item);
+      // Behind the camera: this frame is tracked only, so that the queue empties before it must
+      // drop frames (fusion_daemon.shed_fusion_queue_share).
+      const size_t shed_at = config_.fusion.shed_fusion_waiting_frames();
+      fuse(*item, shed_at > 0 && queue_.size() >= shed_at ? FrameWork::kTrackOnly
+                                                           : FrameWork::kTrackAndFuse);
       worker_busy_since_ns_ = 0;
     } else if (item) {
       ++frames_ignored_;  // queued just before a pause or stop
@@ -539,6 +545,7 @@ void FusionDaemon::publish_heartbeat() {
   preview_.add_counters(&preview_counters);
   for (const auto& [counter, value] : preview_counters) daemon::add_counter(&hb, counter, value);
   daemon::add_counter(&hb, "frames_ignored", static_cast<double>(frames_ignored_.load()));
+  daemon::add_counter(&hb, "frames_fusion_shed", static_cast<double>(frames_fusion_shed_.load()));
   daemon::add_counter(&hb, "frames_other_serial", static_cast<double>(frames_other_serial_.load()));
   daemon::add_counter(&hb, "frames_registered", static_cast<double>(registered_.load()));
   daemon::add_counter(&hb, "icp_failures", static_cast<double>(icp_failures_.load()));

@@ -72,7 +72,7 @@ class FusionDaemon {
   void execute(const depthfuse::command_t& cmd);
   Status start_scan(const std::string& requested_name, std::string* message);
   Status stop_scan(const std::string& reason, std::string* message);
-  void fuse(QueuedFrame& item);
+  void fuse(QueuedFrame& item, FrameWork work);
   void publish_frame(const QueuedFrame& item, const FrameReport& report);
   void publish_correction(const AppliedCorrection& correction);
   // The pose graph's figures for the heartbeat.
@@ -103,6 +103,8 @@ class FusionDaemon {
   std::atomic<bool> stopping_{false};
   lcm::ReceiveCounters counters_;             // all our channels together
   std::atomic<int64_t> frames_in_{0}, frames_fused_{0}, frames_ignored_{0};
+  // Frames tracked but not fused because the queue was filling (shed_fusion_queue_share).
+  std::atomic<int64_t> frames_fusion_shed_{0};
   std::atomic<int64_t> frames_other_serial_{0};  // not fusion_daemon.capture_serial's
   std::atomic<int64_t> process_errors_{0}, icp_failures_{0}, registered_{0};
   // Frames by the tracking state the worker gave them, and the last one's state.

@@ -131,10 +131,10 @@ Result<std::string> ScanSession::start(const std::string& requested_name) {
   return message;
 }
 
-Result<FrameOutcome> ScanSession::process(const Frame& frame) {
+Result<FrameOutcome> ScanSession::process(const Frame& frame, FrameWork work) {
   if (!active()) return invalid_argument("no scan is running");
   const uint32_t frame_id = reconstructor_->next_frame_id();
-  Result<FrameOutcome> outcome = path_->run(frame);
+  Result<FrameOutcome> outcome = path_->run(frame, work);
   if (!outcome) return outcome;
   if (outcome->correction) {
     correct_trajectory(*outcome->correction, frame_id);

@@ -33,8 +33,8 @@ class ScanSession {
   // resumed at frame N").
   Result<std::string> start(const std::string& requested_name);
   // The frame's whole path: predict, prepare the map, process, record (frame_path.hpp). A fused
-  // frame's pose joins the trajectory.
-  Result<FrameOutcome> process(const Frame& frame);
+  // frame's pose joins the trajectory; one tracked only (FrameWork::kTrackOnly) does not.
+  Result<FrameOutcome> process(const Frame& frame, FrameWork work = FrameWork::kTrackAndFuse);
   // A periodic checkpoint is due: checkpoint_interval_s since the last, less the time the last one
   // took to commit (so that what a crash can lose stays within the interval), and none in flight.
   bool checkpoint_due() const;

@@ -17,7 +17,7 @@ FramePath::FramePath(IncrementalReconstructor& reconstructor, FrameStore* store,
 
 FramePath::~FramePath() = default;
 
-Result<FrameOutcome> FramePath::run(const Frame& frame) {
+Result<FrameOutcome> FramePath::run(const Frame& frame, FrameWork work) {
   FrameOutcome outcome;
   outcome.correction = apply_correction();
   // Without a hint, tracking starts where the camera's last motion puts it, scaled to the frame's
@@ -28,7 +28,7 @@ Result<FrameOutcome> FramePath::run(const Frame& frame) {
                              : reconstructor_.constant_velocity_prediction(frame.utime);
   const Pose T_world_cam_initial = reconstructor_.initial_pose(frame, prediction);
   if (store_) outcome.store_status = store_->prepare_frame(frame, T_world_cam_initial, reconstructor_);
-  Result<FrameReport> report = reconstructor_.process(frame, prediction);
+  Result<FrameReport> report = reconstructor_.process(frame, prediction, work);
   if (!report) return report.status();
   outcome.report = std::move(*report);
   outcome.report.graph_memory_bytes =
@@ -45,7 +45,7 @@ Result<FrameOutcome> FramePath::run(const Frame& frame) {
 }
 
 void FramePath::join_graph(const Frame& frame, const FrameReport& report, FrameOutcome* outcome) {
-  if (!closer_ || frame.T_world_cam_hint || !report.fused()) return;
+  if (!closer_ || frame.T_world_cam_hint || !report.placed()) return;
   // The first frame is placed by definition; a relocalised one was found by a search, not tracked
   // from the last: nothing is known of how it moved since.
   Matrix6d covariance = Matrix6d::Zero();
@@ -53,6 +53,10 @@ void FramePath::join_graph(const Frame& frame, const FrameReport& report, FrameO
     covariance = Matrix6d::Identity();
   else if (report.registered)
     covariance = report.registration.covariance;
+  if (!report.fused()) {
+    graph_.frame_tracked(report.T_world_cam, covariance);
+    return;
+  }
   if (!graph_.frame_fused(report.frame_id, frame.utime, report.T_world_cam, covariance,
                           reconstructor_.measurement()))
     return;

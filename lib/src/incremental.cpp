@@ -48,11 +48,11 @@ size_t IncrementalReconstructor::relocalisation_bytes(const RelocalisationConfig
 }
 
 bool IncrementalReconstructor::reachable(const Pose& T_world_cam, int64_t utime) const {
-  if (!fused_last_) return true;
-  // The last fused frame's own error and ICP's: a tenth of a metre, ten degrees.
+  if (!placed_last_) return true;
+  // The last placed frame's own error and ICP's: a tenth of a metre, ten degrees.
   constexpr double kSlackM = 0.1, kSlackDeg = 10.0;
-  const double dt_s = std::max<double>(0.0, static_cast<double>(utime - fused_last_->utime) * 1e-6);
-  const Pose delta = fused_last_->T_world_cam.inverse() * T_world_cam;
+  const double dt_s = std::max<double>(0.0, static_cast<double>(utime - placed_last_->utime) * 1e-6);
+  const Pose delta = placed_last_->T_world_cam.inverse() * T_world_cam;
   const double turned_deg = Eigen::AngleAxisd(delta.linear()).angle() * 180.0 / M_PI;
   const RelocalisationConfig& c = config_.relocalisation;
   return delta.translation().norm() <= c.max_speed_m_s * dt_s + kSlackM &&
@@ -89,7 +89,8 @@ void IncrementalReconstructor::relocalise(int64_t utime, FrameReport* report) {
 }
 
 Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
-                                                      const std::optional<Pose>& prediction) {
+                                                      const std::optional<Pose>& prediction,
+                                                      FrameWork work) {
   FrameReport report;
   report.frame_id = next_frame_id_;
   auto t0 = Clock::now();
@@ -141,6 +142,13 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   }
 
   note_tracked(frame, T, report);
+  if (work == FrameWork::kTrackOnly && map_->point_count() > 0) {
+    report.fusion_shed = true;
+    placed_at(frame.utime, T);
+    registrar_.keep_frame_as_photometric_reference(scratch_, T);
+    ++next_frame_id_;
+    return report;
+  }
   // Registration may have moved the pose far (a relocalisation).
   deform([&] { deformation_.update_visible_if_moved(map_.get(), scratch_, T); });
   t0 = Clock::now();
@@ -256,7 +264,7 @@ void IncrementalReconstructor::retry_from_last_pose(const MotionPrior* prior,
 std::optional<MotionPrior> IncrementalReconstructor::motion_prior(
     int64_t utime, const std::optional<Pose>& prediction) const {
   const RegistrationConfig& c = config_.registration;
-  if (!c.motion_prior || !prediction || !fused_before_last_ || !fused_last_) return std::nullopt;
+  if (!c.motion_prior || !prediction || !placed_before_last_ || !placed_last_) return std::nullopt;
   const double min_rad = c.motion_prior_min_deg * M_PI / 180.0;
   Vector6d sigma;
   for (int k = 0; k < 6; ++k)
@@ -265,8 +273,8 @@ std::optional<MotionPrior> IncrementalReconstructor::motion_prior(
   // grows with the stretch. Not with its square: after a gap of a second the prior would then say
   // nothing of a direction the view does not see (metres), and neither would the odometry edge the
   // pose graph gets, so that any loop's weak pull along that direction would move the keyframe.
-  const double period = static_cast<double>(fused_last_->utime - fused_before_last_->utime);
-  const double stretch = period > 0 ? static_cast<double>(utime - fused_last_->utime) / period : 1.0;
+  const double period = static_cast<double>(placed_last_->utime - placed_before_last_->utime);
+  const double stretch = period > 0 ? static_cast<double>(utime - placed_last_->utime) / period : 1.0;
   sigma *= std::max(1.0, stretch);
   MotionPrior prior;
   prior.T_world_cam = *prediction;
@@ -295,18 +303,20 @@ Vector6d IncrementalReconstructor::initial_motion_error_sq() const {
   return v;
 }
 
-bool IncrementalReconstructor::last_step_spans(int64_t utime, int64_t max_gap_us) const {
-  if (!fused_before_last_ || !fused_last_) return false;
-  const int64_t between_us = fused_last_->utime - fused_before_last_->utime;
-  return between_us > 0 && between_us <= max_gap_us && utime > fused_last_->utime &&
-         utime - fused_last_->utime <= max_gap_us;
+bool IncrementalReconstructor::step_spans(const std::optional<StampedPose>& before,
+                                          const std::optional<StampedPose>& last, int64_t utime,
+                                          int64_t max_gap_us) {
+  if (!before || !last) return false;
+  const int64_t between_us = last->utime - before->utime;
+  return between_us > 0 && between_us <= max_gap_us && utime > last->utime &&
+         utime - last->utime <= max_gap_us;
 }
 
 std::optional<CameraVelocity> IncrementalReconstructor::camera_velocity_through_next(
     int64_t utime) const {
   // Across a gap (frames lost, dropped by a full queue, or a stride of more than a few frames) the
   // last motion says little about the shear of this frame's readout.
-  if (!last_step_spans(utime, 200000)) return std::nullopt;
+  if (!step_spans(fused_before_last_, fused_last_, utime, 200000)) return std::nullopt;
   return camera_velocity(fused_before_last_->T_world_cam, fused_last_->T_world_cam,
                          static_cast<double>(fused_last_->utime - fused_before_last_->utime) * 1e-6,
                          fused_last_->T_world_cam);
@@ -317,21 +327,27 @@ std::optional<Pose> IncrementalReconstructor::constant_velocity_prediction(int64
   // step still says more about where a hand-held camera went than that it stood still, which is
   // what tracking without a prediction holds in the directions the view does not constrain; the
   // motion prior widens with the gap (motion_prior()). Beyond a second it says little.
-  if (!last_step_spans(utime, 1000000)) return std::nullopt;
-  const double scale = static_cast<double>(utime - fused_last_->utime) /
-                       static_cast<double>(fused_last_->utime - fused_before_last_->utime);
+  if (!step_spans(placed_before_last_, placed_last_, utime, 1000000)) return std::nullopt;
+  const double scale = static_cast<double>(utime - placed_last_->utime) /
+                       static_cast<double>(placed_last_->utime - placed_before_last_->utime);
   // The step between the last two, as a rotation about one axis and a translation, stretched to
   // this frame's time: after frames dropped by a full queue the step is two or three of them.
-  const Pose step = fused_before_last_->T_world_cam.inverse() * fused_last_->T_world_cam;
+  const Pose step = placed_before_last_->T_world_cam.inverse() * placed_last_->T_world_cam;
   const Eigen::AngleAxisd rotation(step.rotation());
   Pose scaled = Pose::Identity();
   scaled.linear() = Eigen::AngleAxisd(rotation.angle() * scale, rotation.axis()).toRotationMatrix();
   scaled.translation() = step.translation() * scale;
-  return fused_last_->T_world_cam * scaled;
+  return placed_last_->T_world_cam * scaled;
+}
+
+void IncrementalReconstructor::placed_at(int64_t utime, const Pose& T_world_cam) {
+  last_T_world_cam_ = T_world_cam;
+  placed_before_last_ = placed_last_;
+  placed_last_ = StampedPose{utime, T_world_cam};
 }
 
 void IncrementalReconstructor::fused_at(int64_t utime, const Pose& T_world_cam) {
-  last_T_world_cam_ = T_world_cam;
+  placed_at(utime, T_world_cam);
   fused_before_last_ = fused_last_;
   fused_last_ = StampedPose{utime, T_world_cam};
 }
@@ -370,8 +386,9 @@ void IncrementalReconstructor::apply_correction(const AppliedCorrection& c) {
   // model's velocity) is the same in the corrected frame.
   const Pose& motion = c.motion.back();
   if (last_T_world_cam_) last_T_world_cam_ = motion * *last_T_world_cam_;
-  if (fused_last_) fused_last_->T_world_cam = motion * fused_last_->T_world_cam;
-  if (fused_before_last_) fused_before_last_->T_world_cam = motion * fused_before_last_->T_world_cam;
+  for (std::optional<StampedPose>* p :
+       {&placed_last_, &placed_before_last_, &fused_last_, &fused_before_last_})
+    if (*p) (*p)->T_world_cam = motion * (*p)->T_world_cam;
   relocaliser_->move_keyframes(
       [&](uint32_t frame_id, const Pose& T) { return c.motion_of(frame_id) * T; });
   // The last rendered model and the photometric reference are of the map as it was.
@@ -395,6 +412,8 @@ void IncrementalReconstructor::reset(std::unique_ptr<PointMap> map, uint32_t nex
   motion_error_sq_ = initial_motion_error_sq();
   next_frame_id_ = std::max<uint32_t>(1, next_frame_id);
   last_T_world_cam_ = last_T_world_cam;
+  placed_before_last_.reset();
+  placed_last_.reset();
   fused_before_last_.reset();
   fused_last_.reset();
   registrar_.forget_photometric_reference();

@@ -75,21 +75,25 @@ void ScanGraph::clear() {
   odometry_covariance_.clear();
   loops_.clear();
   since_keyframe_.setZero();
-  last_fused_.reset();
+  last_placed_.reset();
   version_ = 0;
   clouds_checked_ = 0;
 }
 
-bool ScanGraph::frame_fused(uint32_t frame_id, int64_t utime, const Pose& T_world_cam,
-                            const Matrix6d& covariance, const MeasurementImage& m) {
+void ScanGraph::frame_tracked(const Pose& T_world_cam, const Matrix6d& covariance) {
   // The uncertainty of this frame's pose relative to the last keyframe: what it was for the last
   // frame, carried along rigidly, and this frame's own (its registration's innovation: small where
   // the depth decided, the motion prior's where it did not).
-  if (last_fused_)
-    since_keyframe_ = delta_adjoint(last_fused_->inverse() * T_world_cam) * since_keyframe_ *
-                          delta_adjoint(last_fused_->inverse() * T_world_cam).transpose() +
+  if (last_placed_)
+    since_keyframe_ = delta_adjoint(last_placed_->inverse() * T_world_cam) * since_keyframe_ *
+                          delta_adjoint(last_placed_->inverse() * T_world_cam).transpose() +
                       covariance;
-  last_fused_ = T_world_cam;
+  last_placed_ = T_world_cam;
+}
+
+bool ScanGraph::frame_fused(uint32_t frame_id, int64_t utime, const Pose& T_world_cam,
+                            const Matrix6d& covariance, const MeasurementImage& m) {
+  frame_tracked(T_world_cam, covariance);
   if (!keyframes_.empty()) {
     const Pose& last = keyframes_.back().T_world_kf;
     const bool moved = (T_world_cam.translation() - last.translation()).norm() >= config_.keyframe_spacing_m;
@@ -135,7 +139,7 @@ AppliedCorrection ScanGraph::apply(const GraphCorrection& c) {
     applied.first_frame_id.push_back(keyframes_[i].frame_id);
     applied.motion.push_back(motion);
   }
-  if (last_fused_ && !applied.motion.empty()) last_fused_ = applied.motion.back() * *last_fused_;
+  if (last_placed_ && !applied.motion.empty()) last_placed_ = applied.motion.back() * *last_placed_;
   loops_ = c.loops;
   applied.loops = loops_.size();
   applied.version = ++version_;
@@ -205,8 +209,8 @@ Status ScanGraph::restore(ScanGraphState s) {
   clouds_checked_ = 0;
   forget_redundant_clouds(keyframes_.size());
   since_keyframe_.setZero();
-  last_fused_.reset();
-  if (!keyframes_.empty()) last_fused_ = keyframes_.back().T_world_kf;
+  last_placed_.reset();
+  if (!keyframes_.empty()) last_placed_ = keyframes_.back().T_world_kf;
   return Status::ok();
 }
 

@@ -104,6 +104,7 @@ void expect_config_eq(const AppConfig& a, const AppConfig& b) {
   EXPECT_EQ(a.capture.kinect2_decoder_threads, b.capture.kinect2_decoder_threads);
   EXPECT_EQ(a.capture.kinect2_stall_timeout_s, b.capture.kinect2_stall_timeout_s);
   EXPECT_EQ(a.fusion.queue_capacity_frames, b.fusion.queue_capacity_frames);
+  EXPECT_EQ(a.fusion.shed_fusion_queue_share, b.fusion.shed_fusion_queue_share);
   EXPECT_EQ(a.fusion.scan_dir, b.fusion.scan_dir);
   EXPECT_EQ(a.fusion.memory_budget_mib, b.fusion.memory_budget_mib);
   EXPECT_EQ(a.fusion.evict_distance_m, b.fusion.evict_distance_m);
@@ -229,6 +230,7 @@ kinect2_stall_timeout_s = 5.0
 
 [fusion_daemon]
 queue_capacity_frames = 8
+shed_fusion_queue_share = 0.25
 scan_dir = "/srv/scans"
 memory_budget_mib = 512
 evict_distance_m = 8.0
@@ -315,6 +317,8 @@ publish_rate_hz = 0.5
   EXPECT_EQ(c.capture.kinect2_decoder_threads, 2);
   EXPECT_EQ(c.capture.kinect2_stall_timeout_s, 5.0);
   EXPECT_EQ(c.fusion.queue_capacity_frames, 8);
+  EXPECT_EQ(c.fusion.shed_fusion_queue_share, 0.25);
+  EXPECT_EQ(c.fusion.shed_fusion_waiting_frames(), 2u);
   EXPECT_EQ(c.fusion.scan_dir, "/srv/scans");
   EXPECT_EQ(c.fusion.memory_budget_mib, 512.0);
   EXPECT_EQ(c.fusion.evict_distance_m, 8.0);
@@ -324,6 +328,22 @@ publish_rate_hz = 0.5
   EXPECT_EQ(c.fusion.heartbeat_rate_hz, 2.0);
   EXPECT_EQ(c.monitor.stale_after_s, 5.0);
   EXPECT_EQ(c.monitor.publish_rate_hz, 0.5);
+}
+
+// A frame's fusion is shed when the frames waiting fill the share of the queue, one at least;
+// never with a share of 0.
+TEST(AppConfig, ShedFusionFromAShareOfTheQueue) {
+  FusionDaemonConfig f;
+  EXPECT_EQ(f.shed_fusion_waiting_frames(), 2u);  // half of 4
+  f.queue_capacity_frames = 64;
+  EXPECT_EQ(f.shed_fusion_waiting_frames(), 32u);
+  f.queue_capacity_frames = 1;
+  EXPECT_EQ(f.shed_fusion_waiting_frames(), 1u);
+  f.queue_capacity_frames = 5;
+  f.shed_fusion_queue_share = 0.3;
+  EXPECT_EQ(f.shed_fusion_waiting_frames(), 2u);  // 1.5 frames: from the second
+  f.shed_fusion_queue_share = 0.0;
+  EXPECT_EQ(f.shed_fusion_waiting_frames(), 0u);
 }
 
 TEST(AppConfig, KeysLeftOutKeepTheirDefaults) {
@@ -408,6 +428,7 @@ TEST(AppConfig, OutOfRangeValuesAreErrors) {
       {"fusion_daemon", "memory_budget_mib", "-5", "must be > 0, got -5"},
       {"fusion_daemon", "memory_budget_mib", "0", "must be > 0, got 0"},
       {"fusion_daemon", "queue_capacity_frames", "0", "must be in [1, 256], got 0"},
+      {"fusion_daemon", "shed_fusion_queue_share", "1.5", "must be in [0, 1], got 1.5"},
       {"fusion_daemon", "scan_dir", "\"\"", "must not be empty"},
       {"fusion_daemon", "checkpoint_interval_s", "0.0", "must be > 0, got 0"},
       {"fusion_daemon", "evict_distance_m", "-1", "must be > 0, got -1"},

@@ -462,6 +462,79 @@ TEST(Sequence, AlongAWallTheMotionModelCarriesWhatTheWallDoesNotConstrain) {
         << "frame " << i << ": " << to_string(r->state[i]);
 }
 
+// A live daemon behind its camera tracks some frames without fusing them (FrameWork::kTrackOnly).
+// Such a frame is tracked as well as a fused one, and the motion model's next prediction is made
+// from it; it leaves the map, the store's record and the pose graph's keyframes alone. The walk of
+// the test above, every second frame shed and, twice, three in a row.
+TEST(FramePath, AFrameTrackedOnlyHasAPoseAndTheMotionModelButNoPlaceInTheMap) {
+  struct Recording : FrameStore {
+    std::vector<bool> fused;
+    Status prepare_frame(const Frame&, const Pose&, IncrementalReconstructor&) override {
+      return Status::ok();
+    }
+    Status frame_fused(const Frame&, const FrameReport&, IncrementalReconstructor&) override {
+      fused.push_back(true);
+      return Status::ok();
+    }
+    Status frame_not_fused(const FrameReport&, const Pose&, IncrementalReconstructor&) override {
+      fused.push_back(false);
+      return Status::ok();
+    }
+  } store;
+  std::vector<Frame> frames;
+  std::vector<Pose> truth;
+  const Eigen::Vector3d ahead(-1.0, -std::tan(10.0 * M_PI / 180.0), 0.0);
+  for (int i = 0; i < 60; ++i) {
+    const Eigen::Vector3d eye(1.5, 0.4 + 0.025 * i, 1.2);
+    truth.push_back(test::look_at(eye, eye + ahead));
+    frames.push_back(test::render_corner(truth.back()));
+  }
+  test::stamp_at_30hz(&frames);
+  auto shed = [](int i) { return i == 0 || (i > 3 && i % 2 == 1) || (i >= 20 && i < 23) || (i >= 40 && i < 43); };
+  IncrementalReconstructor rec{ReconstructionConfig{}};
+  FramePath path(rec, &store);
+  const Pose T_0_world = truth[0].inverse();
+  std::vector<bool> expected_fused;
+  std::vector<uint32_t> fused_ids;
+  Pose previous = Pose::Identity();
+  for (int i = 0; i < 60; ++i) {
+    const size_t points_before = rec.map().point_count();
+    auto out = path.run(frames[i], shed(i) ? FrameWork::kTrackOnly : FrameWork::kTrackAndFuse);
+    ASSERT_TRUE(out.is_ok()) << out.status().to_string();
+    const FrameReport& r = out->report;
+    ASSERT_TRUE(r.placed()) << "frame " << i;
+    // The first frame of a map is fused whatever the caller asked: there is nothing to track.
+    const bool was_shed = shed(i) && i > 0;
+    EXPECT_EQ(r.fusion_shed, was_shed) << "frame " << i;
+    EXPECT_EQ(r.fused(), !was_shed) << "frame " << i;
+    expected_fused.push_back(!was_shed);
+    if (was_shed) {
+      EXPECT_EQ(rec.map().point_count(), points_before) << "frame " << i;
+      EXPECT_EQ(r.fusion.measurements, 0u) << "frame " << i;
+      EXPECT_FALSE(out->keyframe) << "frame " << i;
+      // The prediction one period on is this frame's step carried on (a model of the fused frames
+      // alone would carry the step before it, off by the tracking's own noise).
+      const auto predicted =
+          rec.constant_velocity_prediction(2 * frames[i].utime - frames[i - 1].utime);
+      ASSERT_TRUE(predicted) << "frame " << i;
+      const Pose expected = r.T_world_cam * (previous.inverse() * r.T_world_cam);
+      EXPECT_LT((predicted->translation() - expected.translation()).norm(), 1e-6) << "frame " << i;
+    } else {
+      fused_ids.push_back(r.frame_id);
+    }
+    EXPECT_TRUE(rec.last_pose()->isApprox(r.T_world_cam)) << "frame " << i;
+    previous = r.T_world_cam;
+    // As the walk without shed frames (the test above): within 1 cm. Had a shed frame not moved
+    // the motion model, the next frame's prediction would start from two frames back and the
+    // wall-only frames would fall behind by a step.
+    EXPECT_LT((r.T_world_cam.translation() - (T_0_world * truth[i]).translation()).norm(), 1e-2)
+        << "frame " << i << ": " << to_string(r.tracking) << (was_shed ? ", shed" : "");
+  }
+  EXPECT_EQ(store.fused, expected_fused);
+  for (const GraphKeyframe& k : path.graph().keyframes())
+    EXPECT_TRUE(std::binary_search(fused_ids.begin(), fused_ids.end(), k.frame_id)) << k.frame_id;
+}
+
 namespace {
 
 // A ripple on the depth along the image's rows, fixed to the image as a real sensor's systematic

@@ -390,9 +390,12 @@ TEST_F(LiveAppliance, OverloadDropsTheOldestFramesAndCountsThem) {
   for (int64_t sequence = 1; sequence <= 40; ++sequence) burst.push_back(small_frame(sequence));
   for (const auto& msg : burst)
     ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kDepthChannel, msg).is_ok());
-  // Settled: the queue is empty and every received frame is fused or dropped.
+  // Settled: the queue is empty and every received frame is fused, tracked only or dropped.
   ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) {
-    return hb.queue_depth == 0 && hb.frames_in > 0 && hb.frames_out + hb.frames_dropped == hb.frames_in;
+    return hb.queue_depth == 0 && hb.frames_in > 0 &&
+           hb.frames_out + hb.frames_dropped +
+                   static_cast<int64_t>(daemon::counter_value(hb, "frames_fusion_shed")) ==
+               hb.frames_in;
   }, seconds(120))) << fusion->log();
   const auto hb = *observer_->heartbeat("fusion");
   std::printf("overload: received %lld, fused %lld, dropped %lld, lost in transport %lld\n",
@@ -903,6 +906,51 @@ TEST_F(LiveAppliance, WithARigKeyOnlySignedMessagesAreHeard) {
   EXPECT_TRUE(eventually([&] { return forged_heard() >= dropped_before + 25; }, seconds(5)))
       << "the monitor counted " << forged_heard() - dropped_before << " of 25 forged heartbeats";
   EXPECT_TRUE(monitor->running()) << monitor->log();
+}
+
+// A daemon behind its camera sheds fusion before it drops frames: while half its queue waits, the
+// frame it takes is tracked (it has a pose on DEPTHFUSE_POSE2) but not fused (no pose_t, not in
+// the trajectory or the map), and counted. A burst of full frames, without hints, into a queue of 8.
+TEST_F(LiveAppliance, BehindItsCameraFusionShedsFusionBeforeFrames) {
+  auto fusion = start_fusion({"--queue", "8", "--autostart", "shed"});
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [](auto& hb) { return hb.scan_id == "shed"; },
+                                        seconds(10)));
+  constexpr int kFrames = 30;
+  for (int64_t sequence = 1; sequence <= kFrames; ++sequence) {
+    depthfuse::depth_frame_t msg;
+    ASSERT_TRUE(lcm::encode_depth_frame(wall_frame(sequence, 1.5f, 0.2f), {}, &msg).is_ok());
+    msg.sequence = sequence;
+    ASSERT_TRUE(observer_->lcm()->publish_message(lcm::kDepthChannel, msg).is_ok());
+  }
+  auto shed = [](const auto& hb) {
+    return static_cast<int64_t>(daemon::counter_value(hb, "frames_fusion_shed"));
+  };
+  ASSERT_TRUE(observer_->wait_heartbeat("fusion", [&](auto& hb) {
+    return hb.queue_depth == 0 && hb.frames_in > 0 &&
+           hb.frames_out + hb.frames_dropped + shed(hb) == hb.frames_in;
+  }, seconds(120))) << fusion->log();
+  const auto hb = *observer_->heartbeat("fusion");
+  std::printf("behind: received %lld, fused %lld, tracked only %lld, dropped %lld\n",
+              static_cast<long long>(hb.frames_in), static_cast<long long>(hb.frames_out),
+              static_cast<long long>(shed(hb)), static_cast<long long>(hb.frames_dropped));
+  EXPECT_GT(shed(hb), 0);
+  EXPECT_GE(hb.frames_out, 1);
+  EXPECT_EQ(daemon::counter_value(hb, "frames_lost_tracking"), 0);
+  ASSERT_TRUE(eventually([&] {
+    return observer_->poses2().size() == static_cast<size_t>(hb.frames_out + shed(hb));
+  }, seconds(10)));
+  // pose_t for the fused frames only; pose2_t for every frame processed, the shed ones tracked
+  // and at their own pose (the wall does not move: the first frame's).
+  EXPECT_EQ(observer_->poses().size(), static_cast<size_t>(hb.frames_out));
+  int64_t shed_poses = 0;
+  for (const auto& p : observer_->poses2()) {
+    EXPECT_NE(p.tracking, depthfuse::pose2_t::TRACKING_LOST) << p.pose.sequence;
+    if (p.fused) continue;
+    ++shed_poses;
+    EXPECT_EQ(p.pose.merged + p.pose.added, 0) << p.pose.sequence;
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR(p.pose.position_m[k], 0.0, 0.01) << p.pose.sequence;
+  }
+  EXPECT_EQ(shed_poses, shed(hb));
 }
 
 // Without pose hints the daemon tracks, and a frame it cannot place is not fused: the heartbeat

@@ -147,8 +147,10 @@ for line in open(sys.argv[2]):
 if fusion is None:
     print("published %s, no heartbeat" % published)
 else:
-    print("published %s, received %d, fused %d, dropped %d, lost %d"
-          % (published, fusion["frames_in"], fusion["frames_out"], fusion["frames_dropped"],
+    counters = {c["key"]: c["value"] for c in fusion.get("counters", [])}
+    print("published %s, received %d, fused %d, tracked only %d, dropped %d, lost %d"
+          % (published, fusion["frames_in"], fusion["frames_out"],
+             counters.get("frames_fusion_shed", 0), fusion["frames_dropped"],
              fusion["frames_lost"]))
 PY
 )

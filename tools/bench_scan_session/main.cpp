@@ -5,7 +5,9 @@
 // the cores. The source loops (reopened at its end) until --frames frames were processed.
 // With --rate, frames come as from the capture daemon instead: a thread of their own reads them at
 // that rate into a queue of --queue frames that drops the oldest when full, as the daemon's does,
-// so that slow frames cost dropped frames (and the loop closer's thread the time it has live).
+// so that slow frames cost dropped frames (and the loop closer's thread the time it has live); as
+// the daemon does, a frame taken while the queue fills is tracked only
+// (fusion_daemon.shed_fusion_queue_share).
 //
 //   bench_scan_session --source 'synthetic:furnished?frames=6000&hints=0' --frames 6000
 //   bench_scan_session --source tum:DIR --frames 4000 --config budget.toml
@@ -126,10 +128,12 @@ struct Block {
   double seconds = 0, max_ms = 0;
   double registration_ms = 0, fusion_ms = 0, store_ms = 0, checkpoint_ms = 0;
   double points_added = 0;
+  long shed = 0;         // frames tracked only (their fusion shed)
   double error_mm = -1;  // the largest tracking error (synthetic sources), -1: not known
   LoopClosureStats closer_before;  // the loop closer's totals when the block began
   void add(double s, const FrameReport& r, double process_s) {
     ++frames;
+    if (r.fusion_shed) ++shed;
     points_added += static_cast<double>(r.fusion.added);
     seconds += s;
     if (s * 1e3 > max_ms) max_ms = s * 1e3;
@@ -148,7 +152,7 @@ void report(long frame, double wall_s, const Block& b, const fusiond::ScanSessio
   const FramePath& path = *session.path();
   const LoopClosureStats closer = path.loop_closure_stats();
   std::printf("%6ld %7.1f %7.1f %7.1f %7.1f %7.1f %8.1f %7.1f %7.1f %9zu %7.1f %7.1f %7.0f %7.0f "
-              "%7.0f %5u %5u %8zu %9llu %5zu %5zu %7llu %7.0f %7.1f %6.1f %5llu\n",
+              "%7.0f %5u %5u %8zu %9llu %5zu %5zu %7llu %7.0f %7.1f %6.1f %5llu %5ld\n",
               frame, wall_s, b.mean(b.seconds * 1e3), b.max_ms, b.mean(b.registration_ms),
               b.mean(b.fusion_ms), b.mean(b.store_ms), b.mean(b.checkpoint_ms), rss_mib(),
               r.map().point_count(), counter(sink, "resident_mib"),
@@ -159,7 +163,8 @@ void report(long frame, double wall_s, const Block& b, const fusiond::ScanSessio
               path.graph().keyframes().size(), path.graph().loops().size(),
               static_cast<unsigned long long>(dropped), b.mean(b.points_added), b.error_mm,
               closer.seconds - b.closer_before.seconds,
-              static_cast<unsigned long long>(closer.optimisations - b.closer_before.optimisations));
+              static_cast<unsigned long long>(closer.optimisations - b.closer_before.optimisations),
+              b.shed);
   std::fflush(stdout);
 }
 
@@ -193,6 +198,10 @@ class FrameFeed {
   uint64_t dropped() const {
     std::lock_guard<std::mutex> lock(mu_);
     return dropped_;
+  }
+  size_t waiting() const {
+    std::lock_guard<std::mutex> lock(mu_);
+    return queue_.size();
   }
 
  private:
@@ -284,6 +293,8 @@ int run(const Options& o) {
     }
     config = std::move(loaded).value();
   }
+  // The queue is --queue's, as the daemon's is its --queue's: the shedding rule scales with it.
+  config.fusion.queue_capacity_frames = static_cast<int>(o.queue);
   const bool temporary = o.dir.empty();
   const std::string dir =
       temporary ? (std::filesystem::temp_directory_path() /
@@ -302,7 +313,7 @@ int run(const Options& o) {
   std::printf("# %s, %ld frames, config %s, scan file %s/scan.dfscan\n", o.source.c_str(), o.frames,
               o.config_path.empty() ? "(defaults)" : o.config_path.c_str(), dir.c_str());
   std::printf("# frame  wall_s ms_mean  ms_max  reg_ms fuse_ms store_ms ckpt_ms rss_mib map_points res_mib def_mib evicted  loaded "
-              "collide  vers  oldest  pending    merged   kfs loops dropped   added  err_mm  lc_s   opt\n");
+              "collide  vers  oldest  pending    merged   kfs loops dropped   added  err_mm  lc_s   opt  shed\n");
   const Clock::time_point t0 = Clock::now();
   Block block;
   fusiond::FusionProgress progress;
@@ -315,7 +326,10 @@ int run(const Options& o) {
       return 1;
     }
     const Clock::time_point f0 = Clock::now();
-    auto outcome = session.process(*frame);
+    const size_t shed_at = o.rate_hz > 0 ? config.fusion.shed_fusion_waiting_frames() : 0;
+    auto outcome = session.process(*frame, shed_at > 0 && feed.waiting() >= shed_at
+                                               ? FrameWork::kTrackOnly
+                                               : FrameWork::kTrackAndFuse);
     const double process_s = std::chrono::duration<double>(Clock::now() - f0).count();
     if (!outcome) {
       DF_LOG(BenchScanSession, Error) << "frame " << n << ": " << outcome.status().to_string();
@@ -324,7 +338,7 @@ int run(const Options& o) {
     if (!outcome->store_status)
       DF_LOG(BenchScanSession, Warning) << "frame " << n << ": " << outcome->store_status.to_string();
     ++progress.frames_received;
-    ++progress.frames_fused;
+    if (outcome->report.fused()) ++progress.frames_fused;
     if (session.checkpoint_due()) {
       if (Status st = session.checkpoint("periodic", progress); !st)
         DF_LOG(BenchScanSession, Warning) << "checkpoint: " << st.to_string();
@@ -353,7 +367,8 @@ int run(const Options& o) {
                   n, frame_s * 1e3, r.prefilter_ms, r.registration_ms, r.relocalisation_ms,
                   r.deformation_ms, r.fusion_ms, process_s * 1e3 - in_process_ms,
                   (frame_s - process_s) * 1e3, outcome->correction ? "after a correction " : "",
-                  outcome->keyframe ? "keyframe " : "", r.fused() ? "" : "lost");
+                  outcome->keyframe ? "keyframe " : "",
+                  r.fusion_shed ? "tracked only" : r.fused() ? "" : "lost");
     }
     if (++n % o.report_every == 0 || n == o.frames) {
       report(n, std::chrono::duration<double>(Clock::now() - t0).count(), block, session, sink,

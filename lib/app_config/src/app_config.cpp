@@ -3,6 +3,7 @@
 // its file, line and key, and an unknown key is an error too (a typo must not be silently ignored).
 #include "depthfuse/app_config.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <exception>
 
@@ -260,6 +261,7 @@ void read_fusion_daemon(TableReader& r, FusionDaemonConfig* f) {
   // What frames and commands from the bus reach is bounded here, not only by the memory budget:
   // a queue of seconds of frames, images of a real depth sensor, a workspace of a site.
   r.read("queue_capacity_frames", &f->queue_capacity_frames, closed(1, 256));
+  r.read("shed_fusion_queue_share", &f->shed_fusion_queue_share, closed(0.0, 1.0));
   r.read("scan_dir", &f->scan_dir, non_empty());
   r.read("memory_budget_mib", &f->memory_budget_mib, positive());
   r.read("evict_distance_m", &f->evict_distance_m, positive());
@@ -419,6 +421,12 @@ Result<AppConfig> parse_guarded(const std::string& text, const std::string& orig
 }
 
 }  // namespace
+
+size_t FusionDaemonConfig::shed_fusion_waiting_frames() const {
+  if (shed_fusion_queue_share <= 0) return 0;
+  return static_cast<size_t>(
+      std::max(1.0, std::ceil(shed_fusion_queue_share * std::max(1, queue_capacity_frames))));
+}
 
 namespace app_config_detail {
 Result<AppConfig> parse_app_config_traced(const std::string& toml_text, const std::string& origin,

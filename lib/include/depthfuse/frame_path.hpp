@@ -8,7 +8,8 @@
 //   process   IncrementalReconstructor::process from that prediction: measure, register, fuse
 //   record    a fused frame's pose, keyframes and paging (the scan file)
 //   graph     a frame tracked without a hint joins the pose graph (ScanGraph): a keyframe when the
-//             camera has moved far enough, which the loop closer then searches; a correction the
+//             camera has moved far enough (fused frames only), which the loop closer then
+//             searches; a correction the
 //             loop closer found is applied before the next frame is predicted (the keyframes, the
 //             camera's last poses and the map move with it)
 //
@@ -39,8 +40,9 @@ class FrameStore {
   // After process(), for a frame that was fused.
   virtual Status frame_fused(const Frame& frame, const FrameReport& report,
                              IncrementalReconstructor& reconstructor) = 0;
-  // After process(), for a frame that was not (tracking lost): what prepare_frame() loaded for it
-  // must not stay over the budget while the camera is lost for many frames.
+  // After process(), for a frame that was not (tracking lost, or its fusion shed): what
+  // prepare_frame() loaded for it must not stay over the budget while the camera is lost for many
+  // frames.
   virtual Status frame_not_fused(const FrameReport& report, const Pose& T_world_cam_initial,
                                  IncrementalReconstructor& reconstructor) {
     (void)report;
@@ -80,8 +82,9 @@ class FramePath {
   ~FramePath();
 
   // A failure of process() itself (a frame that cannot be measured) is the error; the store's are
-  // in the outcome.
-  Result<FrameOutcome> run(const Frame& frame);
+  // in the outcome. With FrameWork::kTrackOnly the frame is tracked and joins the pose graph's
+  // odometry, but is not fused, recorded or made a keyframe.
+  Result<FrameOutcome> run(const Frame& frame, FrameWork work = FrameWork::kTrackAndFuse);
   // The end of a scan or sequence: waits for the loop closer and applies what it found last.
   std::optional<AppliedCorrection> finish();
 

@@ -36,7 +36,13 @@ struct FrameReport {
   // Without a pose hint, how far the tracked pose can be trusted (classify_tracking()); with one,
   // tracked if its ICP converged, else uncertain (the hint is fused). A lost frame is not fused.
   TrackingState tracking = TrackingState::kTracked;
-  bool fused() const { return tracking != TrackingState::kLost; }
+  // The frame was tracked but, at the caller's request (FrameWork::kTrackOnly: a live queue falling
+  // behind), not fused: it has a pose and the motion model follows it; the map is as it was.
+  bool fusion_shed = false;
+  // Whether the frame has a pose: it was not lost.
+  bool placed() const { return tracking != TrackingState::kLost; }
+  // Whether the frame went into the map: placed, and not shed.
+  bool fused() const { return placed() && !fusion_shed; }
   RegistrationResult registration;
   FusionStats fusion;
   size_t prefiltered = 0;                // measurements the pre-filter removed
@@ -50,6 +56,15 @@ struct FrameReport {
   // What the scan's pose graph and the map's deformation hold (FramePath fills it in): memory that
   // grows with the scan's length, which the map's budget counts beside its chunks.
   size_t graph_memory_bytes = 0;
+};
+
+// What process() does with a frame. A live stream whose frames come faster than fusion takes them
+// sheds fusion rather than whole frames: tracking a frame costs a fraction of fusing it, and a
+// camera tracked through every frame keeps the short steps its motion model and ICP need (a frame
+// dropped doubles the next step). The map loses little: a frame shed sees what its neighbours saw.
+enum class FrameWork {
+  kTrackAndFuse,
+  kTrackOnly,  // registered as usual, not fused; the first frame of a map is fused regardless
 };
 
 class Relocaliser;
@@ -83,15 +98,17 @@ class IncrementalReconstructor {
   // one): a candidate pose that tracks against the map as kTracked, with a model fitness as good as
   // the lost rule asks of a poor track (relocalisation_verified()), is the camera's, and the frame
   // is fused there (relocalised). Otherwise the frame is not fused, and the last refined pose
-  // stays that of the last frame fused.
+  // stays that of the last frame placed. With FrameWork::kTrackOnly a placed frame is not fused
+  // (FrameReport::fusion_shed), and nothing after registration runs but the motion model's update.
   Result<FrameReport> process(const Frame& frame,
-                              const std::optional<Pose>& T_world_cam_prediction = std::nullopt);
+                              const std::optional<Pose>& T_world_cam_prediction = std::nullopt,
+                              FrameWork work = FrameWork::kTrackAndFuse);
   // Where a frame's registration starts: its hint if it has one, otherwise `prediction` (the
   // motion model's), otherwise the last refined pose (the origin before any frame). The one rule:
   // process() starts there, and a map pager loads the chunks around it before process() runs.
   Pose initial_pose(const Frame& frame, const std::optional<Pose>& prediction) const;
   // For a live stream, whose frames carry the sensor's times and may be dropped on the way: the
-  // pose at `utime` if the camera kept the motion of the last two frames fused, that motion scaled
+  // pose at `utime` if the camera kept the motion of the last two frames placed, that motion scaled
   // to the time since the last. None before two frames, or across a gap of more than a few frame
   // periods (the same rule as the rolling-shutter velocity's).
   std::optional<Pose> constant_velocity_prediction(int64_t utime) const;
@@ -170,9 +187,9 @@ class IncrementalReconstructor {
   void learn_motion(const MotionPrior& prior, const RegistrationResult& r);
   // The keyframes' candidates for a lost frame, each tracked against the map; the first that
   // tracks well is the frame's pose.
-  // `utime`: the frame's, for how far the camera can have gone since the last frame fused.
+  // `utime`: the frame's, for how far the camera can have gone since the last frame placed.
   void relocalise(int64_t utime, FrameReport* report);
-  // Whether the camera can have got to T_world_cam by `utime` from the last frame fused
+  // Whether the camera can have got to T_world_cam by `utime` from the last frame placed
   // (RelocalisationConfig::max_speed_m_s, max_turn_deg_s); true before any.
   bool reachable(const Pose& T_world_cam, int64_t utime) const;
   bool keeps_keyframes() const;
@@ -182,9 +199,16 @@ class IncrementalReconstructor {
   // Where the camera's motion was steady: the velocity of the last two frames fused, in the
   // camera frame of the last; none across a gap of more than a few frame periods.
   std::optional<CameraVelocity> camera_velocity_through_next(int64_t utime) const;
-  // Whether there are two frames fused, at most max_gap_us apart, and `utime` is after the last by
-  // at most that: the last step may be carried on to it.
-  bool last_step_spans(int64_t utime, int64_t max_gap_us) const;
+  struct StampedPose {
+    int64_t utime = 0;
+    Pose T_world_cam = Pose::Identity();
+  };
+  // Whether `before` and `last` are at most max_gap_us apart, and `utime` is after the last by at
+  // most that: the last step may be carried on to it.
+  static bool step_spans(const std::optional<StampedPose>& before,
+                         const std::optional<StampedPose>& last, int64_t utime, int64_t max_gap_us);
+  // A frame placed at T_world_cam: the motion model's. fused_at() also the rolling shutter's.
+  void placed_at(int64_t utime, const Pose& T_world_cam);
   void fused_at(int64_t utime, const Pose& T_world_cam);
 
   ReconstructionConfig config_;
@@ -197,12 +221,12 @@ class IncrementalReconstructor {
   int frames_since_model_ = 0;  // frames registered to the Registrar's last rendered model
   uint32_t model_version_ = 0;  // the map's version (MapDeformation) when it was rendered
   std::optional<Pose> last_T_world_cam_;
-  // The last two frames fused, stamped: the camera's velocity through the next frame, for a
-  // rolling shutter (camera_velocity_through_next()).
-  struct StampedPose {
-    int64_t utime = 0;
-    Pose T_world_cam = Pose::Identity();
-  };
+  // The last two frames placed (fused or tracked only), stamped: the motion model's prediction,
+  // its prior and the relocaliser's reach.
+  std::optional<StampedPose> placed_before_last_, placed_last_;
+  // The last two frames fused: the camera's velocity through the next frame, for a rolling shutter
+  // (camera_velocity_through_next()). Fused frames only, so that a resume, which replays the fused
+  // frames (replay()), measures each as it was measured live.
   std::optional<StampedPose> fused_before_last_, fused_last_;
   uint32_t next_frame_id_ = 1;
   // The motion model's squared prediction error per frame period, per axis of the camera frame

@@ -100,6 +100,10 @@ class ScanGraph {
   // Returns true when it became a keyframe (keyframes().back()).
   bool frame_fused(uint32_t frame_id, int64_t utime, const Pose& T_world_cam,
                    const Matrix6d& covariance, const MeasurementImage& m);
+  // A frame tracked without a hint but not fused (FrameWork::kTrackOnly): its pose's uncertainty
+  // adds to the next keyframe's odometry edge as a fused frame's does; it is never a keyframe (a
+  // keyframe's points are in the map).
+  void frame_tracked(const Pose& T_world_cam, const Matrix6d& covariance);
   AppliedCorrection apply(const GraphCorrection& correction);
   // Keyframes [0, searched) have been searched for loops (LoopCloser::searched()). While the
   // keyframes' clouds take more than loop_closure.max_cloud_mib, each of them in turn, once, gives
@@ -129,9 +133,9 @@ class ScanGraph {
   std::vector<GraphKeyframe> keyframes_;
   std::vector<PoseGraphEdge> odometry_, loops_;
   std::vector<Matrix6d> odometry_covariance_;
-  // The covariance of the last fused frame's pose relative to the last keyframe, in its frame.
+  // The covariance of the last placed frame's pose relative to the last keyframe, in its frame.
   Matrix6d since_keyframe_ = Matrix6d::Zero();
-  std::optional<Pose> last_fused_;
+  std::optional<Pose> last_placed_;
   uint32_t version_ = 0;
   size_t clouds_checked_ = 0;  // forget_redundant_clouds() has looked at keyframes [0, this)
 };

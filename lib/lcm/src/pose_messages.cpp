@@ -4,7 +4,7 @@
 
 namespace depthfuse::lcm {
 
-pose2_t make_pose2(const Frame& frame, const FrameReport& report, const Pose& T_world_cam_last_fused,
+pose2_t make_pose2(const Frame& frame, const FrameReport& report, const Pose& T_world_cam_last_placed,
                    const FramePublication& publication) {
   pose2_t pose2{};
   pose2.protocol_version = pose2_t::PROTOCOL_VERSION;
@@ -27,7 +27,7 @@ pose2_t make_pose2(const Frame& frame, const FrameReport& report, const Pose& T_
   pose.prefilter_ms = static_cast<float>(report.prefilter_ms);
   pose.registration_ms = static_cast<float>(report.registration_ms);
   pose.map_points = publication.map_points;
-  pose_to_arrays(report.fused() ? report.T_world_cam : T_world_cam_last_fused, pose.position_m,
+  pose_to_arrays(report.placed() ? report.T_world_cam : T_world_cam_last_placed, pose.position_m,
                  pose.orientation_wxyz);
   if (report.fused()) {
     pose.measurements = static_cast<int32_t>(report.fusion.measurements);

@@ -40,6 +40,13 @@ struct CaptureConfig {
 
 struct FusionDaemonConfig {
   int queue_capacity_frames = 4;            // bounded queue; the oldest frame is dropped when full
+  // When the frames waiting fill this share of the queue, the next is tracked but not fused
+  // (FrameWork::kTrackOnly), so that fusion falling behind sheds fusion before whole frames. In
+  // [0, 1]; 0 = never.
+  double shed_fusion_queue_share = 0.5;
+  // The frames waiting from which a frame's fusion is shed (shed_fusion_queue_share of the queue,
+  // at least one); 0: never.
+  size_t shed_fusion_waiting_frames() const;
   std::string scan_dir = "/var/lib/depthfuse/scans";  // new scan files, PLY and trajectory on stop
   double memory_budget_mib = 256.0;         // fused map resident in memory
   double evict_distance_m = 1.5;            // chunks within this of the camera are never evicted

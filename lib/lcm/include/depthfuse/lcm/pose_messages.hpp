@@ -22,9 +22,10 @@ struct FramePublication {
   int64_t publish_utime = 0;        // now
 };
 
-// A lost frame (not fused) carries `T_world_cam_last_fused`, where the camera was last known to
-// be, and no fusion counts; pose.pose is then not to be published on DEPTHFUSE_POSE.
-pose2_t make_pose2(const Frame& frame, const FrameReport& report, const Pose& T_world_cam_last_fused,
+// A lost frame carries `T_world_cam_last_placed`, where the camera was last known to be, and no
+// fusion counts; a frame whose fusion was shed its own pose and no fusion counts. Neither is
+// fused: pose.pose is then not to be published on DEPTHFUSE_POSE.
+pose2_t make_pose2(const Frame& frame, const FrameReport& report, const Pose& T_world_cam_last_placed,
                    const FramePublication& publication);
 
 // A loop closure applied before a frame. `sequence_of` gives the sequence of a frame id (its
