@@ -64,6 +64,14 @@ void print_table(const depthfuse::status_t& st) {
               (tracking >= 2 ? "LOST" : "uncertain") + " (" +
               std::to_string(static_cast<int64_t>(daemon::counter_value(h, "frames_lost_tracking"))) +
               " frames lost so far)";
+    // The fusion daemon fell behind its camera and tracked frames without fusing them: the map is
+    // thinner than the frame rate, the track is whole (fusion_daemon.shed_fusion_queue_share).
+    if (const double shed = daemon::counter_value(h, "frames_fusion_shed"); shed > 0) {
+      char tracked_only[96];
+      std::snprintf(tracked_only, sizeof(tracked_only), "%.0f frames tracked only (fusion behind)",
+                    shed);
+      tail += (tail.empty() ? "" : "; ") + std::string(tracked_only);
+    }
     // The fusion daemon's loop closures: the scan's map was corrected where the camera came back.
     if (const double loops = daemon::counter_value(h, "loop_closures"); loops > 0) {
       char closed[128];
