@@ -427,9 +427,8 @@ void FusionDaemon::worker_loop() {
       worker_busy_since_ns_ = steady_ns();
       // Behind the camera: this frame is tracked only, so that the queue empties before it must
       // drop frames (fusion_daemon.shed_fusion_queue_share).
-      const size_t shed_at = config_.fusion.shed_fusion_waiting_frames();
-      fuse(*item, shed_at > 0 && queue_.size() >= shed_at ? FrameWork::kTrackOnly
-                                                           : FrameWork::kTrackAndFuse);
+      fuse(*item, config_.fusion.shed_fusion(queue_.size()) ? FrameWork::kTrackOnly
+                                                             : FrameWork::kTrackAndFuse);
       worker_busy_since_ns_ = 0;
     } else if (item) {
       ++frames_ignored_;  // queued just before a pause or stop

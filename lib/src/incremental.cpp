@@ -142,24 +142,22 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
   }
 
   note_tracked(frame, T, report);
-  if (work == FrameWork::kTrackOnly && map_->point_count() > 0) {
-    report.fusion_shed = true;
+  report.fusion_shed = work == FrameWork::kTrackOnly && map_->point_count() > 0;
+  if (report.fusion_shed) {
     placed_at(frame.utime, T);
-    registrar_.keep_frame_as_photometric_reference(scratch_, T);
-    ++next_frame_id_;
-    return report;
+  } else {
+    // Registration may have moved the pose far (a relocalisation).
+    deform([&] { deformation_.update_visible_if_moved(map_.get(), scratch_, T); });
+    t0 = Clock::now();
+    report.fusion = fuser_.fuse(scratch_, &frame.color, T, next_frame_id_, map_.get());
+    report.fusion_ms = ms_since(t0);
+    deform([&] {
+      report.swept_points = deformation_.sweep(
+          map_.get(), T.translation(),
+          static_cast<size_t>(std::max(1, config_.fusion.deform_points_per_frame)));
+    });
+    fused_at(frame.utime, T);
   }
-  // Registration may have moved the pose far (a relocalisation).
-  deform([&] { deformation_.update_visible_if_moved(map_.get(), scratch_, T); });
-  t0 = Clock::now();
-  report.fusion = fuser_.fuse(scratch_, &frame.color, T, next_frame_id_, map_.get());
-  report.fusion_ms = ms_since(t0);
-  deform([&] {
-    report.swept_points = deformation_.sweep(
-        map_.get(), T.translation(),
-        static_cast<size_t>(std::max(1, config_.fusion.deform_points_per_frame)));
-  });
-  fused_at(frame.utime, T);
   registrar_.keep_frame_as_photometric_reference(scratch_, T);
   ++next_frame_id_;
   return report;

@@ -318,7 +318,7 @@ publish_rate_hz = 0.5
   EXPECT_EQ(c.capture.kinect2_stall_timeout_s, 5.0);
   EXPECT_EQ(c.fusion.queue_capacity_frames, 8);
   EXPECT_EQ(c.fusion.shed_fusion_queue_share, 0.25);
-  EXPECT_EQ(c.fusion.shed_fusion_waiting_frames(), 2u);
+  EXPECT_TRUE(c.fusion.shed_fusion(2) && !c.fusion.shed_fusion(1));  // a quarter of 8
   EXPECT_EQ(c.fusion.scan_dir, "/srv/scans");
   EXPECT_EQ(c.fusion.memory_budget_mib, 512.0);
   EXPECT_EQ(c.fusion.evict_distance_m, 8.0);
@@ -334,16 +334,21 @@ publish_rate_hz = 0.5
 // never with a share of 0.
 TEST(AppConfig, ShedFusionFromAShareOfTheQueue) {
   FusionDaemonConfig f;
-  EXPECT_EQ(f.shed_fusion_waiting_frames(), 2u);  // half of 4
+  // Shed from `from` frames waiting on, not below.
+  auto sheds_from = [&](size_t from) {
+    return f.shed_fusion(from) && f.shed_fusion(from + 10) && (from == 0 || !f.shed_fusion(from - 1));
+  };
+  EXPECT_TRUE(sheds_from(2));  // half of 4
   f.queue_capacity_frames = 64;
-  EXPECT_EQ(f.shed_fusion_waiting_frames(), 32u);
+  EXPECT_TRUE(sheds_from(32));
   f.queue_capacity_frames = 1;
-  EXPECT_EQ(f.shed_fusion_waiting_frames(), 1u);
+  EXPECT_TRUE(sheds_from(1));
+  EXPECT_FALSE(f.shed_fusion(0));  // at least one frame waits
   f.queue_capacity_frames = 5;
   f.shed_fusion_queue_share = 0.3;
-  EXPECT_EQ(f.shed_fusion_waiting_frames(), 2u);  // 1.5 frames: from the second
+  EXPECT_TRUE(sheds_from(2));  // 1.5 frames: from the second
   f.shed_fusion_queue_share = 0.0;
-  EXPECT_EQ(f.shed_fusion_waiting_frames(), 0u);
+  for (size_t waiting : {0, 1, 5, 256}) EXPECT_FALSE(f.shed_fusion(waiting)) << waiting;
 }
 
 TEST(AppConfig, KeysLeftOutKeepTheirDefaults) {

@@ -432,6 +432,22 @@ TEST(Incremental, ColourOfAnotherSizeIsNotUsed) {
   }
 }
 
+namespace {
+
+// The camera walks sideways along the wall x = 0 at 2.5 cm a frame, 1.5 m from it, turned 10
+// degrees towards the side wall y = 0: 60 frames at 30 Hz and their true poses.
+void walk_along_the_wall(std::vector<Frame>* frames, std::vector<Pose>* truth) {
+  const Eigen::Vector3d ahead(-1.0, -std::tan(10.0 * M_PI / 180.0), 0.0);
+  for (int i = 0; i < 60; ++i) {
+    const Eigen::Vector3d eye(1.5, 0.4 + 0.025 * i, 1.2);
+    truth->push_back(test::look_at(eye, eye + ahead));
+    frames->push_back(test::render_corner(truth->back()));
+  }
+  test::stamp_at_30hz(frames);
+}
+
+}  // namespace
+
 TEST(Sequence, AlongAWallTheMotionModelCarriesWhatTheWallDoesNotConstrain) {
   // The camera walks sideways along the wall x = 0 at 2.5 cm a frame, 1.5 m from it, turned 10
   // degrees towards the side wall y = 0. At first its view holds both walls; from y ~ 1.4 m on it
@@ -442,14 +458,8 @@ TEST(Sequence, AlongAWallTheMotionModelCarriesWhatTheWallDoesNotConstrain) {
   // apart, and the camera would jump between walking and standing.
   std::vector<Frame> frames;
   std::vector<Pose> truth;
-  const Eigen::Vector3d ahead(-1.0, -std::tan(10.0 * M_PI / 180.0), 0.0);
-  for (int i = 0; i < 60; ++i) {
-    const Eigen::Vector3d eye(1.5, 0.4 + 0.025 * i, 1.2);
-    truth.push_back(test::look_at(eye, eye + ahead));
-    frames.push_back(test::render_corner(truth.back()));
-  }
+  walk_along_the_wall(&frames, &truth);
   const Pose T_0_world = truth[0].inverse();
-  test::stamp_at_30hz(&frames);
   auto r = track_sequence(frames, ReconstructionConfig{});
   ASSERT_TRUE(r.is_ok()) << r.status().to_string();
   EXPECT_EQ(r->lost, 0u);
@@ -483,13 +493,7 @@ TEST(FramePath, AFrameTrackedOnlyHasAPoseAndTheMotionModelButNoPlaceInTheMap) {
   } store;
   std::vector<Frame> frames;
   std::vector<Pose> truth;
-  const Eigen::Vector3d ahead(-1.0, -std::tan(10.0 * M_PI / 180.0), 0.0);
-  for (int i = 0; i < 60; ++i) {
-    const Eigen::Vector3d eye(1.5, 0.4 + 0.025 * i, 1.2);
-    truth.push_back(test::look_at(eye, eye + ahead));
-    frames.push_back(test::render_corner(truth.back()));
-  }
-  test::stamp_at_30hz(&frames);
+  walk_along_the_wall(&frames, &truth);
   auto shed = [](int i) { return i == 0 || (i > 3 && i % 2 == 1) || (i >= 20 && i < 23) || (i >= 40 && i < 43); };
   IncrementalReconstructor rec{ReconstructionConfig{}};
   FramePath path(rec, &store);

@@ -326,10 +326,9 @@ int run(const Options& o) {
       return 1;
     }
     const Clock::time_point f0 = Clock::now();
-    const size_t shed_at = o.rate_hz > 0 ? config.fusion.shed_fusion_waiting_frames() : 0;
-    auto outcome = session.process(*frame, shed_at > 0 && feed.waiting() >= shed_at
-                                               ? FrameWork::kTrackOnly
-                                               : FrameWork::kTrackAndFuse);
+    const bool shed = o.rate_hz > 0 && config.fusion.shed_fusion(feed.waiting());
+    auto outcome =
+        session.process(*frame, shed ? FrameWork::kTrackOnly : FrameWork::kTrackAndFuse);
     const double process_s = std::chrono::duration<double>(Clock::now() - f0).count();
     if (!outcome) {
       DF_LOG(BenchScanSession, Error) << "frame " << n << ": " << outcome.status().to_string();

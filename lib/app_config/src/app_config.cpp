@@ -422,10 +422,11 @@ Result<AppConfig> parse_guarded(const std::string& text, const std::string& orig
 
 }  // namespace
 
-size_t FusionDaemonConfig::shed_fusion_waiting_frames() const {
-  if (shed_fusion_queue_share <= 0) return 0;
-  return static_cast<size_t>(
-      std::max(1.0, std::ceil(shed_fusion_queue_share * std::max(1, queue_capacity_frames))));
+bool FusionDaemonConfig::shed_fusion(size_t waiting) const {
+  if (shed_fusion_queue_share <= 0) return false;
+  const double from =
+      std::max(1.0, std::ceil(shed_fusion_queue_share * std::max(1, queue_capacity_frames)));
+  return static_cast<double>(waiting) >= from;
 }
 
 namespace app_config_detail {

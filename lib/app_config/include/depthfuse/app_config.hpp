@@ -44,9 +44,10 @@ struct FusionDaemonConfig {
   // (FrameWork::kTrackOnly), so that fusion falling behind sheds fusion before whole frames. In
   // [0, 1]; 0 = never.
   double shed_fusion_queue_share = 0.5;
-  // The frames waiting from which a frame's fusion is shed (shed_fusion_queue_share of the queue,
-  // at least one); 0: never.
-  size_t shed_fusion_waiting_frames() const;
+  // Whether the frame taken while `waiting` frames wait behind it is to be tracked only: they
+  // fill shed_fusion_queue_share of the queue, at least one frame. The daemon's rule, and the
+  // benchmark's that plays it.
+  bool shed_fusion(size_t waiting) const;
   std::string scan_dir = "/var/lib/depthfuse/scans";  // new scan files, PLY and trajectory on stop
   double memory_budget_mib = 256.0;         // fused map resident in memory
   double evict_distance_m = 1.5;            // chunks within this of the camera are never evicted
