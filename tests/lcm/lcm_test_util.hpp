@@ -1,8 +1,11 @@
 // Helpers for the LCM tests: a per-process loopback URL, child processes, a background listener.
 #pragma once
 
+#include <arpa/inet.h>
 #include <fcntl.h>
+#include <netinet/in.h>
 #include <signal.h>
+#include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -29,15 +32,37 @@ namespace depthfuse::testing {
 
 inline std::string bin(const std::string& name) { return std::string(DEPTHFUSE_BIN_DIR) + "/" + name; }
 
-// A udpm URL on this host only whose port is chosen from a number (a process id), for tests that
-// must not hear each other: ports 20000..59999, away from LCM's default 7667 and the ephemeral
-// range's usual start.
-inline std::string loopback_test_url(int seed) {
-  return lcm::udpm_url(20000 + (seed < 0 ? -seed : seed) % 40000);
+// The ports a test may take: 10000..31999, away from LCM's default 7667 and below the kernel's
+// ephemeral range (32768 up by default). In that range any sending socket's automatic bind can hold
+// the port without SO_REUSEADDR, and the test's receiver then cannot bind it.
+inline int test_port(int seed) { return 10000 + (seed < 0 ? -seed : seed) % 22000; }
+
+// Whether a receiver can bind `port` now, as the transport binds it (SO_REUSEADDR).
+inline bool udp_port_bindable(int port) {
+  const int fd = ::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+  if (fd < 0) return false;
+  const int one = 1;
+  sockaddr_in local{};
+  local.sin_family = AF_INET;
+  local.sin_addr.s_addr = htonl(INADDR_ANY);
+  local.sin_port = htons(static_cast<uint16_t>(port));
+  const bool ok = ::setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof(one)) == 0 &&
+                  ::bind(fd, reinterpret_cast<const sockaddr*>(&local), sizeof(local)) == 0;
+  ::close(fd);
+  return ok;
 }
 
-// Each test process gets its own udpm port, so tests running side by side do not hear each other.
-inline std::string test_url() { return loopback_test_url(static_cast<int>(::getpid())); }
+// Each test process gets its own udpm port, chosen once from its process id (so tests running
+// side by side do not hear each other), moved on past any port something else holds.
+inline std::string test_url() {
+  static const int port = [] {
+    const int first = static_cast<int>(::getpid());
+    for (int i = 0; i < 64; ++i)
+      if (udp_port_bindable(test_port(first + i))) return test_port(first + i);
+    return test_port(first);
+  }();
+  return lcm::udpm_url(port);
+}
 
 // Fails the test with the route diagnosis when multicast cannot work on this host.
 inline void require_multicast_route(const std::string& url) {

@@ -37,7 +37,8 @@ import tempfile
 import threading
 import time
 
-from webtest import Browser, Daemons, Failure, check, eventually, find_chromium, http
+from webtest import (Browser, Daemons, Failure, check, eventually, find_chromium, http,
+                     test_lcm_url)
 
 HEARTBEAT_IDLE, HEARTBEAT_RUNNING, HEARTBEAT_PAUSED = 1, 2, 3
 
@@ -267,7 +268,7 @@ def run(args, work):
     if not chromium:
         print("SKIP: chromium is not installed (apt-get install chromium; tools/setup.sh)")
         return 77
-    url = "udpm://239.255.76.67:%d?ttl=0&recv_buf_size=4194304" % (20000 + os.getpid() % 40000)
+    url = test_lcm_url()
     # The rig key, as the package makes it: 64 hex digits, not readable by every user.
     key = os.urandom(32)
     key_file = os.path.join(work, "rig.key")

@@ -42,7 +42,7 @@ import tempfile
 import threading
 import time
 
-from webtest import Browser, Daemons, Failure, check, eventually, find_chromium
+from webtest import Browser, Daemons, Failure, check, eventually, find_chromium, test_lcm_url
 
 HOST = "127.0.0.1"
 STATUS_MEDIAN_BOUND_S = 0.100
@@ -253,7 +253,7 @@ class RssSampler(threading.Thread):
 
 class Monitor:
     def __init__(self, args, work, daemons):
-        self.url = "udpm://239.255.76.67:%d?ttl=0&recv_buf_size=4194304" % (20000 + os.getpid() % 40000)
+        self.url = test_lcm_url()
         self.proc = daemons.start("monitor", [args.monitor, "--lcm", self.url, "--key-file", "",
                                               "--http", "%s:0" % HOST, "--rate", "10"])
         found = eventually(lambda: re.search(r"http://127\.0\.0\.1:(\d+)/", daemons.log("monitor")), 10,

@@ -5,10 +5,31 @@ import base64
 import json
 import os
 import shutil
+import socket
 import subprocess
 import time
 import urllib.error
 import urllib.request
+
+
+def test_lcm_url():
+    """A udpm URL for this test process alone, as tests/lcm/lcm_test_util.hpp chooses one: a port
+    from the process id in 10000..31999, below the kernel's ephemeral range (where a sending
+    socket's automatic bind can hold a port the receivers then cannot bind), moved on past a port
+    something else holds."""
+    def bindable(port):
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind(("", port))
+            return True
+        except OSError:
+            return False
+        finally:
+            s.close()
+    ports = [10000 + (os.getpid() + i) % 22000 for i in range(64)]
+    port = next((p for p in ports if bindable(p)), ports[0])
+    return "udpm://239.255.76.67:%d?ttl=0&recv_buf_size=4194304" % port
 
 
 class Failure(Exception):
