@@ -16,13 +16,8 @@ void frame_chunk_keys(const PointMap& map, const MeasurementImage& m, const Pose
   keys->clear();
   const Eigen::Matrix3f R = T_world_cam.linear().cast<float>();
   const Eigen::Vector3f t = T_world_cam.translation().cast<float>();
-  // Neighbouring samples name the same few chunks over and over: a small direct-mapped table of
-  // keys already listed keeps most repeats out of the sort. (A collision only lets a repeat
-  // through; the sort and unique below still remove it.)
-  constexpr size_t kSeen = 256;
-  ChunkKey seen[kSeen];
-  bool seen_used[kSeen] = {};
-  ChunkKeyHash hash;
+  // Most repeats are kept out of the sort; the sort and unique below remove the rest.
+  SeenChunkKeys listed;
   // One sample per stride x stride block, not at the same place in every block: the column moves
   // with the block's row and the row with the block's column (by 3 each time, which runs through
   // all eight places when the stride is 8). An object narrower than the stride then still gets
@@ -40,13 +35,8 @@ void frame_chunk_keys(const PointMap& map, const MeasurementImage& m, const Pose
         if (f < 1.0f && !in_front) break;
         near->clear();
         map.keys_near(R * (f * p_c) + t, margin_m, near);
-        for (const ChunkKey& k : *near) {
-          const size_t slot = hash(k) % kSeen;
-          if (seen_used[slot] && seen[slot] == k) continue;
-          seen[slot] = k;
-          seen_used[slot] = true;
-          keys->push_back(k);
-        }
+        for (const ChunkKey& k : *near)
+          if (!listed.seen(k)) keys->push_back(k);
       }
     }
   }

@@ -31,6 +31,26 @@ struct ChunkKeyHash {
   }
 };
 
+// The chunk keys one pass over a frame has already handled, in a small direct-mapped table:
+// neighbouring samples name the same few chunks over and over, and this keeps most repeats away
+// from costlier work (a sort, a hash set's look-up). A collision only lets a repeat through.
+class SeenChunkKeys {
+ public:
+  // Whether k is in the table; puts it there.
+  bool seen(const ChunkKey& k) {
+    const size_t slot = ChunkKeyHash()(k) % kSlots;
+    if (used_[slot] && keys_[slot] == k) return true;
+    keys_[slot] = k;
+    used_[slot] = true;
+    return false;
+  }
+
+ private:
+  static constexpr size_t kSlots = 256;
+  ChunkKey keys_[kSlots];
+  bool used_[kSlots] = {};
+};
+
 struct Chunk {
   PointArrays points;
   // The newest frame that changed it: observed it, added points to it, or moved them (the map's

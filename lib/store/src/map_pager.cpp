@@ -79,6 +79,8 @@ Status MapPager::prepare(PointMap* map, const Frame& frame, const Pose& T, uint3
   // range) that visibility checks look at. Samples along it are at most `margin` apart, and the
   // radius grows by the block's lateral extent at that depth.
   const float inv_fx = 1.0f / fx;
+  // Neighbouring samples name the same chunks: each is looked up in the evicted set once, nearly.
+  SeenChunkKeys checked;
   for (int v0 = 0; v0 < d.height; v0 += step) {
     for (int u0 = 0; u0 < d.width; u0 += step) {
       float zmin = std::numeric_limits<float>::infinity(), zmax = 0.0f;
@@ -100,11 +102,13 @@ Status MapPager::prepare(PointMap* map, const Frame& frame, const Pose& T, uint3
         const float zs = std::min(z, zmax);
         // Only the evicted keys are kept, as they come: the samples name a hundred thousand keys
         // or more a frame, mostly resident ones, and sorting them all cost more than the rest of
-        // the frame.
+        // the frame. A key checked before in this frame is dropped: kept then if evicted.
         const size_t first = keys_.size();
         map->keys_near(R * (zs * ray) + t, radius, &keys_);
         keys_.erase(std::remove_if(keys_.begin() + static_cast<std::ptrdiff_t>(first), keys_.end(),
-                                   [&](const ChunkKey& k) { return !evicted_.count(k); }),
+                                   [&](const ChunkKey& k) {
+                                     return checked.seen(k) || !evicted_.count(k);
+                                   }),
                     keys_.end());
         if (zs >= zmax || !(margin > 0.0f)) break;
       }
