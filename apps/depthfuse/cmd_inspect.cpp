@@ -67,9 +67,12 @@ void print_summary(const store::StoreSummary& s) {
   std::printf("sensor         %s\n", s.metadata.sensor_serial.empty() ? "-" : s.metadata.sensor_serial.c_str());
   std::printf("method         %s\n", s.metadata.method.empty() ? "-" : s.metadata.method.c_str());
   std::printf("configuration  %s\n", s.has_config ? "stored" : "none");
-  std::printf("frames         %" PRIu64 " received, %" PRIu64 " fused, %" PRIu64 " dropped; %zu poses, %zu keyframes (%s)\n",
-              s.metadata.frames_received, s.metadata.frames_fused, s.metadata.frames_dropped,
-              s.pose_count, s.keyframe_count, mib(s.keyframe_bytes).c_str());
+  std::printf("frames         %" PRIu64 " received, %" PRIu64 " fused, %" PRIu64
+              " tracked only (fusion behind), %" PRIu64 " lost, %" PRIu64
+              " dropped; %zu poses, %zu keyframes (%s)\n",
+              s.metadata.frames_received, s.metadata.frames_fused, s.metadata.frames_tracked_only,
+              s.metadata.frames_lost, s.metadata.frames_dropped, s.pose_count, s.keyframe_count,
+              mib(s.keyframe_bytes).c_str());
   std::printf("points         %" PRIu64 " in %zu chunks of %.3g m (%s)\n", s.point_count, s.chunk_count,
               s.metadata.chunk_size_m, mib(s.chunk_bytes).c_str());
   if (s.extent_m.isEmpty()) {

@@ -159,6 +159,8 @@ Result<store::CheckpointRecord> commit_refined(store::ScanStore& scan,
   info.T_world_cam = last.T_world_cam;
   info.frames_received = meta.frames_received;
   info.frames_fused = meta.frames_fused;
+  info.frames_tracked_only = meta.frames_tracked_only;
+  info.frames_lost = meta.frames_lost;
   info.frames_dropped = meta.frames_dropped;
   auto rec = scan.commit_checkpoint(info);
   if (!rec) return rec.status();

@@ -34,6 +34,8 @@ struct FusionProgress {
   uint64_t frames_received = 0;
   uint64_t frames_fused = 0;
   uint64_t frames_dropped = 0;
+  uint64_t frames_tracked_only = 0;  // fusion shed: the daemon was behind its camera
+  uint64_t frames_lost = 0;          // tracking lost
 };
 
 // What a resumed scan continues with besides its map (CheckpointSink::restore).

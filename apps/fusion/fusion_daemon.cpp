@@ -203,7 +203,9 @@ void FusionDaemon::on_command(const uint8_t* data, size_t size) {
 FusionProgress FusionDaemon::progress() const {
   return FusionProgress{static_cast<uint64_t>(frames_in_.load()),
                         static_cast<uint64_t>(frames_fused_.load()),
-                        static_cast<uint64_t>(queue_.dropped())};
+                        static_cast<uint64_t>(queue_.dropped()),
+                        static_cast<uint64_t>(frames_fusion_shed_.load()),
+                        static_cast<uint64_t>(frames_lost_tracking_.load())};
 }
 
 Status FusionDaemon::start_scan(const std::string& requested_name, std::string* message) {

@@ -35,7 +35,8 @@ SqliteCheckpointSink::~SqliteCheckpointSink() = default;
 
 // The daemon counts from its start; a resumed scan adds what the file counted before.
 store::FrameCounters SqliteCheckpointSink::counters_of(const FusionProgress& p) const {
-  return {resumed_received_ + p.frames_received, resumed_dropped_ + p.frames_dropped};
+  return {resumed_.received + p.frames_received, resumed_.dropped + p.frames_dropped,
+          resumed_.tracked_only + p.frames_tracked_only, resumed_.lost + p.frames_lost};
 }
 
 std::string SqliteCheckpointSink::describe() const {
@@ -59,7 +60,7 @@ Status SqliteCheckpointSink::begin_scan(const ScanContext& scan) {
   recorder_.reset();  // a previous scan's file (and its write lock) is released
   resume_.reset();
   final_written_ = false;
-  resumed_received_ = resumed_dropped_ = 0;
+  resumed_ = {};
   reported_failures_ = reported_log_failures_ = 0;
   if (!options_.scan_db_path.empty() && !scan_db_used_) {
     path_ = options_.scan_db_path;
@@ -103,8 +104,8 @@ Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, Sc
   std::unique_ptr<store::ResumePoint> at = std::move(resume_);
   if (!at->metadata.scan_id.empty()) scan->scan_id = at->metadata.scan_id;
   if (at->metadata.created_utime != 0) scan->created_utime = at->metadata.created_utime;
-  resumed_received_ = at->metadata.frames_received;
-  resumed_dropped_ = at->metadata.frames_dropped;
+  resumed_ = store::FrameCounters{at->metadata.frames_received, at->metadata.frames_dropped,
+                                  at->metadata.frames_tracked_only, at->metadata.frames_lost};
   std::unique_ptr<PointMap> map = std::move(at->map);
   if (!map) map = std::make_unique<PointMap>(config_.reconstruction.fusion.chunk_size_m);
   reconstructor.reset(std::move(map), at->next_frame_id, at->last_T_world_cam);
@@ -139,7 +140,7 @@ Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, Sc
   // before the next full checkpoint would replay them again, and more.
   if (*replayed > 0)
     (void)recorder_->checkpoint_in_background(&reconstructor.map(), "replayed",
-                                              {resumed_received_, resumed_dropped_});
+                                              resumed_);
   const auto& r = at->open_report;
   DF_LOG(Fusion, Info)
       << "resumed scan " << scan->scan_id << " from " << path_ << " at checkpoint "

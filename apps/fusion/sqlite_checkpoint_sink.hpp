@@ -68,7 +68,7 @@ class SqliteCheckpointSink : public CheckpointSink {
   std::unique_ptr<store::ScanRecorder> recorder_;
   std::unique_ptr<store::ResumePoint> resume_;  // between begin_scan and restore
   bool final_written_ = false;      // end_scan's checkpoint committed
-  uint64_t resumed_received_ = 0, resumed_dropped_ = 0;  // counted before a resume
+  store::FrameCounters resumed_;  // counted before a resume
   // Failures counted in the recorder's status that the daemon has had (returned by a call, or by
   // take_unreported_failure).
   uint64_t reported_failures_ = 0;      // checkpoints

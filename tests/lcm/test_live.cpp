@@ -951,6 +951,16 @@ TEST_F(LiveAppliance, BehindItsCameraFusionShedsFusionBeforeFrames) {
     for (int k = 0; k < 3; ++k) EXPECT_NEAR(p.pose.position_m[k], 0.0, 0.01) << p.pose.sequence;
   }
   EXPECT_EQ(shed_poses, shed(hb));
+  // The scan file counts them too: `inspect` accounts for every frame received.
+  std::string out;
+  ASSERT_EQ(scan({"stop"}, &out), 0) << out;
+  ASSERT_EQ(run_command({bin("depthfuse"), "inspect", dir_ + "/scans/shed.dfscan"},
+                        dir_ + "/inspect.log", &out), 0) << out;
+  EXPECT_NE(out.find(std::to_string(hb.frames_in) + " received, " +
+                     std::to_string(hb.frames_out) + " fused, " + std::to_string(shed(hb)) +
+                     " tracked only (fusion behind), 0 lost, " +
+                     std::to_string(hb.frames_dropped) + " dropped"),
+            std::string::npos) << out;
 }
 
 // Without pose hints the daemon tracks, and a frame it cannot place is not fused: the heartbeat

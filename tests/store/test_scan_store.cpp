@@ -121,8 +121,10 @@ TEST(ScanStore, RoundTripIsBitExact) {
     info.reason = "command";
     info.last_frame_id = 12;
     info.T_world_cam = some_pose(1.2);
-    info.frames_received = 15;
+    info.frames_received = 21;
     info.frames_fused = 12;
+    info.frames_tracked_only = 4;
+    info.frames_lost = 2;
     info.frames_dropped = 3;
     auto rec = s->commit_checkpoint(info);
     ASSERT_TRUE(rec) << rec.status().to_string();
@@ -183,7 +185,10 @@ TEST(ScanStore, RoundTripIsBitExact) {
   EXPECT_EQ(m->scan_id, meta.scan_id);
   EXPECT_EQ(m->created_utime, meta.created_utime);
   EXPECT_EQ(m->sensor_serial, meta.sensor_serial);
-  EXPECT_EQ(m->frames_received, 15u);
+  EXPECT_EQ(m->frames_received, 21u);
+  EXPECT_EQ(m->frames_fused, 12u);
+  EXPECT_EQ(m->frames_tracked_only, 4u);
+  EXPECT_EQ(m->frames_lost, 2u);
   EXPECT_EQ(m->frames_dropped, 3u);
   auto config = s->config_toml();
   ASSERT_TRUE(config && config->has_value());

@@ -247,6 +247,15 @@ def test_correction(browser, base, sender):
     check(line == "pose graph: 52 keyframes, 30 loop closures, 3 corrections (last moved the map 4.5 mm)",
           "the closure line for a scan with closures: %r" % line)
     browser.evaluate("showGraph(dfState.status.daemons.find(d => d.name === 'fusion').counters)")
+    # The frames line: what became of the frames received, from the same heartbeat.
+    frames_line = browser.evaluate(
+        "(d => (showFrames(d), [document.getElementById('frames').textContent, d]))"
+        "(dfState.status.daemons.find(d => d.name === 'fusion'))")
+    shown, d = frames_line
+    expect = "frames: %d fused, %d tracked only (fusion behind), %d lost, %d dropped" % (
+        d["frames_out"], d["counters"]["frames_fusion_shed"], d["counters"]["frames_lost_tracking"],
+        d["frames_dropped"])
+    check(shown == expect, "the frames line %r, expected %r" % (shown, expect))
     print("correction: the page's path (%d positions) moved as sent, noted; broken and foreign ones "
           "counted and ignored; %r" % (len(before) // 3, real_line))
 

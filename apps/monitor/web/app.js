@@ -236,6 +236,7 @@ function onStatus(st) {
     if (d.last_error) errors.push(`${d.name}: ${d.last_error}`);
     if (d.name === 'fusion') {
       showGraph(d.counters);
+      showFrames(d);
       document.getElementById('scan').textContent =
           d.scan_id ? `scan ${d.scan_id} (${d.state})` : `no scan (${d.state})`;
       if (d.last_command_message)
@@ -262,6 +263,15 @@ function showGraph(c) {
                            : 'no correction yet');
   shown.title = `loop candidates ${c.loop_candidates}, gated ${c.loops_gated}, ` +
       `rejected ${c.loops_rejected}`;
+}
+
+// What became of the frames the fusion daemon received: fused into the map, tracked only (fusion
+// shed while the daemon was behind its camera), lost by tracking, dropped by its queue.
+function showFrames(d) {
+  const c = d.counters;
+  document.getElementById('frames').textContent =
+      `frames: ${d.frames_out} fused, ${c.frames_fusion_shed ?? 0} tracked only (fusion behind), ` +
+      `${c.frames_lost_tracking ?? 0} lost, ${d.frames_dropped} dropped`;
 }
 
 // ------------------------------------------------------------------ the connection

@@ -346,6 +346,8 @@ CheckpointInfo ScanRecorder::checkpoint_info(const std::string& reason,
   info.T_world_cam = last_pose_;
   info.frames_received = counters.received;
   info.frames_fused = frames_fused_;
+  info.frames_tracked_only = counters.tracked_only;
+  info.frames_lost = counters.lost;
   info.frames_dropped = counters.dropped;
   return info;
 }

@@ -31,6 +31,8 @@ Status ScanStore::set_metadata(const ScanMetadata& m) {
       {"software_version", m.software_version},
       {"frames_received", std::to_string(m.frames_received)},
       {"frames_fused", std::to_string(m.frames_fused)},
+      {"frames_tracked_only", std::to_string(m.frames_tracked_only)},
+      {"frames_lost", std::to_string(m.frames_lost)},
       {"frames_dropped", std::to_string(m.frames_dropped)},
   };
   return impl_->in_transaction("writing metadata", [&] { return impl_->set_meta(kv); });
@@ -242,6 +244,8 @@ Result<CheckpointRecord> ScanStore::commit_checkpoint(const CheckpointInfo& info
                                  ctx));
     DF_RETURN_IF_ERROR(s.set_meta({{"frames_received", std::to_string(info.frames_received)},
                                    {"frames_fused", std::to_string(info.frames_fused)},
+                                   {"frames_tracked_only", std::to_string(info.frames_tracked_only)},
+                                   {"frames_lost", std::to_string(info.frames_lost)},
                                    {"frames_dropped", std::to_string(info.frames_dropped)}}));
     return s.db.exec("COMMIT;", ctx);
   };

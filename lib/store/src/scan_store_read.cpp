@@ -64,6 +64,8 @@ Result<ScanMetadata> ScanStore::metadata() {
     } else if (k == "software_version") m.software_version = v;
     else if (k == "frames_received") as_u64(&m.frames_received);
     else if (k == "frames_fused") as_u64(&m.frames_fused);
+    else if (k == "frames_tracked_only") as_u64(&m.frames_tracked_only);
+    else if (k == "frames_lost") as_u64(&m.frames_lost);
     else if (k == "frames_dropped") as_u64(&m.frames_dropped);
   }
   DF_RETURN_IF_ERROR(st->status());

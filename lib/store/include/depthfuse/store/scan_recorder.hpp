@@ -78,10 +78,13 @@ struct RecorderConfig {
   static size_t frame_log_bytes(const RecorderConfig& config, size_t pixels);
 };
 
-// Frame counters the daemon keeps (queue drops happen before the recorder sees a frame).
+// Frame counters the daemon keeps (queue drops happen before the recorder sees a frame; frames
+// tracked only or lost never reach it). The recorder counts the fused frames itself.
 struct FrameCounters {
   uint64_t received = 0;
   uint64_t dropped = 0;
+  uint64_t tracked_only = 0;
+  uint64_t lost = 0;
 };
 
 struct RecorderStatus {

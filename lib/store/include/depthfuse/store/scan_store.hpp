@@ -58,7 +58,9 @@ struct ScanMetadata {
   std::string software_version;
   uint64_t frames_received = 0;
   uint64_t frames_fused = 0;
-  uint64_t frames_dropped = 0;
+  uint64_t frames_tracked_only = 0;  // placed but not fused: fusion was behind the camera
+  uint64_t frames_lost = 0;          // tracking lost: neither placed nor fused
+  uint64_t frames_dropped = 0;       // the daemon's queue overflowed
 };
 
 // One fused frame's pose and how well it registered.
@@ -158,7 +160,8 @@ struct CheckpointInfo {
   std::string reason = "periodic";           // periodic | command | sigterm | final | refine | ...
   uint32_t last_frame_id = 0;                // every frame up to this one is in the checkpoint
   std::optional<Pose> T_world_cam;           // camera at the checkpoint (where a resume starts)
-  uint64_t frames_received = 0, frames_fused = 0, frames_dropped = 0;
+  uint64_t frames_received = 0, frames_fused = 0, frames_tracked_only = 0, frames_lost = 0,
+           frames_dropped = 0;
 };
 
 struct CheckpointRecord {
