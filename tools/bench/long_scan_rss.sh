@@ -3,7 +3,8 @@
 # looping, to a fusion daemon with the default memory budget, for M minutes; every minute the fusion
 # daemon's resident memory (VmRSS), its fused frame count and rate are printed, read from
 # /proc/<pid>/status and from the monitor's status (depthfuse status --json), with the frames the
-# daemon received and those its queue dropped (a checkpoint's cost shows there).
+# daemon received, those it tracked without fusing (behind its camera) and those its queue dropped
+# (a checkpoint's cost shows there).
 #
 #   tools/bench/long_scan_rss.sh [--minutes M | --seconds S] [--bin DIR] [--lcm URL] [--frames N]
 #                                [--source SOURCE]
@@ -70,10 +71,10 @@ s = json.loads(sys.stdin.readline())
 d = [d for d in s["daemons"] if d["name"] == "fusion"]
 c = d[0].get("counters", {}) if d else {}
 print(*[d[0][k] for k in ("frames_out", "output_rate_hz", "point_count", "frames_in", "frames_dropped")],
-      *[int(c.get(k, 0)) for k in ("keyframes", "loop_closures", "frames_lost_tracking",
-                                    "chunks_evicted_total")],
-      "%.1f" % c.get("last_correction_mm", 0)) if d else print("- - - - - - - - - -")' ||
-    echo "- - - - - - - - - -"
+      *[int(c.get(k, 0)) for k in ("frames_fusion_shed", "keyframes", "loop_closures",
+                                    "frames_lost_tracking", "chunks_evicted_total")],
+      "%.1f" % c.get("last_correction_mm", 0)) if d else print("- - - - - - - - - - -")' ||
+    echo "- - - - - - - - - - -"
 }
 
 if [ -n "$seconds" ]; then
@@ -84,7 +85,7 @@ else
   for ((m = 0; m <= minutes; m++)); do report_s+=($((m * 60))); done
   echo "# $bin, $source at 30 Hz (looping) for $minutes min"
 fi
-echo "# second  fusion_rss_mib  frames_fused  fused_rate_hz  map_points  frames_received  frames_dropped  keyframes  loop_closures  frames_lost_tracking  chunks_evicted  last_correction_mm"
+echo "# second  fusion_rss_mib  frames_fused  fused_rate_hz  map_points  frames_received  frames_dropped  frames_tracked_only  keyframes  loop_closures  frames_lost_tracking  chunks_evicted  last_correction_mm"
 last=0
 for t in "${report_s[@]}"; do
   sleep $((t - last))
