@@ -27,9 +27,8 @@ Result<size_t> fold_frame_log(const std::string& path) {
   auto replayed = (*rec)->replay_log(reconstructor);
   if (!replayed) return replayed.status();
   if (*replayed == 0) return size_t{0};
-  const store::FrameCounters counters{at.metadata.frames_received, at.metadata.frames_dropped,
-                                     at.metadata.frames_tracked_only, at.metadata.frames_lost};
-  auto cp = (*rec)->checkpoint(&reconstructor.map(), "frame log folded", counters);
+  auto cp = (*rec)->checkpoint(&reconstructor.map(), "frame log folded",
+                               store::frame_counters_of(at.metadata));
   if (!cp) return cp.status();
   return *replayed;
 }

@@ -104,8 +104,7 @@ Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, Sc
   std::unique_ptr<store::ResumePoint> at = std::move(resume_);
   if (!at->metadata.scan_id.empty()) scan->scan_id = at->metadata.scan_id;
   if (at->metadata.created_utime != 0) scan->created_utime = at->metadata.created_utime;
-  resumed_ = store::FrameCounters{at->metadata.frames_received, at->metadata.frames_dropped,
-                                  at->metadata.frames_tracked_only, at->metadata.frames_lost};
+  resumed_ = store::frame_counters_of(at->metadata);
   std::unique_ptr<PointMap> map = std::move(at->map);
   if (!map) map = std::make_unique<PointMap>(config_.reconstruction.fusion.chunk_size_m);
   reconstructor.reset(std::move(map), at->next_frame_id, at->last_T_world_cam);

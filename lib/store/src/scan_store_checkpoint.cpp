@@ -12,6 +12,19 @@ namespace depthfuse::store {
 
 namespace {
 
+using MetaRows = std::vector<std::pair<std::string, std::string>>;
+
+// The daemon's frame counters as meta rows, from the scan's metadata or a checkpoint (the same
+// fields in both): written by set_metadata and by every checkpoint.
+template <typename Counts>
+void append_frame_counts(const Counts& c, MetaRows* rows) {
+  rows->insert(rows->end(), {{"frames_received", std::to_string(c.frames_received)},
+                             {"frames_fused", std::to_string(c.frames_fused)},
+                             {"frames_tracked_only", std::to_string(c.frames_tracked_only)},
+                             {"frames_lost", std::to_string(c.frames_lost)},
+                             {"frames_dropped", std::to_string(c.frames_dropped)}});
+}
+
 std::string format_double(double v) {
   char buf[64];
   std::snprintf(buf, sizeof(buf), "%.17g", v);
@@ -22,19 +35,15 @@ std::string format_double(double v) {
 
 Status ScanStore::set_metadata(const ScanMetadata& m) {
   DF_RETURN_IF_ERROR(impl_->require_writable("set_metadata"));
-  const std::vector<std::pair<std::string, std::string>> kv = {
+  MetaRows kv = {
       {"scan_id", m.scan_id},
       {"created_utime", std::to_string(m.created_utime)},
       {"sensor_serial", m.sensor_serial},
       {"method", m.method},
       {"chunk_size_m", format_double(m.chunk_size_m)},
       {"software_version", m.software_version},
-      {"frames_received", std::to_string(m.frames_received)},
-      {"frames_fused", std::to_string(m.frames_fused)},
-      {"frames_tracked_only", std::to_string(m.frames_tracked_only)},
-      {"frames_lost", std::to_string(m.frames_lost)},
-      {"frames_dropped", std::to_string(m.frames_dropped)},
   };
+  append_frame_counts(m, &kv);
   return impl_->in_transaction("writing metadata", [&] { return impl_->set_meta(kv); });
 }
 
@@ -242,11 +251,9 @@ Result<CheckpointRecord> ScanStore::commit_checkpoint(const CheckpointInfo& info
     DF_RETURN_IF_ERROR(s.db.exec("DELETE FROM frame_log WHERE frame_id <= " +
                                      std::to_string(rec.last_frame_id) + ";",
                                  ctx));
-    DF_RETURN_IF_ERROR(s.set_meta({{"frames_received", std::to_string(info.frames_received)},
-                                   {"frames_fused", std::to_string(info.frames_fused)},
-                                   {"frames_tracked_only", std::to_string(info.frames_tracked_only)},
-                                   {"frames_lost", std::to_string(info.frames_lost)},
-                                   {"frames_dropped", std::to_string(info.frames_dropped)}}));
+    MetaRows frame_counts;
+    append_frame_counts(info, &frame_counts);
+    DF_RETURN_IF_ERROR(s.set_meta(frame_counts));
     return s.db.exec("COMMIT;", ctx);
   };
   Status st = body();

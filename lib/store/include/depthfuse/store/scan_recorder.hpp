@@ -87,6 +87,11 @@ struct FrameCounters {
   uint64_t lost = 0;
 };
 
+// The counters a scan file holds (its metadata), to go on from when it is resumed or folded.
+inline FrameCounters frame_counters_of(const ScanMetadata& m) {
+  return {m.frames_received, m.frames_dropped, m.frames_tracked_only, m.frames_lost};
+}
+
 struct RecorderStatus {
   std::string path;
   uint64_t frames_recorded = 0;
