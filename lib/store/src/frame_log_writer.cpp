@@ -7,6 +7,9 @@
 #include <chrono>
 
 #include "depthfuse/base/clock.hpp"
+#include "depthfuse/base/log.hpp"
+
+DF_LOG_CATEGORY(Store)
 
 namespace depthfuse::store {
 
@@ -59,6 +62,9 @@ void FrameLogWriter::push(const PoseRecord& pose, const Frame& frame) {
   });
   const int64_t t1 = steady_ns();
   if (t1 - t0 > 1000000) stats_.waited_seconds += static_cast<double>(t1 - t0) * 1e-9;
+  if (t1 - t0 > 20000000)
+    DF_LOG(Store, Debug) << "frame " << pose.frame_id << " waited " << (t1 - t0) / 1000000
+                         << " ms for the frame log's thread";
   if (lagged) ++stats_.lag_waits;
   if (suspended_until_ != 0) {
     suspended_until_ = std::max(suspended_until_, pose.frame_id);

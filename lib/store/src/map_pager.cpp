@@ -9,6 +9,7 @@
 #include <limits>
 #include <tuple>
 
+#include "depthfuse/base/clock.hpp"
 #include "depthfuse/base/log.hpp"
 #include "depthfuse/store/scan_store.hpp"
 
@@ -316,8 +317,11 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
     wait |= candidates_[i].waits;
   }
   // Once the checkpoint is done its promotion is too: the chunks of its snapshot may be staged.
+  const int64_t t0_ns = steady_ns();
   if (wait && wait_for_checkpoint_) wait_for_checkpoint_();
+  const int64_t t1_ns = steady_ns();
   Status st = store_->stage_chunks(writes);
+  const int64_t t2_ns = steady_ns();
   if (!st) {
     skip_eviction_calls_ = config_.retry_after_failure_calls;
     return st.with_context("evicting " + std::to_string(n) + " chunks (they stay in memory)");
@@ -344,7 +348,9 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
   stats_.resident_bytes = resident - freed;
   DF_LOG(Pager, Debug) << "frame " << frame_id << ": evicted " << n << " chunks (" << recent
                         << " seen recently, " << writes.size() << " written), "
-                        << (resident >> 20) << " -> " << ((resident - freed) >> 20) << " MiB";
+                        << (resident >> 20) << " -> " << ((resident - freed) >> 20) << " MiB; "
+                        << "waited " << (t1_ns - t0_ns) / 1000000 << " ms for the checkpoint, "
+                        << "staged in " << (t2_ns - t1_ns) / 1000000 << " ms";
   if (config_.release_memory_to_os) malloc_trim(0);
   return Status::ok();
 }
