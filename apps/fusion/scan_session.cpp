@@ -166,12 +166,9 @@ bool ScanSession::checkpoint_due() const {
   // frame. A checkpoint holds no point that waits for its chunk to catch up
   // (SqliteCheckpointSink::join_pending_points), so one taken while the sweep runs does the rest
   // of the sweep at once on this thread: hundreds of milliseconds, and the frame queue drops
-  // frames. It waits for the sweep instead, and for the points the sweep sent to evicted chunks
-  // to join them a few chunks a frame, at most kMaxSweepWait after the correction; the frames
-  // fused meanwhile are not logged (ScanRecorder::record_frame).
-  const MapDeformation& deformation = reconstructor_->deformation();
-  if ((deformation.sweeping() || deformation.has_pending_points()) &&
-      now - last_correction_ < kMaxSweepWait)
+  // frames. It waits for the sweep instead, at most kMaxSweepWait after the correction; the
+  // frames fused meanwhile are not logged (ScanRecorder::record_frame).
+  if (reconstructor_->deformation().sweeping() && now - last_correction_ < kMaxSweepWait)
     return false;
   return now - last_checkpoint_ >
          std::chrono::duration<double>(config_.fusion.checkpoint_interval_s -

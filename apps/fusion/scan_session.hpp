@@ -53,10 +53,8 @@ class ScanSession {
 
   bool active() const { return reconstructor_ != nullptr; }
   const std::string& scan_id() const { return scan_.scan_id; }
-  // Null between scans. Mutable for a caller that drives the map's deformation itself (a test
-  // correcting keyframes it added, as the loop closer would).
+  // Null between scans.
   const IncrementalReconstructor* reconstructor() const { return reconstructor_.get(); }
-  IncrementalReconstructor* reconstructor() { return reconstructor_.get(); }
   const std::vector<StampedPose>& trajectory() const { return trajectory_; }
   // Null between scans.
   const FramePath* path() const { return path_.get(); }

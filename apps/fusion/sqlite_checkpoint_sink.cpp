@@ -168,6 +168,7 @@ Status SqliteCheckpointSink::join_pending_points(IncrementalReconstructor& recon
   Status loaded;
   std::vector<ChunkKey> keys = reconstructor.deformation().pending_keys(), before;
   const auto t0 = std::chrono::steady_clock::now();
+  const bool sweeping = reconstructor.deformation().sweeping();
   size_t rounds = 0, chunks = 0, points = 0;
   while (!keys.empty() && keys != before) {
     if (store::MapPager* pager = recorder_->pager()) {
@@ -180,37 +181,18 @@ Status SqliteCheckpointSink::join_pending_points(IncrementalReconstructor& recon
     before.swap(keys);
     keys = reconstructor.deformation().pending_keys();
   }
-  // Work the frames before the checkpoint did not do (ScanSession::checkpoint_due() waits for it):
-  // the fusion thread's time, which the frame queue may not absorb.
+  // The fusion thread's time at once, which the frame queue may not absorb: the deformation stays
+  // lazy so that the corrections coming a second apart are followed once per chunk, and this is
+  // what a checkpoint pays for it.
   if (rounds > 0)
     DF_LOG(Fusion, Debug) << "checkpoint: points waiting for " << chunks << " chunks joined in "
-                          << rounds << " rounds (" << points << " points), "
+                          << rounds << " rounds (" << points << " points"
+                          << (sweeping ? ", the sweep not done" : "") << "), "
                           << std::chrono::duration<double, std::milli>(
                                  std::chrono::steady_clock::now() - t0).count()
                           << " ms";
   keep_history_for_evicted(reconstructor);
   return loaded.with_context("loading the chunks that points moved into");
-}
-
-void SqliteCheckpointSink::join_some_pending_points(IncrementalReconstructor& reconstructor) {
-  // A few a frame: the frame's time hardly changes, and the few dozen chunks a correction leaves
-  // waiting are joined well within the checkpoint's wait.
-  constexpr size_t kChunksPerFrame = 4;
-  MapDeformation& deformation = reconstructor.deformation();
-  store::MapPager* pager = recorder_ ? recorder_->pager() : nullptr;
-  if (!pager || deformation.sweeping() || !deformation.has_pending_points()) return;
-  // Only evicted ones: a resident chunk waiting is stale, and the sweep has it; one that could not
-  // be loaded keeps its points in memory (join_pending_points()) and is not tried every frame.
-  std::vector<ChunkKey> keys;
-  for (const ChunkKey& k : deformation.pending_keys()) {
-    if (!pager->is_evicted(k)) continue;
-    keys.push_back(k);
-    if (keys.size() == kChunksPerFrame) break;
-  }
-  if (keys.empty()) return;
-  if (Status st = pager->load_chunks(&reconstructor.map(), keys, reconstructor.next_frame_id()); !st)
-    DF_LOG(Fusion, Warning) << st.with_context("loading the chunks that points moved into").to_string();
-  deformation.update(&reconstructor.map(), keys);
 }
 
 void SqliteCheckpointSink::keep_graph(GraphCheckpoint graph) {
@@ -253,7 +235,6 @@ Status SqliteCheckpointSink::prepare_frame(const Frame& frame, const Pose& T_wor
 Status SqliteCheckpointSink::frame_fused(const Frame& frame, const FrameReport& report,
                                          IncrementalReconstructor& reconstructor) {
   if (!recorder_) return invalid_argument("no scan file is open");
-  join_some_pending_points(reconstructor);
   Status st = recorder_->record_frame(frame, report, &reconstructor.map());
   keep_history_for_evicted(reconstructor);
   return st;
@@ -263,7 +244,6 @@ Status SqliteCheckpointSink::frame_not_fused(const FrameReport& report,
                                              const Pose& T_world_cam_initial,
                                              IncrementalReconstructor& reconstructor) {
   if (!recorder_) return invalid_argument("no scan file is open");
-  join_some_pending_points(reconstructor);
   Status st = recorder_->keep_within_budget(&reconstructor.map(),
                                             T_world_cam_initial.translation().cast<float>(),
                                             reconstructor.next_frame_id(), report.graph_memory_bytes);

@@ -60,9 +60,6 @@ class SqliteCheckpointSink : public CheckpointSink {
   // were stale or evicted) join their chunks, loaded if need be, since the scan file keeps chunks
   // only. A chunk that cannot be loaded (damaged) keeps its pending points in memory.
   Status join_pending_points(IncrementalReconstructor& reconstructor);
-  // After a frame, once the deformation's sweep is done: a few of the evicted chunks that points
-  // wait for are loaded and joined, so that the next checkpoint has little left to join.
-  void join_some_pending_points(IncrementalReconstructor& reconstructor);
 
   AppConfig config_;
   SqliteSinkOptions options_;

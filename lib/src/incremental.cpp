@@ -151,16 +151,13 @@ Result<FrameReport> IncrementalReconstructor::process(const Frame& frame,
     t0 = Clock::now();
     report.fusion = fuser_.fuse(scratch_, &frame.color, T, next_frame_id_, map_.get());
     report.fusion_ms = ms_since(t0);
+    deform([&] {
+      report.swept_points = deformation_.sweep(
+          map_.get(), T.translation(),
+          static_cast<size_t>(std::max(1, config_.fusion.deform_points_per_frame)));
+    });
     fused_at(frame.utime, T);
   }
-  // A frame whose fusion is shed sweeps too: the next checkpoint does whatever is left of the
-  // sweep at once (the scan file holds no stale chunk's pending points), and that burst, not
-  // this frame, would drop frames.
-  deform([&] {
-    report.swept_points = deformation_.sweep(
-        map_.get(), T.translation(),
-        static_cast<size_t>(std::max(1, config_.fusion.deform_points_per_frame)));
-  });
   registrar_.keep_frame_as_photometric_reference(scratch_, T);
   ++next_frame_id_;
   return report;

@@ -305,15 +305,11 @@ TEST(MapDeformation, ProcessBringsTheViewUpToDateAndSweepsTheRestWithinItsBudget
   EXPECT_GT(near_current, 0u);
   EXPECT_GT(stale, 10u);
   // The rest over the next frames (the merge passes the view's chunks left, then the stale
-  // chunks), never much more than the budget each: at most a chunk over. A frame whose fusion is
-  // shed (a live daemon behind its camera) sweeps as much: what the sweep leaves, the next
-  // checkpoint would do at once.
+  // chunks), never much more than the budget each: at most a chunk over.
   int frames = 0;
   while (rec.deformation().oldest_version() != 1) {
-    const FrameWork work = frames % 2 ? FrameWork::kTrackOnly : FrameWork::kTrackAndFuse;
-    Result<FrameReport> r = rec.process(f, std::nullopt, work);
+    Result<FrameReport> r = rec.process(f);
     ASSERT_TRUE(r.is_ok());
-    EXPECT_EQ(r->fusion_shed, work == FrameWork::kTrackOnly);
     EXPECT_GT(r->swept_points, 0u) << "frame " << frames;
     EXPECT_LT(r->swept_points, 20000u + largest_chunk) << "frame " << frames;
     ASSERT_LT(++frames, 100);

@@ -8,11 +8,9 @@
 #include <fstream>
 #include <sstream>
 
-#include "core_test_util.hpp"
 #include "depthfuse/replay/tum_source.hpp"
 #include "depthfuse/trajectory.hpp"
 #include "lcm_test_util.hpp"
-#include "memory_budget.hpp"
 #include "scan_session.hpp"
 #include "sqlite_checkpoint_sink.hpp"
 
@@ -92,77 +90,6 @@ TEST(ScanSession, TracksASequenceAsReconstructTrackDoes) {
     EXPECT_LT((a.T_world_cam.translation() - b.T_world_cam.translation()).norm(), 2e-6) << i;
     EXPECT_TRUE(a.T_world_cam.linear().isApprox(b.T_world_cam.linear(), 1e-7)) << i;
   }
-}
-
-// After a loop closure the sweep moves points into chunks the pager has evicted; they wait for
-// them in memory, and the scan file keeps chunks only, so a checkpoint joins them first: loading
-// each chunk, moving it, sending some of its points on into others. On a long walk that was a few
-// hundred milliseconds at once on the fusion thread, and the frame queue dropped frames. Once the
-// sweep is done, the frames after it join a few each instead, and the checkpoint waits for them.
-TEST(ScanSession, PointsMovedIntoEvictedChunksJoinThemFrameByFrame) {
-  const std::string dir = temp_dir("scan-session-pending");
-  AppConfig config;
-  config.fusion.scan_dir = dir + "/scans";
-  config.fusion.frame_log_interval_s = 0;
-  // The map gets 4 MiB: a few metres of the wall below.
-  config.fusion.memory_budget_mib = fusiond::MemoryBudget::of(config).frame_work_mib() + 4.0;
-  fusiond::SqliteCheckpointSink sink(config, fusiond::SqliteSinkOptions{dir + "/scan.dfscan"});
-  fusiond::ScanSession session(config, sink);
-  ASSERT_TRUE(session.start("pending").is_ok());
-  IncrementalReconstructor& rec = *session.reconstructor();
-  const double wall_z = 2.2;
-  uint32_t sequence = 0;
-  const auto frame_at = [&](const Pose& T) {
-    Frame f = test::render_plane(T, Eigen::Vector3d::UnitZ(), wall_z);
-    f.T_world_cam_hint = T;
-    f.sequence = ++sequence;
-    f.utime = 1700000000000000LL + static_cast<int64_t>(sequence) * 1000000 / 30;
-    return f;
-  };
-  // A camera walking 8 m along the wall, a keyframe every fourth frame; the start of the walk is
-  // evicted as it goes.
-  std::vector<Pose> keyframes;
-  for (int i = 0; i <= 32; ++i) {
-    const Pose T = Pose(Eigen::Translation3d(0.25 * i, 0, 0));
-    if (i % 4 == 0) {
-      keyframes.push_back(T);
-      ASSERT_TRUE(rec.deformation().keyframe_added(i / 4, rec.next_frame_id(), T).is_ok());
-    }
-    auto out = session.process(frame_at(T));
-    ASSERT_TRUE(out.is_ok()) << out.status().to_string();
-    ASSERT_TRUE(out->report.fused());
-  }
-  // The closure: the whole walk 10 cm back along the wall, so that the resident chunks next to
-  // the evicted ones send points into them.
-  const Pose shift = Pose(Eigen::Translation3d(-0.1, 0, 0.02));
-  std::vector<Pose> corrected;
-  for (const Pose& T : keyframes) corrected.push_back(shift * T);
-  ASSERT_TRUE(rec.deformation().correct(corrected).is_ok());
-  const Pose end = shift * Pose(Eigen::Translation3d(8.0, 0, 0));
-  int frames = 0;
-  while (rec.deformation().sweeping()) {
-    ASSERT_TRUE(session.process(frame_at(end)).is_ok());
-    ASSERT_LT(++frames, 200) << "the sweep does not end";
-  }
-  ASSERT_TRUE(rec.deformation().has_pending_points())
-      << "no point was moved into an evicted chunk: the test shows nothing";
-  const std::vector<ChunkKey> waiting = rec.deformation().pending_keys();
-  // Without a checkpoint, a few chunks a frame.
-  frames = 0;
-  while (rec.deformation().has_pending_points()) {
-    ASSERT_TRUE(session.process(frame_at(end)).is_ok());
-    ASSERT_LT(++frames, 100) << rec.deformation().pending_keys().size()
-                             << " chunks still have points waiting";
-  }
-  EXPECT_GE(frames, 1);
-  // Each in memory at the current version, or evicted again after it was joined.
-  for (const ChunkKey& k : waiting) {
-    if (const Chunk* c = rec.map().find(k)) {
-      EXPECT_EQ(c->version, rec.deformation().version());
-    }
-  }
-  auto saved = session.stop("final", {});
-  ASSERT_TRUE(saved.is_ok()) << saved.status().to_string();
 }
 
 }  // namespace

@@ -99,8 +99,7 @@ class IncrementalReconstructor {
   // the lost rule asks of a poor track (relocalisation_verified()), is the camera's, and the frame
   // is fused there (relocalised). Otherwise the frame is not fused, and the last refined pose
   // stays that of the last frame placed. With FrameWork::kTrackOnly a placed frame is not fused
-  // (FrameReport::fusion_shed): after registration only the motion model's update and the map
-  // deformation's sweep run.
+  // (FrameReport::fusion_shed), and nothing after registration runs but the motion model's update.
   Result<FrameReport> process(const Frame& frame,
                               const std::optional<Pose>& T_world_cam_prediction = std::nullopt,
                               FrameWork work = FrameWork::kTrackAndFuse);
@@ -132,8 +131,7 @@ class IncrementalReconstructor {
 
   // How the map follows the pose graph: keyframes are added to it and loop closures correct it
   // (MapDeformation). process() brings the chunks a frame sees up to date before it is registered
-  // and fused, and after fusion (or in its place) sweeps fusion.deform_points_per_frame points of
-  // the others.
+  // and fused, and after fusion sweeps fusion.deform_points_per_frame points of the others.
   MapDeformation& deformation() { return deformation_; }
   const MapDeformation& deformation() const { return deformation_; }
   // The whole map in the current version (export, evaluation): what map() users that need every

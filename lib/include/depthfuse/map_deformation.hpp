@@ -154,7 +154,6 @@ class MapDeformation {
   void clear();
 
   size_t pending_points() const;
-  bool has_pending_points() const { return !pending_.empty(); }
   // The pose history, the segment table, the pending points, the merges queued and the buffers
   // kept (the merge pass's grow to the largest chunk).
   size_t memory_bytes() const;
