@@ -49,6 +49,8 @@ struct Options {
   long report_every = 300;
   double slow_ms = 0;  // a line for every frame slower than this (0: none)
   double drift_mm = 0;  // a line for every frame further than this from the truth (0: none)
+  // A line for every frame whose sequence is in [trace_from, trace_to] (trace_to 0: none).
+  uint32_t trace_from = 0, trace_to = 0;
   double rate_hz = 0;  // frames paced at this rate through a dropping queue (0: every frame, unpaced)
   size_t queue = 4;
 };
@@ -57,7 +59,7 @@ void usage() {
   std::printf(
       "usage: bench_scan_session --source SPEC [--frames N] [--report-every N] [--config FILE]\n"
       "                          [--dir DIR] [--log-level SPEC] [--slow-ms MS] [--drift-mm MM]\n"
-      "                          [--rate HZ [--queue N]]\n"
+      "                          [--rate HZ [--queue N]] [--trace FROM:TO]\n"
       "  --source SPEC       a frame source as depthfuse-capture takes it (looped)\n"
       "  --frames N          frames to process in all (default 6000)\n"
       "  --report-every N    a line of figures every N frames (default 300)\n"
@@ -69,7 +71,10 @@ void usage() {
       "                      from the truth, with what tracking said of it\n"
       "  --rate HZ           frames come at HZ, as from the capture daemon, into a queue that drops\n"
       "                      the oldest when full (default: every frame, as fast as it is fused)\n"
-      "  --queue N           that queue's frames (default 4, the daemon's queue_capacity_frames)\n");
+      "  --queue N           that queue's frames (default 4, the daemon's queue_capacity_frames)\n"
+      "  --trace FROM:TO     a synthetic source: a line for every frame whose sequence is in\n"
+      "                      FROM..TO, fused or not: tracking, depth's share, error, and its step\n"
+      "                      since the frame before against the truth's (mm, world axes)\n");
 }
 
 bool parse(int argc, char** argv, Options* o) {
@@ -90,6 +95,15 @@ bool parse(int argc, char** argv, Options* o) {
     else if (a == "--drift-mm") o->drift_mm = std::atof(v);
     else if (a == "--rate") o->rate_hz = std::atof(v);
     else if (a == "--queue") o->queue = static_cast<size_t>(std::max(1L, std::atol(v)));
+    else if (a == "--trace") {
+      unsigned from = 0, to = 0;
+      if (std::sscanf(v, "%u:%u", &from, &to) != 2 || to < from) {
+        std::fprintf(stderr, "--trace takes FROM:TO, sequence numbers, FROM <= TO\n");
+        return false;
+      }
+      o->trace_from = from;
+      o->trace_to = to;
+    }
     else if (a == "--log-level") {
       std::string error;
       if (!log::configure(v, &error)) {
@@ -266,6 +280,13 @@ class TruthWitness {
     auto sequence = synthetic::SyntheticSequence::create(*config);
     if (sequence) sequence_.emplace(std::move(sequence).value());
   }
+  // The true pose of frame `sequence`, and a tracked pose where the truth has it (after the first
+  // error_mm() call); none without a truth.
+  std::optional<Pose> true_pose(uint32_t sequence) const {
+    if (!sequence_ || sequence >= sequence_->size()) return std::nullopt;
+    return sequence_->T_world_cam_true(sequence);
+  }
+  Pose in_truth_frame(const Pose& T_world_cam) const { return T_true_est_ * T_world_cam; }
   // The error of frame `sequence` fused at T_world_cam, mm; -1 without a truth.
   double error_mm(uint32_t sequence, const Pose& T_world_cam) {
     if (!sequence_ || sequence >= sequence_->size()) return -1;
@@ -281,6 +302,35 @@ class TruthWitness {
   std::optional<synthetic::SyntheticSequence> sequence_;
   bool aligned_ = false;
   Pose T_true_est_ = Pose::Identity();
+};
+
+// --trace: each frame's step since the frame before it, tracked and true, in the truth's world
+// frame. Through a stretch where the depth decides nothing of a direction, it shows what the
+// motion model carried on against what the camera did (a stop, a turn).
+class StepTrace {
+ public:
+  void frame(uint32_t sequence, const FrameReport& r, bool correction, TruthWitness* truth) {
+    const std::optional<Pose> T_true = truth->true_pose(sequence);
+    if (!T_true || !r.placed()) return;
+    const double error_mm = truth->error_mm(sequence, r.T_world_cam);
+    const Eigen::Vector3d p = truth->in_truth_frame(r.T_world_cam).translation() * 1e3;
+    const Eigen::Vector3d q = T_true->translation() * 1e3;
+    if (last_) {
+      const Eigen::Vector3d dp = p - last_->first, dq = q - last_->second;
+      std::printf("# trace sequence %u (+%u): %s%s, %s, depth's share %.2f, %.1f mm from the "
+                  "truth; step %.1f %.1f %.1f, true %.1f %.1f %.1f\n",
+                  sequence, sequence - last_sequence_, r.fusion_shed ? "tracked only" : "fused",
+                  correction ? " after a correction" : "", to_string(r.tracking),
+                  r.registration.data_share, error_mm, dp.x(), dp.y(), dp.z(), dq.x(), dq.y(),
+                  dq.z());
+    }
+    last_ = std::make_pair(p, q);
+    last_sequence_ = sequence;
+  }
+
+ private:
+  std::optional<std::pair<Eigen::Vector3d, Eigen::Vector3d>> last_;
+  uint32_t last_sequence_ = 0;
 };
 
 int run(const Options& o) {
@@ -319,6 +369,7 @@ int run(const Options& o) {
   fusiond::FusionProgress progress;
   FrameFeed feed(o, config);
   TruthWitness truth(o.source);
+  StepTrace trace;
   for (long n = 0; n < o.frames;) {
     auto frame = feed.next();
     if (!frame) {
@@ -344,6 +395,8 @@ int run(const Options& o) {
     }
     const double frame_s = std::chrono::duration<double>(Clock::now() - f0).count();
     block.add(frame_s, outcome->report, process_s);
+    if (frame->sequence >= o.trace_from && frame->sequence <= o.trace_to && o.trace_to > 0)
+      trace.frame(frame->sequence, outcome->report, outcome->correction.has_value(), &truth);
     if (outcome->report.fused()) {
       const FrameReport& r = outcome->report;
       const double error_mm = truth.error_mm(frame->sequence, r.T_world_cam);
