@@ -188,11 +188,17 @@ void select_tile_primitives(double a0, double a1, double b0, double b1, bool wan
   }
 }
 
-// A hit's colour: the primitive's, in its checker texture (squares per metre, 0: plain), shaded by
-// the cosine of the incidence angle.
+// The scene's light: from above and a little to one side, the same for every view.
+const Eigen::Vector3d kLightDirectionW = Eigen::Vector3d(0.3, 0.2, 1.0).normalized();
+
+// A hit's colour: the primitive's, in its checker texture (squares per metre, 0: plain), shaded as
+// a matt surface under kLightDirectionW and an even ambient light. The shade depends on the
+// surface alone, not on where the camera is: a real room's walls do not brighten as the camera
+// faces them, and tracking's photometric term, which compares a point's brightness across views,
+// assumes they do not.
 inline void shade_pixel(const Primitive& prim, double checker_per_m, const RayHit& hit,
-                        double cos_incidence, uint8_t* px) {
-  double f = 0.3 + 0.7 * cos_incidence;
+                        uint8_t* px) {
+  double f = 0.55 + 0.45 * hit.normal_w.dot(kLightDirectionW);
   if (checker_per_m > 0.0) {
     const long cu = floor_to_long(hit.uv_m.x() * checker_per_m);
     const long cv = floor_to_long(hit.uv_m.y() * checker_per_m);
@@ -264,7 +270,7 @@ class GeometryPass {
     const double c = std::fabs(hit->normal_w.dot(d)) * inv_len;
     if (color) {
       const auto prim = static_cast<size_t>(hit->primitive);
-      shade_pixel(scene_.primitives()[prim], checker_per_m_[prim], *hit, c, &color->rgb[3 * i]);
+      shade_pixel(scene_.primitives()[prim], checker_per_m_[prim], *hit, &color->rgb[3 * i]);
     }
     if (hit->t < min_z_) return;  // too near: no return, and it hides what is behind
     exact[i] = static_cast<float>(hit->t);

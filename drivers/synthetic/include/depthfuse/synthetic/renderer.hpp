@@ -30,8 +30,9 @@ class DepthRenderer {
   DepthRenderer(std::shared_ptr<const Scene> scene, RendererConfig config);
 
   // Fills depth (metres, 0 = none) and, when `color` is not null, an RGB image registered to it:
-  // each surface in its colour with its checker texture (Primitive::checker_m), shaded by the
-  // incidence angle (black where nothing was hit). The images are resized to the intrinsics.
+  // each surface in its colour with its checker texture (Primitive::checker_m), shaded by a fixed
+  // light, whatever the view (black where nothing was hit). The images are resized to the
+  // intrinsics.
   void render(const Pose& T_world_cam, uint64_t noise_key, bool with_noise, DepthImage* depth,
               ColorImage* color) const;
 
