@@ -51,6 +51,9 @@ struct Options {
   double drift_mm = 0;  // a line for every frame further than this from the truth (0: none)
   // A line for every frame whose sequence is in [trace_from, trace_to] (trace_to 0: none).
   uint32_t trace_from = 0, trace_to = 0;
+  bool traced(uint32_t sequence) const {
+    return trace_to > 0 && sequence >= trace_from && sequence <= trace_to;
+  }
   double rate_hz = 0;  // frames paced at this rate through a dropping queue (0: every frame, unpaced)
   size_t queue = 4;
 };
@@ -280,17 +283,18 @@ class TruthWitness {
     auto sequence = synthetic::SyntheticSequence::create(*config);
     if (sequence) sequence_.emplace(std::move(sequence).value());
   }
-  // The true pose of frame `sequence`, and a tracked pose where the truth has it (after the first
-  // error_mm() call); none without a truth.
+  // The true pose of frame `sequence`; none without a truth.
   std::optional<Pose> true_pose(uint32_t sequence) const {
     if (!sequence_ || sequence >= sequence_->size()) return std::nullopt;
     return sequence_->T_world_cam_true(sequence);
   }
+  // A tracked pose in the truth's world frame (aligned at the first error_mm() call).
   Pose in_truth_frame(const Pose& T_world_cam) const { return T_true_est_ * T_world_cam; }
   // The error of frame `sequence` fused at T_world_cam, mm; -1 without a truth.
   double error_mm(uint32_t sequence, const Pose& T_world_cam) {
-    if (!sequence_ || sequence >= sequence_->size()) return -1;
-    const Pose T_true = sequence_->T_world_cam_true(sequence);
+    const std::optional<Pose> truth = true_pose(sequence);
+    if (!truth) return -1;
+    const Pose& T_true = *truth;
     if (!aligned_) {
       T_true_est_ = T_true * T_world_cam.inverse();
       aligned_ = true;
@@ -395,7 +399,7 @@ int run(const Options& o) {
     }
     const double frame_s = std::chrono::duration<double>(Clock::now() - f0).count();
     block.add(frame_s, outcome->report, process_s);
-    if (frame->sequence >= o.trace_from && frame->sequence <= o.trace_to && o.trace_to > 0)
+    if (o.traced(frame->sequence))
       trace.frame(frame->sequence, outcome->report, outcome->correction.has_value(), &truth);
     if (outcome->report.fused()) {
       const FrameReport& r = outcome->report;

@@ -395,16 +395,16 @@ bool ScanRecorder::checkpoint_in_background(PointMap* map, const std::string& re
   CheckpointJob job;
   job.snapshot_ns = t0_ns;
   job.info = checkpoint_info(reason, counters);
-  size_t chunks_copied = 0, points_copied = 0;
+  size_t points_copied = 0;
   map->for_each_chunk([&](const ChunkKey& key, const Chunk& c) {
     job.resident.push_back(key);
     if (!c.dirty) return;
     job.chunks.emplace_back(key, c);
     job.written.push_back(key);
-    ++chunks_copied;
     points_copied += c.points.size();
   });
   const int64_t copied_ns = steady_ns();
+  const size_t chunks_copied = job.written.size();
   job.removed = removed_chunks(*map);
   job.poses.swap(pending_poses_);
   job.corrections.swap(corrections_);
