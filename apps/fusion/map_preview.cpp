@@ -82,7 +82,7 @@ void MapPreview::queue(const ChunkKey& key) {
 
 size_t MapPreview::decimate(const ChunkKey& key, const Chunk& chunk, float chunk_size_m,
                             depthfuse::map_chunk_t* out) {
-  const PointArrays& a = chunk.points;
+  const PointArrays& a = chunk.points();
   const int cells = std::clamp(static_cast<int>(std::ceil(chunk_size_m / config_.cell_size_m)), 1,
                                kMaxCellsPerAxis);
   const float inv_cell = static_cast<float>(cells) / chunk_size_m;
@@ -243,7 +243,7 @@ void MapPreview::tick(int8_t state, const std::string& scan_id,
       // out within one pass, however busy the scan keeps the others.
       snapshot_left_.erase(key);
       const Chunk* chunk = map.find(key);
-      if (!chunk || chunk->points.empty()) continue;  // evicted or emptied since it was queued
+      if (!chunk || chunk->points().empty()) continue;  // evicted or emptied since it was queued
       msg.chunks.emplace_back();
       points_read += decimate(key, *chunk, chunk_size_m, &msg.chunks.back());
       msg_bytes += chunk_wire_bytes(msg.chunks.back());

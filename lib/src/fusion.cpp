@@ -297,16 +297,17 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* scratch, Poin
 void add_points(const PointArrays& added, uint32_t frame_id, PointMap* map) {
   // Chunk lookups repeat for neighbouring points: remember the last one.
   ChunkKey last_key{std::numeric_limits<int32_t>::min(), 0, 0};
-  Chunk* last_chunk = nullptr;
+  PointArrays* last_points = nullptr;
   for (size_t i = 0; i < added.size(); ++i) {
     const ChunkKey key = map->key_for(added.position_m[i]);
-    if (!last_chunk || key != last_key) {
-      last_chunk = &map->get_or_create(key);
-      last_chunk->last_touched_frame = last_chunk->last_seen_frame = frame_id;
-      last_chunk->dirty = true;
+    if (!last_points || key != last_key) {
+      Chunk& chunk = map->get_or_create(key);
+      chunk.last_touched_frame = chunk.last_seen_frame = frame_id;
+      chunk.dirty = true;
+      last_points = &chunk.points_for_write();
       last_key = key;
     }
-    last_chunk->points.push_back(added.position_m[i], added.state[i]);
+    last_points->push_back(added.position_m[i], added.state[i]);
   }
 }
 
@@ -319,7 +320,7 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
   // Existing points near this frame's measurements, rendered into its camera.
   ModelProjection& proj = *projection_;
   proj.set_threads(config_.threads);
-  proj.select_chunks(*map, m, T_world_cam, 0.1f);
+  proj.select_chunks_to_fuse(*map, m, T_world_cam, 0.1f);
   proj.render(T_world_cam, m, model);
 
   const FrameFusion frame(m, color, T_world_cam, frame_id, model, config_, &proj);
@@ -364,7 +365,7 @@ size_t postfilter(PointMap* map) {
   size_t removed = 0;
   std::vector<uint8_t> keep;
   map->for_each_chunk([&](const ChunkKey&, Chunk& c) {
-    PointArrays& a = c.points;
+    const PointArrays& a = c.points();
     keep.resize(a.size());
     bool any = false;
     for (size_t i = 0; i < a.size(); ++i) {
@@ -372,7 +373,7 @@ size_t postfilter(PointMap* map) {
       any |= !keep[i];
     }
     if (any) {
-      removed += a.compact(keep);
+      removed += c.points_for_write().compact(keep);
       c.dirty = true;
     }
   });

@@ -271,8 +271,8 @@ void MapDeformation::send(PointMap* map, const ChunkKey& key, const PointArrays&
   }
   if (dest && dest->version == version_) {
     if (touched_.empty() || touched_.back().first != key)
-      touched_.emplace_back(key, dest->points.size());
-    dest->points.push_back(from.position_m[i], from.state[i]);
+      touched_.emplace_back(key, dest->points().size());
+    dest->points_for_write().push_back(from.position_m[i], from.state[i]);
     touch(dest);
     return;
   }
@@ -284,7 +284,7 @@ void MapDeformation::send(PointMap* map, const ChunkKey& key, const PointArrays&
 }
 
 size_t MapDeformation::move_chunk(PointMap* map, const ChunkKey& key, Chunk* chunk) {
-  PointArrays& a = chunk->points;
+  PointArrays& a = chunk->points_for_write();
   const uint32_t from = chunk->version;
   size_t updated = 0;
   // Its own points, then those it was sent while it was not up to date, each from its version.
@@ -408,7 +408,7 @@ size_t MapDeformation::run_merge(PointMap* map, const MergeJob& job) {
   Chunk* c = map->find(job.key);
   if (!c) return 0;  // evicted since: its surfaces stay as they are
   Scratch& s = *scratch_;
-  PointArrays& a = c->points;
+  const PointArrays& a = c->points();
   s.segment.resize(a.size());
   SegmentCursor segment(first_frame_);
   for (size_t i = 0; i < a.size(); ++i) s.segment[i] = segment(a.state[i].last_frame);
@@ -417,10 +417,11 @@ size_t MapDeformation::run_merge(PointMap* map, const MergeJob& job) {
   prepare_motions(job.from);
   if (moved_rigidly(a, map->chunk_origin_m(job.key), static_cast<float>(map->chunk_size_m())))
     return a.size();
-  const size_t merged = s.merger.merge(&a, job.first, &s.segment, &s);
+  PointArrays& merging = c->points_for_write();
+  const size_t merged = s.merger.merge(&merging, job.first, &s.segment, &s);
   stats_.points_merged += merged;
   if (merged > 0) touch(c);
-  return a.size() + merged;
+  return merging.size() + merged;
 }
 
 size_t MapDeformation::run_queued_merges(PointMap* map, size_t max_points) {

@@ -44,14 +44,28 @@ void frame_chunk_keys(const PointMap& map, const MeasurementImage& m, const Pose
   keys->erase(std::unique(keys->begin(), keys->end()), keys->end());
 }
 
-void ModelProjection::select_chunks(PointMap& map, const MeasurementImage& m,
+void ModelProjection::select_chunks(const PointMap& map, const MeasurementImage& m,
                                     const Pose& T_world_cam, float margin_m, int stride) {
   frame_chunk_keys(map, m, T_world_cam, margin_m, stride, &keys_, &near_);
   chunks_.clear();
+  arrays_.clear();
   for (const ChunkKey& k : keys_) {
-    if (Chunk* c = map.find(k)) {
-      if (!c->points.empty()) chunks_.push_back(c);
-    }
+    const Chunk* c = map.find(k);
+    // Never written through: only render_surface() reads them.
+    if (c && !c->points().empty()) arrays_.push_back(const_cast<PointArrays*>(&c->points()));
+  }
+}
+
+void ModelProjection::select_chunks_to_fuse(PointMap& map, const MeasurementImage& m,
+                                            const Pose& T_world_cam, float margin_m, int stride) {
+  frame_chunk_keys(map, m, T_world_cam, margin_m, stride, &keys_, &near_);
+  chunks_.clear();
+  arrays_.clear();
+  for (const ChunkKey& k : keys_) {
+    Chunk* c = map.find(k);
+    if (!c || c->points().empty()) continue;
+    chunks_.push_back(c);
+    arrays_.push_back(&c->points_for_write());
   }
 }
 
@@ -119,12 +133,12 @@ struct PixelProjector {
 // visit(chunk index, points, first index, count, pixel[], depth[], offset2[]). The visitor
 // prefetches what the pixels will touch, then updates them: those random accesses then overlap.
 template <typename Visit>
-void for_each_block(const std::vector<Chunk*>& chunks, size_t begin, size_t end,
+void for_each_block(const std::vector<PointArrays*>& chunks, size_t begin, size_t end,
                     const PixelProjector& cam, Visit&& visit) {
   uint32_t pixel[PixelProjector::kBlock];
   float depth[PixelProjector::kBlock], offset2[PixelProjector::kBlock];
   for (size_t c = begin; c < end; ++c) {
-    const PointArrays& a = chunks[c]->points;
+    const PointArrays& a = *chunks[c];
     const size_t count = a.size();
     for (size_t start = 0; start < count; start += PixelProjector::kBlock) {
       const size_t block = std::min(PixelProjector::kBlock, count - start);
@@ -146,7 +160,7 @@ inline void prefetch_pixels(const T* buffer, const uint32_t* pixel, size_t block
 size_t ModelProjection::render_points(const Pose& T_world_cam, const CameraIntrinsics& K,
                                       size_t chunk_begin, size_t chunk_end, PixelKeys* keys) const {
   size_t rendered = 0;
-  for_each_block(chunks_, chunk_begin, chunk_end, PixelProjector(T_world_cam, K),
+  for_each_block(arrays_, chunk_begin, chunk_end, PixelProjector(T_world_cam, K),
                  [&](size_t c, const PointArrays&, size_t start, size_t block, const uint32_t* pixel,
                      const float* depth, const float* offset2) {
     prefetch_pixels(keys, pixel, block);
@@ -175,22 +189,23 @@ size_t ModelProjection::render_points(const Pose& T_world_cam, const CameraIntri
 
 void ModelProjection::size_ids() {
   size_t largest = 0;
-  for (const Chunk* c : chunks_) largest = std::max(largest, c->points.size());
+  for (const PointArrays* a : arrays_) largest = std::max(largest, a->size());
   id_bits_ = 0;
   while (id_bits_ < 64 && (uint64_t{largest} >> id_bits_) != 0) ++id_bits_;
   // More chunks than the ids can tell apart would mean billions of points in view: render a
   // prefix only. (The last id stays below kNoKey's low half.)
   const uint64_t max_chunks = id_bits_ >= 32 ? 0 : (uint64_t{1} << (32 - id_bits_)) - 1;
+  if (arrays_.size() > max_chunks) arrays_.resize(max_chunks);
   if (chunks_.size() > max_chunks) chunks_.resize(max_chunks);
 }
 
 size_t ModelProjection::split_chunk() const {
   uint64_t total = 0;
-  for (const Chunk* c : chunks_) total += c->points.size();
+  for (const PointArrays* a : arrays_) total += a->size();
   // The first chunk with at least half of the points before it.
   size_t s = 0;
-  for (uint64_t before = 0; s < chunks_.size() && before < total / 2; ++s)
-    before += chunks_[s]->points.size();
+  for (uint64_t before = 0; s < arrays_.size() && before < total / 2; ++s)
+    before += arrays_[s]->size();
   return s;
 }
 
@@ -202,7 +217,7 @@ void ModelProjection::render(const Pose& T_world_cam, const MeasurementImage& me
 
   // Every per-pixel pass below runs on the two halves of the pixels (or of the points), on two
   // threads if there are two; none depends on the thread count.
-  const bool two = threads_ > 1 && chunks_.size() > 1;
+  const bool two = threads_ > 1 && arrays_.size() > 1;
   pixel_keys_.resize(n);
   pixel_keys_2_.resize(two ? n : 0);
   const float inf = std::numeric_limits<float>::infinity();
@@ -216,10 +231,10 @@ void ModelProjection::render(const Pose& T_world_cam, const MeasurementImage& me
       k.band_m = valid ? model.axial_reach_m(measured.z[px]) : 0.0f;
     }
   };
-  const size_t split = two ? split_chunk() : chunks_.size();
+  const size_t split = two ? split_chunk() : arrays_.size();
   size_t rendered[2] = {0, 0};
   auto half = [&](int h) {
-    const size_t begin = h == 0 ? 0 : split, end = h == 0 ? split : chunks_.size();
+    const size_t begin = h == 0 ? 0 : split, end = h == 0 ? split : arrays_.size();
     PixelKeys* keys = h == 0 ? pixel_keys_.data() : pixel_keys_2_.data();
     if (h == 0 || two) clear_keys(keys, 0, n);  // each thread clears the buffer it renders into
     rendered[h] = render_points(T_world_cam, K, begin, end, keys);
@@ -272,7 +287,7 @@ void ModelProjection::gather_candidates(size_t begin, size_t end) {
   for (size_t px = begin; px < end; ++px) {
     if (px + kPrefetchPixels < end) prefetch_candidate(px + kPrefetchPixels);
     if (cand_slot_[px] < 0) continue;
-    const PointArrays& a = chunks_[cand_slot_[px]]->points;
+    const PointArrays& a = *arrays_[cand_slot_[px]];
     const uint32_t j = cand_index_[px];
     const PointState& st = a.state[j];
     set_candidate_columns(px, a.position_m[j],
@@ -285,7 +300,7 @@ size_t ModelProjection::render_front_depth(const Pose& T_world_cam, const Camera
                                            size_t chunk_begin, size_t chunk_end,
                                            float* front) const {
   size_t rendered = 0;
-  for_each_block(chunks_, chunk_begin, chunk_end, PixelProjector(T_world_cam, K),
+  for_each_block(arrays_, chunk_begin, chunk_end, PixelProjector(T_world_cam, K),
                  [&](size_t, const PointArrays&, size_t, size_t block, const uint32_t* pixel,
                      const float* depth, const float*) {
     prefetch_pixels(front, pixel, block);
@@ -301,7 +316,7 @@ size_t ModelProjection::render_front_depth(const Pose& T_world_cam, const Camera
 void ModelProjection::sum_surface(const Pose& T_world_cam, const CameraIntrinsics& K, float band_m,
                                   size_t chunk_begin, size_t chunk_end, SurfaceSum* sum) const {
   const float* front = front_depth_.data();
-  for_each_block(chunks_, chunk_begin, chunk_end, PixelProjector(T_world_cam, K),
+  for_each_block(arrays_, chunk_begin, chunk_end, PixelProjector(T_world_cam, K),
                  [&](size_t, const PointArrays& a, size_t start, size_t block, uint32_t* pixel,
                      const float* depth, const float*) {
     prefetch_pixels(front, pixel, block);
@@ -349,7 +364,7 @@ void ModelProjection::render_surface(const Pose& T_world_cam, const CameraIntrin
       },
       [&] {
         std::fill(front_depth_2_.begin(), front_depth_2_.end(), inf);
-        rendered[1] = render_front_depth(T_world_cam, K, split, chunks_.size(), front_depth_2_.data());
+        rendered[1] = render_front_depth(T_world_cam, K, split, arrays_.size(), front_depth_2_.data());
       });
   rendered_ = rendered[0] + rendered[1];
   run_halves(threads_, n, [&](size_t begin, size_t end) {
@@ -372,7 +387,7 @@ void ModelProjection::render_surface(const Pose& T_world_cam, const CameraIntrin
       },
       [&] {
         std::fill(surface_2_.begin(), surface_2_.end(), zero);
-        sum_surface(T_world_cam, K, band_m, split, chunks_.size(), surface_2_.data());
+        sum_surface(T_world_cam, K, band_m, split, arrays_.size(), surface_2_.data());
       });
   run_halves(threads_, n, [&](size_t begin, size_t end) {
     for (size_t px = begin; px < end; ++px) {

@@ -57,9 +57,13 @@ void frame_chunk_keys(const PointMap& map, const MeasurementImage& m, const Pose
 
 class ModelProjection {
  public:
-  // The chunks of frame_chunk_keys() that exist and hold points, for render().
-  void select_chunks(PointMap& map, const MeasurementImage& m, const Pose& T_world_cam,
+  // The chunks of frame_chunk_keys() that exist and hold points, for render_surface(): only read.
+  void select_chunks(const PointMap& map, const MeasurementImage& m, const Pose& T_world_cam,
                      float margin_m, int stride = 8);
+  // The same for render() and fusion, which changes their points: each chunk's arrays are taken
+  // for writing here, once (Chunk::points_for_write()), so that the per-pixel accessors need not.
+  void select_chunks_to_fuse(PointMap& map, const MeasurementImage& m, const Pose& T_world_cam,
+                             float margin_m, int stride = 8);
 
   // Threads for render() and render_surface(): 1, or 2 (each half of the points renders into its
   // own buffers, combined after). The results do not depend on it.
@@ -93,7 +97,7 @@ class ModelProjection {
   PointArrays& front_points(size_t pixel, uint32_t* index) const {
     int32_t slot;
     locate(static_cast<uint32_t>(pixel_keys_[pixel].front), id_bits_, &slot, index);
-    return chunks_[slot]->points;
+    return *arrays_[slot];
   }
 
   // The merge candidate at a pixel (render() with measurements only). gather_candidates() finds it
@@ -104,7 +108,7 @@ class ModelProjection {
   void gather_candidates(size_t begin, size_t end);
   bool has_candidate(size_t pixel) const { return cand_slot_[pixel] >= 0; }
   Eigen::Vector3f candidate_position(size_t pixel) const { return cand_point().position[pixel]; }
-  PointArrays& candidate_points(size_t pixel) const { return chunks_[cand_slot_[pixel]]->points; }
+  PointArrays& candidate_points(size_t pixel) const { return *arrays_[cand_slot_[pixel]]; }
   uint32_t candidate_index(size_t pixel) const { return cand_index_[pixel]; }
   // The candidate's information matrix, pixel-ordered like its position (see record_merge()).
   Sym3f candidate_information(size_t pixel) const { return cand_point().information[pixel]; }
@@ -120,7 +124,7 @@ class ModelProjection {
   __attribute__((always_inline)) void prefetch_candidate(size_t pixel) const {
     const int32_t slot = cand_slot_[pixel];
     if (slot >= 0) {
-      const PointArrays& a = chunks_[slot]->points;
+      const PointArrays& a = *arrays_[slot];
       const uint32_t i = cand_index_[pixel];
       __builtin_prefetch(a.position_m.data() + i);
       // A 48-byte record can straddle two cache lines: fetch both ends.
@@ -146,6 +150,7 @@ class ModelProjection {
   }
 
   size_t rendered_points() const { return rendered_; }
+  // The chunks select_chunks_to_fuse() selected (empty after select_chunks()).
   const std::vector<Chunk*>& chunks() const { return chunks_; }
 
  private:
@@ -193,14 +198,17 @@ class ModelProjection {
   }
 
   std::vector<ChunkKey> keys_, near_;   // scratch
-  std::vector<Chunk*> chunks_;          // selected, existing, non-empty chunks
-  // A point's id in the z-buffer keys: (its chunk's slot in chunks_ << id_bits_) | its index, so
+  std::vector<Chunk*> chunks_;          // selected to fuse: existing, non-empty chunks
+  // The selected chunks' points, in their order (slots). Written only through the chunks
+  // select_chunks_to_fuse() took for writing; select_chunks() fills it for reading alone.
+  std::vector<PointArrays*> arrays_;
+  // A point's id in the z-buffer keys: (its chunk's slot in arrays_ << id_bits_) | its index, so
   // that ids order like (slot, index) and locate() is two bit operations.
   int id_bits_ = 0;
   std::vector<PixelKeys> pixel_keys_;   // per pixel: render()'s result
   std::vector<PixelKeys> pixel_keys_2_; // the second thread's, combined into the first
   int threads_ = 1;
-  std::vector<int32_t> cand_slot_;      // per pixel, once gathered: index into chunks_, -1 = none
+  std::vector<int32_t> cand_slot_;      // per pixel, once gathered: index into arrays_, -1 = none
   std::vector<uint32_t> cand_index_;    // per pixel, once gathered: point index within the chunk
   std::vector<float> front_depth_;      // render_surface(), per pixel: z of the front-most point
   std::vector<float> front_depth_2_;    // render_surface(): the second half's

@@ -1,10 +1,33 @@
 #include "depthfuse/point_map.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <tuple>
 
 namespace depthfuse {
+
+const PointArrays& Chunk::empty_points() {
+  static const PointArrays empty;
+  return empty;
+}
+
+PointArrays& Chunk::points_for_write() {
+  if (!points_) {
+    points_ = std::make_shared<PointArrays>();
+  } else if (points_.use_count() > 1) {
+    points_ = std::make_shared<PointArrays>(*points_);
+  } else {
+    // The last other holder (a checkpoint's encoder) let go on another thread: its release of the
+    // count, read above, orders its reads of the arrays before the writes to come.
+    std::atomic_thread_fence(std::memory_order_acquire);
+  }
+  return *points_;
+}
+
+std::shared_ptr<const PointArrays> Chunk::share_points() const {
+  return points_ ? std::shared_ptr<const PointArrays>(points_) : std::make_shared<const PointArrays>();
+}
 
 PointMap::PointMap(double chunk_size_m)
     : chunk_size_m_(chunk_size_m), inv_chunk_size_(static_cast<float>(1.0 / chunk_size_m)) {}
@@ -65,13 +88,13 @@ void PointMap::clear() { chunks_.clear(); }
 
 size_t PointMap::point_count() const {
   size_t n = 0;
-  for (const auto& kv : chunks_) n += kv.second.points.size();
+  for (const auto& kv : chunks_) n += kv.second.points().size();
   return n;
 }
 
 size_t PointMap::memory_bytes() const {
   size_t bytes = chunks_.bucket_count() * sizeof(void*);
-  for (const auto& kv : chunks_) bytes += sizeof(kv) + kv.second.points.memory_bytes();
+  for (const auto& kv : chunks_) bytes += sizeof(kv) + kv.second.points().memory_bytes();
   return bytes;
 }
 
@@ -94,13 +117,13 @@ std::vector<ChunkKey> PointMap::keys() const {
 PointArrays PointMap::gather() const {
   PointArrays all;
   all.reserve(point_count());
-  for (const ChunkKey& k : keys()) all.append(chunks_.at(k).points);
+  for (const ChunkKey& k : keys()) all.append(chunks_.at(k).points());
   return all;
 }
 
 void PointMap::add_points(const PointArrays& points) {
   for (size_t i = 0; i < points.size(); ++i) {
-    get_or_create(key_for(points.position_m[i])).points.push_back(points.position_m[i], points.state[i]);
+    get_or_create(key_for(points.position_m[i])).points_for_write().push_back(points.position_m[i], points.state[i]);
   }
 }
 

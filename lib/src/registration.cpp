@@ -204,8 +204,7 @@ void Registrar::render_model(const MeasurementImage& m, const PointMap& map, con
                              double band_m, double max_corr_m, int downsample) {
   ModelProjection& proj = *projection_;
   proj.set_threads(config_.threads);
-  // The map is only read; the projection's chunk pointers are non-const for fusion's sake.
-  proj.select_chunks(const_cast<PointMap&>(map), m, T_world_cam, static_cast<float>(max_corr_m) + 0.05f);
+  proj.select_chunks(map, m, T_world_cam, static_cast<float>(max_corr_m) + 0.05f);
   proj.render_surface(T_world_cam, model_intrinsics(m.intrinsics, downsample),
                       static_cast<float>(band_m), &view_);
   if (proj.rendered_points() == 0) view_.clear();

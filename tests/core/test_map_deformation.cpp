@@ -39,7 +39,7 @@ struct Fusing {
 double largest_offset_from_plane_z(const PointMap& map, double z0) {
   double worst = 0;
   map.for_each_chunk([&](const ChunkKey&, const Chunk& c) {
-    for (const Eigen::Vector3f& p : c.points.position_m)
+    for (const Eigen::Vector3f& p : c.points().position_m)
       worst = std::max(worst, std::abs(p.z() - z0));
   });
   return worst;
@@ -48,7 +48,7 @@ double largest_offset_from_plane_z(const PointMap& map, double z0) {
 size_t points_off_plane_z(const PointMap& map, double z0, double tolerance_m) {
   size_t n = 0;
   map.for_each_chunk([&](const ChunkKey&, const Chunk& c) {
-    for (const Eigen::Vector3f& p : c.points.position_m) n += std::abs(p.z() - z0) > tolerance_m;
+    for (const Eigen::Vector3f& p : c.points().position_m) n += std::abs(p.z() - z0) > tolerance_m;
   });
   return n;
 }
@@ -109,7 +109,7 @@ void expect_each_point_moved_once(const PointArrays& original, const PointMap& m
   // No point left behind in a chunk it is not in.
   map.for_each_chunk([&](const ChunkKey& k, const Chunk& c) {
     EXPECT_EQ(c.version, 1u);
-    for (const Eigen::Vector3f& p : c.points.position_m) EXPECT_EQ(map.key_for(p), k);
+    for (const Eigen::Vector3f& p : c.points().position_m) EXPECT_EQ(map.key_for(p), k);
   });
 }
 
@@ -166,10 +166,10 @@ TEST(MapDeformation, ACorrectedKeyframeBringsItsWallBackAndTheDoubledSurfaceMerg
                half_h = wall_z * (K.height - 1 - K.cy) / K.fy;
   size_t overlap = 0;
   fx.map.for_each_chunk([&](const ChunkKey&, const Chunk& c) {
-    for (size_t i = 0; i < c.points.size(); ++i) {
-      const Eigen::Vector3f& p = c.points.position_m[i];
+    for (size_t i = 0; i < c.points().size(); ++i) {
+      const Eigen::Vector3f& p = c.points().position_m[i];
       overlap +=
-          c.points.state[i].last_frame == 2 && std::abs(p.x()) < half_w && std::abs(p.y()) < half_h;
+          c.points().state[i].last_frame == 2 && std::abs(p.x()) < half_w && std::abs(p.y()) < half_h;
     }
   });
   ASSERT_GT(overlap, second_view / 2);
@@ -299,8 +299,8 @@ TEST(MapDeformation, ProcessBringsTheViewUpToDateAndSweepsTheRestWithinItsBudget
       EXPECT_EQ(ch.version, 1u) << "chunk at x " << x;
     }
     stale += ch.version == 0;
-    if (ch.version == 0) stale_points += ch.points.size();
-    largest_chunk = std::max(largest_chunk, ch.points.size());
+    if (ch.version == 0) stale_points += ch.points().size();
+    largest_chunk = std::max(largest_chunk, ch.points().size());
   });
   EXPECT_GT(near_current, 0u);
   EXPECT_GT(stale, 10u);
@@ -451,7 +451,7 @@ TEST(MapDeformation, HistoryIsDroppedWhenNoChunkNeedsIt) {
   EXPECT_EQ(d.oldest_version(), 31u);
   EXPECT_GT(d.memory_bytes(), settled + 5 * 100 * 48);
   // It comes back and follows: it moved 5 mm since.
-  map.insert(map.key_for(stored.points.position_m[0]), stored);
+  map.insert(map.key_for(stored.points().position_m[0]), stored);
   d.set_oldest_stored_version(std::nullopt);
   d.bring_all_up_to_date(&map);
   EXPECT_EQ(d.oldest_version(), d.version());
@@ -462,13 +462,13 @@ TEST(MapDeformation, HistoryIsDroppedWhenNoChunkNeedsIt) {
 
   // A chunk older than the history kept stays where it is, counted.
   Chunk old;
-  old.points.push_back(point_at({5.2f, 0.1f, 0.1f}, 3));
+  old.points_for_write().push_back(point_at({5.2f, 0.1f, 0.1f}, 3));
   old.version = 2;
   map.insert({10, 0, 0}, old);
   d.bring_all_up_to_date(&map);
   EXPECT_EQ(d.stats().points_unmovable, 1u);
   EXPECT_EQ(map.find({10, 0, 0})->version, d.version());
-  EXPECT_EQ(map.find({10, 0, 0})->points.position_m[0], Eigen::Vector3f(5.2f, 0.1f, 0.1f));
+  EXPECT_EQ(map.find({10, 0, 0})->points().position_m[0], Eigen::Vector3f(5.2f, 0.1f, 0.1f));
 }
 
 TEST(MapDeformation, BadInputIsRefusedWithTheReason) {

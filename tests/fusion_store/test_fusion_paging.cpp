@@ -177,11 +177,11 @@ TEST_F(FusionPaging, TinyBudgetEvictsReloadsAndGivesTheUnboundedCloud) {
     auto cb = (*b)->read_chunk(k);
     ASSERT_TRUE(ca.is_ok()) << ca.status().to_string();
     ASSERT_TRUE(cb.is_ok()) << cb.status().to_string();
-    points += ca->chunk.points.size();
-    if (!(ca->chunk.points == cb->chunk.points)) {
+    points += ca->chunk.points().size();
+    if (!(ca->chunk.points() == cb->chunk.points())) {
       ++differ;
-      ADD_FAILURE() << "chunk " << store::to_string(k) << ": " << ca->chunk.points.size() << " points unbounded, "
-                    << cb->chunk.points.size() << " bounded";
+      ADD_FAILURE() << "chunk " << store::to_string(k) << ": " << ca->chunk.points().size() << " points unbounded, "
+                    << cb->chunk.points().size() << " bounded";
       if (differ > 5) break;
     }
   }

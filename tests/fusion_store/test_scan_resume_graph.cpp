@@ -210,8 +210,8 @@ double coordinate_sum(const PointArrays& a) {
   for (const StampedPose& p : session.trajectory())
     h.trajectory.push_back(p.T_world_cam.translation());
   session.reconstructor()->map().for_each_chunk([&](const ChunkKey& key, const Chunk& c) {
-    if (!c.points.empty())
-      h.chunks[{key.x, key.y, key.z}] = {c.version, c.points.size(), coordinate_sum(c.points)};
+    if (!c.points().empty())
+      h.chunks[{key.x, key.y, key.z}] = {c.version, c.points().size(), coordinate_sum(c.points())};
   });
   write_held(held_path, h);
   // Fused, not checkpointed: lost with the process, or (with the frame log) logged and replayed.
@@ -305,8 +305,8 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
     if (it == held.chunks.end()) return;
     ++resident;
     EXPECT_EQ(c.version, std::get<0>(it->second)) << store::to_string(key);
-    EXPECT_EQ(c.points.size(), std::get<1>(it->second)) << store::to_string(key);
-    EXPECT_NEAR(coordinate_sum(c.points), std::get<2>(it->second), 1e-6) << store::to_string(key);
+    EXPECT_EQ(c.points().size(), std::get<1>(it->second)) << store::to_string(key);
+    EXPECT_NEAR(coordinate_sum(c.points()), std::get<2>(it->second), 1e-6) << store::to_string(key);
   });
   EXPECT_GT(resident, 0u);
   // The trajectory knows its frames: a correction after the resume moves every pose from before

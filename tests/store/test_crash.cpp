@@ -67,7 +67,7 @@ std::map<int, int> expected_state(int last) {
 
 Chunk chunk_for(int k, int n) {
   Chunk c;
-  c.points = make_points(key_of(k), static_cast<uint32_t>(n), count_for(k, n));
+  c.points_for_write() = make_points(key_of(k), static_cast<uint32_t>(n), count_for(k, n));
   c.last_touched_frame = static_cast<uint32_t>(n * 10);
   return c;
 }

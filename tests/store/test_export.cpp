@@ -41,8 +41,8 @@ PointArrays make_scan(const std::string& path, int chunks, size_t points_each = 
   for (int i = 0; i < chunks; ++i) {
     const ChunkKey k{i % 7 - 3, i / 7 - 2, i % 3};
     Chunk c;
-    c.points = make_points(k, static_cast<uint32_t>(i + 1), points_each);
-    for (size_t j = 0; j < c.points.size(); ++j) c.points.state[j].merges = static_cast<uint16_t>(j % 10);
+    c.points_for_write() = make_points(k, static_cast<uint32_t>(i + 1), points_each);
+    for (size_t j = 0; j < c.points().size(); ++j) c.points_for_write().state[j].merges = static_cast<uint16_t>(j % 10);
     EXPECT_TRUE((*s)->write_chunk(k, c));
   }
   CheckpointInfo info;
@@ -229,7 +229,7 @@ TEST(Export, AFlippedBitInAStoredPoseIsNamedAndStopsTheExport) {
     ASSERT_TRUE((*s)->begin_checkpoint());
     const ChunkKey k{0, 0, 0};
     Chunk c;
-    c.points = make_points(k, 1, 100);
+    c.points_for_write() = make_points(k, 1, 100);
     ASSERT_TRUE((*s)->write_chunk(k, c));
     for (uint32_t f = 1; f <= 10; ++f) {
       PoseRecord p;
@@ -285,7 +285,7 @@ TEST(Export, WorksWhileAWriterIsCheckpointing) {
       for (int i = 0; i < 30; ++i) {
         const ChunkKey k{i, static_cast<int32_t>(n % 3), 0};
         Chunk c;
-        c.points = make_points(k, n, 50 + (n * 13 + i * 7) % 300);
+        c.points_for_write() = make_points(k, n, 50 + (n * 13 + i * 7) % 300);
         if (!(*s)->write_chunk(k, c)) _exit(5);
       }
       CheckpointInfo info;
@@ -433,7 +433,7 @@ TEST(Export, AChunkStoredBeforeACorrectionIsExportedWhereItsKeyframeMoved) {
   const std::string scan = dir.file("stale.db");
   const ChunkKey key{0, 0, 0};
   Chunk chunk;
-  chunk.points = make_points(key, 1, 100);  // fused by frame 0: keyframe 0's segment
+  chunk.points_for_write() = make_points(key, 1, 100);  // fused by frame 0: keyframe 0's segment
   chunk.version = 0;
   Pose moved = Pose::Identity();
   moved.translation() = Eigen::Vector3d(0.05, 0.0, 0.0);
@@ -462,8 +462,8 @@ TEST(Export, AChunkStoredBeforeACorrectionIsExportedWhereItsKeyframeMoved) {
   ASSERT_TRUE(export_cloud(**s, out, ExportOptions{}));
   auto cloud = read_ply(out);
   ASSERT_TRUE(cloud) << cloud.status().to_string();
-  ASSERT_EQ(cloud->size(), chunk.points.size());
+  ASSERT_EQ(cloud->size(), chunk.points().size());
   for (size_t i = 0; i < cloud->size(); ++i)
-    EXPECT_LT((cloud->position_m[i] - chunk.points.position_m[i] - Eigen::Vector3f(0.05f, 0, 0)).norm(), 1e-5f)
+    EXPECT_LT((cloud->position_m[i] - chunk.points().position_m[i] - Eigen::Vector3f(0.05f, 0, 0)).norm(), 1e-5f)
         << "point " << i;
 }

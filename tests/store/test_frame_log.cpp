@@ -39,7 +39,7 @@ RecorderConfig logging_config() {
 ChunkContents contents(const PointMap& map) {
   ChunkContents out;
   map.for_each_chunk([&](const ChunkKey& k, const Chunk& c) {
-    if (!c.points.empty()) out[k] = c.points;
+    if (!c.points().empty()) out[k] = c.points();
   });
   return out;
 }
@@ -433,7 +433,7 @@ TEST(SchemaSix, ASchemaFiveFileMigratesAndResumes) {
     ASSERT_TRUE(s) << s.status().to_string();
     ASSERT_TRUE((*s)->begin_checkpoint());
     Chunk c;
-    c.points = test::make_points(key, 1, 50);
+    c.points_for_write() = test::make_points(key, 1, 50);
     ASSERT_TRUE((*s)->write_chunk(key, c));
     PoseRecord p;
     p.frame_id = 1;
@@ -453,7 +453,7 @@ TEST(SchemaSix, ASchemaFiveFileMigratesAndResumes) {
   EXPECT_FALSE(at.graph);
   ASSERT_TRUE(at.map->find(key));
   EXPECT_EQ(at.map->find(key)->version, 0u);
-  EXPECT_EQ(at.map->find(key)->points.size(), 50u);
+  EXPECT_EQ(at.map->find(key)->points().size(), 50u);
   auto integrity = (*rec)->store().integrity_check();
   ASSERT_TRUE(integrity);
   EXPECT_TRUE(integrity->ok()) << integrity->problems.front();
@@ -492,7 +492,7 @@ TEST(SchemaSix, AChunkRowsVersionIsChecked) {
     ASSERT_TRUE(s) << s.status().to_string();
     ASSERT_TRUE((*s)->begin_checkpoint());
     Chunk c;
-    c.points = test::make_points(key, 1, 50);
+    c.points_for_write() = test::make_points(key, 1, 50);
     c.version = 3;
     ASSERT_TRUE((*s)->write_chunk(key, c));
     CheckpointInfo info;

@@ -36,7 +36,7 @@ struct Walk {
         const ChunkKey k{c.x + dx, c.y, c.z + dz};
         Chunk& ch = map.get_or_create(k);
         const PointArrays add = make_points(k, frame, 5);
-        ch.points.append(add);
+        ch.points_for_write().append(add);
         ch.last_touched_frame = ch.last_seen_frame = frame;
         ch.dirty = true;
         reference[k].append(add);
@@ -87,14 +87,14 @@ TEST(MapPager, BoundedWalkAndReturnIsLossless) {
   // Back at the start: the chunks there came back exactly as they were written.
   for (const auto& [k, points] : walk.reference) {
     if (const Chunk* c = walk.map.find(k)) {
-      EXPECT_TRUE(bit_equal(c->points, points)) << to_string(k);
+      EXPECT_TRUE(bit_equal(c->points(), points)) << to_string(k);
     }
   }
   // And every evicted chunk in the store is exactly the reference.
   for (const ChunkKey& k : pager.evicted()) {
     auto c = (*store)->read_chunk(k, /*include_staged=*/true);
     ASSERT_TRUE(c) << c.status().to_string();
-    EXPECT_TRUE(bit_equal(c->chunk.points, walk.reference.at(k))) << to_string(k);
+    EXPECT_TRUE(bit_equal(c->chunk.points(), walk.reference.at(k))) << to_string(k);
   }
 }
 
@@ -105,7 +105,7 @@ namespace {
 void fill_row(PointMap* map) {
   for (int x = -20; x <= 20; ++x) {
     Chunk& c = map->get_or_create({x, 0, 0});
-    c.points = make_points({x, 0, 0}, 1, 50);
+    c.points_for_write() = make_points({x, 0, 0}, 1, 50);
     c.last_touched_frame = c.last_seen_frame = x == 15 ? 100 : x > 10 ? 95 : 50;
     c.dirty = true;
   }
@@ -214,7 +214,7 @@ TEST(MapPager, PrepareLoadsTheChunksTheFrameCanTouch) {
   chunks.reserve(pager.evicted().size());
   for (const ChunkKey& k : pager.evicted()) {
     chunks.emplace_back();
-    chunks.back().points = make_points(k, 1, 2);
+    chunks.back().points_for_write() = make_points(k, 1, 2);
     batch.emplace_back(k, &chunks.back());
   }
   ASSERT_TRUE((*store)->stage_chunks(batch));
@@ -277,7 +277,7 @@ TEST(MapPager, AChunkCreatedOverAnEvictedOneKeepsTheStoredPoints) {
   const ChunkKey k{12, 0, 0};  // 6 m from the camera
   const PointArrays stored = make_points(k, 1, 40), fresh = make_points(k, 2, 7);
   Chunk& c = map.get_or_create(k);
-  c.points = stored;
+  c.points_for_write() = stored;
   c.last_touched_frame = c.last_seen_frame = 10;
   c.dirty = true;
   ASSERT_TRUE(pager.update(&map, kRowCamera, 100));
@@ -285,7 +285,7 @@ TEST(MapPager, AChunkCreatedOverAnEvictedOneKeepsTheStoredPoints) {
   ASSERT_TRUE(pager.is_evicted(k));
   // Frame 101 fuses new points there without the chunk having been loaded.
   Chunk& created = map.get_or_create(k);
-  created.points = fresh;
+  created.points_for_write() = fresh;
   created.last_touched_frame = created.last_seen_frame = 101;
   created.dirty = true;
   ASSERT_TRUE(pager.update(&map, kRowCamera, 101)) << pager.stats().last_error;
@@ -294,13 +294,13 @@ TEST(MapPager, AChunkCreatedOverAnEvictedOneKeepsTheStoredPoints) {
   PointArrays both = stored;
   both.append(fresh);
   ASSERT_NE(map.find(k), nullptr);
-  EXPECT_TRUE(bit_equal(map.find(k)->points, both));
+  EXPECT_TRUE(bit_equal(map.find(k)->points(), both));
   // Evicted again, the file holds both sets.
   ASSERT_TRUE(pager.update(&map, kRowCamera, 200));
   ASSERT_EQ(map.find(k), nullptr);
   auto in_file = (*store)->read_chunk(k, /*include_staged=*/true);
   ASSERT_TRUE(in_file) << in_file.status().to_string();
-  EXPECT_TRUE(bit_equal(in_file->chunk.points, both));
+  EXPECT_TRUE(bit_equal(in_file->chunk.points(), both));
 }
 
 // A loop closure while a chunk was evicted: fusion (or the map's deformation) made a new chunk at
@@ -316,7 +316,7 @@ TEST(MapPager, AChunkLoadedOverANewerOneIsBroughtUpToDateFirst) {
   pager.set_bring_up_to_date([&](PointMap* m, const ChunkKey& key) {
     Chunk* c = m->find(key);
     ASSERT_NE(c, nullptr);
-    for (size_t i = 0; i < c->points.size(); ++i) c->points.position_m[i].x() += 0.01f;
+    for (size_t i = 0; i < c->points().size(); ++i) c->points_for_write().position_m[i].x() += 0.01f;
     c->version = m->version();
     ++brought;
   });
@@ -324,7 +324,7 @@ TEST(MapPager, AChunkLoadedOverANewerOneIsBroughtUpToDateFirst) {
   const ChunkKey k{12, 0, 0};  // 6 m from the camera
   const PointArrays stored = make_points(k, 1, 40), fresh = make_points(k, 2, 7);
   Chunk& c = map.get_or_create(k);
-  c.points = stored;
+  c.points_for_write() = stored;
   c.last_touched_frame = c.last_seen_frame = 10;
   c.dirty = true;
   ASSERT_TRUE(pager.update(&map, kRowCamera, 100));
@@ -333,7 +333,7 @@ TEST(MapPager, AChunkLoadedOverANewerOneIsBroughtUpToDateFirst) {
   map.set_version(1);  // a correction
   Chunk& created = map.get_or_create(k);
   EXPECT_EQ(created.version, 1u);
-  created.points = fresh;
+  created.points_for_write() = fresh;
   created.last_touched_frame = created.last_seen_frame = 101;
   created.dirty = true;
   ASSERT_TRUE(pager.update(&map, kRowCamera, 101)) << pager.stats().last_error;
@@ -344,7 +344,7 @@ TEST(MapPager, AChunkLoadedOverANewerOneIsBroughtUpToDateFirst) {
   both.append(fresh);
   ASSERT_NE(map.find(k), nullptr);
   EXPECT_EQ(map.find(k)->version, 1u);
-  EXPECT_TRUE(bit_equal(map.find(k)->points, both));
+  EXPECT_TRUE(bit_equal(map.find(k)->points(), both));
   // Evicted again at version 1: the file keeps it.
   ASSERT_TRUE(pager.update(&map, kRowCamera, 200));
   EXPECT_EQ(pager.oldest_evicted_version(), std::optional<uint32_t>(1));
@@ -358,7 +358,7 @@ namespace {
 // A changed chunk of 50 points at `key`, last seen at `frame`, never staged.
 void add_changed_chunk(PointMap* map, const ChunkKey& key, uint32_t frame) {
   Chunk& c = map->get_or_create(key);
-  c.points = make_points(key, frame, 50);
+  c.points_for_write() = make_points(key, frame, 50);
   c.last_touched_frame = c.last_seen_frame = frame;
   c.dirty = true;
 }
@@ -386,7 +386,7 @@ struct StagedRow {
     ASSERT_TRUE(pager->is_evicted(staged));
     ASSERT_TRUE(pager->load_chunks(&map, {staged}, 30));  // the least recently used of all
     Chunk& again = map.get_or_create(staged);
-    again.points.append(make_points(staged, 61, 10));
+    again.points_for_write().append(make_points(staged, 61, 10));
     again.dirty = true;
   }
 };
@@ -411,7 +411,7 @@ TEST(MapPager, AChunkOfTheCheckpointInFlightIsNotStagedAgainUntilItIsDone) {
   EXPECT_EQ(r.waits, 0);
   auto in_file = r.store->read_chunk(r.staged, /*include_staged=*/true);
   ASSERT_TRUE(in_file);
-  EXPECT_EQ(in_file->chunk.points.size(), 50u) << "the staged copy was replaced";
+  EXPECT_EQ(in_file->chunk.points().size(), 50u) << "the staged copy was replaced";
 
   r.pager->set_other_bytes(20 * r.chunk);  // over the budget: it must go, once the checkpoint is done
   ASSERT_TRUE(r.pager->update(&r.map, kRowCamera, 102));
@@ -420,7 +420,7 @@ TEST(MapPager, AChunkOfTheCheckpointInFlightIsNotStagedAgainUntilItIsDone) {
   r.pager->checkpoint_done(true);
   in_file = r.store->read_chunk(r.staged, /*include_staged=*/true);
   ASSERT_TRUE(in_file);
-  EXPECT_EQ(in_file->chunk.points.size(), 60u);
+  EXPECT_EQ(in_file->chunk.points().size(), 60u);
 }
 
 // Over the budget, a changed chunk of the checkpoint in flight goes last even when it is the least

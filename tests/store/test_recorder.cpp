@@ -68,7 +68,7 @@ const Reference& reference() {
                      static_cast<double>(n);
     rec.finish();
     rec.map().for_each_chunk([&](const ChunkKey& k, const Chunk& c) {
-      if (!c.points.empty()) r.cloud[k] = c.points;
+      if (!c.points().empty()) r.cloud[k] = c.points();
     });
     return r;
   }();
@@ -333,10 +333,10 @@ TEST(Recorder, RemovedChunksLeaveTheFileOthersNeverDo) {
     auto made = ScanRecorder::create(path, metadata(), "", "", rc);
     ASSERT_TRUE(made);
     PointMap map(0.5);
-    for (int x = 0; x < 6; ++x) map.get_or_create({x, 0, 0}).points = test::make_points({x, 0, 0}, 1, 20);
+    for (int x = 0; x < 6; ++x) map.get_or_create({x, 0, 0}).points_for_write() = test::make_points({x, 0, 0}, 1, 20);
     ASSERT_TRUE((*made)->checkpoint(&map, "periodic"));
     ASSERT_TRUE(map.extract({2, 0, 0}, nullptr));
-    map.get_or_create({4, 0, 0}).points.clear();  // emptied by the post-filter
+    map.get_or_create({4, 0, 0}).points_for_write().clear();  // emptied by the post-filter
     map.get_or_create({4, 0, 0}).dirty = true;
     auto rec = (*made)->checkpoint(&map, "periodic");
     ASSERT_TRUE(rec);
@@ -350,4 +350,75 @@ TEST(Recorder, RemovedChunksLeaveTheFileOthersNeverDo) {
   ASSERT_TRUE(rec);
   EXPECT_EQ(rec->chunk_count, 4u);
   EXPECT_EQ(rec->id, 3);
+}
+
+// A background checkpoint shares the changed chunks' points with the map instead of copying them:
+// what fusion changes while the writer encodes must be copied first, so that the file holds the
+// map as of the snapshot and the map keeps the change.
+TEST(Recorder, BackgroundCheckpointHoldsTheMapAsOfItsSnapshot) {
+  TempDir dir;
+  const std::string path = dir.file("scan.db");
+  RecorderConfig rc;
+  rc.bounded_memory = true;
+  auto made = ScanRecorder::create(path, metadata(), "", "", rc);
+  ASSERT_TRUE(made) << made.status().to_string();
+  ScanRecorder& rec = **made;
+  PointMap map(0.5);
+  ChunkContents at_snapshot;
+  // Enough points that the writer is still encoding when the changes below are made.
+  for (int x = 0; x < 200; ++x) {
+    const ChunkKey k{x, 0, 0};
+    map.get_or_create(k).points_for_write() = test::make_points(k, 1, 2000);
+    at_snapshot[k] = map.find(k)->points();
+  }
+  ASSERT_TRUE(rec.checkpoint_in_background(&map, "periodic", {}));
+  ChunkContents changed;
+  map.for_each_chunk([&](const ChunkKey& k, Chunk& c) {
+    PointArrays& a = c.points_for_write();
+    for (Eigen::Vector3f& p : a.position_m) p.z() += 0.01f;
+    a.state.front().merges += 1;
+    a.push_back(a.get(0));
+    c.dirty = true;
+    changed[k] = c.points();
+  });
+  while (rec.checkpoint_in_flight()) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  expect_same_cloud(stored_cloud(path), at_snapshot);
+  ChunkContents now;
+  map.for_each_chunk([&](const ChunkKey& k, const Chunk& c) { now[k] = c.points(); });
+  expect_same_cloud(now, changed);
+}
+
+// The same through fusion itself: frames fused while a background checkpoint is encoded change
+// the chunks it shares (merges, visibility counts, new points), and the file still holds the map
+// as of the checkpoint's frame.
+TEST(Recorder, FusionWhileACheckpointIsEncodedLeavesItsSnapshotAlone) {
+  const Reference& ref = reference();
+  TempDir dir;
+  const std::string path = dir.file("scan.db");
+  RecorderConfig rc;
+  rc.bounded_memory = true;
+  auto made = ScanRecorder::create(path, metadata(), "[fusion]\n", "test", rc);
+  ASSERT_TRUE(made) << made.status().to_string();
+  ScanRecorder& recorder = **made;
+  IncrementalReconstructor rec(config());
+  const auto fuse = [&](size_t i) {
+    ASSERT_TRUE(recorder.prepare_frame(ref.frames[i], rec.initial_pose(ref.frames[i], std::nullopt), rec));
+    auto rep = rec.process(ref.frames[i]);
+    ASSERT_TRUE(rep) << rep.status().to_string();
+    ASSERT_TRUE(recorder.record_frame(ref.frames[i], *rep, &rec.map())) << recorder.status().last_error;
+  };
+  for (size_t i = 0; i < 40; ++i) fuse(i);
+  ChunkContents at_snapshot;
+  rec.map().for_each_chunk([&](const ChunkKey& k, const Chunk& c) {
+    if (!c.points().empty()) at_snapshot[k] = c.points();
+  });
+  ASSERT_TRUE(recorder.checkpoint_in_background(&rec.map(), "periodic", {}));
+  for (size_t i = 40; i < 45; ++i) fuse(i);
+  ChunkContents changed;
+  rec.map().for_each_chunk([&](const ChunkKey& k, const Chunk& c) {
+    if (at_snapshot.count(k) && !(c.points() == at_snapshot[k])) changed[k] = c.points();
+  });
+  EXPECT_FALSE(changed.empty()) << "the frames after the snapshot changed none of its chunks";
+  while (recorder.checkpoint_in_flight()) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  expect_same_cloud(stored_cloud(path), at_snapshot);
 }

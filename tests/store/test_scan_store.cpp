@@ -30,7 +30,7 @@ std::unique_ptr<ScanStore> open_or_die(const std::string& path, OpenMode mode) {
 
 Chunk chunk_of(const PointArrays& a, uint32_t touched = 7) {
   Chunk c;
-  c.points = a;
+  c.points_for_write() = a;
   c.last_touched_frame = touched;
   return c;
 }
@@ -138,7 +138,7 @@ TEST(ScanStore, RoundTripIsBitExact) {
   for (const auto& [k, a] : chunks) {
     auto c = s->read_chunk(k);
     ASSERT_TRUE(c) << c.status().to_string();
-    EXPECT_TRUE(bit_equal(c->chunk.points, a)) << to_string(k);
+    EXPECT_TRUE(bit_equal(c->chunk.points(), a)) << to_string(k);
     EXPECT_EQ(c->chunk.last_touched_frame, static_cast<uint32_t>(40 + k.x));
     EXPECT_FALSE(c->chunk.dirty);
     total += a.size();
@@ -227,7 +227,7 @@ TEST(ScanStore, RolledBackCheckpointLeavesThePreviousOne) {
     ASSERT_TRUE(reader);
     auto ra = reader->read_chunk(a);
     ASSERT_TRUE(ra);
-    EXPECT_TRUE(bit_equal(ra->chunk.points, make_points(a, 1, 100)));
+    EXPECT_TRUE(bit_equal(ra->chunk.points(), make_points(a, 1, 100)));
     EXPECT_TRUE(reader->read_chunk(b));
     EXPECT_EQ(reader->read_chunk(c).status().code(), StatusCode::kNotFound);
   }
@@ -241,7 +241,7 @@ TEST(ScanStore, RolledBackCheckpointLeavesThePreviousOne) {
   s = open_or_die(path, OpenMode::kReadOnly);
   auto ra = s->read_chunk(a);
   ASSERT_TRUE(ra);
-  EXPECT_TRUE(bit_equal(ra->chunk.points, make_points(a, 1, 100)));
+  EXPECT_TRUE(bit_equal(ra->chunk.points(), make_points(a, 1, 100)));
   EXPECT_TRUE(s->read_chunk(b));
   EXPECT_EQ(s->read_chunk(c).status().code(), StatusCode::kNotFound);
   auto cps = s->checkpoints();
@@ -268,7 +268,7 @@ TEST(ScanStore, ReadSnapshotIsStableWhileTheWriterCommits) {
     EXPECT_EQ(list->size(), 1u);
     auto ra = r->read_chunk(a);
     ASSERT_TRUE(ra);
-    EXPECT_TRUE(bit_equal(ra->chunk.points, make_points(a, 1, 100)));
+    EXPECT_TRUE(bit_equal(ra->chunk.points(), make_points(a, 1, 100)));
   }
   auto list = r->list_chunks();
   ASSERT_TRUE(list);
@@ -287,7 +287,7 @@ TEST(ScanStore, StagedChunksArePromotedByACheckpointAndDroppedAfterACrash) {
     ASSERT_TRUE(s->stage_chunks({{d, &cd}}));
     auto staged = s->read_chunk(d, /*include_staged=*/true);
     ASSERT_TRUE(staged);
-    EXPECT_TRUE(bit_equal(staged->chunk.points, cd.points));
+    EXPECT_TRUE(bit_equal(staged->chunk.points(), cd.points()));
     EXPECT_EQ(s->read_chunk(d).status().code(), StatusCode::kNotFound);  // not committed yet
     // Staging a chunk over a committed one, and an emptied chunk (a deletion).
     Chunk ca = chunk_of(make_points(a, 2, 70));
@@ -295,8 +295,8 @@ TEST(ScanStore, StagedChunksArePromotedByACheckpointAndDroppedAfterACrash) {
     checkpoint(*s, {}, 20);
     auto promoted = s->read_chunk(d);
     ASSERT_TRUE(promoted);
-    EXPECT_TRUE(bit_equal(promoted->chunk.points, cd.points));
-    EXPECT_TRUE(bit_equal(s->read_chunk(a)->chunk.points, ca.points));
+    EXPECT_TRUE(bit_equal(promoted->chunk.points(), cd.points()));
+    EXPECT_TRUE(bit_equal(s->read_chunk(a)->chunk.points(), ca.points()));
     Chunk empty;
     ASSERT_TRUE(s->stage_chunks({{a, &empty}}));
     checkpoint(*s, {}, 30);
@@ -346,16 +346,16 @@ TEST(ScanStore, ACheckpointOfAnEarlierFrameLeavesLaterStagedChunksStaged) {
     CheckpointInfo info;
     info.last_frame_id = 20;
     ASSERT_TRUE(s->commit_checkpoint(info));
-    EXPECT_TRUE(bit_equal(s->read_chunk(a)->chunk.points, a_staged.points));   // promoted
-    EXPECT_TRUE(bit_equal(s->read_chunk(b)->chunk.points, b_at_20.points));    // as of frame 20
-    EXPECT_TRUE(bit_equal(s->read_chunk(b, true)->chunk.points, b_staged.points));  // still staged
+    EXPECT_TRUE(bit_equal(s->read_chunk(a)->chunk.points(), a_staged.points()));   // promoted
+    EXPECT_TRUE(bit_equal(s->read_chunk(b)->chunk.points(), b_at_20.points()));    // as of frame 20
+    EXPECT_TRUE(bit_equal(s->read_chunk(b, true)->chunk.points(), b_staged.points()));  // still staged
     // The process dies before the next checkpoint.
   }
   auto s = open_or_die(path, OpenMode::kReadWrite);
   ASSERT_TRUE(s);
   EXPECT_EQ(s->open_report().discarded_staged_chunks, 1u);
-  EXPECT_TRUE(bit_equal(s->read_chunk(b, true)->chunk.points, b_at_20.points));
-  EXPECT_TRUE(bit_equal(s->read_chunk(a)->chunk.points, a_staged.points));
+  EXPECT_TRUE(bit_equal(s->read_chunk(b, true)->chunk.points(), b_at_20.points()));
+  EXPECT_TRUE(bit_equal(s->read_chunk(a)->chunk.points(), a_staged.points()));
 }
 
 TEST(ScanStore, OneWriterAtATime) {
@@ -506,7 +506,7 @@ TEST(ScanStore, MigratesASchema1File) {
   ASSERT_TRUE(s);
   auto c = s->read_chunk(key);
   ASSERT_TRUE(c) << c.status().to_string();
-  EXPECT_TRUE(bit_equal(c->chunk.points, points));
+  EXPECT_TRUE(bit_equal(c->chunk.points(), points));
   EXPECT_EQ(c->info.checkpoint_id, 3);
   EXPECT_EQ(c->chunk.last_touched_frame, 19u);
   auto last = s->last_checkpoint();

@@ -29,9 +29,9 @@ void remove_file(const std::string& path) {
 Chunk make_chunk(std::mt19937& rng, size_t n) {
   std::uniform_real_distribution<float> u(0.0f, 0.5f);
   Chunk c;
-  c.points.resize(n);
+  c.points_for_write().resize(n);
   for (size_t i = 0; i < n; ++i) {
-    c.points.position_m[i] = Eigen::Vector3f(u(rng), u(rng), u(rng));
+    c.points_for_write().position_m[i] = Eigen::Vector3f(u(rng), u(rng), u(rng));
   }
   return c;
 }

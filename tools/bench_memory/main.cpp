@@ -268,7 +268,7 @@ int compare(const Options& o) {
       continue;
     }
     auto pa = (*a)->read_chunk(ca.key), pb = (*b)->read_chunk(ca.key);
-    if (pa && pb && pa->chunk.points == pb->chunk.points) ++same;
+    if (pa && pb && pa->chunk.points() == pb->chunk.points()) ++same;
     else ++different;
     ++j;
   }

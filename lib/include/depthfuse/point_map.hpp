@@ -51,8 +51,21 @@ class SeenChunkKeys {
   bool used_[kSlots] = {};
 };
 
-struct Chunk {
-  PointArrays points;
+// A chunk's points are copy-on-write: a background checkpoint shares the arrays of the chunks it
+// writes instead of copying them, and the first change after that copies them (points_for_write()).
+// So the snapshot costs next to nothing on the fusion thread, and memory outside the map's budget
+// is only what fusion changes while the checkpoint is being encoded, not the whole changed map.
+class Chunk {
+ public:
+  const PointArrays& points() const { return points_ ? *points_ : empty_points(); }
+  // The arrays to change in place; copies them first while a checkpoint in flight still holds
+  // them. Take it once per pass over a chunk, not per point.
+  PointArrays& points_for_write();
+  // The arrays as they are now, for a reader on another thread: they do not change under it.
+  std::shared_ptr<const PointArrays> share_points() const;
+  // Whether another holder (a checkpoint in flight) shares the arrays now.
+  bool points_shared() const { return points_ && points_.use_count() > 1; }
+
   // The newest frame that changed it: observed it, added points to it, or moved them (the map's
   // deformation). Checkpoints and the map's watchers go by it.
   uint32_t last_touched_frame = 0;
@@ -63,6 +76,10 @@ struct Chunk {
   // The pose graph's version the points are expressed in (MapDeformation): older than the map's
   // version() means a loop closure has moved their keyframes since, and they have not followed yet.
   uint32_t version = 0;
+
+ private:
+  static const PointArrays& empty_points();
+  std::shared_ptr<PointArrays> points_;  // null: no points yet
 };
 
 class PointMap {

@@ -65,14 +65,20 @@ void CheckpointWriter::encode_loop() {
     const int64_t t0 = steady_ns();
     std::vector<EncodedChunk> encoded(job.chunks.size());
     Status st;
-    for (size_t i = 0; i < job.chunks.size() && st; ++i)
-      st = encode_chunk(codec_, job.chunks[i].first, job.chunks[i].second, &encoded[i]);
+    size_t parted = 0;
+    for (size_t i = 0; i < job.chunks.size() && st; ++i) {
+      Chunk& chunk = job.chunks[i].second;
+      st = encode_chunk(codec_, job.chunks[i].first, chunk, &encoded[i]);
+      parted += !chunk.points().empty() && !chunk.points_shared();
+      chunk = Chunk();  // fusion need not copy it to change it any more
+    }
     std::vector<std::pair<ChunkKey, Chunk>>().swap(job.chunks);
     const int64_t t1 = steady_ns();
     lock.lock();
     encoded_chunks_ = std::move(encoded);
     encode_status_ = st;
     encode_seconds_ = static_cast<double>(t1 - t0) * 1e-9;
+    chunks_parted_ = parted;
     encoded_ = true;
     cv_.notify_all();
   }
@@ -114,6 +120,7 @@ void CheckpointWriter::write_loop() {
     std::vector<EncodedChunk>().swap(encoded);
     lock.lock();
     out.encode_seconds = encode_seconds_;
+    out.chunks_parted = chunks_parted_;
     writing_ = encoded_ = false;
     out.job = std::move(job);
     job_.reset();

@@ -1,6 +1,6 @@
 // Internal: ScanRecorder's background checkpoints. The fusion thread hands over a snapshot of what
-// changed since the last commit (copies of the changed chunks, the chunks that left the map, the
-// poses, the checkpoint's frame); a thread of the writer's encodes the chunks, then another writes
+// changed since the last commit (the changed chunks, their points shared copy-on-write, the chunks
+// that left the map, the poses, the checkpoint's frame); a thread of the writer's encodes the chunks, then another writes
 // them in one transaction (WAL, FULL sync) on a connection of its own to the scan file. One
 // checkpoint at a time: the next snapshot waits for this one's outcome.
 //
@@ -27,8 +27,10 @@
 namespace depthfuse::store {
 
 struct CheckpointJob {
-  std::vector<std::pair<ChunkKey, Chunk>> chunks;  // copies of the changed resident chunks
-  std::vector<ChunkKey> written;                   // their keys (the copies are freed once encoded)
+  // The changed resident chunks, their points shared with the map's (Chunk::points_for_write()):
+  // each is let go once encoded, so that fusion changes it in place again.
+  std::vector<std::pair<ChunkKey, Chunk>> chunks;
+  std::vector<ChunkKey> written;                   // their keys
   std::vector<ChunkKey> removed;                   // left the map since the last checkpoint
   std::vector<ChunkKey> resident;                  // the map's keys at the snapshot
   std::vector<PoseRecord> poses;
@@ -43,6 +45,9 @@ struct CheckpointOutcome {
   CheckpointJob job;                               // chunk copies already released
   Result<CheckpointRecord> record = Status::ok();  // the committed checkpoint, or why not
   double encode_seconds = 0.0, write_seconds = 0.0;
+  // Of the chunks shared, those the map no longer shared when they were encoded: fusion (or the
+  // map's deformation) changed them meanwhile and copied their points first, or they were evicted.
+  size_t chunks_parted = 0;
 };
 
 class CheckpointWriter {
@@ -78,6 +83,7 @@ class CheckpointWriter {
   std::vector<EncodedChunk> encoded_chunks_;
   Status encode_status_;
   double encode_seconds_ = 0.0;
+  size_t chunks_parted_ = 0;
   std::optional<CheckpointOutcome> outcome_;  // finished, not yet taken
   bool stop_ = false;
   std::thread encoder_, writer_;

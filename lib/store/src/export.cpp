@@ -81,7 +81,7 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
   const std::vector<ChunkKey> extra = sorted_keys(replacing);
   PointArrays copy;
   for (const ChunkKey& key : extra) {
-    copy = replacing->find(key)->points;
+    copy = replacing->find(key)->points();
     count += select_points(copy, options, &keep);
   }
   if (options.min_merges == 0 && !options.bbox_m && !options.skip_damaged && !replacing) {
@@ -121,7 +121,7 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
         },
         filter);
     for (size_t i = 0; i < extra.size() && st; ++i) {
-      copy = replacing->find(extra[i])->points;
+      copy = replacing->find(extra[i])->points();
       if (!copy.empty()) st = write(copy);
     }
   }

@@ -33,7 +33,7 @@ float distance_to_chunk_m(const PointMap& map, const ChunkKey& key, const Eigen:
 }
 
 size_t MapPager::chunk_bytes(const Chunk& chunk) {
-  return chunk.points.memory_bytes() + kChunkOverheadBytes;
+  return chunk.points().memory_bytes() + kChunkOverheadBytes;
 }
 
 MapPager::MapPager(const MapPagerConfig& config, ScanStore* store) : config_(config), store_(store) {}
@@ -176,7 +176,7 @@ Status MapPager::load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t
       map->insert(k, std::move(loaded));
       bring_up_to_date_(map, k);
       Chunk& merged = map->get_or_create(k);
-      merged.points.append(newer.points);
+      merged.points_for_write().append(newer.points());
       merged.last_touched_frame = std::max(merged.last_touched_frame, newer.last_touched_frame);
       merged.last_seen_frame = std::max(merged.last_seen_frame, newer.last_seen_frame);
       merged.dirty = true;
@@ -188,7 +188,7 @@ Status MapPager::load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t
     if (Chunk* resident = map->find(k)) {
       // Fusion created the chunk while it was evicted (prepare() was skipped or the pose jumped):
       // keep both sets of points.
-      loaded.points.append(resident->points);
+      loaded.points_for_write().append(resident->points());
       loaded.last_touched_frame = std::max(loaded.last_touched_frame, resident->last_touched_frame);
       loaded.last_seen_frame = std::max(loaded.last_seen_frame, resident->last_seen_frame);
       loaded.dirty = true;
@@ -335,7 +335,7 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
     const ChunkKey& k = candidates_[i].key;
     const Chunk* c = map->find(k);
     // A clean, empty chunk has nothing in the file and nothing to come back to.
-    const bool keep_key = c->dirty || !c->points.empty();
+    const bool keep_key = c->dirty || !c->points().empty();
     const uint32_t c_version = c->version;
     map->extract(k, nullptr);
     loaded_at_.erase(k);

@@ -161,7 +161,7 @@ Result<std::unique_ptr<ScanRecorder>> ScanRecorder::resume(const std::string& pa
     PointMap* map = resume->map.get();
     DF_RETURN_IF_ERROR(store.for_each_chunk([&](const ChunkInfo& info, PointArrays& points) {
       Chunk c;
-      c.points = std::move(points);
+      c.points_for_write() = std::move(points);
       c.last_touched_frame = c.last_seen_frame = info.last_touched_frame;
       c.version = info.version;
       c.dirty = false;
@@ -395,16 +395,18 @@ bool ScanRecorder::checkpoint_in_background(PointMap* map, const std::string& re
   CheckpointJob job;
   job.snapshot_ns = t0_ns;
   job.info = checkpoint_info(reason, counters);
-  size_t points_copied = 0;
+  size_t points_shared = 0;
+  // Chunk copies share their points: the writer encodes them while fusion goes on, and fusion
+  // copies a chunk's points only where it changes them before they are encoded.
   map->for_each_chunk([&](const ChunkKey& key, const Chunk& c) {
     job.resident.push_back(key);
     if (!c.dirty) return;
     job.chunks.emplace_back(key, c);
     job.written.push_back(key);
-    points_copied += c.points.size();
+    points_shared += c.points().size();
   });
-  const int64_t copied_ns = steady_ns();
-  const size_t chunks_copied = job.written.size();
+  const int64_t shared_ns = steady_ns();
+  const size_t chunks_shared = job.written.size();
   job.removed = removed_chunks(*map);
   job.poses.swap(pending_poses_);
   job.corrections.swap(corrections_);
@@ -423,10 +425,10 @@ bool ScanRecorder::checkpoint_in_background(PointMap* map, const std::string& re
   if (pager_) pager_->checkpoint_snapshot();
   const int64_t end_ns = steady_ns();
   status_.last_snapshot_seconds = static_cast<double>(end_ns - t0_ns) * 1e-9;
-  // The fusion thread's share of a background checkpoint: mostly the copy.
-  DF_LOG(Store, Debug) << "checkpoint to frame " << last_frame_id_ << ": " << chunks_copied
-                       << " chunks (" << points_copied << " points) copied in "
-                       << (copied_ns - t0_ns) / 1000000 << " ms, handed over in "
+  // The fusion thread's share of a background checkpoint.
+  DF_LOG(Store, Debug) << "checkpoint to frame " << last_frame_id_ << ": " << chunks_shared
+                       << " chunks (" << points_shared << " points) shared in "
+                       << (shared_ns - t0_ns) / 1000000 << " ms, handed over in "
                        << (end_ns - start_ns) / 1000000 << " ms";
   return true;
 }
@@ -438,6 +440,10 @@ void ScanRecorder::collect_background(PointMap* map, bool clear_dirty) {
   CheckpointJob& job = out->job;
   if (pager_) pager_->checkpoint_done(out->record.is_ok());
   status_.last_encode_seconds = out->encode_seconds;
+  DF_LOG(Store, Debug) << "checkpoint to frame " << job.info.last_frame_id << ": "
+                       << job.written.size() << " chunks encoded in "
+                       << static_cast<int>(out->encode_seconds * 1e3) << " ms, of which "
+                       << out->chunks_parted << " were changed (copied) or evicted meanwhile";
   status_.last_write_seconds = out->write_seconds;
   status_.total_encode_seconds += out->encode_seconds;
   status_.total_write_seconds += out->write_seconds;
@@ -501,7 +507,7 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
         if (postfilter(&one) > 0) {
           const Chunk* c = one.find(key);
           DF_RETURN_IF_ERROR(store.write_chunk(key, *c));
-          if (c->points.empty()) emptied_evicted.push_back(key);
+          if (c->points().empty()) emptied_evicted.push_back(key);
         }
       }
     }

@@ -105,11 +105,11 @@ Result<std::optional<std::string>> ScanStore::Impl::get_meta(const std::string& 
 
 Status encode_chunk(BlobCodec& codec, const ChunkKey& key, const Chunk& chunk, EncodedChunk* out) {
   out->key = key;
-  out->point_count = static_cast<uint32_t>(chunk.points.size());
-  out->bounds_m = bounds_of(chunk.points);
+  out->point_count = static_cast<uint32_t>(chunk.points().size());
+  out->bounds_m = bounds_of(chunk.points());
   out->last_touched_frame = chunk.last_touched_frame;
   out->version = chunk.version;
-  return codec.encode_points(chunk.points, &out->blob).with_context("encoding chunk " + to_string(key));
+  return codec.encode_points(chunk.points(), &out->blob).with_context("encoding chunk " + to_string(key));
 }
 
 Status ScanStore::Impl::write_chunk_row(bool staged, const ChunkKey& key, const Chunk& chunk,
@@ -170,9 +170,9 @@ Status ScanStore::Impl::decode_chunk_row(const sql::Row& row, bool staged, Store
       row, ChunkCol::kChecksum,
       chunk_row_checksum(info.key, info.point_count, info.last_touched_frame, info.version), what));
   DF_RETURN_IF_ERROR(codec.decode_points(row.blob(ChunkCol::kData), row.blob_size(ChunkCol::kData),
-                                         what, &out->chunk.points));
-  if (out->chunk.points.size() != info.point_count)
-    return corrupt(what + ": holds " + std::to_string(out->chunk.points.size()) +
+                                         what, &out->chunk.points_for_write()));
+  if (out->chunk.points().size() != info.point_count)
+    return corrupt(what + ": holds " + std::to_string(out->chunk.points().size()) +
                    " points, its row says " + std::to_string(info.point_count));
   out->chunk.last_touched_frame = out->chunk.last_seen_frame = info.last_touched_frame;
   out->chunk.version = info.version;

@@ -82,7 +82,7 @@ void check_chunk_rows(ScanStore::Impl& s, IntegrityReport* rep) {
             ++rep->chunks_unchecked;
           }
           if (c.info.point_count == 0) return Status::ok();
-          const Eigen::AlignedBox3f box = bounds_of(c.chunk.points);
+          const Eigen::AlignedBox3f box = bounds_of(c.chunk.points());
           if (!box.min().isApprox(c.info.bounds_m.min(), 1e-5f) ||
               !box.max().isApprox(c.info.bounds_m.max(), 1e-5f))
             return corrupt(s.path + ": chunk " + to_string(c.info.key) +

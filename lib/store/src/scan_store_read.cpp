@@ -135,7 +135,7 @@ Status ScanStore::for_each_chunk(const std::function<Status(const ChunkInfo&, Po
       filter.on_damaged(decoded);
       continue;
     }
-    DF_RETURN_IF_ERROR(fn(chunk.info, chunk.chunk.points));
+    DF_RETURN_IF_ERROR(fn(chunk.info, chunk.chunk.points_for_write()));
   }
   return st->status();
 }
