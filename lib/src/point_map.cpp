@@ -25,10 +25,6 @@ PointArrays& Chunk::points_for_write() {
   return *points_;
 }
 
-std::shared_ptr<const PointArrays> Chunk::share_points() const {
-  return points_ ? std::shared_ptr<const PointArrays>(points_) : std::make_shared<const PointArrays>();
-}
-
 PointMap::PointMap(double chunk_size_m)
     : chunk_size_m_(chunk_size_m), inv_chunk_size_(static_cast<float>(1.0 / chunk_size_m)) {}
 

@@ -59,10 +59,8 @@ class Chunk {
  public:
   const PointArrays& points() const { return points_ ? *points_ : empty_points(); }
   // The arrays to change in place; copies them first while a checkpoint in flight still holds
-  // them. Take it once per pass over a chunk, not per point.
+  // them. Unshared it costs a reference count's read, but hot loops take it once per chunk.
   PointArrays& points_for_write();
-  // The arrays as they are now, for a reader on another thread: they do not change under it.
-  std::shared_ptr<const PointArrays> share_points() const;
   // Whether another holder (a checkpoint in flight) shares the arrays now.
   bool points_shared() const { return points_ && points_.use_count() > 1; }
 
