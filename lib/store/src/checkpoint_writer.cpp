@@ -65,10 +65,11 @@ void CheckpointWriter::encode_loop() {
     const int64_t t0 = steady_ns();
     std::vector<EncodedChunk> encoded(job.chunks.size());
     Status st;
-    size_t parted = 0;
+    size_t parted = 0, bytes = 0;
     for (size_t i = 0; i < job.chunks.size() && st; ++i) {
       Chunk& chunk = job.chunks[i].second;
       st = encode_chunk(codec_, job.chunks[i].first, chunk, &encoded[i]);
+      bytes += encoded[i].blob.capacity();
       parted += !chunk.points().empty() && !chunk.points_shared();
       chunk = Chunk();  // fusion need not copy it to change it any more
     }
@@ -79,6 +80,7 @@ void CheckpointWriter::encode_loop() {
     encode_status_ = st;
     encode_seconds_ = static_cast<double>(t1 - t0) * 1e-9;
     chunks_parted_ = parted;
+    encoded_bytes_ = bytes;
     encoded_ = true;
     cv_.notify_all();
   }
@@ -121,6 +123,7 @@ void CheckpointWriter::write_loop() {
     lock.lock();
     out.encode_seconds = encode_seconds_;
     out.chunks_parted = chunks_parted_;
+    out.encoded_bytes = encoded_bytes_;
     writing_ = encoded_ = false;
     out.job = std::move(job);
     job_.reset();

@@ -48,6 +48,7 @@ struct CheckpointOutcome {
   // Of the chunks shared, those the map no longer shared when they were encoded: fusion (or the
   // map's deformation) changed them meanwhile and copied their points first, or they were evicted.
   size_t chunks_parted = 0;
+  size_t encoded_bytes = 0;  // the encoded chunks, held until the transaction has written them
 };
 
 class CheckpointWriter {
@@ -83,7 +84,7 @@ class CheckpointWriter {
   std::vector<EncodedChunk> encoded_chunks_;
   Status encode_status_;
   double encode_seconds_ = 0.0;
-  size_t chunks_parted_ = 0;
+  size_t chunks_parted_ = 0, encoded_bytes_ = 0;
   std::optional<CheckpointOutcome> outcome_;  // finished, not yet taken
   bool stop_ = false;
   std::thread encoder_, writer_;

@@ -442,8 +442,9 @@ void ScanRecorder::collect_background(PointMap* map, bool clear_dirty) {
   status_.last_encode_seconds = out->encode_seconds;
   DF_LOG(Store, Debug) << "checkpoint to frame " << job.info.last_frame_id << ": "
                        << job.written.size() << " chunks encoded in "
-                       << static_cast<int>(out->encode_seconds * 1e3) << " ms, of which "
-                       << out->chunks_parted << " were changed (copied) or evicted meanwhile";
+                       << static_cast<int>(out->encode_seconds * 1e3) << " ms ("
+                       << out->encoded_bytes / 1048576 << " MiB held until written), "
+                       << out->chunks_parted << " of them changed (copied) or evicted meanwhile";
   status_.last_write_seconds = out->write_seconds;
   status_.total_encode_seconds += out->encode_seconds;
   status_.total_write_seconds += out->write_seconds;
