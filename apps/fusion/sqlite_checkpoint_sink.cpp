@@ -256,8 +256,8 @@ Status SqliteCheckpointSink::checkpoint(const std::string& reason, IncrementalRe
   if (!recorder_) return invalid_argument("no scan file is open");
   if (Status st = join_pending_points(reconstructor); !st)
     DF_LOG(Fusion, Warning) << st.to_string();
-  // Periodic checkpoints come every second or so: written on the recorder's own thread from a copy
-  // of what changed, so that fusion does not wait for the encoding and the fsync. Their failures
+  // Periodic checkpoints come every second or so: written on the recorder's own thread from a snapshot
+  // of what changed (the chunks' points shared, not copied), so that fusion does not wait for the encoding and the fsync. Their failures
   // are counted when the next recorder call collects the outcome, whichever call that is (a frame's
   // most often), and reach the heartbeat through take_unreported_failure.
   if (reason == "periodic") {

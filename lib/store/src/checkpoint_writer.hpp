@@ -42,7 +42,7 @@ struct CheckpointJob {
 };
 
 struct CheckpointOutcome {
-  CheckpointJob job;                               // chunk copies already released
+  CheckpointJob job;                               // its chunks already released
   Result<CheckpointRecord> record = Status::ok();  // the committed checkpoint, or why not
   double encode_seconds = 0.0, write_seconds = 0.0;
   // Of the chunks shared, those the map no longer shared when they were encoded: fusion (or the

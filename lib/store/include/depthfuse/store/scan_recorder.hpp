@@ -220,8 +220,9 @@ class ScanRecorder {
   Result<CheckpointRecord> checkpoint(PointMap* map, const std::string& reason,
                                       const FrameCounters& counters = {});
 
-  // The same checkpoint without stalling the caller: copies the changed resident chunks, the keys
-  // that left the map and the buffered poses, and a thread of the recorder's encodes and writes
+  // The same checkpoint without stalling the caller: takes the changed resident chunks (their
+  // points shared, copy-on-write: Chunk::points_for_write()), the keys that left the map and the
+  // buffered poses, and a thread of the recorder's encodes and writes
   // them (the transaction holds the map as of the last recorded frame; see
   // ScanStore::begin_checkpoint). False when the previous one is still in flight: nothing is
   // started. Its outcome reaches status() at the next call after its commit; a failure leaves
