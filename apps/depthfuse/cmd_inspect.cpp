@@ -102,6 +102,10 @@ void print_summary(const store::StoreSummary& s) {
   } else {
     std::printf("pose graph     none\n");
   }
+  if (s.pending_rows)
+    std::printf("pending        %" PRIu64 " points moved by a loop closure into %zu chunk versions "
+                "not yet brought up to date (a resume or export places them)\n",
+                s.pending_points, s.pending_rows);
   if (s.staged_chunk_count)
     std::printf("staged         %zu evicted chunks not yet in a checkpoint (a writer is active or crashed)\n",
                 s.staged_chunk_count);

@@ -17,10 +17,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-// How long a checkpoint waits after a correction for the deformation's sweep (checkpoint_due()).
-// A crash in that time loses the frames fused since the correction.
-constexpr std::chrono::seconds kMaxSweepWait{5};
-
 std::string generated_scan_name() {
   const std::time_t t = std::time(nullptr);
   std::tm tm{};
@@ -140,10 +136,9 @@ Result<FrameOutcome> ScanSession::process(const Frame& frame, FrameWork work) {
     correct_trajectory(*outcome->correction, frame_id);
     // The frame log holds poses, not corrections: a crash before the next checkpoint would replay
     // the frames fused since in the corrected frame over a map of the version before: they are not
-    // logged (ScanRecorder::record_frame) until a checkpoint takes the correction, which comes as
-    // soon as the deformation's sweep is done (checkpoint_due()).
+    // logged (ScanRecorder::record_frame) until a checkpoint takes the correction, which is due
+    // at once (checkpoint_due()).
     last_checkpoint_ = Clock::time_point{};
-    last_correction_ = Clock::now();
   }
   if (outcome->report.fused()) {
     trajectory_.push_back({frame.utime * 1e-6, outcome->report.T_world_cam});
@@ -161,16 +156,10 @@ int64_t ScanSession::sequence_of(uint32_t frame_id) const {
 
 bool ScanSession::checkpoint_due() const {
   if (!active() || !sink_.durable() || sink_.checkpoint_in_flight()) return false;
-  const Clock::time_point now = Clock::now();
-  // After a correction the deformation's sweep brings the map's chunks up to date, a few each
-  // frame. A checkpoint holds no point that waits for its chunk to catch up
-  // (SqliteCheckpointSink::join_pending_points), so one taken while the sweep runs does the rest
-  // of the sweep at once on this thread: hundreds of milliseconds, and the frame queue drops
-  // frames. It waits for the sweep instead, at most kMaxSweepWait after the correction; the
-  // frames fused meanwhile are not logged (ScanRecorder::record_frame).
-  if (reconstructor_->deformation().sweeping() && now - last_correction_ < kMaxSweepWait)
-    return false;
-  return now - last_checkpoint_ >
+  // After a correction (process() made last_checkpoint_ long ago) one is due at once. It stores
+  // the chunks the deformation's sweep has not brought up to date as they are, with the points
+  // waiting for them: nothing is brought up to date for it.
+  return Clock::now() - last_checkpoint_ >
          std::chrono::duration<double>(config_.fusion.checkpoint_interval_s -
                                        sink_.checkpoint_latency_s());
 }

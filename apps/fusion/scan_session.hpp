@@ -76,7 +76,6 @@ class ScanSession {
   std::vector<int64_t> trajectory_sequences_;  // and its frame's sequence
   ScanContext scan_;
   std::chrono::steady_clock::time_point last_checkpoint_;
-  std::chrono::steady_clock::time_point last_correction_;
   std::optional<std::chrono::steady_clock::time_point> last_start_;  // min_scan_interval_s
 };
 

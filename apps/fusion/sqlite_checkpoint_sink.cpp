@@ -101,6 +101,9 @@ Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, Sc
     reconstructor.deformation().set_stored_elsewhere(
         [pager](const ChunkKey& key) { return pager->is_evicted(key); });
   }
+  if (recorder_)
+    recorder_->set_pending_points(
+        [&reconstructor] { return reconstructor.deformation().pending(); });
   if (!resume_) return Status::ok();
   std::unique_ptr<store::ResumePoint> at = std::move(resume_);
   if (!at->metadata.scan_id.empty()) scan->scan_id = at->metadata.scan_id;
@@ -116,7 +119,14 @@ Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, Sc
                            .restore(at->graph->deformation)
                            .with_context("restoring the map's deformation from " + path_));
     reconstructor.map().set_version(reconstructor.deformation().version());
+    DF_RETURN_IF_ERROR(reconstructor.deformation()
+                           .restore_pending(std::move(at->pending))
+                           .with_context("restoring the points pending in " + path_));
     restored->graph = std::move(at->graph->graph);
+  } else if (!at->pending.empty()) {
+    return corrupt(path_ + ": " + std::to_string(at->pending.size()) +
+                   " rows of points pending for a loop closure's correction, but no pose graph "
+                   "(not resumed: `depthfuse inspect` lists what is wrong)");
   }
   keep_history_for_evicted(reconstructor);
   restore_keyframes(reconstructor);
@@ -254,8 +264,8 @@ Status SqliteCheckpointSink::frame_not_fused(const FrameReport& report,
 Status SqliteCheckpointSink::checkpoint(const std::string& reason, IncrementalReconstructor& reconstructor,
                                         const FusionProgress& progress) {
   if (!recorder_) return invalid_argument("no scan file is open");
-  if (Status st = join_pending_points(reconstructor); !st)
-    DF_LOG(Fusion, Warning) << st.to_string();
+  // Points waiting for their chunks to follow a correction are stored as they are (the recorder's
+  // pending source): their chunks are not brought up to date here.
   // Periodic checkpoints come every second or so: written on the recorder's own thread from a snapshot
   // of what changed (the chunks' points shared, not copied), so that fusion does not wait for the encoding and the fsync. Their failures
   // are counted when the next recorder call collects the outcome, whichever call that is (a frame's

@@ -446,7 +446,12 @@ size_t MapDeformation::update_range(PointMap* map, const ChunkKey* keys, size_t 
   size_t i = 0;
   for (; i < count && *updated < max_points; ++i) {
     Chunk* c = map->find(keys[i]);
-    if (!c) continue;
+    if (!c) {
+      // Points pending for a chunk that is neither here nor stored elsewhere (it lost its points
+      // meanwhile, or a resumed scan's file had none left for it) start it again.
+      if (!pending_.count(keys[i]) || (stored_elsewhere_ && stored_elsewhere_(keys[i]))) continue;
+      c = &map->get_or_create(keys[i]);  // at version_
+    }
     if (c->version == version_ && (pending_.empty() || !pending_.count(keys[i]))) continue;
     *updated += move_chunk(map, keys[i], c);
   }
@@ -678,6 +683,35 @@ std::vector<ChunkKey> MapDeformation::pending_keys() const {
   for (const auto& kv : pending_) keys.push_back(kv.first);
   std::sort(keys.begin(), keys.end());
   return keys;
+}
+
+std::vector<PendingPoints> MapDeformation::pending() const {
+  std::vector<PendingPoints> out;
+  for (const ChunkKey& key : pending_keys())
+    for (const PendingGroup& g : pending_.at(key)) out.push_back({key, g.version, g.points});
+  return out;
+}
+
+Status MapDeformation::restore_pending(std::vector<PendingPoints> pending) {
+  std::sort(pending.begin(), pending.end(), [](const PendingPoints& a, const PendingPoints& b) {
+    return std::tie(a.key, a.version) < std::tie(b.key, b.version);
+  });
+  for (size_t i = 0; i < pending.size(); ++i) {
+    const PendingPoints& p = pending[i];
+    const std::string what = "points pending for chunk (" + std::to_string(p.key.x) + ", " +
+                             std::to_string(p.key.y) + ", " + std::to_string(p.key.z) +
+                             ") at version " + std::to_string(p.version);
+    if (p.version < oldest_version_ || p.version > version_)
+      return invalid_argument(what + ": outside the history kept (" +
+                              std::to_string(oldest_version_) + " to " + std::to_string(version_) +
+                              ")");
+    if (i > 0 && pending[i - 1].key == p.key && pending[i - 1].version == p.version)
+      return invalid_argument(what + ": given twice");
+  }
+  pending_.clear();
+  for (PendingPoints& p : pending)
+    if (!p.points.empty()) pending_[p.key].push_back({p.version, std::move(p.points)});
+  return Status::ok();
 }
 
 size_t MapDeformation::memory_bytes() const {

@@ -255,6 +255,72 @@ TEST(MapDeformation, PointsCrossingIntoAnEvictedChunkWaitUntilItIsLoaded) {
   expect_each_point_moved_once(s.original, s.map, s.deformation);
 }
 
+// A checkpoint stores the points waiting for a chunk as they are (pending()); a resumed scan's
+// deformation takes them back (restore_pending()) and moves them once, as if it had not stopped.
+TEST(MapDeformation, PendingPointsStoredAndRestoredMoveOnceAfterAResume) {
+  CrossingScene s;
+  Chunk stored;
+  s.map.extract(s.b, &stored);
+  s.deformation.set_stored_elsewhere([&](const ChunkKey& k) { return k == s.b; });
+  s.deformation.update(&s.map, {s.a});
+  const std::vector<PendingPoints> pending = s.deformation.pending();
+  ASSERT_EQ(pending.size(), 1u);
+  EXPECT_EQ(pending[0].key, s.b);
+  EXPECT_EQ(pending[0].version, 1u);
+  EXPECT_EQ(pending[0].points.size(), s.deformation.pending_points());
+
+  // The resumed process: the map as stored (a current, b evicted at version 0), the history and
+  // the pending points.
+  MapDeformation resumed;
+  ASSERT_TRUE(resumed.restore(s.deformation.history()).is_ok());
+  ASSERT_TRUE(resumed.restore_pending(pending).is_ok());
+  EXPECT_EQ(resumed.pending_points(), pending[0].points.size());
+  PointMap map(0.5);
+  map.insert(s.a, Chunk(*s.map.find(s.a)));
+  map.insert(s.b, std::move(stored));
+  resumed.update(&map, {s.b});
+  EXPECT_TRUE(resumed.pending_keys().empty());
+  expect_each_point_moved_once(s.original, map, resumed);
+}
+
+// Points pending for a chunk that is neither in memory nor stored elsewhere (its stored row had no
+// points) start the chunk when it is updated, rather than wait for ever.
+TEST(MapDeformation, PendingPointsWithoutTheirChunkStartIt) {
+  CrossingScene s;
+  s.deformation.update(&s.map, {s.a});
+  const std::vector<PendingPoints> pending = s.deformation.pending();
+  ASSERT_EQ(pending.size(), 1u);
+  MapDeformation resumed;
+  ASSERT_TRUE(resumed.restore(s.deformation.history()).is_ok());
+  ASSERT_TRUE(resumed.restore_pending(pending).is_ok());
+  PointMap map(0.5);
+  map.insert(s.a, Chunk(*s.map.find(s.a)));
+  resumed.update(&map, resumed.pending_keys());
+  ASSERT_NE(map.find(s.b), nullptr);
+  EXPECT_EQ(map.find(s.b)->points().size(), pending[0].points.size());
+  EXPECT_EQ(map.find(s.b)->version, resumed.version());
+}
+
+TEST(MapDeformation, PendingPointsOutsideTheHistoryAreRefused) {
+  CrossingScene s;
+  s.deformation.update(&s.map, {s.a});
+  std::vector<PendingPoints> pending = s.deformation.pending();
+  ASSERT_EQ(pending.size(), 1u);
+  MapDeformation resumed;
+  ASSERT_TRUE(resumed.restore(s.deformation.history()).is_ok());
+  pending[0].version = 2;  // the history ends at 1
+  Status st = resumed.restore_pending(pending);
+  EXPECT_EQ(st.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(st.message().find("points pending for chunk (1, 0, 0) at version 2: outside the history"),
+            std::string::npos)
+      << st.message();
+  pending[0].version = 1;
+  pending.push_back(pending[0]);
+  st = resumed.restore_pending(pending);
+  EXPECT_NE(st.message().find("given twice"), std::string::npos) << st.message();
+  EXPECT_EQ(resumed.pending_points(), 0u);
+}
+
 // (c) The lazy path through process(): the frame's chunks follow before it is registered, the
 // other chunks over the next frames, nearest first, within the per-frame budget.
 TEST(MapDeformation, ProcessBringsTheViewUpToDateAndSweepsTheRestWithinItsBudget) {

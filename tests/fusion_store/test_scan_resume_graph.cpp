@@ -2,10 +2,10 @@
 // the analytic corner through ScanSession (the fusion daemon's path over the SQLite sink) goes out
 // along an arc and back, so that the way back closes a loop; it is checkpointed after the closure
 // (a periodic checkpoint, written in the background) and its process is killed with SIGKILL a few
-// frames later. A new session resumes the file: the
-// graph (keyframes, edges, version), the map's deformation version and the chunks (versions,
-// points) are what the checkpoint held, and a further closure after the resume moves the poses and
-// points fused before the crash.
+// frames later. A new session resumes the file: the graph (keyframes, edges, version), the map's
+// deformation version, the chunks (versions, points) and the points waiting for chunks that had
+// not followed the correction are what the checkpoint held, and a further closure after the resume
+// moves the poses and points fused before the crash.
 #include <gtest/gtest.h>
 #include <signal.h>
 #include <sys/wait.h>
@@ -107,7 +107,23 @@ struct Held {
   std::vector<Eigen::Vector3d> trajectory;  // the camera's positions, corrected, frame by frame
   // key -> version, points, sum of the points' coordinates
   std::map<std::tuple<int, int, int>, std::tuple<uint32_t, size_t, double>> chunks;
+  // The points waiting for their chunk to follow a correction: key and version -> points, sum.
+  std::map<std::tuple<int, int, int, uint32_t>, std::pair<size_t, double>> pending;
 };
+
+double coordinate_sum(const PointArrays& a) {
+  double sum = 0;
+  for (size_t i = 0; i < a.size(); ++i) sum += a.position_m[i].cast<double>().sum();
+  return sum;
+}
+
+std::map<std::tuple<int, int, int, uint32_t>, std::pair<size_t, double>> pending_of(
+    const std::vector<PendingPoints>& pending) {
+  std::map<std::tuple<int, int, int, uint32_t>, std::pair<size_t, double>> out;
+  for (const PendingPoints& p : pending)
+    out[{p.key.x, p.key.y, p.key.z, p.version}] = {p.points.size(), coordinate_sum(p.points)};
+  return out;
+}
 
 void write_held(const std::string& path, const Held& h) {
   std::ofstream out(path);
@@ -126,6 +142,10 @@ void write_held(const std::string& path, const Held& h) {
   for (const auto& [key, v] : h.chunks)
     out << std::get<0>(key) << " " << std::get<1>(key) << " " << std::get<2>(key) << " "
         << std::get<0>(v) << " " << std::get<1>(v) << " " << std::get<2>(v) << "\n";
+  out << h.pending.size() << "\n";
+  for (const auto& [key, v] : h.pending)
+    out << std::get<0>(key) << " " << std::get<1>(key) << " " << std::get<2>(key) << " "
+        << std::get<3>(key) << " " << v.first << " " << v.second << "\n";
 }
 
 Held read_held(const std::string& path) {
@@ -154,6 +174,16 @@ Held read_held(const std::string& path) {
     in >> x >> y >> z >> version >> points >> sum;
     h.chunks[{x, y, z}] = {version, points, sum};
   }
+  size_t pending = 0;
+  in >> pending;
+  for (size_t p = 0; p < pending; ++p) {
+    int x, y, z;
+    uint32_t version;
+    size_t points;
+    double sum;
+    in >> x >> y >> z >> version >> points >> sum;
+    h.pending[{x, y, z, version}] = {points, sum};
+  }
   return h;
 }
 
@@ -170,12 +200,6 @@ void expect_inspect_names(const std::string& dir, const std::string& scan, const
   EXPECT_EQ(run_command({bin("depthfuse"), "inspect", copy}, dir + "/" + name + ".log", &out), 1)
       << out;
   EXPECT_NE(out.find(what), std::string::npos) << out;
-}
-
-double coordinate_sum(const PointArrays& a) {
-  double sum = 0;
-  for (size_t i = 0; i < a.size(); ++i) sum += a.position_m[i].cast<double>().sum();
-  return sum;
 }
 
 // The child: out along the arc and back until the loop closes, a checkpoint, what it held written
@@ -213,6 +237,7 @@ double coordinate_sum(const PointArrays& a) {
     if (!c.points().empty())
       h.chunks[{key.x, key.y, key.z}] = {c.version, c.points().size(), coordinate_sum(c.points())};
   });
+  h.pending = pending_of(session.reconstructor()->deformation().pending());
   write_held(held_path, h);
   // Fused, not checkpointed: lost with the process, or (with the frame log) logged and replayed.
   walk.go(2, 6, 0.75);
@@ -241,6 +266,9 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
   ASSERT_GE(held.loops, 1u);
   ASSERT_GE(held.graph_version, 1u);
   ASSERT_FALSE(held.chunks.empty());
+  // The checkpoint came a frame after the correction, with the deformation's sweep far from done:
+  // points wait for chunks that have not followed it, and the checkpoint stores them as they are.
+  EXPECT_FALSE(held.pending.empty());
 
   // The file as a reader sees it: the graph, and every chunk's version and points.
   std::vector<uint32_t> stored_frames;
@@ -258,6 +286,17 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
       ++compared;
     }
     EXPECT_EQ(compared, held.chunks.size());
+    // The points waiting for chunks that had not followed the correction, as they were.
+    auto pending = (*reader)->read_pending();
+    ASSERT_TRUE(pending.is_ok()) << pending.status().to_string();
+    const auto stored_pending = pending_of(*pending);
+    ASSERT_EQ(stored_pending.size(), held.pending.size());
+    for (const auto& [key, v] : held.pending) {
+      const auto it = stored_pending.find(key);
+      ASSERT_NE(it, stored_pending.end());
+      EXPECT_EQ(it->second.first, v.first);
+      EXPECT_NEAR(it->second.second, v.second, 1e-6);
+    }
     // The stored poses are the corrected ones, the session's at the checkpoint.
     auto poses = (*reader)->read_poses();
     ASSERT_TRUE(poses.is_ok());
@@ -309,6 +348,14 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
     EXPECT_NEAR(coordinate_sum(c.points()), std::get<2>(it->second), 1e-6) << store::to_string(key);
   });
   EXPECT_GT(resident, 0u);
+  const auto resumed_pending = pending_of(session.reconstructor()->deformation().pending());
+  ASSERT_EQ(resumed_pending.size(), held.pending.size());
+  for (const auto& [key, v] : held.pending) {
+    const auto it = resumed_pending.find(key);
+    ASSERT_NE(it, resumed_pending.end());
+    EXPECT_EQ(it->second.first, v.first);
+    EXPECT_NEAR(it->second.second, v.second, 1e-6);
+  }
   // The trajectory knows its frames: a correction after the resume moves every pose from before
   // the crash with its keyframe (the last keyframe at or before the frame).
   ASSERT_EQ(session.trajectory().size(), stored_frames.size());

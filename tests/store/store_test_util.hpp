@@ -266,10 +266,13 @@ inline void exec_sql(const std::string& path, const std::string& sql) {
   sqlite3_close(db);
 }
 
+// SQL that turns a file of the current schema into what schema 7 wrote: no pending points table.
+inline std::string as_schema_7_sql() { return "DROP TABLE chunk_pending; PRAGMA user_version = 7;"; }
+
 // SQL that turns a file of the current schema into what schema 6 wrote: every stored pose in the
 // world frame, no graph_keyframe columns, user_version 6.
 inline std::string as_schema_6_sql() {
-  return "DROP INDEX poses_in_world; DROP INDEX keyframes_in_world; "
+  return as_schema_7_sql() + "DROP INDEX poses_in_world; DROP INDEX keyframes_in_world; "
          "ALTER TABLE poses DROP COLUMN graph_keyframe; "
          "ALTER TABLE keyframes DROP COLUMN graph_keyframe; PRAGMA user_version = 6;";
 }

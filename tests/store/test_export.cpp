@@ -373,6 +373,7 @@ double mean_error_m(const std::string& path, const std::vector<Pose>& truth) {
   return ate ? ate->rmse_m : 0.0;
 }
 
+
 }  // namespace
 
 TEST(Refine, ReRegistersTheKeyframesAndWritesACheckpoint) {
@@ -466,4 +467,92 @@ TEST(Export, AChunkStoredBeforeACorrectionIsExportedWhereItsKeyframeMoved) {
   for (size_t i = 0; i < cloud->size(); ++i)
     EXPECT_LT((cloud->position_m[i] - chunk.points().position_m[i] - Eigen::Vector3f(0.05f, 0, 0)).norm(), 1e-5f)
         << "point " << i;
+}
+
+// Points a correction moved into a chunk that had not followed it yet are stored as they are
+// (chunk_pending), each with the version it was moved to: read back exactly, replaced whole by the
+// next checkpoint, checked by inspect, and exported where the graph's current version puts them.
+TEST(Export, PointsPendingForAChunkAreStoredAndExportedWhereTheirKeyframeMoved) {
+  TempDir dir;
+  const std::string scan = dir.file("pending.db");
+  const ChunkKey key{0, 0, 0}, waiting{1, 0, 0};
+  Chunk chunk;
+  chunk.points_for_write() = make_points(key, 1, 50);
+  Pose moved = Pose::Identity();
+  moved.translation() = Eigen::Vector3d(0.05, 0.0, 0.0);
+  // Pending from version 0 (moved by the correction to version 1 when exported) and from version 1.
+  const std::vector<PendingPoints> pending = {{waiting, 0, make_points(waiting, 2, 30)},
+                                              {waiting, 1, make_points(waiting, 3, 20)}};
+  auto s = ScanStore::open(scan, OpenMode::kCreate);
+  ASSERT_TRUE(s);
+  ASSERT_TRUE((*s)->begin_checkpoint());
+  ASSERT_TRUE((*s)->write_chunk(key, chunk));
+  GraphCheckpoint g;
+  GraphKeyframe k;
+  k.frame_id = 1;
+  k.T_world_kf = moved;
+  k.cloud = std::make_shared<const KeyframeCloud>();
+  g.graph.keyframes.push_back(k);
+  g.graph.version = 1;
+  g.deformation.keyframe_first_frame = {1};
+  g.deformation.oldest_version = 0;
+  g.deformation.T_world_kf = {{Pose::Identity()}, {moved}};
+  g.deformation.max_motion_m = {0.0, 0.05};
+  ASSERT_TRUE((*s)->write_graph(g));
+  ASSERT_TRUE((*s)->write_pending(pending));
+  ASSERT_TRUE((*s)->commit_checkpoint(CheckpointInfo{}));
+
+  auto read = (*s)->read_pending();
+  ASSERT_TRUE(read) << read.status().to_string();
+  ASSERT_EQ(read->size(), 2u);
+  for (size_t i = 0; i < 2; ++i) {
+    EXPECT_EQ((*read)[i].key, waiting);
+    EXPECT_EQ((*read)[i].version, pending[i].version);
+    ASSERT_EQ((*read)[i].points.size(), pending[i].points.size());
+    for (size_t j = 0; j < pending[i].points.size(); ++j)
+      ASSERT_EQ((*read)[i].points.position_m[j], pending[i].points.position_m[j]);
+  }
+  auto integrity = (*s)->integrity_check();
+  ASSERT_TRUE(integrity);
+  EXPECT_TRUE(integrity->ok()) << integrity->problems.front();
+  EXPECT_EQ(integrity->pending_rows_checked, 2u);
+  auto summary = (*s)->summary();
+  ASSERT_TRUE(summary);
+  EXPECT_EQ(summary->pending_rows, 2u);
+  EXPECT_EQ(summary->pending_points, 50u);
+
+  const std::string out = dir.file("out.ply");
+  ASSERT_TRUE(export_cloud(**s, out, ExportOptions{}));
+  auto cloud = read_ply(out);
+  ASSERT_TRUE(cloud) << cloud.status().to_string();
+  ASSERT_EQ(cloud->size(), 100u);
+  // The chunk's points first, then the pending ones by key and version; those stored at version 0
+  // moved with keyframe 0.
+  const Eigen::Vector3f shift(0.05f, 0, 0);
+  for (size_t i = 0; i < 50; ++i)
+    EXPECT_LT((cloud->position_m[i] - chunk.points().position_m[i] - shift).norm(), 1e-5f);
+  for (size_t i = 0; i < 30; ++i)
+    EXPECT_LT((cloud->position_m[50 + i] - pending[0].points.position_m[i] - shift).norm(), 1e-5f);
+  for (size_t i = 0; i < 20; ++i)
+    EXPECT_LT((cloud->position_m[80 + i] - pending[1].points.position_m[i]).norm(), 1e-6f);
+
+  // A damaged row is named by inspect and stops the export.
+  const std::string damaged = dir.file("damaged.db");
+  ASSERT_TRUE((*s)->copy_to(damaged));
+  test::exec_sql(damaged, "UPDATE chunk_pending SET point_count = point_count + 1 WHERE version = 1;");
+  const std::string what = "points pending for chunk (1,0,0) at version 1: checksum mismatch";
+  Proc r = run(cli() + " inspect " + damaged);
+  EXPECT_EQ(r.code, 1) << r.output;
+  EXPECT_NE(r.output.find(what), std::string::npos) << r.output;
+  r = run(cli() + " export " + damaged + " -o " + dir.file("damaged.ply"));
+  EXPECT_EQ(r.code, 1) << r.output;
+  EXPECT_NE(r.output.find(what), std::string::npos) << r.output;
+
+  // The next checkpoint replaces them: here the chunk followed and nothing waits any more.
+  ASSERT_TRUE((*s)->begin_checkpoint());
+  ASSERT_TRUE((*s)->write_pending(std::vector<PendingPoints>{}));
+  ASSERT_TRUE((*s)->commit_checkpoint(CheckpointInfo{}));
+  read = (*s)->read_pending();
+  ASSERT_TRUE(read);
+  EXPECT_TRUE(read->empty());
 }

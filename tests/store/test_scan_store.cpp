@@ -996,6 +996,37 @@ TEST(ScanStore, ACorrectionMovesTheStoredPosesWithoutRewritingTheirRows) {
   EXPECT_TRUE(integrity->ok()) << integrity->problems.front();
 }
 
+// A file of schema 7 has no table of pending points (its checkpoints brought their chunks up to
+// date first): a reader asks for the migration, a writer makes the table, and nothing is pending.
+TEST(ScanStore, ASchemaSevenFileGetsAnEmptyTableOfPendingPoints) {
+  TempDir dir;
+  const std::string path = dir.file("v7.db");
+  const ChunkKey a{0, 0, 0};
+  {
+    auto s = ScanStore::open(path, OpenMode::kCreate);
+    ASSERT_TRUE(s);
+    checkpoint(**s, {{a, make_points(a, 1, 100)}}, 10);
+  }
+  test::exec_sql(path, test::as_schema_7_sql());
+  auto reader = ScanStore::open(path, OpenMode::kReadOnly);
+  ASSERT_FALSE(reader);
+  EXPECT_NE(reader.status().message().find("schema version 7 is older"), std::string::npos)
+      << reader.status().message();
+  auto s = ScanStore::open(path, OpenMode::kReadWrite);
+  ASSERT_TRUE(s) << s.status().to_string();
+  EXPECT_EQ((*s)->open_report().found_schema_version, 7);
+  EXPECT_EQ((*s)->schema_version(), kSchemaVersion);
+  auto pending = (*s)->read_pending();
+  ASSERT_TRUE(pending) << pending.status().to_string();
+  EXPECT_TRUE(pending->empty());
+  auto chunk = (*s)->read_chunk(a);
+  ASSERT_TRUE(chunk);
+  EXPECT_EQ(chunk->chunk.points().size(), 100u);
+  auto integrity = (*s)->integrity_check();
+  ASSERT_TRUE(integrity);
+  EXPECT_TRUE(integrity->ok()) << integrity->problems.front();
+}
+
 // A file of schema 6 stored every pose in the world frame and rewrote them at each correction.
 // Migrated, its rows are anchored by the next checkpoint, the correction applied to them first.
 TEST(ScanStore, ASchemaSixFileHasItsPosesAnchoredByTheNextCheckpoint) {

@@ -46,6 +46,15 @@ struct DeformationHistory {
   std::vector<double> max_motion_m;
 };
 
+// Points a correction moved into a chunk that had not followed it yet (stale, or stored out of
+// memory), in the version they were moved to: they join the chunk when it is brought up to date.
+// The scan file keeps them (MapDeformation::pending(), restore_pending()).
+struct PendingPoints {
+  ChunkKey key;
+  uint32_t version = 0;
+  PointArrays points;
+};
+
 class MapDeformation {
  public:
   // point_range_m: how far from its keyframe's camera a point lies at most (the sensor's range and
@@ -139,9 +148,14 @@ class MapDeformation {
   void set_stored_elsewhere(std::function<bool(const ChunkKey&)> is_stored) {
     stored_elsewhere_ = std::move(is_stored);
   }
-  // The chunks with points pending, in key order (a checkpoint puts them in their chunks first:
-  // the scan file has no pending buffers).
+  // The chunks with points pending, in key order.
   std::vector<ChunkKey> pending_keys() const;
+  // A copy of the points pending, by key then version (a checkpoint stores them as they are, so
+  // that it need not bring their chunks up to date first).
+  std::vector<PendingPoints> pending() const;
+  // After restore(): the points pending as a checkpoint stored them. An error (a version outside
+  // the history kept, the same key and version twice) changes nothing.
+  Status restore_pending(std::vector<PendingPoints> pending);
   // Drops the poses of versions before `version` (at most the current one). Returns how many.
   size_t forget_versions_before(uint32_t version);
 

@@ -74,9 +74,16 @@ void CheckpointWriter::encode_loop() {
       chunk = Chunk();  // fusion need not copy it to change it any more
     }
     std::vector<std::pair<ChunkKey, Chunk>>().swap(job.chunks);
+    std::vector<EncodedChunk> pending(job.pending.size());
+    for (size_t i = 0; i < job.pending.size() && st; ++i) {
+      st = encode_pending(codec_, job.pending[i], &pending[i]);
+      bytes += pending[i].blob.capacity();
+    }
+    std::vector<PendingPoints>().swap(job.pending);
     const int64_t t1 = steady_ns();
     lock.lock();
     encoded_chunks_ = std::move(encoded);
+    encoded_pending_ = std::move(pending);
     encode_status_ = st;
     encode_seconds_ = static_cast<double>(t1 - t0) * 1e-9;
     chunks_parted_ = parted;
@@ -94,6 +101,7 @@ void CheckpointWriter::write_loop() {
     if (!job_) return;
     CheckpointJob& job = *job_;
     std::vector<EncodedChunk> encoded = std::move(encoded_chunks_);
+    std::vector<EncodedChunk> pending = std::move(encoded_pending_);
     Status st = encode_status_;
     writing_ = true;
     lock.unlock();
@@ -108,6 +116,7 @@ void CheckpointWriter::write_loop() {
             job.poses, job.corrections,
             job.graph ? job.graph->graph.keyframes : std::vector<GraphKeyframe>{}));
         if (job.graph) DF_RETURN_IF_ERROR(store_->write_graph(*job.graph));
+        DF_RETURN_IF_ERROR(store_->write_pending(pending));
         return Status::ok();
       };
       st = body();
@@ -120,6 +129,7 @@ void CheckpointWriter::write_loop() {
     if (!st) out.record = st;
     out.write_seconds = static_cast<double>(steady_ns() - t1) * 1e-9;
     std::vector<EncodedChunk>().swap(encoded);
+    std::vector<EncodedChunk>().swap(pending);
     lock.lock();
     out.encode_seconds = encode_seconds_;
     out.chunks_parted = chunks_parted_;

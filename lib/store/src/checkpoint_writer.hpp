@@ -37,6 +37,8 @@ struct CheckpointJob {
   // Loop closures applied since the last checkpoint, for the poses written before (after `poses`).
   std::vector<PoseCorrection> corrections;
   std::optional<GraphCheckpoint> graph;            // the pose graph at the snapshot
+  // The points pending for chunks that had not followed a correction (ScanStore::write_pending).
+  std::vector<PendingPoints> pending;
   CheckpointInfo info;
   int64_t snapshot_ns = 0;                         // steady clock, when the snapshot was taken
 };
@@ -81,7 +83,7 @@ class CheckpointWriter {
   std::optional<CheckpointJob> job_;        // in flight
   // Of job_: its chunks encoded (the encoder is done with it), its transaction open.
   bool encoded_ = false, writing_ = false;
-  std::vector<EncodedChunk> encoded_chunks_;
+  std::vector<EncodedChunk> encoded_chunks_, encoded_pending_;
   Status encode_status_;
   double encode_seconds_ = 0.0;
   size_t chunks_parted_ = 0, encoded_bytes_ = 0;

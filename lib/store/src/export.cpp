@@ -72,6 +72,20 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
   if (options.skip_damaged)
     filter.on_damaged = [&](const Status& st) { report.damaged.push_back(st.message()); };
 
+  // Points a correction moved into chunks that had not followed it yet: written after the chunks,
+  // moved to the graph's version as stale chunks are.
+  std::vector<PendingPoints> pending;
+  std::string pending_damage;
+  if (auto read = store.read_pending(); read) {
+    pending = std::move(*read);
+  } else if (options.skip_damaged) {
+    pending_damage = read.status().message();
+  } else {
+    return read.status().with_context("exporting " + store.path());
+  }
+  for (PendingPoints& p : pending)
+    if (p.version < deformation.version()) deformation.move_in_place(&p.points, p.version);
+
   // Pass 1: count what will be written (the header needs it). Without filters the rows' counts
   // suffice; pass 2 still checks every blob against its row.
   uint64_t count = 0;
@@ -84,6 +98,7 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
     copy = replacing->find(key)->points();
     count += select_points(copy, options, &keep);
   }
+  for (const PendingPoints& p : pending) count += select_points(p.points, options, &keep);
   if (options.min_merges == 0 && !options.bbox_m && !options.skip_damaged && !replacing) {
     auto chunks = store.list_chunks();
     if (!chunks) return chunks.status();
@@ -99,6 +114,7 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
         filter));
     report.damaged.clear();  // pass 2 reports them again
   }
+  if (!pending_damage.empty()) report.damaged.push_back(pending_damage);
 
   PointCloudWriter writer;
   Status st = writer.open(path, *format, CloudFields{options.with_color, options.with_fusion_stats},
@@ -124,6 +140,7 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
       copy = replacing->find(extra[i])->points();
       if (!copy.empty()) st = write(copy);
     }
+    for (size_t i = 0; i < pending.size() && st; ++i) st = write(pending[i].points);
   }
   Status closed = writer.finish();
   if (st) st = closed;

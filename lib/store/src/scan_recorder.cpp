@@ -173,6 +173,9 @@ Result<std::unique_ptr<ScanRecorder>> ScanRecorder::resume(const std::string& pa
   auto graph = store.read_graph();
   if (!graph) return graph.status().with_context("resuming");
   resume->graph = std::move(*graph);
+  auto pending = store.read_pending();
+  if (!pending) return pending.status().with_context("resuming");
+  resume->pending = std::move(*pending);
   auto log = store.frame_log_summary();
   if (!log) return log.status();
   resume->frame_log = *log;
@@ -411,6 +414,10 @@ bool ScanRecorder::checkpoint_in_background(PointMap* map, const std::string& re
   job.poses.swap(pending_poses_);
   job.corrections.swap(corrections_);
   if (graph_ && !graph_->empty()) job.graph = graph_;
+  if (pending_source_) job.pending = pending_source_();
+  size_t points_pending = 0;
+  const size_t pending_rows = job.pending.size();
+  for (const PendingPoints& p : job.pending) points_pending += p.points.size();
   status_.pending_poses = 0;
   if (!writer_) {
     auto connection = store_->another_connection(config_.store);
@@ -428,7 +435,9 @@ bool ScanRecorder::checkpoint_in_background(PointMap* map, const std::string& re
   // The fusion thread's share of a background checkpoint.
   DF_LOG(Store, Debug) << "checkpoint to frame " << last_frame_id_ << ": " << chunks_shared
                        << " chunks (" << points_shared << " points) shared in "
-                       << (shared_ns - t0_ns) / 1000000 << " ms, handed over in "
+                       << (shared_ns - t0_ns) / 1000000 << " ms, " << points_pending
+                       << " points pending for " << pending_rows
+                       << " chunk versions copied, handed over in "
                        << (end_ns - start_ns) / 1000000 << " ms";
   return true;
 }
@@ -516,6 +525,8 @@ Result<CheckpointRecord> ScanRecorder::write_checkpoint(PointMap* map, const std
         pending_poses_, corrections_,
         graph_ && !graph_->empty() ? graph_->graph.keyframes : std::vector<GraphKeyframe>{}));
     if (graph_ && !graph_->empty()) DF_RETURN_IF_ERROR(store.write_graph(*graph_));
+    DF_RETURN_IF_ERROR(
+        store.write_pending(pending_source_ ? pending_source_() : std::vector<PendingPoints>{}));
     return Status::ok();
   };
   st = body();

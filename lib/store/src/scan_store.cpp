@@ -42,9 +42,19 @@ Frame Keyframe::to_frame() const {
   return f;
 }
 
-std::string select_chunks(bool staged, const char* last) {
-  return std::string("SELECT ") + kChunkColumns + ", " + (staged ? "0" : "checkpoint_id") + ", " +
-         last + " FROM " + (staged ? "chunk_staging" : "chunks");
+const char* table_name(ChunkTable table) {
+  switch (table) {
+    case ChunkTable::kChunks: return "chunks";
+    case ChunkTable::kStaging: return "chunk_staging";
+    case ChunkTable::kPending: return "chunk_pending";
+  }
+  return "";
+}
+
+std::string select_chunks(ChunkTable table, const char* last) {
+  return std::string("SELECT ") + kChunkColumns + ", " +
+         (table == ChunkTable::kStaging ? "0" : "checkpoint_id") + ", " + last + " FROM " +
+         table_name(table);
 }
 
 ChunkInfo chunk_info_of(const sql::Row& row) {
@@ -112,18 +122,29 @@ Status encode_chunk(BlobCodec& codec, const ChunkKey& key, const Chunk& chunk, E
   return codec.encode_points(chunk.points(), &out->blob).with_context("encoding chunk " + to_string(key));
 }
 
-Status ScanStore::Impl::write_chunk_row(bool staged, const ChunkKey& key, const Chunk& chunk,
-                                        int64_t last_column) {
-  DF_RETURN_IF_ERROR(encode_chunk(codec, key, chunk, &encoded).with_context(path));
-  return write_chunk_row(staged, encoded, last_column);
+Status encode_pending(BlobCodec& codec, const PendingPoints& pending, EncodedChunk* out) {
+  out->key = pending.key;
+  out->point_count = static_cast<uint32_t>(pending.points.size());
+  out->bounds_m = bounds_of(pending.points);
+  out->last_touched_frame = 0;
+  out->version = pending.version;
+  return codec.encode_points(pending.points, &out->blob)
+      .with_context("encoding the points pending for chunk " + to_string(pending.key));
 }
 
-Status ScanStore::Impl::write_chunk_row(bool staged, const EncodedChunk& chunk, int64_t last_column) {
+Status ScanStore::Impl::write_chunk_row(ChunkTable table, const ChunkKey& key, const Chunk& chunk,
+                                        int64_t last_column) {
+  DF_RETURN_IF_ERROR(encode_chunk(codec, key, chunk, &encoded).with_context(path));
+  return write_chunk_row(table, encoded, last_column);
+}
+
+Status ScanStore::Impl::write_chunk_row(ChunkTable table, const EncodedChunk& chunk,
+                                        int64_t last_column) {
   const ChunkKey& key = chunk.key;
   const Eigen::AlignedBox3f& box = chunk.bounds_m;
   const std::string sql =
-      std::string("INSERT OR REPLACE INTO ") + (staged ? "chunk_staging (" : "chunks (") +
-      kChunkColumns + (staged ? ", staged_utime" : ", checkpoint_id") +
+      std::string("INSERT OR REPLACE INTO ") + table_name(table) + " (" + kChunkColumns +
+      (table == ChunkTable::kStaging ? ", staged_utime" : ", checkpoint_id") +
       ", data) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?);";
   auto st = db.prepare(sql, "writing chunk " + to_string(key));
   if (!st) return st.status();
@@ -160,12 +181,16 @@ Status ScanStore::Impl::delete_chunk_rows(const ChunkKey& key, bool committed) {
   return run("DELETE FROM chunks" + where + ";", false);
 }
 
-Status ScanStore::Impl::decode_chunk_row(const sql::Row& row, bool staged, StoredChunk* out) {
+Status ScanStore::Impl::decode_chunk_row(const sql::Row& row, ChunkTable table, StoredChunk* out) {
   ChunkInfo& info = out->info;
   info = chunk_info_of(row);
   info.blob_bytes = row.blob_size(ChunkCol::kData);
-  const std::string what = path + ": " + (staged ? "staged chunk " : "chunk ") +
-                           to_string(info.key);
+  const std::string what =
+      path + ": " +
+      (table == ChunkTable::kPending
+           ? "points pending for chunk " + to_string(info.key) + " at version " +
+                 std::to_string(info.version)
+           : (table == ChunkTable::kStaging ? "staged chunk " : "chunk ") + to_string(info.key));
   DF_RETURN_IF_ERROR(check_row_checksum(
       row, ChunkCol::kChecksum,
       chunk_row_checksum(info.key, info.point_count, info.last_touched_frame, info.version), what));

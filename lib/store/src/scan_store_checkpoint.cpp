@@ -98,7 +98,7 @@ Status ScanStore::write_chunk(const EncodedChunk& chunk) {
   // An empty chunk has no row.
   DF_RETURN_IF_ERROR(s.delete_chunk_rows(chunk.key, /*committed=*/chunk.point_count == 0));
   if (chunk.point_count == 0) return Status::ok();
-  return s.write_chunk_row(/*staged=*/false, chunk, s.checkpoint_id);
+  return s.write_chunk_row(ChunkTable::kChunks, chunk, s.checkpoint_id);
 }
 
 Status ScanStore::delete_chunk(const ChunkKey& key) {
@@ -111,7 +111,27 @@ Status ScanStore::delete_all_chunks() {
   Impl& s = *impl_;
   if (!s.in_checkpoint) return invalid_argument(s.path + ": delete_all_chunks outside a checkpoint");
   DF_RETURN_IF_ERROR(s.db.exec("DELETE FROM chunk_staging;", "deleting chunks"));
+  DF_RETURN_IF_ERROR(s.db.exec("DELETE FROM chunk_pending;", "deleting pending points"));
   return s.db.exec("DELETE FROM chunks;", "deleting chunks");
+}
+
+Status ScanStore::write_pending(const std::vector<EncodedChunk>& pending) {
+  Impl& s = *impl_;
+  if (!s.in_checkpoint) return invalid_argument(s.path + ": write_pending outside a checkpoint");
+  // Rewritten whole: the points come and go with the deformation's sweep, a few chunks' worth.
+  DF_RETURN_IF_ERROR(s.db.exec("DELETE FROM chunk_pending;", "replacing the pending points"));
+  for (const EncodedChunk& p : pending)
+    if (p.point_count > 0)
+      DF_RETURN_IF_ERROR(s.write_chunk_row(ChunkTable::kPending, p, s.checkpoint_id));
+  return Status::ok();
+}
+
+Status ScanStore::write_pending(const std::vector<PendingPoints>& pending) {
+  Impl& s = *impl_;
+  std::vector<EncodedChunk> encoded(pending.size());
+  for (size_t i = 0; i < pending.size(); ++i)
+    DF_RETURN_IF_ERROR(encode_pending(s.codec, pending[i], &encoded[i]).with_context(s.path));
+  return write_pending(encoded);
 }
 
 Status ScanStore::write_pose(const PoseRecord& p) {
@@ -273,7 +293,7 @@ Status ScanStore::stage_chunks(const std::vector<std::pair<ChunkKey, const Chunk
   const int64_t t = now_utime();
   return s.in_transaction("staging evicted chunks", [&]() -> Status {
     for (const auto& [key, chunk] : chunks)
-      DF_RETURN_IF_ERROR(s.write_chunk_row(/*staged=*/true, key, *chunk, t));
+      DF_RETURN_IF_ERROR(s.write_chunk_row(ChunkTable::kStaging, key, *chunk, t));
     return Status::ok();
   });
 }

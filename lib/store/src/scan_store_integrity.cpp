@@ -66,12 +66,13 @@ void check_chunk_rows(ScanStore::Impl& s, IntegrityReport* rep) {
   if (!chunks_from) rep->problems.push_back(chunks_from.status().message());
   for (const bool staged : {false, true}) {
     StoredChunk c;
+    const ChunkTable table = staged ? ChunkTable::kStaging : ChunkTable::kChunks;
     check_rows(
-        s.db, select_chunks(staged, "data") + " ORDER BY x, y, z;",
+        s.db, select_chunks(table, "data") + " ORDER BY x, y, z;",
         staged ? "reading chunk_staging" : "reading chunks",
         [&](const sql::Row& row) {
           ++rep->chunks_checked;
-          DF_RETURN_IF_ERROR(s.decode_chunk_row(row, staged, &c));
+          DF_RETURN_IF_ERROR(s.decode_chunk_row(row, table, &c));
           if (!c.info.checksummed) {
             // Rows older than schema 6 have none; a staged one cannot be (a writer's open empties
             // the staging table after migrating).
@@ -182,6 +183,26 @@ void check_graph(ScanStore& store, ScanStore::Impl& s, IntegrityReport* rep) {
     if (!g) rep->problems.push_back(s.path + ": " + g.message());
     const Status d = deformation.restore((*graph)->deformation);
     if (!d) rep->problems.push_back(s.path + ": " + d.message());
+  }
+  // The points pending for chunks that had not followed a correction: every row checked, and
+  // their versions within the deformation's history, as a resume restores them.
+  auto pending = store.read_pending();
+  if (!pending) {
+    rep->problems.push_back(pending.status().message());
+    return;
+  }
+  rep->pending_rows_checked = pending->size();
+  if (pending->empty() || !graph) return;
+  if (!*graph) {
+    rep->problems.push_back(s.path + ": " + std::to_string(pending->size()) +
+                            " rows of points pending for a loop closure's correction, but the "
+                            "scan has no pose graph");
+    return;
+  }
+  MapDeformation deformation;
+  if (deformation.restore((*graph)->deformation)) {
+    const Status p = deformation.restore_pending(std::move(*pending));
+    if (!p) rep->problems.push_back(s.path + ": " + p.message());
   }
 }
 

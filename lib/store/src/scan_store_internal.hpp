@@ -178,9 +178,14 @@ static_assert(columns_at(kKeyframeColumns, KeyframeCol::kWidth, kIntrinsicsColum
 inline const std::string kCommittedFrames =
     "frame_id <= COALESCE((SELECT last_frame_id FROM checkpoints ORDER BY id DESC LIMIT 1), 0)";
 
-// "SELECT <chunk columns>, <checkpoint id>, <last> FROM <table>": the committed chunks, or the
-// staged ones (checkpoint id 0). `last` is the blob or an expression on it, e.g. length(data).
-std::string select_chunks(bool staged, const char* last);
+// The tables whose rows are chunks: the committed chunks, those the pager staged since, and the
+// points waiting for a chunk to follow a loop closure (one row per chunk and version).
+enum class ChunkTable { kChunks, kStaging, kPending };
+const char* table_name(ChunkTable table);
+
+// "SELECT <chunk columns>, <checkpoint id>, <last> FROM <table>" (a staged row's checkpoint id:
+// 0). `last` is the blob or an expression on it, e.g. length(data).
+std::string select_chunks(ChunkTable table, const char* last);
 
 // A chunk row's fields read with select_chunks(), except blob_bytes.
 ChunkInfo chunk_info_of(const sql::Row& row);
@@ -286,8 +291,9 @@ struct ScanStore::Impl {
   // scan_store.cpp
   Status set_meta(const std::vector<std::pair<std::string, std::string>>& kv);
   Result<std::optional<std::string>> get_meta(const std::string& key);
-  Status write_chunk_row(bool staged, const ChunkKey& key, const Chunk& chunk, int64_t last_column);
-  Status write_chunk_row(bool staged, const EncodedChunk& chunk, int64_t last_column);
+  Status write_chunk_row(ChunkTable table, const ChunkKey& key, const Chunk& chunk,
+                         int64_t last_column);
+  Status write_chunk_row(ChunkTable table, const EncodedChunk& chunk, int64_t last_column);
   // scan_store_checkpoint.cpp: a pose row, and a keyframe row's pose; `p.T_world_cam` and `T` are
   // as stored (T_kf_cam when anchored).
   Status write_pose_row(const PoseRecord& p, const PoseAnchor& anchor);
@@ -295,8 +301,8 @@ struct ScanStore::Impl {
   // Inside a checkpoint: deletes the staged copy of `key` unless a frame after the checkpoint's
   // touched it, and with `committed` the checkpointed row too.
   Status delete_chunk_rows(const ChunkKey& key, bool committed);
-  // Reads a row of select_chunks(staged, "data") and decodes its blob into `out`.
-  Status decode_chunk_row(const sql::Row& row, bool staged, StoredChunk* out);
+  // Reads a row of select_chunks(table, "data") and decodes its blob into `out`.
+  Status decode_chunk_row(const sql::Row& row, ChunkTable table, StoredChunk* out);
   // The first columns of a keyframe row (kKeyframeColumns): everything but the images, the
   // intrinsics valid, the checksum checked (`*unchecked` when the row has none) and the pose
   // decoded.

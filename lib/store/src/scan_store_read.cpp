@@ -78,7 +78,8 @@ Result<StoredChunk> ScanStore::read_chunk(const ChunkKey& key, bool include_stag
   Impl& s = *impl_;
   for (const bool staged : {true, false}) {
     if (staged && !include_staged) continue;
-    auto st = s.db.prepare(select_chunks(staged, "data") + " WHERE x = ? AND y = ? AND z = ?;",
+    const ChunkTable table = staged ? ChunkTable::kStaging : ChunkTable::kChunks;
+    auto st = s.db.prepare(select_chunks(table, "data") + " WHERE x = ? AND y = ? AND z = ?;",
                            "reading chunk " + to_string(key));
     if (!st) return st.status();
     st->bind(1, key.x).bind(2, key.y).bind(3, key.z);
@@ -86,7 +87,7 @@ Result<StoredChunk> ScanStore::read_chunk(const ChunkKey& key, bool include_stag
     if (!found) return found.status();
     if (!*found) continue;
     StoredChunk out;
-    DF_RETURN_IF_ERROR(s.decode_chunk_row(st->row(), staged, &out));
+    DF_RETURN_IF_ERROR(s.decode_chunk_row(st->row(), table, &out));
     return out;
   }
   return not_found(s.path + ": no chunk " + to_string(key));
@@ -98,7 +99,8 @@ Result<std::vector<ChunkInfo>> ScanStore::list_chunks(bool include_staged) {
   for (const bool staged : {false, true}) {
     if (staged && !include_staged) continue;
     auto rows = s.db.collect<ChunkInfo>(
-        select_chunks(staged, "length(data)") + " ORDER BY x, y, z;",
+        select_chunks(staged ? ChunkTable::kStaging : ChunkTable::kChunks, "length(data)") +
+            " ORDER BY x, y, z;",
         staged ? "listing staged chunks" : "listing chunks",
         [](const sql::Row& row) -> Result<ChunkInfo> {
           ChunkInfo info = chunk_info_of(row);
@@ -111,10 +113,25 @@ Result<std::vector<ChunkInfo>> ScanStore::list_chunks(bool include_staged) {
   return out;
 }
 
+Result<std::vector<PendingPoints>> ScanStore::read_pending() {
+  Impl& s = *impl_;
+  auto st = s.db.prepare(select_chunks(ChunkTable::kPending, "data") + " ORDER BY x, y, z, version;",
+                         "reading the pending points");
+  if (!st) return st.status();
+  std::vector<PendingPoints> out;
+  StoredChunk row;
+  for (const sql::Row& r : st->rows()) {
+    DF_RETURN_IF_ERROR(s.decode_chunk_row(r, ChunkTable::kPending, &row));
+    out.push_back({row.info.key, row.info.version, std::move(row.chunk.points_for_write())});
+  }
+  DF_RETURN_IF_ERROR(st->status());
+  return out;
+}
+
 Status ScanStore::for_each_chunk(const std::function<Status(const ChunkInfo&, PointArrays&)>& fn,
                                  const ChunkFilter& filter) {
   Impl& s = *impl_;
-  std::string sql = select_chunks(/*staged=*/false, "data");
+  std::string sql = select_chunks(ChunkTable::kChunks, "data");
   if (filter.bbox_m)
     sql += " WHERE max_x >= ? AND min_x <= ? AND max_y >= ? AND min_y <= ? AND max_z >= ? AND "
            "min_z <= ?";
@@ -129,7 +146,7 @@ Status ScanStore::for_each_chunk(const std::function<Status(const ChunkInfo&, Po
   }
   StoredChunk chunk;
   for (const sql::Row& row : st->rows()) {
-    Status decoded = s.decode_chunk_row(row, /*staged=*/false, &chunk);
+    Status decoded = s.decode_chunk_row(row, ChunkTable::kChunks, &chunk);
     if (!decoded) {
       if (!filter.on_damaged) return decoded;
       filter.on_damaged(decoded);
@@ -285,6 +302,10 @@ Result<StoreSummary> ScanStore::summary() {
                            &sum.checkpoint_count));
   DF_RETURN_IF_ERROR(count("SELECT COUNT(*) FROM chunk_staging;", "counting staged chunks",
                            &sum.staged_chunk_count));
+  DF_RETURN_IF_ERROR(count("SELECT COUNT(*) FROM chunk_pending;", "counting pending points",
+                           &sum.pending_rows));
+  DF_RETURN_IF_ERROR(count("SELECT COALESCE(SUM(point_count), 0) FROM chunk_pending;",
+                           "counting pending points", &sum.pending_points));
   auto last = last_checkpoint();
   if (!last) return last.status();
   sum.last_checkpoint = *last;

@@ -9,7 +9,7 @@
 namespace depthfuse::store::schema {
 
 const char* const kTables[] = {"meta", "checkpoints", "chunks", "chunk_staging", "poses",
-                               "keyframes", "frame_log", "graph_keyframes", "graph", nullptr};
+                               "keyframes", "frame_log", "graph_keyframes", "graph", "chunk_pending", nullptr};
 
 namespace {
 
@@ -270,6 +270,31 @@ PRAGMA user_version = 7;
 )sql", ctx);
 }
 
+// Schema 7 -> 8: the points a loop closure moved into chunks that had not followed it yet (the
+// map deformation's pending buffers; docs/checkpoint-format.md, `chunk_pending`). Before, every
+// checkpoint brought those chunks up to date first, loading evicted ones: the fusion thread's time,
+// hundreds of milliseconds while the deformation's sweep ran. The rows have the chunks' columns;
+// a chunk may have points pending from several versions.
+Status migrate_7_to_8(sql::Database& db) {
+  return db.exec(R"sql(
+CREATE TABLE chunk_pending (
+  x INTEGER NOT NULL,
+  y INTEGER NOT NULL,
+  z INTEGER NOT NULL,
+  point_count INTEGER NOT NULL,
+  min_x REAL, min_y REAL, min_z REAL,
+  max_x REAL, max_y REAL, max_z REAL,
+  last_touched_frame INTEGER NOT NULL,
+  version INTEGER NOT NULL,
+  checksum INTEGER NOT NULL,
+  checkpoint_id INTEGER NOT NULL,
+  data BLOB NOT NULL,
+  PRIMARY KEY (x, y, z, version)
+);
+PRAGMA user_version = 8;
+)sql", "migrating schema 7 to 8");
+}
+
 }  // namespace
 
 Status create_current(sql::Database& db) {
@@ -283,13 +308,14 @@ Status create_current(sql::Database& db) {
   DF_RETURN_IF_ERROR(migrate_4_to_5(db));
   DF_RETURN_IF_ERROR(migrate_5_to_6(db));
   DF_RETURN_IF_ERROR(migrate_6_to_7(db));
+  DF_RETURN_IF_ERROR(migrate_7_to_8(db));
   DF_RETURN_IF_ERROR(db.exec("PRAGMA application_id = " + std::to_string(kApplicationId) + ";", ctx));
   DF_RETURN_IF_ERROR(db.exec("PRAGMA user_version = " + std::to_string(kSchemaVersion) + ";", ctx));
   return Status::ok();
 }
 
 Status migrate(sql::Database& db, int from_version) {
-  static_assert(kSchemaVersion == 7, "add the migration step to the new version here");
+  static_assert(kSchemaVersion == 8, "add the migration step to the new version here");
   int v = from_version;
   if (v == 1) {
     DF_RETURN_IF_ERROR(migrate_1_to_2(db));
@@ -314,6 +340,10 @@ Status migrate(sql::Database& db, int from_version) {
   if (v == 6) {
     DF_RETURN_IF_ERROR(migrate_6_to_7(db));
     v = 7;
+  }
+  if (v == 7) {
+    DF_RETURN_IF_ERROR(migrate_7_to_8(db));
+    v = 8;
   }
   if (v != kSchemaVersion)
     return unsupported(db.path() + ": no migration from schema version " +

@@ -9,6 +9,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -137,6 +138,9 @@ struct ResumePoint {
   // The checkpoint's pose graph and map deformation (none: the scan has none). The map's chunks
   // carry their versions.
   std::optional<GraphCheckpoint> graph;
+  // The points the checkpoint held pending for chunks that had not followed a correction
+  // (MapDeformation::restore_pending() after the graph's deformation is restored).
+  std::vector<PendingPoints> pending;
 };
 
 // What ScanRecorder::restore_keyframes() did.
@@ -210,6 +214,13 @@ class ScanRecorder {
   // transaction as the chunks: a resume finds the two agreeing. An empty graph (no keyframes yet,
   // or a scan without loop closure) is not written.
   void set_graph(GraphCheckpoint graph) { graph_ = std::move(graph); }
+  // Where the points pending for chunks that have not followed a loop closure yet come from (the
+  // map's deformation: MapDeformation::pending()). Every checkpoint stores them as they are at its
+  // snapshot, beside the chunks, so that none has to bring those chunks up to date first. None
+  // set: nothing is pending.
+  void set_pending_points(std::function<std::vector<PendingPoints>()> source) {
+    pending_source_ = std::move(source);
+  }
   // A loop closure applied before frame `before_frame` was fused: the poses (and keyframe poses)
   // of the frames before it move with their keyframes, in the file at the next checkpoint.
   void poses_corrected(const AppliedCorrection& correction, uint32_t before_frame);
@@ -275,6 +286,7 @@ class ScanRecorder {
   std::vector<PoseRecord> pending_poses_;
   std::vector<PoseCorrection> corrections_;  // since the last checkpoint, oldest first
   std::optional<GraphCheckpoint> graph_;
+  std::function<std::vector<PendingPoints>()> pending_source_;
   std::vector<Keyframe> pending_keyframes_;  // taken while the writer held the store
   std::vector<ChunkKey> resident_at_checkpoint_;  // to notice chunks removed from the map
   uint32_t last_frame_id_ = 0;

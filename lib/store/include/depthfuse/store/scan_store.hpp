@@ -27,6 +27,7 @@
 #include <Eigen/Geometry>
 
 #include "depthfuse/frame_path.hpp"
+#include "depthfuse/map_deformation.hpp"
 #include "depthfuse/point_map.hpp"
 #include "depthfuse/scan_graph.hpp"
 #include "depthfuse/status.hpp"
@@ -35,7 +36,7 @@
 
 namespace depthfuse::store {
 
-constexpr int kSchemaVersion = 7;                 // PRAGMA user_version of files written now
+constexpr int kSchemaVersion = 8;                 // PRAGMA user_version of files written now
 constexpr int32_t kApplicationId = 0x44465343;    // PRAGMA application_id: "DFSC"
 
 enum class OpenMode {
@@ -120,6 +121,9 @@ struct EncodedChunk {
   std::vector<uint8_t> blob;                 // DFB1 points
 };
 Status encode_chunk(BlobCodec& codec, const ChunkKey& key, const Chunk& chunk, EncodedChunk* out);
+// Points pending for a chunk (MapDeformation::pending()), encoded as a chunk row of their version
+// (last_touched_frame 0).
+Status encode_pending(BlobCodec& codec, const PendingPoints& pending, EncodedChunk* out);
 
 // One fused frame of the frame redo log, encoded: what replaying it needs. Its pose is the one it
 // was fused at (no tracking on replay), its depth and colour the DFB1 blobs of keyframes.
@@ -214,6 +218,9 @@ struct StoreSummary {
   std::optional<GraphSummary> graph;         // none: the scan has no pose graph (or a damaged one)
   std::string graph_problem;                 // why the graph could not be read; empty when it could
   size_t staged_chunk_count = 0;             // evicted since the last checkpoint
+  // Points waiting for their chunk to follow a correction (rows: chunk and version).
+  size_t pending_rows = 0;
+  uint64_t pending_points = 0;
   uint64_t chunk_bytes = 0, keyframe_bytes = 0;  // stored blob sizes
   uint64_t file_bytes = 0, wal_bytes = 0;
 };
@@ -223,6 +230,7 @@ struct IntegrityReport {
   std::vector<std::string> problems;         // each names the table/row/column at fault
   size_t chunks_checked = 0, keyframes_checked = 0, poses_checked = 0;
   size_t graph_keyframes_checked = 0;        // the pose graph's keyframe rows
+  size_t pending_rows_checked = 0;           // points pending for a correction (chunk_pending)
   // Of chunks_checked: rows written before schema 6, without a checksum (and at version 0).
   size_t chunks_unchecked = 0;
   // Of poses_checked: rows written before schema 3, without a checksum. Their pose decodes (96
@@ -311,6 +319,13 @@ class ScanStore {
   // The last checkpoint's graph, every row's checksum and blob checked (kCorrupt naming the row);
   // none when the scan has none.
   Result<std::optional<GraphCheckpoint>> read_graph();
+  // Inside a checkpoint: the points pending for chunks that had not followed the graph's last
+  // correction (MapDeformation::pending(), encoded), replacing those stored.
+  Status write_pending(const std::vector<EncodedChunk>& pending);
+  Status write_pending(const std::vector<PendingPoints>& pending);  // encoded here
+  // The last checkpoint's pending points, by key then version, every row checked (kCorrupt naming
+  // it).
+  Result<std::vector<PendingPoints>> read_pending();
   Result<std::optional<GraphSummary>> graph_summary();
 
   // ---- The frame redo log (scan_store_frame_log.cpp). Records are appended in one transaction
