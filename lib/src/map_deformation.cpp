@@ -409,6 +409,9 @@ size_t MapDeformation::run_merge(PointMap* map, const MergeJob& job) {
   if (!c) return 0;  // evicted since: its surfaces stay as they are
   Scratch& s = *scratch_;
   const PointArrays& a = c->points();
+  // A job restored from a checkpoint whose chunk changed since (a later checkpoint's frames
+  // replayed into it) may point past its points: nothing of those was taken in.
+  if (job.first >= a.size() && job.first > 0) return 0;
   s.segment.resize(a.size());
   SegmentCursor segment(first_frame_);
   for (size_t i = 0; i < a.size(); ++i) s.segment[i] = segment(a.state[i].last_frame);
@@ -604,6 +607,15 @@ DeformationHistory MapDeformation::history() const {
     h.T_world_kf.emplace_back();
     for (const StoredPose& p : v) h.T_world_kf.back().push_back(load(p));
   }
+  // In the FIFO's order; a key queued again after a merge joined it appears once, where its job
+  // runs (its first entry still queued).
+  std::unordered_map<ChunkKey, bool, ChunkKeyHash> listed;
+  for (size_t i = merge_fifo_head_; i < merge_fifo_.size(); ++i) {
+    const auto queued = merge_queue_.find(merge_fifo_[i]);
+    if (queued == merge_queue_.end() || !listed.emplace(queued->first, true).second) continue;
+    const MergeJob& j = queued->second;
+    h.merges.push_back({j.key, static_cast<uint32_t>(j.first), j.from});
+  }
   return h;
 }
 
@@ -641,7 +653,19 @@ Status MapDeformation::restore(const DeformationHistory& h) {
       poses.back().push_back(store(h.T_world_kf[v][k]));
     }
   }
+  const uint32_t last_version = static_cast<uint32_t>(h.oldest_version + h.T_world_kf.size() - 1);
+  for (const DeformationHistory::QueuedMerge& m : h.merges)
+    if (m.from_version < h.oldest_version || m.from_version > last_version)
+      return invalid_argument("deformation history: the merge pass queued for chunk (" +
+                              std::to_string(m.key.x) + ", " + std::to_string(m.key.y) + ", " +
+                              std::to_string(m.key.z) + ") counts from version " +
+                              std::to_string(m.from_version) + ", outside the history kept");
   clear();
+  for (const DeformationHistory::QueuedMerge& m : h.merges) {
+    if (!merge_queue_.emplace(m.key, MergeJob{m.key, m.first_point, m.from_version}).second)
+      continue;  // listed twice: the first runs
+    merge_fifo_.push_back(m.key);
+  }
   first_frame_ = h.keyframe_first_frame;
   oldest_version_ = h.oldest_version;
   version_ = static_cast<uint32_t>(h.oldest_version + h.T_world_kf.size() - 1);

@@ -567,6 +567,13 @@ TEST(MapDeformation, BadInputIsRefusedWithTheReason) {
   s = d.restore(h);
   EXPECT_NE(s.message().find("1 versions of poses but 2 motion bounds"), std::string::npos)
       << s.message();
+  h = d.history();
+  h.merges.push_back({ChunkKey{1, 2, 3}, 0, 1});  // version 1 does not exist yet
+  s = d.restore(h);
+  EXPECT_NE(s.message().find("the merge pass queued for chunk (1, 2, 3) counts from version 1, "
+                             "outside the history kept"),
+            std::string::npos)
+      << s.message();
   ASSERT_TRUE(d.restore(d.history()).is_ok());
   EXPECT_EQ(d.keyframe_count(), 1u);
 }

@@ -3,8 +3,8 @@
 // along an arc and back, so that the way back closes a loop; it is checkpointed after the closure
 // (a periodic checkpoint, written in the background) and its process is killed with SIGKILL a few
 // frames later. A new session resumes the file: the graph (keyframes, edges, version), the map's
-// deformation version, the chunks (versions, points) and the points waiting for chunks that had
-// not followed the correction are what the checkpoint held, and a further closure after the resume
+// deformation version, the chunks (versions, points), the points waiting for chunks that had not
+// followed the correction and the merge passes left for the sweep are what the checkpoint held, and a further closure after the resume
 // moves the poses and points fused before the crash.
 #include <gtest/gtest.h>
 #include <signal.h>
@@ -109,7 +109,16 @@ struct Held {
   std::map<std::tuple<int, int, int>, std::tuple<uint32_t, size_t, double>> chunks;
   // The points waiting for their chunk to follow a correction: key and version -> points, sum.
   std::map<std::tuple<int, int, int, uint32_t>, std::pair<size_t, double>> pending;
+  // The merge passes queued for the sweep, in order: key, first point, from version.
+  std::vector<std::tuple<int, int, int, uint32_t, uint32_t>> merges;
 };
+
+std::vector<std::tuple<int, int, int, uint32_t, uint32_t>> merges_of(const DeformationHistory& h) {
+  std::vector<std::tuple<int, int, int, uint32_t, uint32_t>> out;
+  for (const DeformationHistory::QueuedMerge& m : h.merges)
+    out.emplace_back(m.key.x, m.key.y, m.key.z, m.first_point, m.from_version);
+  return out;
+}
 
 double coordinate_sum(const PointArrays& a) {
   double sum = 0;
@@ -146,6 +155,9 @@ void write_held(const std::string& path, const Held& h) {
   for (const auto& [key, v] : h.pending)
     out << std::get<0>(key) << " " << std::get<1>(key) << " " << std::get<2>(key) << " "
         << std::get<3>(key) << " " << v.first << " " << v.second << "\n";
+  out << h.merges.size() << "\n";
+  for (const auto& [x, y, z, first, from] : h.merges)
+    out << x << " " << y << " " << z << " " << first << " " << from << "\n";
 }
 
 Held read_held(const std::string& path) {
@@ -183,6 +195,14 @@ Held read_held(const std::string& path) {
     double sum;
     in >> x >> y >> z >> version >> points >> sum;
     h.pending[{x, y, z, version}] = {points, sum};
+  }
+  size_t merges = 0;
+  in >> merges;
+  for (size_t m = 0; m < merges; ++m) {
+    int x, y, z;
+    uint32_t first, from;
+    in >> x >> y >> z >> first >> from;
+    h.merges.emplace_back(x, y, z, first, from);
   }
   return h;
 }
@@ -238,6 +258,7 @@ void expect_inspect_names(const std::string& dir, const std::string& scan, const
       h.chunks[{key.x, key.y, key.z}] = {c.version, c.points().size(), coordinate_sum(c.points())};
   });
   h.pending = pending_of(session.reconstructor()->deformation().pending());
+  h.merges = merges_of(session.reconstructor()->deformation().history());
   write_held(held_path, h);
   // Fused, not checkpointed: lost with the process, or (with the frame log) logged and replayed.
   walk.go(2, 6, 0.75);
@@ -269,6 +290,8 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
   // The checkpoint came a frame after the correction, with the deformation's sweep far from done:
   // points wait for chunks that have not followed it, and the checkpoint stores them as they are.
   EXPECT_FALSE(held.pending.empty());
+  // And the merge passes of the chunks moved before the frame was registered wait for the sweep.
+  EXPECT_FALSE(held.merges.empty());
 
   // The file as a reader sees it: the graph, and every chunk's version and points.
   std::vector<uint32_t> stored_frames;
@@ -348,6 +371,8 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
     EXPECT_NEAR(coordinate_sum(c.points()), std::get<2>(it->second), 1e-6) << store::to_string(key);
   });
   EXPECT_GT(resident, 0u);
+  // The merge passes the sweep had not run: queued again, in the same order.
+  EXPECT_EQ(merges_of(session.reconstructor()->deformation().history()), held.merges);
   const auto resumed_pending = pending_of(session.reconstructor()->deformation().pending());
   ASSERT_EQ(resumed_pending.size(), held.pending.size());
   for (const auto& [key, v] : held.pending) {

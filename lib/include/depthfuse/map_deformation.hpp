@@ -44,6 +44,15 @@ struct DeformationHistory {
   // Per version as above: how far the correction that made it moved a point at most (0 for
   // version 0), m (MapDeformation::reach_m()).
   std::vector<double> max_motion_m;
+  // The merge passes left for the sweep, in the order it runs them: chunks whose points followed a
+  // correction (or took points in) but whose surfaces are not merged yet. A checkpoint taken then
+  // keeps them, so that a resumed scan still merges those surfaces.
+  struct QueuedMerge {
+    ChunkKey key;
+    uint32_t first_point = 0;   // the points from here on against all of the chunk's
+    uint32_t from_version = 0;  // the corrections since this version
+  };
+  std::vector<QueuedMerge> merges;
 };
 
 // Points a correction moved into a chunk that had not followed it yet (stale, or stored out of

@@ -71,6 +71,7 @@ class Reader {
                      std::to_string(n_ - at_) + " bytes");
     return Status::ok();
   }
+  bool at_end() const { return at_ == n_; }
   Status done() const {
     if (at_ != n_) return corrupt(what_ + ": " + std::to_string(n_ - at_) + " bytes left over");
     return Status::ok();
@@ -107,6 +108,15 @@ std::vector<uint8_t> encode_state(const GraphCheckpoint& g) {
     b.put(static_cast<uint32_t>(h.T_world_kf[v].size()));
     for (const Pose& T : h.T_world_kf[v]) b.pose(T);
     b.put(h.max_motion_m[v]);
+  }
+  // The merge passes queued (schema 8; a blob written before ends above).
+  b.put(static_cast<uint32_t>(h.merges.size()));
+  for (const DeformationHistory::QueuedMerge& m : h.merges) {
+    b.put(m.key.x);
+    b.put(m.key.y);
+    b.put(m.key.z);
+    b.put(m.first_point);
+    b.put(m.from_version);
   }
   return std::move(b.bytes());
 }
@@ -146,6 +156,17 @@ Status decode_state(const std::vector<uint8_t>& bytes, const std::string& what,
     h.T_world_kf[v].resize(m);
     for (Pose& T : h.T_world_kf[v]) DF_RETURN_IF_ERROR(r.pose(&T));
     DF_RETURN_IF_ERROR(r.get(&h.max_motion_m[v]));
+  }
+  h.merges.clear();
+  if (r.at_end()) return Status::ok();  // written before schema 8: no merges kept
+  DF_RETURN_IF_ERROR(r.count(&n, 5 * sizeof(uint32_t)));
+  h.merges.resize(n);
+  for (DeformationHistory::QueuedMerge& m : h.merges) {
+    DF_RETURN_IF_ERROR(r.get(&m.key.x));
+    DF_RETURN_IF_ERROR(r.get(&m.key.y));
+    DF_RETURN_IF_ERROR(r.get(&m.key.z));
+    DF_RETURN_IF_ERROR(r.get(&m.first_point));
+    DF_RETURN_IF_ERROR(r.get(&m.from_version));
   }
   return r.done();
 }
