@@ -447,6 +447,55 @@ TEST(ScanResume, KillAfterAClosureWithTheFrameLogReplaysOnTheRestoredGraph) {
   const std::string dir = temp_dir("scan-resume-graph-log");
   const Held held = scan_and_kill(dir, /*frame_log=*/true);
   ASSERT_GE(held.graph_version, 1u);
+
+  // `depthfuse inspect --fold-log` on a copy replays the logged frames as a resume does: in the
+  // graph's version, keeping the points waiting for chunks it did not bring up to date.
+  {
+    const std::string copy = dir + "/folded.dfscan";
+    std::filesystem::copy_file(dir + "/loop.dfscan", copy);
+    if (std::filesystem::exists(dir + "/loop.dfscan-wal"))
+      std::filesystem::copy_file(dir + "/loop.dfscan-wal", copy + "-wal");
+    std::map<std::tuple<int, int, int, uint32_t>, std::pair<size_t, double>> before;
+    {
+      auto reader = store::ScanStore::open(copy, store::OpenMode::kReadOnly);
+      ASSERT_TRUE(reader.is_ok()) << reader.status().to_string();
+      auto pending = (*reader)->read_pending();
+      ASSERT_TRUE(pending.is_ok()) << pending.status().to_string();
+      before = pending_of(*pending);
+    }
+    ASSERT_FALSE(before.empty());
+    std::string out;
+    ASSERT_EQ(run_command({bin("depthfuse"), "inspect", "--fold-log", copy}, dir + "/fold.log", &out), 0)
+        << out;
+    auto reader = store::ScanStore::open(copy, store::OpenMode::kReadOnly);
+    ASSERT_TRUE(reader.is_ok()) << reader.status().to_string();
+    auto pending = (*reader)->read_pending();
+    ASSERT_TRUE(pending.is_ok()) << pending.status().to_string();
+    const auto after = pending_of(*pending);
+    auto chunks = (*reader)->list_chunks();
+    ASSERT_TRUE(chunks.is_ok());
+    auto graph = (*reader)->graph_summary();
+    ASSERT_TRUE(graph.is_ok() && *graph);
+    // Each row is still there, or its chunk was brought up to date (and took its points).
+    size_t kept = 0;
+    for (const auto& [key, v] : before) {
+      if (after.count(key)) {
+        ++kept;
+        continue;
+      }
+      bool current = false;
+      for (const store::ChunkInfo& c : *chunks)
+        if (c.key == ChunkKey{std::get<0>(key), std::get<1>(key), std::get<2>(key)})
+          current = c.version == (*graph)->deformation_version;
+      EXPECT_TRUE(current) << "the points pending for chunk (" << std::get<0>(key) << ","
+                           << std::get<1>(key) << "," << std::get<2>(key)
+                           << ") were dropped while it stayed stale";
+    }
+    EXPECT_GT(kept, 0u);
+    auto integrity = (*reader)->integrity_check();
+    ASSERT_TRUE(integrity.is_ok());
+    EXPECT_TRUE(integrity->ok()) << integrity->problems.front();
+  }
   const AppConfig config = scan_config(dir, /*frame_log=*/true);
   fusiond::SqliteCheckpointSink sink(config, fusiond::SqliteSinkOptions{dir + "/loop.dfscan"});
   fusiond::ScanSession session(config, sink);
