@@ -167,7 +167,10 @@ int export_points(Options o) {
   if (!snapshot.status()) return cli::fail(snapshot.status().message());
   auto folded = fold_log(scan);
   if (!folded) return cli::fail(folded.status().message());
-  if (*folded) o.filters.replacing = (*folded)->map.get();
+  if (*folded) {
+    o.filters.replacing = (*folded)->map.get();
+    o.filters.replacing_pending = &(*folded)->pending;
+  }
   // The trajectory first: a damaged pose (its checksum fails) stops the export before the cloud
   // is written.
   if (o.trajectory) {

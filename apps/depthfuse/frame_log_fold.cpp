@@ -39,6 +39,12 @@ Result<size_t> fold_frame_log(const std::string& path) {
                    " rows of points pending for a loop closure's correction, but no pose graph");
   }
   (*rec)->set_pending_points([&reconstructor] { return reconstructor.deformation().pending(); });
+  if (store::MapPager* pager = (*rec)->pager()) {
+    MapDeformation& deformation = reconstructor.deformation();
+    pager->set_bring_up_to_date(
+        [&deformation](PointMap* map, const ChunkKey& k) { deformation.update(map, {k}); });
+    deformation.set_stored_elsewhere([pager](const ChunkKey& k) { return pager->is_evicted(k); });
+  }
   auto replayed = (*rec)->replay_log(reconstructor);
   if (!replayed) return replayed.status();
   if (*replayed == 0) return size_t{0};

@@ -21,6 +21,7 @@
 #include <thread>
 
 #include "core_test_util.hpp"
+#include "depthfuse/store/frame_log_replay.hpp"
 #include "depthfuse/store/scan_store.hpp"
 #include "lcm_test_util.hpp"
 #include "scan_session.hpp"
@@ -447,6 +448,35 @@ TEST(ScanResume, KillAfterAClosureWithTheFrameLogReplaysOnTheRestoredGraph) {
   const std::string dir = temp_dir("scan-resume-graph-log");
   const Held held = scan_and_kill(dir, /*frame_log=*/true);
   ASSERT_GE(held.graph_version, 1u);
+
+  // `depthfuse export` of the killed file folds the logged frames in memory, in the graph's
+  // version: the chunks they fused into followed the correction first (fusion also looks through
+  // stale chunks it does not fuse into: those may stay behind), and the points waiting for chunks
+  // still in the file come with the fold.
+  {
+    auto reader = store::ScanStore::open(dir + "/loop.dfscan", store::OpenMode::kReadOnly);
+    ASSERT_TRUE(reader.is_ok()) << reader.status().to_string();
+    auto last = (*reader)->last_checkpoint();
+    ASSERT_TRUE(last.is_ok() && *last);
+    auto replay = store::replay_frame_log(**reader, scan_config(dir, true).reconstruction);
+    ASSERT_TRUE(replay.is_ok()) << replay.status().to_string();
+    ASSERT_FALSE(replay->poses.empty());
+    size_t touched = 0, current = 0;
+    replay->map->for_each_chunk([&](const ChunkKey&, const Chunk& c) {
+      if (c.last_touched_frame <= (*last)->last_frame_id) return;
+      ++touched;
+      current += c.version == held.deformation_version;
+    });
+    EXPECT_GT(current, touched / 2) << touched << " chunks touched";
+    EXPECT_FALSE(replay->pending.empty());
+    std::string out;
+    ASSERT_EQ(run_command({bin("depthfuse"), "export", dir + "/loop.dfscan", "-o",
+                           dir + "/killed.ply"},
+                          dir + "/export.log", &out),
+              0)
+        << out;
+    EXPECT_NE(out.find("logged frames folded in"), std::string::npos) << out;
+  }
 
   // `depthfuse inspect --fold-log` on a copy replays the logged frames as a resume does: in the
   // graph's version, keeping the points waiting for chunks it did not bring up to date.

@@ -76,7 +76,9 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
   // moved to the graph's version as stale chunks are.
   std::vector<PendingPoints> pending;
   std::string pending_damage;
-  if (auto read = store.read_pending(); read) {
+  if (options.replacing_pending) {
+    pending = *options.replacing_pending;
+  } else if (auto read = store.read_pending(); read) {
     pending = std::move(*read);
   } else if (options.skip_damaged) {
     pending_damage = read.status().message();
@@ -94,8 +96,14 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
   auto replaced = [&](const ChunkKey& key) { return replacing && replacing->find(key) != nullptr; };
   const std::vector<ChunkKey> extra = sorted_keys(replacing);
   PointArrays copy;
+  // A replacing chunk the fold loaded but did not bring up to date moves as the file's would.
+  const auto replacing_points = [&](const ChunkKey& key) {
+    const Chunk* c = replacing->find(key);
+    copy = c->points();
+    if (c->version < deformation.version()) deformation.move_in_place(&copy, c->version);
+  };
   for (const ChunkKey& key : extra) {
-    copy = replacing->find(key)->points();
+    replacing_points(key);
     count += select_points(copy, options, &keep);
   }
   for (const PendingPoints& p : pending) count += select_points(p.points, options, &keep);
@@ -137,7 +145,7 @@ Result<ExportReport> export_cloud(ScanStore& store, const std::string& path,
         },
         filter);
     for (size_t i = 0; i < extra.size() && st; ++i) {
-      copy = replacing->find(extra[i])->points();
+      replacing_points(extra[i]);
       if (!copy.empty()) st = write(copy);
     }
     for (size_t i = 0; i < pending.size() && st; ++i) st = write(pending[i].points);

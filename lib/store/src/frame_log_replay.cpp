@@ -27,7 +27,27 @@ Result<LogReplay> replay_frame_log(ScanStore& store, const ReconstructionConfig&
   pc.read_staged = false;
   pc.release_memory_to_os = false;
   MapPager pager(pc, &store);
-  for (const ChunkInfo& c : *keys) pager.mark_evicted(c.key);
+  for (const ChunkInfo& c : *keys) pager.mark_evicted(c.key, c.version);
+  // The logged frames were fused in the graph's version: the chunks they meet follow the
+  // corrections first, and points sent to chunks still in the file wait beside them.
+  auto graph = store.read_graph();
+  if (!graph) return graph.status();
+  auto pending = store.read_pending();
+  if (!pending) return pending.status();
+  MapDeformation& deformation = reconstructor.deformation();
+  if (*graph) {
+    DF_RETURN_IF_ERROR(deformation.restore((*graph)->deformation));
+    reconstructor.map().set_version(deformation.version());
+    DF_RETURN_IF_ERROR(deformation.restore_pending(std::move(*pending)));
+    deformation.set_stored_elsewhere([&pager](const ChunkKey& k) { return pager.is_evicted(k); });
+    // A chunk fusion started at a key still in the file: the stored one follows the corrections
+    // before the two are joined (a chunk holds one version).
+    pager.set_bring_up_to_date(
+        [&deformation](PointMap* map, const ChunkKey& k) { deformation.update(map, {k}); });
+  } else if (!pending->empty()) {
+    return corrupt(store.path() + ": " + std::to_string(pending->size()) +
+                   " rows of points pending for a loop closure's correction, but no pose graph");
+  }
   const Status read = store.for_each_logged_frame([&](LoggedFrame& f) -> Status {
     DF_RETURN_IF_ERROR(pager.prepare(&reconstructor.map(), f.frame, f.pose.T_world_cam, f.pose.frame_id)
                            .with_context("replaying frame " + std::to_string(f.pose.frame_id)));
@@ -40,6 +60,7 @@ Result<LogReplay> replay_frame_log(ScanStore& store, const ReconstructionConfig&
     if (read.code() != StatusCode::kCorrupt) return read;
     out.damaged = read;
   }
+  out.pending = deformation.pending();
   out.map = std::make_unique<PointMap>(meta->chunk_size_m);
   reconstructor.map().for_each_chunk([&](const ChunkKey& key, Chunk& c) {
     out.map->insert(key, std::move(c));

@@ -28,6 +28,9 @@ struct ExportOptions {
   // Chunks that replace the file's chunks of the same keys, or add to them: the frame redo log
   // folded in (replay_frame_log) for a scan killed and not resumed. Not owned.
   const PointMap* replacing = nullptr;
+  // With `replacing`: the points waiting for their chunks after the fold (LogReplay::pending),
+  // which replace the file's. Not owned.
+  const std::vector<PendingPoints>* replacing_pending = nullptr;
 };
 
 // Marks in *keep the points of `a` that pass the filters (min_merges, bbox_m); returns how many.
