@@ -26,25 +26,12 @@ Result<size_t> fold_frame_log(const std::string& path) {
   reconstructor.reset(std::move(at.map), at.next_frame_id, at.last_T_world_cam);
   // As the fusion daemon resumes: the logged frames are fused in the graph's version, and the
   // checkpoint keeps the graph, the history and the points waiting for their chunks.
-  if (at.graph) {
-    DeformationHistory& history = at.graph->deformation;
-    DF_RETURN_IF_ERROR(reconstructor.deformation().restore(history).with_context(
-        "restoring the map's deformation from " + path));
-    reconstructor.map().set_version(reconstructor.deformation().version());
-    DF_RETURN_IF_ERROR(reconstructor.deformation()
-                           .restore_pending(std::move(at.pending))
-                           .with_context("restoring the points pending in " + path));
-  } else if (!at.pending.empty()) {
-    return corrupt(path + ": " + std::to_string(at.pending.size()) +
-                   " rows of points pending for a loop closure's correction, but no pose graph");
-  }
+  DF_RETURN_IF_ERROR(store::restore_deformation(at.graph, std::move(at.pending), path,
+                                                &reconstructor.deformation(),
+                                                &reconstructor.map()));
   (*rec)->set_pending_points([&reconstructor] { return reconstructor.deformation().pending(); });
-  if (store::MapPager* pager = (*rec)->pager()) {
-    MapDeformation& deformation = reconstructor.deformation();
-    pager->set_bring_up_to_date(
-        [&deformation](PointMap* map, const ChunkKey& k) { deformation.update(map, {k}); });
-    deformation.set_stored_elsewhere([pager](const ChunkKey& k) { return pager->is_evicted(k); });
-  }
+  if (store::MapPager* pager = (*rec)->pager())
+    store::link_pager(pager, &reconstructor.deformation());
   auto replayed = (*rec)->replay_log(reconstructor);
   if (!replayed) return replayed.status();
   if (*replayed == 0) return size_t{0};

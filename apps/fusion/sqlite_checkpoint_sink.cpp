@@ -94,13 +94,8 @@ Status SqliteCheckpointSink::begin_scan(const ScanContext& scan) {
 
 Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, ScanContext* scan,
                                      RestoredScan* restored) {
-  if (store::MapPager* pager = recorder_ ? recorder_->pager() : nullptr) {
-    pager->set_bring_up_to_date([&reconstructor](PointMap* map, const ChunkKey& key) {
-      reconstructor.deformation().update(map, {key});
-    });
-    reconstructor.deformation().set_stored_elsewhere(
-        [pager](const ChunkKey& key) { return pager->is_evicted(key); });
-  }
+  if (store::MapPager* pager = recorder_ ? recorder_->pager() : nullptr)
+    store::link_pager(pager, &reconstructor.deformation());
   if (recorder_)
     recorder_->set_pending_points(
         [&reconstructor] { return reconstructor.deformation().pending(); });
@@ -112,22 +107,13 @@ Status SqliteCheckpointSink::restore(IncrementalReconstructor& reconstructor, Sc
   std::unique_ptr<PointMap> map = std::move(at->map);
   if (!map) map = std::make_unique<PointMap>(config_.reconstruction.fusion.chunk_size_m);
   reconstructor.reset(std::move(map), at->next_frame_id, at->last_T_world_cam);
-  if (at->graph) {
-    // Before the log's frames are replayed: they are fused in the graph's version, and the stale
-    // chunks they load follow the corrections made before the crash.
-    DF_RETURN_IF_ERROR(reconstructor.deformation()
-                           .restore(at->graph->deformation)
-                           .with_context("restoring the map's deformation from " + path_));
-    reconstructor.map().set_version(reconstructor.deformation().version());
-    DF_RETURN_IF_ERROR(reconstructor.deformation()
-                           .restore_pending(std::move(at->pending))
-                           .with_context("restoring the points pending in " + path_));
-    restored->graph = std::move(at->graph->graph);
-  } else if (!at->pending.empty()) {
-    return corrupt(path_ + ": " + std::to_string(at->pending.size()) +
-                   " rows of points pending for a loop closure's correction, but no pose graph "
-                   "(not resumed: `depthfuse inspect` lists what is wrong)");
-  }
+  // Before the log's frames are replayed: they are fused in the graph's version, and the stale
+  // chunks they load follow the corrections made before the crash.
+  DF_RETURN_IF_ERROR(store::restore_deformation(at->graph, std::move(at->pending), path_,
+                                                &reconstructor.deformation(),
+                                                &reconstructor.map())
+                         .with_context("not resumed (`depthfuse inspect` lists what is wrong)"));
+  if (at->graph) restored->graph = std::move(at->graph->graph);
   keep_history_for_evicted(reconstructor);
   restore_keyframes(reconstructor);
   restored->trajectory.clear();

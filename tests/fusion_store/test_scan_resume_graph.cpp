@@ -98,6 +98,9 @@ class Walk {
   fusiond::ScanSession* session_;
 };
 
+// Points waiting for their chunk to follow a correction: key and version -> points, coordinate sum.
+using PendingByKey = std::map<std::tuple<int, int, int, uint32_t>, std::pair<size_t, double>>;
+
 // What a checkpoint held, as text: the graph, the deformation's version, every chunk.
 struct Held {
   std::vector<uint32_t> keyframe_frames;
@@ -108,8 +111,7 @@ struct Held {
   std::vector<Eigen::Vector3d> trajectory;  // the camera's positions, corrected, frame by frame
   // key -> version, points, sum of the points' coordinates
   std::map<std::tuple<int, int, int>, std::tuple<uint32_t, size_t, double>> chunks;
-  // The points waiting for their chunk to follow a correction: key and version -> points, sum.
-  std::map<std::tuple<int, int, int, uint32_t>, std::pair<size_t, double>> pending;
+  PendingByKey pending;
   // The merge passes queued for the sweep, in order: key, first point, from version.
   std::vector<std::tuple<int, int, int, uint32_t, uint32_t>> merges;
 };
@@ -121,15 +123,26 @@ std::vector<std::tuple<int, int, int, uint32_t, uint32_t>> merges_of(const Defor
   return out;
 }
 
+// The same chunk versions with the same points (count, coordinate sum).
+void expect_same_pending(const PendingByKey& actual, const PendingByKey& expected,
+                         const std::string& what) {
+  ASSERT_EQ(actual.size(), expected.size()) << what;
+  for (const auto& [key, v] : expected) {
+    const auto it = actual.find(key);
+    ASSERT_NE(it, actual.end()) << what;
+    EXPECT_EQ(it->second.first, v.first) << what;
+    EXPECT_NEAR(it->second.second, v.second, 1e-6) << what;
+  }
+}
+
 double coordinate_sum(const PointArrays& a) {
   double sum = 0;
   for (size_t i = 0; i < a.size(); ++i) sum += a.position_m[i].cast<double>().sum();
   return sum;
 }
 
-std::map<std::tuple<int, int, int, uint32_t>, std::pair<size_t, double>> pending_of(
-    const std::vector<PendingPoints>& pending) {
-  std::map<std::tuple<int, int, int, uint32_t>, std::pair<size_t, double>> out;
+PendingByKey pending_of(const std::vector<PendingPoints>& pending) {
+  PendingByKey out;
   for (const PendingPoints& p : pending)
     out[{p.key.x, p.key.y, p.key.z, p.version}] = {p.points.size(), coordinate_sum(p.points)};
   return out;
@@ -164,7 +177,7 @@ void write_held(const std::string& path, const Held& h) {
 Held read_held(const std::string& path) {
   Held h;
   std::ifstream in(path);
-  size_t keyframes = 0, chunks = 0;
+  size_t keyframes = 0;
   in >> keyframes >> h.odometry >> h.loops >> h.graph_version >> h.deformation_version >>
       h.next_sequence;
   for (size_t k = 0; k < keyframes; ++k) {
@@ -178,25 +191,25 @@ Held read_held(const std::string& path) {
   in >> poses;
   h.trajectory.resize(poses);
   for (Eigen::Vector3d& p : h.trajectory) in >> p.x() >> p.y() >> p.z();
-  in >> chunks;
-  for (size_t c = 0; c < chunks; ++c) {
-    int x, y, z;
-    uint32_t version;
-    size_t points;
-    double sum;
-    in >> x >> y >> z >> version >> points >> sum;
+  // Chunks and pending points alike: a count, then "x y z version points sum" each.
+  const auto read_rows = [&](const auto& add) {
+    size_t rows = 0;
+    in >> rows;
+    for (size_t r = 0; r < rows; ++r) {
+      int x, y, z;
+      uint32_t version;
+      size_t points;
+      double sum;
+      in >> x >> y >> z >> version >> points >> sum;
+      add(x, y, z, version, points, sum);
+    }
+  };
+  read_rows([&](int x, int y, int z, uint32_t version, size_t points, double sum) {
     h.chunks[{x, y, z}] = {version, points, sum};
-  }
-  size_t pending = 0;
-  in >> pending;
-  for (size_t p = 0; p < pending; ++p) {
-    int x, y, z;
-    uint32_t version;
-    size_t points;
-    double sum;
-    in >> x >> y >> z >> version >> points >> sum;
+  });
+  read_rows([&](int x, int y, int z, uint32_t version, size_t points, double sum) {
     h.pending[{x, y, z, version}] = {points, sum};
-  }
+  });
   size_t merges = 0;
   in >> merges;
   for (size_t m = 0; m < merges; ++m) {
@@ -313,14 +326,7 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
     // The points waiting for chunks that had not followed the correction, as they were.
     auto pending = (*reader)->read_pending();
     ASSERT_TRUE(pending.is_ok()) << pending.status().to_string();
-    const auto stored_pending = pending_of(*pending);
-    ASSERT_EQ(stored_pending.size(), held.pending.size());
-    for (const auto& [key, v] : held.pending) {
-      const auto it = stored_pending.find(key);
-      ASSERT_NE(it, stored_pending.end());
-      EXPECT_EQ(it->second.first, v.first);
-      EXPECT_NEAR(it->second.second, v.second, 1e-6);
-    }
+    expect_same_pending(pending_of(*pending), held.pending, "stored");
     // The stored poses are the corrected ones, the session's at the checkpoint.
     auto poses = (*reader)->read_poses();
     ASSERT_TRUE(poses.is_ok());
@@ -374,14 +380,8 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
   EXPECT_GT(resident, 0u);
   // The merge passes the sweep had not run: queued again, in the same order.
   EXPECT_EQ(merges_of(session.reconstructor()->deformation().history()), held.merges);
-  const auto resumed_pending = pending_of(session.reconstructor()->deformation().pending());
-  ASSERT_EQ(resumed_pending.size(), held.pending.size());
-  for (const auto& [key, v] : held.pending) {
-    const auto it = resumed_pending.find(key);
-    ASSERT_NE(it, resumed_pending.end());
-    EXPECT_EQ(it->second.first, v.first);
-    EXPECT_NEAR(it->second.second, v.second, 1e-6);
-  }
+  expect_same_pending(pending_of(session.reconstructor()->deformation().pending()), held.pending,
+                      "resumed");
   // The trajectory knows its frames: a correction after the resume moves every pose from before
   // the crash with its keyframe (the last keyframe at or before the frame).
   ASSERT_EQ(session.trajectory().size(), stored_frames.size());
@@ -485,7 +485,7 @@ TEST(ScanResume, KillAfterAClosureWithTheFrameLogReplaysOnTheRestoredGraph) {
     std::filesystem::copy_file(dir + "/loop.dfscan", copy);
     if (std::filesystem::exists(dir + "/loop.dfscan-wal"))
       std::filesystem::copy_file(dir + "/loop.dfscan-wal", copy + "-wal");
-    std::map<std::tuple<int, int, int, uint32_t>, std::pair<size_t, double>> before;
+    PendingByKey before;
     {
       auto reader = store::ScanStore::open(copy, store::OpenMode::kReadOnly);
       ASSERT_TRUE(reader.is_ok()) << reader.status().to_string();

@@ -427,6 +427,27 @@ TEST(Refine, ReRegistersTheKeyframesAndWritesACheckpoint) {
   EXPECT_NE(r.output.find("another process is writing"), std::string::npos) << r.output;
 }
 
+namespace {
+
+// A pose graph of one keyframe (from frame 1; the frames before belong to it too) that one
+// correction moved from the identity to `moved`: version 1.
+GraphCheckpoint one_keyframe_moved(const Pose& moved) {
+  GraphCheckpoint g;
+  GraphKeyframe k;
+  k.frame_id = 1;
+  k.T_world_kf = moved;
+  k.cloud = std::make_shared<const KeyframeCloud>();
+  g.graph.keyframes.push_back(k);
+  g.graph.version = 1;
+  g.deformation.keyframe_first_frame = {1};
+  g.deformation.oldest_version = 0;
+  g.deformation.T_world_kf = {{Pose::Identity()}, {moved}};
+  g.deformation.max_motion_m = {0.0, moved.translation().norm()};
+  return g;
+}
+
+}  // namespace
+
 // A chunk stored before the last loop closure's correction reached it (evicted stale, or the scan
 // ended first) is exported where the correction put its keyframe, not where it was fused.
 TEST(Export, AChunkStoredBeforeACorrectionIsExportedWhereItsKeyframeMoved) {
@@ -443,18 +464,7 @@ TEST(Export, AChunkStoredBeforeACorrectionIsExportedWhereItsKeyframeMoved) {
     ASSERT_TRUE(s);
     ASSERT_TRUE((*s)->begin_checkpoint());
     ASSERT_TRUE((*s)->write_chunk(key, chunk));
-    GraphCheckpoint g;
-    GraphKeyframe k;
-    k.frame_id = 1;
-    k.T_world_kf = moved;
-    k.cloud = std::make_shared<const KeyframeCloud>();
-    g.graph.keyframes.push_back(k);
-    g.graph.version = 1;
-    g.deformation.keyframe_first_frame = {1};
-    g.deformation.oldest_version = 0;
-    g.deformation.T_world_kf = {{Pose::Identity()}, {moved}};
-    g.deformation.max_motion_m = {0.0, 0.05};
-    ASSERT_TRUE((*s)->write_graph(g));
+    ASSERT_TRUE((*s)->write_graph(one_keyframe_moved(moved)));
     ASSERT_TRUE((*s)->commit_checkpoint(CheckpointInfo{}));
   }
   auto s = ScanStore::open(scan, OpenMode::kReadOnly);
@@ -487,18 +497,7 @@ TEST(Export, PointsPendingForAChunkAreStoredAndExportedWhereTheirKeyframeMoved) 
   ASSERT_TRUE(s);
   ASSERT_TRUE((*s)->begin_checkpoint());
   ASSERT_TRUE((*s)->write_chunk(key, chunk));
-  GraphCheckpoint g;
-  GraphKeyframe k;
-  k.frame_id = 1;
-  k.T_world_kf = moved;
-  k.cloud = std::make_shared<const KeyframeCloud>();
-  g.graph.keyframes.push_back(k);
-  g.graph.version = 1;
-  g.deformation.keyframe_first_frame = {1};
-  g.deformation.oldest_version = 0;
-  g.deformation.T_world_kf = {{Pose::Identity()}, {moved}};
-  g.deformation.max_motion_m = {0.0, 0.05};
-  ASSERT_TRUE((*s)->write_graph(g));
+  ASSERT_TRUE((*s)->write_graph(one_keyframe_moved(moved)));
   ASSERT_TRUE((*s)->write_pending(pending));
   ASSERT_TRUE((*s)->commit_checkpoint(CheckpointInfo{}));
 
@@ -547,6 +546,15 @@ TEST(Export, PointsPendingForAChunkAreStoredAndExportedWhereTheirKeyframeMoved) 
   r = run(cli() + " export " + damaged + " -o " + dir.file("damaged.ply"));
   EXPECT_EQ(r.code, 1) << r.output;
   EXPECT_NE(r.output.find(what), std::string::npos) << r.output;
+  // A row whose checksum was taken away is damage too: every such row is written with one.
+  const std::string unchecked = dir.file("unchecked.db");
+  ASSERT_TRUE((*s)->copy_to(unchecked));
+  test::exec_sql(unchecked, "UPDATE chunk_pending SET checksum = NULL WHERE version = 0;");
+  r = run(cli() + " inspect " + unchecked);
+  EXPECT_EQ(r.code, 1) << r.output;
+  EXPECT_NE(r.output.find("points pending for chunk (1,0,0) at version 0: no checksum"),
+            std::string::npos)
+      << r.output;
 
   // The next checkpoint replaces them: here the chunk followed and nothing waits any more.
   ASSERT_TRUE((*s)->begin_checkpoint());

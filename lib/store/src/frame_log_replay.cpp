@@ -4,6 +4,7 @@
 
 #include "depthfuse/pipeline.hpp"
 #include "depthfuse/store/map_pager.hpp"
+#include "depthfuse/store/scan_recorder.hpp"
 
 namespace depthfuse::store {
 
@@ -35,19 +36,9 @@ Result<LogReplay> replay_frame_log(ScanStore& store, const ReconstructionConfig&
   auto pending = store.read_pending();
   if (!pending) return pending.status();
   MapDeformation& deformation = reconstructor.deformation();
-  if (*graph) {
-    DF_RETURN_IF_ERROR(deformation.restore((*graph)->deformation));
-    reconstructor.map().set_version(deformation.version());
-    DF_RETURN_IF_ERROR(deformation.restore_pending(std::move(*pending)));
-    deformation.set_stored_elsewhere([&pager](const ChunkKey& k) { return pager.is_evicted(k); });
-    // A chunk fusion started at a key still in the file: the stored one follows the corrections
-    // before the two are joined (a chunk holds one version).
-    pager.set_bring_up_to_date(
-        [&deformation](PointMap* map, const ChunkKey& k) { deformation.update(map, {k}); });
-  } else if (!pending->empty()) {
-    return corrupt(store.path() + ": " + std::to_string(pending->size()) +
-                   " rows of points pending for a loop closure's correction, but no pose graph");
-  }
+  DF_RETURN_IF_ERROR(restore_deformation(*graph, std::move(*pending), store.path(), &deformation,
+                                         &reconstructor.map()));
+  link_pager(&pager, &deformation);
   const Status read = store.for_each_logged_frame([&](LoggedFrame& f) -> Status {
     DF_RETURN_IF_ERROR(pager.prepare(&reconstructor.map(), f.frame, f.pose.T_world_cam, f.pose.frame_id)
                            .with_context("replaying frame " + std::to_string(f.pose.frame_id)));

@@ -111,6 +111,27 @@ Result<std::unique_ptr<ScanRecorder>> ScanRecorder::create(const std::string& pa
   return rec;
 }
 
+Status restore_deformation(const std::optional<GraphCheckpoint>& graph,
+                           std::vector<PendingPoints> pending, const std::string& path,
+                           MapDeformation* deformation, PointMap* map) {
+  if (!graph) {
+    if (pending.empty()) return Status::ok();
+    return corrupt(path + ": " + std::to_string(pending.size()) +
+                   " rows of points pending for a loop closure's correction, but no pose graph");
+  }
+  DF_RETURN_IF_ERROR(deformation->restore(graph->deformation)
+                         .with_context("restoring the map's deformation from " + path));
+  map->set_version(deformation->version());
+  return deformation->restore_pending(std::move(pending))
+      .with_context("restoring the points pending in " + path);
+}
+
+void link_pager(MapPager* pager, MapDeformation* deformation) {
+  pager->set_bring_up_to_date(
+      [deformation](PointMap* map, const ChunkKey& key) { deformation->update(map, {key}); });
+  deformation->set_stored_elsewhere([pager](const ChunkKey& key) { return pager->is_evicted(key); });
+}
+
 Result<std::unique_ptr<ScanRecorder>> ScanRecorder::resume(const std::string& path,
                                                            const RecorderConfig& config,
                                                            ResumePoint* resume) {

@@ -191,6 +191,9 @@ Status ScanStore::Impl::decode_chunk_row(const sql::Row& row, ChunkTable table, 
            ? "points pending for chunk " + to_string(info.key) + " at version " +
                  std::to_string(info.version)
            : (table == ChunkTable::kStaging ? "staged chunk " : "chunk ") + to_string(info.key));
+  // Pending rows came with schema 8, every one with its checksum.
+  if (table == ChunkTable::kPending && row.is_null(ChunkCol::kChecksum))
+    return corrupt(what + ": no checksum (every such row has one): the row was altered or damaged");
   DF_RETURN_IF_ERROR(check_row_checksum(
       row, ChunkCol::kChecksum,
       chunk_row_checksum(info.key, info.point_count, info.last_touched_frame, info.version), what));

@@ -18,8 +18,10 @@ namespace {
 //
 // The committed chunks and the staged ones share a layout; only the column before the blob
 // differs: the checkpoint that wrote a committed chunk, the time a staged one was evicted.
-// Schema 6 adds the pose graph's version of the points and the row's checksum before the owner.
-std::string chunk_table(const char* name, const char* owner_column, bool with_version = false) {
+// Schema 6 adds the pose graph's version of the points and the row's checksum before the owner;
+// schema 8's points pending for a chunk have a row per chunk and version.
+std::string chunk_table(const char* name, const char* owner_column, bool with_version = false,
+                        const char* primary_key = "x, y, z") {
   return std::string("\nCREATE TABLE ") + name + R"sql( (
   x INTEGER NOT NULL,
   y INTEGER NOT NULL,
@@ -31,7 +33,7 @@ std::string chunk_table(const char* name, const char* owner_column, bool with_ve
   )sql" + (with_version ? "version INTEGER NOT NULL DEFAULT 0,\n  checksum INTEGER,\n  " : "") +
          owner_column + R"sql( INTEGER NOT NULL,
   data BLOB NOT NULL,
-  PRIMARY KEY (x, y, z)
+  PRIMARY KEY ()sql" + primary_key + R"sql()
 );
 )sql";
 }
@@ -274,25 +276,13 @@ PRAGMA user_version = 7;
 // map deformation's pending buffers; docs/checkpoint-format.md, `chunk_pending`). Before, every
 // checkpoint brought those chunks up to date first, loading evicted ones: the fusion thread's time,
 // hundreds of milliseconds while the deformation's sweep ran. The rows have the chunks' columns;
-// a chunk may have points pending from several versions.
+// a chunk may have points pending from several versions. Every row has a checksum (the column
+// allows NULL as the chunk tables' do; a reader refuses a row without one).
 Status migrate_7_to_8(sql::Database& db) {
-  return db.exec(R"sql(
-CREATE TABLE chunk_pending (
-  x INTEGER NOT NULL,
-  y INTEGER NOT NULL,
-  z INTEGER NOT NULL,
-  point_count INTEGER NOT NULL,
-  min_x REAL, min_y REAL, min_z REAL,
-  max_x REAL, max_y REAL, max_z REAL,
-  last_touched_frame INTEGER NOT NULL,
-  version INTEGER NOT NULL,
-  checksum INTEGER NOT NULL,
-  checkpoint_id INTEGER NOT NULL,
-  data BLOB NOT NULL,
-  PRIMARY KEY (x, y, z, version)
-);
-PRAGMA user_version = 8;
-)sql", "migrating schema 7 to 8");
+  return db.exec(chunk_table("chunk_pending", "checkpoint_id", /*with_version=*/true,
+                             "x, y, z, version") +
+                     "PRAGMA user_version = 8;",
+                 "migrating schema 7 to 8");
 }
 
 }  // namespace

@@ -143,6 +143,18 @@ struct ResumePoint {
   std::vector<PendingPoints> pending;
 };
 
+// A scan file's map follows its pose graph as the last checkpoint left it, before the frame log's
+// records are replayed (they were fused in the graph's version): the deformation's history, the
+// map's version and the points waiting for their chunks. An error names what does not fit (points
+// pending without a graph, a version outside the history), `path` first.
+Status restore_deformation(const std::optional<GraphCheckpoint>& graph,
+                           std::vector<PendingPoints> pending, const std::string& path,
+                           MapDeformation* deformation, PointMap* map);
+// One map's pager and deformation: points a correction moves into a chunk the pager holds in the
+// file wait for it (rather than start a chunk at its key), and a stored chunk loaded where fusion
+// started one follows the corrections before the two are joined. Both must outlive the link.
+void link_pager(MapPager* pager, MapDeformation* deformation);
+
 // What ScanRecorder::restore_keyframes() did.
 struct KeyframeRestoreReport {
   size_t stored = 0;                 // keyframes of the last checkpoint in the file (rows intact)
