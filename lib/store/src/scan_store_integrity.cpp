@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <cstdlib>
 
+#include "depthfuse/store/scan_recorder.hpp"
 #include "scan_store_internal.hpp"
 
 namespace depthfuse::store {
@@ -171,39 +172,25 @@ void check_pose_rows(ScanStore::Impl& s, IntegrityReport* rep) {
 
 void check_graph(ScanStore& store, ScanStore::Impl& s, IntegrityReport* rep) {
   // The pose graph: every keyframe row and the graph's row, checked and decoded as a resume reads
-  // them, and the graph and the deformation as a resume restores them.
+  // them; the points pending for chunks that had not followed a correction, every row checked; and
+  // the graph, the deformation and the pending points as a resume restores them.
   auto graph = store.read_graph();
   if (!graph) {
     rep->problems.push_back(graph.status().message());
   } else if (*graph) {
     rep->graph_keyframes_checked = (*graph)->graph.keyframes.size();
     ScanGraph restored(LoopClosureConfig{});
-    MapDeformation deformation;
     const Status g = restored.restore((*graph)->graph);
     if (!g) rep->problems.push_back(s.path + ": " + g.message());
-    const Status d = deformation.restore((*graph)->deformation);
-    if (!d) rep->problems.push_back(s.path + ": " + d.message());
   }
-  // The points pending for chunks that had not followed a correction: every row checked, and
-  // their versions within the deformation's history, as a resume restores them.
   auto pending = store.read_pending();
-  if (!pending) {
-    rep->problems.push_back(pending.status().message());
-    return;
-  }
-  rep->pending_rows_checked = pending->size();
-  if (pending->empty() || !graph) return;
-  if (!*graph) {
-    rep->problems.push_back(s.path + ": " + std::to_string(pending->size()) +
-                            " rows of points pending for a loop closure's correction, but the "
-                            "scan has no pose graph");
-    return;
-  }
+  if (!pending) rep->problems.push_back(pending.status().message());
+  else rep->pending_rows_checked = pending->size();
+  if (!graph || !pending) return;
   MapDeformation deformation;
-  if (deformation.restore((*graph)->deformation)) {
-    const Status p = deformation.restore_pending(std::move(*pending));
-    if (!p) rep->problems.push_back(s.path + ": " + p.message());
-  }
+  PointMap map(1.0);  // only its version is set
+  const Status d = restore_deformation(*graph, std::move(*pending), s.path, &deformation, &map);
+  if (!d) rep->problems.push_back(d.message());
 }
 
 void check_frame_log(ScanStore& store, IntegrityReport* rep) {
