@@ -3,6 +3,7 @@
 // of its counters.
 #include "sqlite_checkpoint_sink.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -158,37 +159,53 @@ void SqliteCheckpointSink::keep_history_for_evicted(IncrementalReconstructor& re
                                                               : std::nullopt);
 }
 
-Status SqliteCheckpointSink::join_pending_points(IncrementalReconstructor& reconstructor) {
-  // A stale chunk loaded and updated may send points on into others that are out of date: again,
-  // until no chunk is left to join (a chunk is updated once per correction, so this ends).
-  Status loaded;
-  std::vector<ChunkKey> keys = reconstructor.deformation().pending_keys(), before;
+Status SqliteCheckpointSink::bring_stored_chunks_up_to_date(IncrementalReconstructor& reconstructor) {
+  // Export would move a stale stored chunk's points where their keyframes went but could not merge
+  // the surfaces that then lie on each other (a wall of the first lap and its drifted second),
+  // which the sweep does for resident chunks: these are brought up to date as the sweep would,
+  // a batch at a time so that the map stays within its budget and a batch. Bringing one up to
+  // date may send points on into others that are out of date, taken in the next round (a chunk is
+  // updated once per correction, so this ends).
+  store::MapPager* pager = recorder_->pager();
+  if (!pager) return Status::ok();  // nothing was ever evicted
+  constexpr size_t kChunksPerBatch = 32;
+  MapDeformation& deformation = reconstructor.deformation();
+  PointMap& map = reconstructor.map();
+  const uint64_t merged_before = deformation.stats().points_merged;
   const auto t0 = std::chrono::steady_clock::now();
-  const bool sweeping = reconstructor.deformation().sweeping();
+  Status first_error;
+  std::vector<ChunkKey> keys, before, batch;
   size_t rounds = 0, chunks = 0, points = 0;
-  while (!keys.empty() && keys != before) {
-    if (store::MapPager* pager = recorder_->pager()) {
-      Status st = pager->load_chunks(&reconstructor.map(), keys, reconstructor.next_frame_id());
-      if (!st && loaded) loaded = st;
+  for (;;) {
+    keys = pager->evicted_before(deformation.version());
+    const std::vector<ChunkKey> pending = deformation.pending_keys();
+    keys.insert(keys.end(), pending.begin(), pending.end());
+    std::sort(keys.begin(), keys.end());
+    keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
+    // What could not be loaded stays listed: stop once a round changes nothing.
+    if (keys.empty() || keys == before) break;
+    for (size_t i = 0; i < keys.size(); i += kChunksPerBatch) {
+      batch.assign(keys.begin() + static_cast<std::ptrdiff_t>(i),
+                   keys.begin() + static_cast<std::ptrdiff_t>(std::min(keys.size(), i + kChunksPerBatch)));
+      Status st = pager->load_chunks(&map, batch, reconstructor.next_frame_id());
+      if (!st && first_error) first_error = st;
+      points += deformation.update(&map, batch);
+      st = pager->evict_chunks(&map, batch);
+      if (!st && first_error) first_error = st;
     }
-    points += reconstructor.deformation().update(&reconstructor.map(), keys);
     ++rounds;
     chunks += keys.size();
     before.swap(keys);
-    keys = reconstructor.deformation().pending_keys();
   }
-  // The fusion thread's time at once, which the frame queue may not absorb: the deformation stays
-  // lazy so that the corrections coming a second apart are followed once per chunk, and this is
-  // what a checkpoint pays for it.
   if (rounds > 0)
-    DF_LOG(Fusion, Debug) << "checkpoint: points waiting for " << chunks << " chunks joined in "
-                          << rounds << " rounds (" << points << " points"
-                          << (sweeping ? ", the sweep not done" : "") << "), "
-                          << std::chrono::duration<double, std::milli>(
-                                 std::chrono::steady_clock::now() - t0).count()
-                          << " ms";
+    DF_LOG(Fusion, Info) << "end of scan: " << chunks << " stored chunks brought up to date in "
+                         << rounds << " rounds (" << points << " points, "
+                         << deformation.stats().points_merged - merged_before << " merged), "
+                         << std::chrono::duration<double, std::milli>(
+                                std::chrono::steady_clock::now() - t0).count()
+                         << " ms";
   keep_history_for_evicted(reconstructor);
-  return loaded.with_context("loading the chunks that points moved into");
+  return first_error.with_context("bringing the stored chunks up to date");
 }
 
 void SqliteCheckpointSink::keep_graph(GraphCheckpoint graph) {
@@ -301,7 +318,7 @@ double SqliteCheckpointSink::checkpoint_latency_s() const {
 Status SqliteCheckpointSink::end_scan(const std::string& reason, IncrementalReconstructor& reconstructor,
                                       const FusionProgress& progress) {
   if (!recorder_) return invalid_argument("no scan file is open");
-  if (Status st = join_pending_points(reconstructor); !st)
+  if (Status st = bring_stored_chunks_up_to_date(reconstructor); !st)
     DF_LOG(Fusion, Warning) << st.to_string();
   auto r = recorder_->finish(&reconstructor.map(), counters_of(progress), reason);
   if (!r) {

@@ -56,10 +56,10 @@ class SqliteCheckpointSink : public CheckpointSink {
   void restore_keyframes(IncrementalReconstructor& reconstructor);
   // The map's deformation keeps the history the evicted chunks need (after every pager call).
   void keep_history_for_evicted(IncrementalReconstructor& reconstructor);
-  // Before a checkpoint: the points the map's deformation holds pending (moved into chunks that
-  // were stale or evicted) join their chunks, loaded if need be, since the scan file keeps chunks
-  // only. A chunk that cannot be loaded (damaged) keeps its pending points in memory.
-  Status join_pending_points(IncrementalReconstructor& reconstructor);
+  // The end of a scan, after the resident map followed the last correction: the evicted chunks
+  // stored in an older version, and those that points moved into wait for, follow it too, loaded
+  // a batch at a time and put back. A chunk that cannot be loaded (damaged) stays as stored.
+  Status bring_stored_chunks_up_to_date(IncrementalReconstructor& reconstructor);
 
   AppConfig config_;
   SqliteSinkOptions options_;

@@ -24,6 +24,7 @@
 #include "depthfuse/store/frame_log_replay.hpp"
 #include "depthfuse/store/scan_store.hpp"
 #include "lcm_test_util.hpp"
+#include "memory_budget.hpp"
 #include "scan_session.hpp"
 #include "sqlite_checkpoint_sink.hpp"
 #include "store_test_util.hpp"
@@ -545,6 +546,52 @@ TEST(ScanResume, KillAfterAClosureWithTheFrameLogReplaysOnTheRestoredGraph) {
   walk.sequence_ = held.next_sequence + 10;
   ASSERT_TRUE(walk.go(6, 12, 0.75)) << walk.last_problem;
   EXPECT_GE(walk.fused, walk.processed * 9 / 10) << walk.last_problem;
+}
+
+// The chunks of the scan file in a graph version older than `version` (the staged ones, which the
+// pager evicted since the last checkpoint, included).
+size_t stored_chunks_before(const std::string& path, uint32_t version, const PointMap* resident) {
+  auto store = store::ScanStore::open(path, store::OpenMode::kReadOnly);
+  EXPECT_TRUE(store) << store.status().to_string();
+  if (!store) return 0;
+  auto chunks = (*store)->list_chunks(/*include_staged=*/true);
+  EXPECT_TRUE(chunks) << chunks.status().to_string();
+  if (!chunks) return 0;
+  size_t n = 0;
+  for (const store::ChunkInfo& c : *chunks)
+    n += c.version < version && c.point_count > 0 && (!resident || !resident->find(c.key));
+  return n;
+}
+
+// A scan that ends after a closure, its map over a budget that evicts what the camera left
+// behind: the chunks evicted before the correction are brought up to date too (moved, their
+// surfaces merged), so the scan file ends with every chunk in the final version and an export
+// needs to move nothing.
+TEST(ScanEnd, EvictedChunksFollowTheLastCorrection) {
+  const std::string dir = temp_dir("scan-end-evicted");
+  AppConfig config = scan_config(dir, /*frame_log=*/false);
+  config.fusion.evict_distance_m = 0.3;
+  config.fusion.evict_min_age_frames = 5;
+  config.fusion.memory_budget_mib = 0.3 + fusiond::MemoryBudget::of(config).frame_work_mib();
+  const std::string path = dir + "/loop.dfscan";
+  fusiond::SqliteCheckpointSink sink(config, fusiond::SqliteSinkOptions{path});
+  fusiond::ScanSession session(config, sink);
+  ASSERT_TRUE(session.start("loop").is_ok());
+  Walk walk(&session);
+  ASSERT_TRUE(walk.go(0, 1, 1) && walk.go(1, 45, 0.75) && walk.go(45, 2, 0.75)) << walk.last_problem;
+  ASSERT_TRUE(walk.until_version_above(0, 2)) << walk.last_problem;
+  ASSERT_TRUE(walk.frame(2)) << walk.last_problem;
+  const IncrementalReconstructor& r = *session.reconstructor();
+  const uint32_t version = r.deformation().version();
+  // What makes the case: chunks out of memory, stored before the correction.
+  const size_t stale_evicted = stored_chunks_before(path, version, &r.map());
+  ASSERT_GT(stale_evicted, 0u) << "the budget evicted no chunk stored before the correction";
+
+  auto saved = session.stop("done", fusiond::FusionProgress{});
+  ASSERT_TRUE(saved) << saved.status().to_string();
+  EXPECT_TRUE(saved->store.is_ok()) << saved->store.to_string();
+  EXPECT_EQ(stored_chunks_before(path, version, nullptr), 0u)
+      << "of " << stale_evicted << " chunks evicted before the correction";
 }
 
 }  // namespace

@@ -308,32 +308,51 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
   if (resident - freed > budget) stats_.unevictable_bytes = resident - freed - budget;
   if (n == 0) return Status::ok();
 
-  // Changed chunks go to the scan file first, all in one transaction; only then are they dropped.
-  std::vector<std::pair<ChunkKey, const Chunk*>> writes;
   bool wait = false;
+  drop_keys_.clear();
   for (size_t i = 0; i < n; ++i) {
-    const Chunk* c = map->find(candidates_[i].key);
-    if (c->dirty) writes.emplace_back(candidates_[i].key, c);
+    drop_keys_.push_back(candidates_[i].key);
     wait |= candidates_[i].waits;
   }
   // Once the checkpoint is done its promotion is too: the chunks of its snapshot may be staged.
   const int64_t t0_ns = steady_ns();
   if (wait && wait_for_checkpoint_) wait_for_checkpoint_();
   const int64_t t1_ns = steady_ns();
-  Status st = store_->stage_chunks(writes);
-  const int64_t t2_ns = steady_ns();
-  if (!st) {
-    skip_eviction_calls_ = config_.retry_after_failure_calls;
+  size_t written = 0;
+  if (Status st = stage_and_drop(map, drop_keys_, &written); !st)
     return st.with_context("evicting " + std::to_string(n) + " chunks (they stay in memory)");
+  const int64_t t2_ns = steady_ns();
+  stats_.total_evicted += n;
+  stats_.total_evicted_recent += recent;
+  stats_.resident_chunks = map->chunk_count();
+  stats_.resident_bytes = resident - freed;
+  DF_LOG(Pager, Debug) << "frame " << frame_id << ": evicted " << n << " chunks (" << recent
+                        << " seen recently, " << written << " written), "
+                        << (resident >> 20) << " -> " << ((resident - freed) >> 20) << " MiB; "
+                        << "waited " << (t1_ns - t0_ns) / 1000000 << " ms for the checkpoint, "
+                        << "staged in " << (t2_ns - t1_ns) / 1000000 << " ms";
+  if (config_.release_memory_to_os) malloc_trim(0);
+  return Status::ok();
+}
+
+Status MapPager::stage_and_drop(PointMap* map, const std::vector<ChunkKey>& keys, size_t* written) {
+  // Changed chunks go to the scan file first, all in one transaction; only then are they dropped.
+  std::vector<std::pair<ChunkKey, const Chunk*>> writes;
+  for (const ChunkKey& k : keys)
+    if (const Chunk* c = map->find(k); c && c->dirty) writes.emplace_back(k, c);
+  if (Status st = store_->stage_chunks(writes); !st) {
+    skip_eviction_calls_ = config_.retry_after_failure_calls;
+    return st;
   }
   stats_.total_written += writes.size();
+  *written = writes.size();
   for (const auto& w : writes) {
     staged_.insert(w.first);
     promoting_.erase(w.first);  // staged again after that checkpoint: for the next one to promote
   }
-  for (size_t i = 0; i < n; ++i) {
-    const ChunkKey& k = candidates_[i].key;
+  for (const ChunkKey& k : keys) {
     const Chunk* c = map->find(k);
+    if (!c) continue;
     // A clean, empty chunk has nothing in the file and nothing to come back to.
     const bool keep_key = c->dirty || !c->points().empty();
     const uint32_t c_version = c->version;
@@ -342,17 +361,32 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
     unloadable_.erase(k);
     if (keep_key) note_evicted(k, c_version);
   }
-  stats_.total_evicted += n;
-  stats_.total_evicted_recent += recent;
-  stats_.resident_chunks = map->chunk_count();
-  stats_.resident_bytes = resident - freed;
-  DF_LOG(Pager, Debug) << "frame " << frame_id << ": evicted " << n << " chunks (" << recent
-                        << " seen recently, " << writes.size() << " written), "
-                        << (resident >> 20) << " -> " << ((resident - freed) >> 20) << " MiB; "
-                        << "waited " << (t1_ns - t0_ns) / 1000000 << " ms for the checkpoint, "
-                        << "staged in " << (t2_ns - t1_ns) / 1000000 << " ms";
-  if (config_.release_memory_to_os) malloc_trim(0);
   return Status::ok();
+}
+
+std::vector<ChunkKey> MapPager::evicted_before(uint32_t version) const {
+  std::vector<ChunkKey> keys;
+  for (const auto& [key, v] : evicted_version_)
+    if (v < version) keys.push_back(key);
+  std::sort(keys.begin(), keys.end());
+  return keys;
+}
+
+Status MapPager::evict_chunks(PointMap* map, const std::vector<ChunkKey>& keys) {
+  // A chunk the checkpoint in flight is to promote is staged again only after it is done.
+  const bool wait = std::any_of(keys.begin(), keys.end(), [&](const ChunkKey& k) {
+    const Chunk* c = map->find(k);
+    return c && c->dirty && promoting_.count(k) != 0;
+  });
+  if (wait && wait_for_checkpoint_) wait_for_checkpoint_();
+  size_t written = 0;
+  Status st = stage_and_drop(map, keys, &written);
+  if (st) {
+    stats_.total_evicted += keys.size();
+    stats_.resident_chunks = map->chunk_count();
+  }
+  return finish_call(st.with_context("evicting " + std::to_string(keys.size()) +
+                                     " chunks (they stay in memory)"));
 }
 
 }  // namespace depthfuse::store

@@ -100,6 +100,13 @@ class MapPager {
   // holds for them in their chunks).
   Status load_chunks(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t frame_id);
 
+  // The evicted chunks stored in a pose graph version older than `version`, in key order: the end
+  // of a scan loads them, brings them up to date (their surfaces merged) and puts them back.
+  std::vector<ChunkKey> evicted_before(uint32_t version) const;
+  // Writes these resident chunks (the changed ones) to the scan file and drops them from the map,
+  // whatever the budget. A key not in the map is skipped.
+  Status evict_chunks(PointMap* map, const std::vector<ChunkKey>& keys);
+
   // Resume: a chunk that is in the scan file but not in memory, its points in the pose graph's
   // `version` (ChunkInfo::version).
   void mark_evicted(const ChunkKey& key, uint32_t version = 0) { note_evicted(key, version); }
@@ -153,6 +160,9 @@ class MapPager {
   size_t other_bytes_ = 0;
   Status load(PointMap* map, const std::vector<ChunkKey>& keys, uint32_t frame_id);
   Status evict(PointMap* map, const Eigen::Vector3f& camera_position_m, uint32_t frame_id);
+  // Stages the changed ones of `keys` in one transaction, then drops them all from the map;
+  // *written: how many were staged.
+  Status stage_and_drop(PointMap* map, const std::vector<ChunkKey>& keys, size_t* written);
   Status finish_call(Status st);
   void note_evicted(const ChunkKey& key, uint32_t version);
   void note_loaded(const ChunkKey& key);  // no longer evicted
@@ -183,7 +193,7 @@ class MapPager {
     bool waits;   // staging it waits for the checkpoint in flight (a changed chunk of its snapshot)
   };
   std::vector<Candidate> candidates_;
-  std::vector<ChunkKey> keys_;
+  std::vector<ChunkKey> keys_, drop_keys_;
 };
 
 // Distance from a point to a chunk's cube (0 inside).
