@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <unordered_set>
 
 #include "depthfuse/base/log.hpp"
 #include "depthfuse/store/export.hpp"
@@ -175,6 +176,8 @@ Status SqliteCheckpointSink::bring_stored_chunks_up_to_date(IncrementalReconstru
   const auto t0 = std::chrono::steady_clock::now();
   Status first_error;
   std::vector<ChunkKey> keys, before, batch;
+  std::unordered_set<ChunkKey, ChunkKeyHash> resident_before;
+  map.for_each_chunk([&](const ChunkKey& k, const Chunk&) { resident_before.insert(k); });
   size_t rounds = 0, chunks = 0, points = 0;
   for (;;) {
     keys = pager->evicted_before(deformation.version());
@@ -190,6 +193,10 @@ Status SqliteCheckpointSink::bring_stored_chunks_up_to_date(IncrementalReconstru
       Status st = pager->load_chunks(&map, batch, reconstructor.next_frame_id());
       if (!st && first_error) first_error = st;
       points += deformation.update(&map, batch);
+      // Only what was out of memory goes back out (a resident chunk is not listed after finish()).
+      batch.erase(std::remove_if(batch.begin(), batch.end(),
+                                 [&](const ChunkKey& k) { return resident_before.count(k) != 0; }),
+                  batch.end());
       st = pager->evict_chunks(&map, batch);
       if (!st && first_error) first_error = st;
     }

@@ -5,7 +5,8 @@
 // frames later. A new session resumes the file: the graph (keyframes, edges, version), the map's
 // deformation version, the chunks (versions, points), the points waiting for chunks that had not
 // followed the correction and the merge passes left for the sweep are what the checkpoint held, and a further closure after the resume
-// moves the poses and points fused before the crash.
+// moves the poses and points fused before the crash. The same walk over a budget that evicts what
+// the camera left behind, ended after its closure, leaves a file whose chunks all follow it.
 #include <gtest/gtest.h>
 #include <signal.h>
 #include <sys/wait.h>
