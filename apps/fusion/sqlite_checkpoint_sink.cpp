@@ -8,7 +8,6 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
-#include <unordered_set>
 
 #include "depthfuse/base/log.hpp"
 #include "depthfuse/store/export.hpp"
@@ -175,9 +174,7 @@ Status SqliteCheckpointSink::bring_stored_chunks_up_to_date(IncrementalReconstru
   const uint64_t merged_before = deformation.stats().points_merged;
   const auto t0 = std::chrono::steady_clock::now();
   Status first_error;
-  std::vector<ChunkKey> keys, before, batch;
-  std::unordered_set<ChunkKey, ChunkKeyHash> resident_before;
-  map.for_each_chunk([&](const ChunkKey& k, const Chunk&) { resident_before.insert(k); });
+  std::vector<ChunkKey> keys, before, batch, out_of_memory;
   size_t rounds = 0, chunks = 0, points = 0;
   for (;;) {
     keys = pager->evicted_before(deformation.version());
@@ -190,14 +187,14 @@ Status SqliteCheckpointSink::bring_stored_chunks_up_to_date(IncrementalReconstru
     for (size_t i = 0; i < keys.size(); i += kChunksPerBatch) {
       batch.assign(keys.begin() + static_cast<std::ptrdiff_t>(i),
                    keys.begin() + static_cast<std::ptrdiff_t>(std::min(keys.size(), i + kChunksPerBatch)));
+      // Only what was out of memory goes back out (after finish() no resident chunk is listed).
+      out_of_memory.clear();
+      for (const ChunkKey& k : batch)
+        if (!map.find(k)) out_of_memory.push_back(k);
       Status st = pager->load_chunks(&map, batch, reconstructor.next_frame_id());
       if (!st && first_error) first_error = st;
       points += deformation.update(&map, batch);
-      // Only what was out of memory goes back out (a resident chunk is not listed after finish()).
-      batch.erase(std::remove_if(batch.begin(), batch.end(),
-                                 [&](const ChunkKey& k) { return resident_before.count(k) != 0; }),
-                  batch.end());
-      st = pager->evict_chunks(&map, batch);
+      st = pager->evict_chunks(&map, out_of_memory);
       if (!st && first_error) first_error = st;
     }
     ++rounds;

@@ -277,7 +277,7 @@ Status MapPager::evict(PointMap* map, const Eigen::Vector3f& cam, uint32_t frame
     if (d <= keep_distance) return;
     // Within the budget, a changed chunk whose staging would wait for the checkpoint in flight
     // stays for a later frame.
-    const bool waits = c.dirty && promoting_.count(k) != 0;
+    const bool waits = staging_waits(k, c);
     if (!over_budget && c.dirty && (file_held || waits)) return;
     candidates_.push_back({k, used, d, chunk_bytes(c), used + min_age >= frame_id, waits});
   });
@@ -373,10 +373,9 @@ std::vector<ChunkKey> MapPager::evicted_before(uint32_t version) const {
 }
 
 Status MapPager::evict_chunks(PointMap* map, const std::vector<ChunkKey>& keys) {
-  // A chunk the checkpoint in flight is to promote is staged again only after it is done.
   const bool wait = std::any_of(keys.begin(), keys.end(), [&](const ChunkKey& k) {
     const Chunk* c = map->find(k);
-    return c && c->dirty && promoting_.count(k) != 0;
+    return c && staging_waits(k, *c);
   });
   if (wait && wait_for_checkpoint_) wait_for_checkpoint_();
   size_t written = 0;

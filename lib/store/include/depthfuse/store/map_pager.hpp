@@ -163,6 +163,11 @@ class MapPager {
   // Stages the changed ones of `keys` in one transaction, then drops them all from the map;
   // *written: how many were staged.
   Status stage_and_drop(PointMap* map, const std::vector<ChunkKey>& keys, size_t* written);
+  // Whether staging this chunk must wait for the checkpoint in flight: a changed chunk of its
+  // snapshot, which the checkpoint is to promote, is staged again only after it is done.
+  bool staging_waits(const ChunkKey& key, const Chunk& chunk) const {
+    return chunk.dirty && promoting_.count(key) != 0;
+  }
   Status finish_call(Status st);
   void note_evicted(const ChunkKey& key, uint32_t version);
   void note_loaded(const ChunkKey& key);  // no longer evicted
