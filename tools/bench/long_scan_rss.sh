@@ -4,7 +4,10 @@
 # daemon's resident memory (VmRSS), its fused frame count and rate are printed, read from
 # /proc/<pid>/status and from the monitor's status (depthfuse status --json), with the frames the
 # daemon received, those it tracked without fusing (behind its camera) and those its queue dropped
-# (a checkpoint's cost shows there).
+# (a checkpoint's cost shows there). Beside them: the share of a core that the capture and the
+# fusion daemon each took over the last interval (a synthetic capture renders every frame: on two
+# cores it leaves fusion less than a real one would, or more), the mean time of a fused frame
+# (pre-filter, registration and fusion, over about the last ten), and the corrections so far.
 #
 #   tools/bench/long_scan_rss.sh [--minutes M | --seconds S] [--bin DIR] [--lcm URL] [--frames N]
 #                                [--source SOURCE]
@@ -60,10 +63,26 @@ pids+=($fusion_pid)
 sleep 1
 "$bin/depthfuse-capture" --lcm "$lcm_url" --key-file "" --source "$source" --rate 30 --loop \
   >"$work/capture.log" 2>&1 &
-pids+=($!)
+capture_pid=$!
+pids+=($capture_pid)
 
 rss_mib() { awk '/^VmRSS:/ { printf "%.1f", $2 / 1024 }' "/proc/$1/status"; }
-# "frames_out output_rate_hz" of the fusion daemon, from one status of the monitor.
+# CPU time of a process so far, in clock ticks (utime + stime; fields after the command's name).
+cpu_ticks() { sed 's/.*) //' "/proc/$1/stat" | awk '{ print $12 + $13 }'; }
+ticks_per_s=$(getconf CLK_TCK)
+declare -A ticks_before=()
+# Sets cpu_share: the share of one core that process $1 took since the last call for it, in %.
+cpu_pct() {
+  local now before
+  cpu_share=-
+  now=$(cpu_ticks "$1" 2>/dev/null) || return 0
+  before=${ticks_before[$1]:-}
+  ticks_before[$1]=$now
+  [ -n "$before" ] && [ "$interval" -gt 0 ] || return 0
+  cpu_share=$(awk -v d=$((now - before)) -v t="$ticks_per_s" -v s="$interval" \
+    'BEGIN { printf "%.0f", 100 * d / t / s }')
+}
+# The fusion daemon's figures (the columns after the CPU shares), from one status of the monitor.
 fused() {
   "$bin/depthfuse" status --json --lcm "$lcm_url" --key-file "" --timeout 3 2>/dev/null |
     python3 -c 'import json, sys
@@ -73,8 +92,10 @@ c = d[0].get("counters", {}) if d else {}
 print(*[d[0][k] for k in ("frames_out", "output_rate_hz", "point_count", "frames_in", "frames_dropped")],
       *[int(c.get(k, 0)) for k in ("frames_fusion_shed", "keyframes", "loop_closures",
                                     "frames_lost_tracking", "chunks_evicted_total")],
-      "%.1f" % c.get("last_correction_mm", 0)) if d else print("- - - - - - - - - - -")' ||
-    echo "- - - - - - - - - - -"
+      "%.1f" % c.get("last_correction_mm", 0),
+      "%.1f" % sum(c.get(k, 0) for k in ("prefilter_ms_mean", "registration_ms_mean", "fusion_ms_mean")),
+      int(c.get("graph_corrections", 0))) if d else print("- - - - - - - - - - - - -")' ||
+    echo "- - - - - - - - - - - - -"
 }
 
 if [ -n "$seconds" ]; then
@@ -85,15 +106,20 @@ else
   for ((m = 0; m <= minutes; m++)); do report_s+=($((m * 60))); done
   echo "# $bin, $source at 30 Hz (looping) for $minutes min"
 fi
-echo "# second  fusion_rss_mib  frames_fused  fused_rate_hz  map_points  frames_received  frames_dropped  frames_tracked_only  keyframes  loop_closures  frames_lost_tracking  chunks_evicted  last_correction_mm"
+echo "# second  fusion_rss_mib  capture_cpu_pct  fusion_cpu_pct  frames_fused  fused_rate_hz  map_points  frames_received  frames_dropped  frames_tracked_only  keyframes  loop_closures  frames_lost_tracking  chunks_evicted  last_correction_mm  fused_frame_ms  corrections"
 last=0
 for t in "${report_s[@]}"; do
-  sleep $((t - last))
+  interval=$((t - last))
+  sleep $interval
   last=$t
   if ! kill -0 "$fusion_pid" 2>/dev/null; then
     echo "fusion daemon died; its log:" >&2
     tail -20 "$work/fusion.log" >&2
     exit 1
   fi
-  printf '%8d  %14s  %s\n' "$t" "$(rss_mib "$fusion_pid")" "$(fused)"
+  cpu_pct "$capture_pid"
+  capture_share=$cpu_share
+  cpu_pct "$fusion_pid"
+  printf '%8d  %14s  %15s  %14s  %s\n' "$t" "$(rss_mib "$fusion_pid")" "$capture_share" "$cpu_share" \
+    "$(fused)"
 done
