@@ -44,8 +44,7 @@ cleanup() {
 }
 trap cleanup EXIT
 
-# CPU seconds (user + system) of a process so far.
-cpu_s() { awk -v hz="$(getconf CLK_TCK)" '{ sub(/^.*\) /, ""); print ($12 + $13) / hz }' "/proc/$1/stat"; }
+. "$here/tools/bench/proc_common.sh"
 
 run() {
   local tag="$1" source="$2"

@@ -5,8 +5,8 @@
 # /proc/<pid>/status and from the monitor's status (depthfuse status --json), with the frames the
 # daemon received, those it tracked without fusing (behind its camera) and those its queue dropped
 # (a checkpoint's cost shows there). Beside them: the share of a core that the capture and the
-# fusion daemon each took over the last interval (a synthetic capture renders every frame: on two
-# cores it leaves fusion less than a real one would, or more), the mean time of a fused frame
+# fusion daemon each took over the last interval (a synthetic capture renders every frame, on the
+# same cores as fusion), the mean time of a fused frame
 # (pre-filter, registration and fusion, over about the last ten), and the corrections so far.
 #
 #   tools/bench/long_scan_rss.sh [--minutes M | --seconds S] [--bin DIR] [--lcm URL] [--frames N]
@@ -67,20 +67,15 @@ capture_pid=$!
 pids+=($capture_pid)
 
 rss_mib() { awk '/^VmRSS:/ { printf "%.1f", $2 / 1024 }' "/proc/$1/status"; }
-# CPU time of a process so far, in clock ticks (utime + stime; fields after the command's name).
-cpu_ticks() { sed 's/.*) //' "/proc/$1/stat" | awk '{ print $12 + $13 }'; }
-ticks_per_s=$(getconf CLK_TCK)
-declare -A ticks_before=()
-# Sets cpu_share: the share of one core that process $1 took since the last call for it, in %.
-cpu_pct() {
-  local now before
-  cpu_share=-
-  now=$(cpu_ticks "$1" 2>/dev/null) || return 0
-  before=${ticks_before[$1]:-}
-  ticks_before[$1]=$now
-  [ -n "$before" ] && [ "$interval" -gt 0 ] || return 0
-  cpu_share=$(awk -v d=$((now - before)) -v t="$ticks_per_s" -v s="$interval" \
-    'BEGIN { printf "%.0f", 100 * d / t / s }')
+. "$here/tools/bench/proc_common.sh"
+# The share of one core, in %, of CPU seconds $1 (now) - $2 (before) over $3 seconds; "-" without
+# both.
+core_pct() {
+  if [ -n "$1" ] && [ -n "$2" ] && [ "$3" -gt 0 ]; then
+    awk -v a="$1" -v b="$2" -v s="$3" 'BEGIN { printf "%.0f", 100 * (a - b) / s }'
+  else
+    echo -
+  fi
 }
 # The fusion daemon's figures (the columns after the CPU shares), from one status of the monitor.
 fused() {
@@ -108,6 +103,8 @@ else
 fi
 echo "# second  fusion_rss_mib  capture_cpu_pct  fusion_cpu_pct  frames_fused  fused_rate_hz  map_points  frames_received  frames_dropped  frames_tracked_only  keyframes  loop_closures  frames_lost_tracking  chunks_evicted  last_correction_mm  fused_frame_ms  corrections"
 last=0
+capture_cpu_before=""
+fusion_cpu_before=""
 for t in "${report_s[@]}"; do
   interval=$((t - last))
   sleep $interval
@@ -117,9 +114,11 @@ for t in "${report_s[@]}"; do
     tail -20 "$work/fusion.log" >&2
     exit 1
   fi
-  cpu_pct "$capture_pid"
-  capture_share=$cpu_share
-  cpu_pct "$fusion_pid"
-  printf '%8d  %14s  %15s  %14s  %s\n' "$t" "$(rss_mib "$fusion_pid")" "$capture_share" "$cpu_share" \
-    "$(fused)"
+  capture_cpu=$(cpu_s "$capture_pid" 2>/dev/null || true)
+  fusion_cpu=$(cpu_s "$fusion_pid")
+  printf '%8d  %14s  %15s  %14s  %s\n' "$t" "$(rss_mib "$fusion_pid")" \
+    "$(core_pct "$capture_cpu" "$capture_cpu_before" "$interval")" \
+    "$(core_pct "$fusion_cpu" "$fusion_cpu_before" "$interval")" "$(fused)"
+  capture_cpu_before=$capture_cpu
+  fusion_cpu_before=$fusion_cpu
 done
