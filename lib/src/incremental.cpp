@@ -267,6 +267,18 @@ std::optional<MotionPrior> IncrementalReconstructor::motion_prior(
   Vector6d sigma;
   for (int k = 0; k < 6; ++k)
     sigma(k) = std::max(k < 3 ? min_rad : c.motion_prior_min_m, std::sqrt(motion_error_sq_(k)));
+  // A hand speeds the camera up along no axis of the camera's own in particular, so the spread
+  // learned on one translation axis says what the others may do: each takes the largest measured
+  // on any. Learned per axis, an axis the depth measured only on a steady stretch keeps that
+  // stretch's small spread, and where the camera then speeds up along it while the depth says
+  // little (past a long sofa, with frames dropped), the prior holds the track back a little each
+  // step and it falls behind for good. An axis no frame has measured yet keeps its own loose start:
+  // it says nothing of the motion model, and a prior pulled wide on its account would let a few
+  // pairs at a crease, whose normals straddle it, push the pose along a plain wall.
+  double measured_m = 0;
+  for (int k = 3; k < 6; ++k)
+    if (motion_measured_[k]) measured_m = std::max(measured_m, sigma(k));
+  for (int k = 3; k < 6; ++k) sigma(k) = std::max(sigma(k), measured_m);
   // The prediction is the last step stretched to this frame's time: after dropped frames its error
   // grows with the stretch. Not with its square: after a gap of a second the prior would then say
   // nothing of a direction the view does not see (metres), and neither would the odometry edge the
@@ -289,6 +301,7 @@ void IncrementalReconstructor::learn_motion(const MotionPrior& prior, const Regi
   constexpr double kWeight = 0.1;  // a running mean over about ten frames
   for (int k = 0; k < 6; ++k) {
     if (share(k, k) < kMinShare) continue;
+    motion_measured_[k] = true;
     motion_error_sq_(k) = (1 - kWeight) * motion_error_sq_(k) + kWeight * error(k) * error(k);
   }
 }
@@ -408,6 +421,7 @@ void IncrementalReconstructor::reset(std::unique_ptr<PointMap> map, uint32_t nex
   relocaliser_->clear();
   recent_model_fitness_count_ = 0;
   motion_error_sq_ = initial_motion_error_sq();
+  motion_measured_ = {};
   next_frame_id_ = std::max<uint32_t>(1, next_frame_id);
   last_T_world_cam_ = last_T_world_cam;
   placed_before_last_.reset();

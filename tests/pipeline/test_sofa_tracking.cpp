@@ -23,9 +23,12 @@ double heading_deg(const Pose& T_world_cam) {
   return std::atan2(forward.y(), forward.x()) * 180.0 / kPi;
 }
 
-// The camera's path past the sofa, tracked; `dropped`: frames of the stretch not given to the
-// tracker (as a full queue drops them). Prints and checks how far the track is off along the sofa.
-void check_sliding_past_the_sofa(const std::vector<size_t>& dropped, double max_off_share) {
+// The camera's path past the sofa, tracked from `lead_in` frames before it (0: from the walk's
+// start) at every `stride`-th frame; `dropped`: frames of the stretch not given to the tracker (as a
+// full queue drops them). Prints and checks how far the track is off along the sofa.
+void check_sliding_past_the_sofa(const std::vector<size_t>& dropped, double max_off_share,
+                                 size_t lead_in = 30, size_t stride = 1,
+                                 double max_worst_m = 0.05) {
   synthetic::SyntheticConfig c;
   c.scene = synthetic::SceneKind::kFurnished;
   c.frames = 1200;  // the walk's layout depends on its length: the benchmark's
@@ -46,11 +49,14 @@ void check_sliding_past_the_sofa(const std::vector<size_t>& dropped, double max_
   }
   ASSERT_GT(first, 30u);
   ASSERT_GT(last, first + 20) << "the walk faces the sofa for a while";
-  const size_t begin = first - 30;
+  const size_t begin = lead_in > 0 ? first - std::min(first, lead_in) : 0;
   std::vector<Frame> frames;
   std::vector<Pose> truth;
-  for (size_t i = begin; i <= last; ++i) {
-    if (std::find(dropped.begin(), dropped.end(), i - first) != dropped.end()) continue;
+  size_t stretch_first = 0;  // the first tracked frame facing the sofa
+  for (size_t i = begin; i <= last; i += stride) {
+    if (i >= first && std::find(dropped.begin(), dropped.end(), i - first) != dropped.end())
+      continue;
+    if (i < first) stretch_first = frames.size() + 1;
     frames.push_back(seq->render(i));
     truth.push_back(seq->T_world_cam_true(i));
   }
@@ -65,20 +71,21 @@ void check_sliding_past_the_sofa(const std::vector<size_t>& dropped, double max_
   const Eigen::Vector3d along = T_0_world.linear() * Eigen::Vector3d::UnitX();
   const size_t n = frames.size() - 1;
   const Eigen::Vector3d true_m = (T_0_world * truth[n]).translation();
-  const Eigen::Vector3d start_m = (T_0_world * truth[30]).translation();
+  const Eigen::Vector3d start_m = (T_0_world * truth[stretch_first]).translation();
   const double travelled_m = std::fabs(along.dot(true_m - start_m));
   const double off_m = std::fabs(along.dot(r->T_world_cam[n].translation() - true_m));
   double worst_m = 0;
   for (size_t i = 0; i <= n; ++i)
     worst_m = std::max(worst_m, (r->T_world_cam[i].translation() -
                                  (T_0_world * truth[i]).translation()).norm());
-  std::printf("frames %zu-%zu facing the sofa (%zu dropped): the camera went %.0f mm along it, the "
-              "track is %.1f mm off along it at the end, %.1f mm at worst; %zu frames uncertain\n",
-              first, last, dropped.size(), travelled_m * 1e3, off_m * 1e3, worst_m * 1e3,
-              r->uncertain);
+  std::printf("frames %zu-%zu facing the sofa (tracked from %zu, every %zu, %zu dropped): the camera "
+              "went %.0f mm along it, the track is %.1f mm off along it at the end, %.1f mm at "
+              "worst; %zu frames uncertain\n",
+              first, last, begin, stride, dropped.size(), travelled_m * 1e3, off_m * 1e3,
+              worst_m * 1e3, r->uncertain);
   EXPECT_GT(travelled_m, 0.08) << "the stretch must move the camera along the sofa";
   EXPECT_LT(off_m, max_off_share * travelled_m);
-  EXPECT_LT(worst_m, 0.05);
+  EXPECT_LT(worst_m, max_worst_m);
 }
 
 // A fresh map, no loop to close: the motion model's error adds up over the stretch (measured at
@@ -96,6 +103,14 @@ TEST(SofaTracking, AcrossDroppedFramesTheCameraStillMovesWithItsMotion) {
     dropped.push_back(20 + k);
   }
   check_sliding_past_the_sofa(dropped, 0.1);
+}
+
+// Every third frame from the walk's start (a daemon that keeps up with one frame in three, or a
+// recording thinned out): the camera speeds up past the sofa by several millimetres a step, more
+// than on the steadier walk before it along that axis. The prior must let the steps' speed-up
+// through where the depth measures a little of it, or the track falls behind and stays there.
+TEST(SofaTracking, OneFrameInThreeFromTheWalksStartTheCameraStillMovesWithItsMotion) {
+  check_sliding_past_the_sofa({}, 0.1, 0, 3, 0.05);
 }
 
 }  // namespace

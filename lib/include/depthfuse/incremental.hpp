@@ -231,9 +231,11 @@ class IncrementalReconstructor {
   uint32_t next_frame_id_ = 1;
   // The motion model's squared prediction error per frame period, per axis of the camera frame
   // (pose_delta.hpp), a running mean over the last frames that measured it; before any, a loose
-  // five times the floor (initial_motion_error_sq()).
+  // five times the floor (initial_motion_error_sq()). `motion_measured_`: the axes some frame's
+  // depth has measured since the track began (motion_prior() pools the translation axes').
   Vector6d initial_motion_error_sq() const;
   Vector6d motion_error_sq_;
+  std::array<bool, 6> motion_measured_{};
   // The model fitness of the last tracked frames (a ring; model_fitness_reference()).
   std::array<float, 8> recent_model_fitness_{};
   size_t recent_model_fitness_count_ = 0;
