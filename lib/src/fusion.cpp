@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <unordered_map>
 
 #include "fusion_columns.hpp"
 #include "fusion_kernels.hpp"
@@ -26,6 +27,8 @@ bool merge_measurement(const Eigen::Vector3f& p_e, const Eigen::Matrix3f& L_e,
 struct Fuser::Scratch {
   PointArrays added[3];  // new points of the bands: top, bottom, and the seam between them
   RowScratch rows[2];    // one per thread
+  // The new points each chunk takes this frame (add_points()).
+  std::unordered_map<ChunkKey, size_t, ChunkKeyHash> added_per_chunk;
 };
 
 Fuser::Fuser(const SensorModelConfig& sensor, const FusionConfig& fusion)
@@ -293,6 +296,34 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* scratch, Poin
   add_stats(counts, total);
 }
 
+// Makes room in each chunk for the new points the bands bring it, before add_points(). A chunk
+// grows by an eighth at a time (PointArrays::push_back), so a chunk that one view fills from empty
+// (a scan's first frame, a room entered) would otherwise be copied dozens of times over, and the
+// frames queued behind that frame would be dropped.
+void reserve_for(const PointArrays* bands, int band_count, PointMap* map,
+                 std::unordered_map<ChunkKey, size_t, ChunkKeyHash>* per_chunk) {
+  per_chunk->clear();
+  for (int b = 0; b < band_count; ++b) {
+    const PointArrays& added = bands[b];
+    // Neighbouring points share a chunk: count runs, not points.
+    size_t i = 0;
+    while (i < added.size()) {
+      const ChunkKey key = map->key_for(added.position_m[i]);
+      size_t j = i + 1;
+      while (j < added.size() && map->key_for(added.position_m[j]) == key) ++j;
+      (*per_chunk)[key] += j - i;
+      i = j;
+    }
+  }
+  for (const auto& [key, count] : *per_chunk) {
+    Chunk& chunk = map->get_or_create(key);
+    const size_t size = chunk.points().size();
+    if (chunk.points().position_m.capacity() >= size + count) continue;
+    // Still geometric: a chunk that takes a few points every frame is not copied every frame.
+    chunk.points_for_write().reserve(std::max(size + count, size + size / 8 + 16));
+  }
+}
+
 // Appends a band's new points to their chunks, in order.
 void add_points(const PointArrays& added, uint32_t frame_id, PointMap* map) {
   // Chunk lookups repeat for neighbouring points: remember the last one.
@@ -337,16 +368,24 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
   const int r = std::max(1, cr);
   const int h = m.height / 2;
   const int H = m.height;
+  // Room for each band's every pixel, kept from frame to frame: grown an eighth at a time, a
+  // scan's first frame would copy its bands dozens of times over (as reserve_for() says).
+  const size_t W = static_cast<size_t>(m.width);
   if (H > 8 * r) {
+    added[0].reserve(W * static_cast<size_t>(h - r));
+    added[1].reserve(W * static_cast<size_t>(H - h - r));
+    added[2].reserve(W * static_cast<size_t>(2 * r));
     run_pair(
         config_.threads,
         [&] { frame.rows(0, h - r, 0, h - r + cr, &row[0], &added[0], &stats[0]); },
         [&] { frame.rows(h + r, H, h + r - cr, H, &row[1], &added[1], &stats[1]); });
     frame.rows(h - r, h + r, h - r + cr, h + r - cr, &row[0], &added[2], &stats[2]);
   } else {
+    added[0].reserve(W * static_cast<size_t>(H));
     frame.rows(0, H, 0, H, &row[0], &added[0], &stats[0]);
   }
   FusionStats total;
+  reserve_for(added, 3, map, &scratch_->added_per_chunk);
   for (int b = 0; b < 3; ++b) {
     add_points(added[b], frame_id, map);
     add_stats(stats[b], &total);
