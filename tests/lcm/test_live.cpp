@@ -1079,8 +1079,10 @@ TEST_F(LiveAppliance, RecordedSessionReplaysAtItsPace) {
     EXPECT_TRUE(f->T_world_cam_hint->isApprox(*want.T_world_cam_hint, 1e-9));
   }
   const double recorded_s = ((*src)->log_utime(9) - (*src)->log_utime(0)) * 1e-6;
-  // Published at 8 Hz: 9 intervals take at least 1.125 s (more when the machine is busy).
-  EXPECT_GE(recorded_s, 1.0);
+  // Published at 8 Hz, 9 intervals are 1.125 s. The log keeps the logger's receive times, and the
+  // capture keeps to its schedule: on a busy machine a late first frame shortens the span (0.97 s
+  // once). A recording that lost the pace would hold the frames in one burst, a few milliseconds.
+  EXPECT_GE(recorded_s, 0.5);
   EXPECT_LT(recorded_s, 10.0);
 
   // Replayed by the capture daemon at the recorded pace (never faster than recorded).
