@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <unordered_map>
+#include <vector>
 
 #include "fusion_columns.hpp"
 #include "fusion_kernels.hpp"
@@ -24,10 +25,19 @@ bool merge_measurement(const Eigen::Vector3f& p_e, const Eigen::Matrix3f& L_e,
   return true;
 }
 
+// Neighbouring new points share a chunk: points [begin, end) of band `band` lie in chunk `key`.
+struct PointRun {
+  ChunkKey key;
+  int band;
+  size_t begin, end;
+};
+
 struct Fuser::Scratch {
   PointArrays added[3];  // new points of the bands: top, bottom, and the seam between them
   RowScratch rows[2];    // one per thread
-  // The new points each chunk takes this frame (add_points()).
+  // The bands' new points as runs of neighbours in one chunk, and the points each chunk takes
+  // (add_points()).
+  std::vector<PointRun> runs;
   std::unordered_map<ChunkKey, size_t, ChunkKeyHash> added_per_chunk;
 };
 
@@ -296,49 +306,43 @@ void FrameFusion::rows(int v0, int v1, int g0, int g1, RowScratch* scratch, Poin
   add_stats(counts, total);
 }
 
-// Makes room in each chunk for the new points the bands bring it, before add_points(). A chunk
-// grows by an eighth at a time (PointArrays::push_back), so a chunk that one view fills from empty
-// (a scan's first frame, a room entered) would otherwise be copied dozens of times over, and the
-// frames queued behind that frame would be dropped.
-void reserve_for(const PointArrays* bands, int band_count, PointMap* map,
-                 std::unordered_map<ChunkKey, size_t, ChunkKeyHash>* per_chunk) {
-  per_chunk->clear();
+// The bands' new points as runs of neighbours that share a chunk, in order: a chunk is looked up
+// once a run, not once a point.
+void find_runs(const PointArrays* bands, int band_count, const PointMap& map,
+               std::vector<PointRun>* runs) {
+  runs->clear();
   for (int b = 0; b < band_count; ++b) {
     const PointArrays& added = bands[b];
-    // Neighbouring points share a chunk: count runs, not points.
-    size_t i = 0;
-    while (i < added.size()) {
-      const ChunkKey key = map->key_for(added.position_m[i]);
-      size_t j = i + 1;
-      while (j < added.size() && map->key_for(added.position_m[j]) == key) ++j;
-      (*per_chunk)[key] += j - i;
-      i = j;
+    for (size_t i = 0; i < added.size(); ++i) {
+      const ChunkKey key = map.key_for(added.position_m[i]);
+      if (runs->empty() || runs->back().band != b || runs->back().key != key)
+        runs->push_back({key, b, i, i});
+      runs->back().end = i + 1;
     }
   }
+}
+
+// Appends the bands' new points to their chunks, in order, each chunk first given room for all it
+// takes. A chunk grows by an eighth at a time (PointArrays::push_back), so a chunk that one view
+// fills from empty (a scan's first frame, a room entered) would otherwise be copied dozens of times
+// over.
+void add_points(const PointArrays* bands, const std::vector<PointRun>& runs, uint32_t frame_id,
+                PointMap* map, std::unordered_map<ChunkKey, size_t, ChunkKeyHash>* per_chunk) {
+  per_chunk->clear();
+  for (const PointRun& run : runs) (*per_chunk)[run.key] += run.end - run.begin;
   for (const auto& [key, count] : *per_chunk) {
     Chunk& chunk = map->get_or_create(key);
+    chunk.last_touched_frame = chunk.last_seen_frame = frame_id;
+    chunk.dirty = true;
     const size_t size = chunk.points().size();
     if (chunk.points().position_m.capacity() >= size + count) continue;
     // Still geometric: a chunk that takes a few points every frame is not copied every frame.
     chunk.points_for_write().reserve(std::max(size + count, size + size / 8 + 16));
   }
-}
-
-// Appends a band's new points to their chunks, in order.
-void add_points(const PointArrays& added, uint32_t frame_id, PointMap* map) {
-  // Chunk lookups repeat for neighbouring points: remember the last one.
-  ChunkKey last_key{std::numeric_limits<int32_t>::min(), 0, 0};
-  PointArrays* last_points = nullptr;
-  for (size_t i = 0; i < added.size(); ++i) {
-    const ChunkKey key = map->key_for(added.position_m[i]);
-    if (!last_points || key != last_key) {
-      Chunk& chunk = map->get_or_create(key);
-      chunk.last_touched_frame = chunk.last_seen_frame = frame_id;
-      chunk.dirty = true;
-      last_points = &chunk.points_for_write();
-      last_key = key;
-    }
-    last_points->push_back(added.position_m[i], added.state[i]);
+  for (const PointRun& run : runs) {
+    const PointArrays& added = bands[run.band];
+    PointArrays& points = map->get_or_create(run.key).points_for_write();
+    for (size_t i = run.begin; i < run.end; ++i) points.push_back(added.position_m[i], added.state[i]);
   }
 }
 
@@ -369,7 +373,7 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
   const int h = m.height / 2;
   const int H = m.height;
   // Room for each band's every pixel, kept from frame to frame: grown an eighth at a time, a
-  // scan's first frame would copy its bands dozens of times over (as reserve_for() says).
+  // scan's first frame would copy its bands dozens of times over (as add_points() says).
   const size_t W = static_cast<size_t>(m.width);
   if (H > 8 * r) {
     added[0].reserve(W * static_cast<size_t>(h - r));
@@ -385,11 +389,9 @@ FusionStats Fuser::fuse(const MeasurementImage& m, const ColorImage* color, cons
     frame.rows(0, H, 0, H, &row[0], &added[0], &stats[0]);
   }
   FusionStats total;
-  reserve_for(added, 3, map, &scratch_->added_per_chunk);
-  for (int b = 0; b < 3; ++b) {
-    add_points(added[b], frame_id, map);
-    add_stats(stats[b], &total);
-  }
+  for (int b = 0; b < 3; ++b) add_stats(stats[b], &total);
+  find_runs(added, 3, *map, &scratch_->runs);
+  add_points(added, scratch_->runs, frame_id, map, &scratch_->added_per_chunk);
 
   // The chunks this frame observed: eviction keeps recently seen chunks, checkpoints write
   // changed ones.
