@@ -27,10 +27,12 @@
 #include <thread>
 
 #include "depthfuse/app_config.hpp"
+#include "depthfuse/base/heap_reserve.hpp"
 #include "depthfuse/base/log.hpp"
 #include "depthfuse/source_factory.hpp"
 #include "depthfuse/synthetic/synthetic_sequence.hpp"
 #include "depthfuse/synthetic/synthetic_source.hpp"
+#include "memory_budget.hpp"
 #include "scan_session.hpp"
 #include "sqlite_checkpoint_sink.hpp"
 
@@ -349,6 +351,15 @@ int run(const Options& o) {
   }
   // The queue is --queue's, as the daemon's is its --queue's: the shedding rule scales with it.
   config.fusion.queue_capacity_frames = static_cast<int>(o.queue);
+  // The daemon's budget and its heap reserve, as depthfuse-fusion takes them before its first frame:
+  // without the reserve, the first frame's allocations come from the kernel page by page, and a
+  // paced run drops the frames behind it (which the rig does not).
+  const fusiond::MemoryBudget budget = fusiond::MemoryBudget::of(config);
+  if (auto st = budget.check(); !st.is_ok()) {
+    DF_LOG(BenchScanSession, Error) << st.message();
+    return 2;
+  }
+  reserve_heap(static_cast<size_t>(budget.reserve_mib() * (1 << 20)));
   const bool temporary = o.dir.empty();
   const std::string dir =
       temporary ? (std::filesystem::temp_directory_path() /
