@@ -1,7 +1,6 @@
 // depthfuse-fusion: the fusion daemon (FusionDaemon) started from the command line.
 #include <string>
 
-#include "depthfuse/base/heap_reserve.hpp"
 #include "depthfuse/base/log.hpp"
 #include "depthfuse/daemon/signals.hpp"
 #include "depthfuse/daemon/startup.hpp"
@@ -50,14 +49,12 @@ int main(int argc, char** argv) {
     if (!args.get_int("queue", &queue, &error, dd::closed(1, 10000)))
       return startup.usage_error(error + " (frames)");
     config.fusion.queue_capacity_frames = static_cast<int>(queue);
-    // A config error, like the ones the config's own checks find.
-    const fusiond::MemoryBudget budget = fusiond::MemoryBudget::of(config);
-    if (auto st = budget.check(); !st.is_ok()) {
+    // A config error, like the ones the config's own checks find. Before any thread starts: see
+    // reserve_heap().
+    if (auto st = fusiond::MemoryBudget::of(config).check_and_reserve(); !st.is_ok()) {
       DF_LOG(Fusion, Error) << st.message();
       return 2;
     }
-    // Before any thread starts: see reserve_heap().
-    depthfuse::reserve_heap(static_cast<size_t>(budget.reserve_mib() * (1 << 20)));
 
     auto& shutdown = dd::ShutdownSignal::install();
     auto lcm = startup.open_lcm();

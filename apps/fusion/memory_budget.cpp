@@ -3,6 +3,7 @@
 #include <cstdio>
 #include <string>
 
+#include "depthfuse/base/heap_reserve.hpp"
 #include "depthfuse/pipeline.hpp"
 #if DEPTHFUSE_FUSION_HAS_STORE
 #include "depthfuse/store/scan_recorder.hpp"
@@ -56,6 +57,12 @@ Status MemoryBudget::check() const {
                 "max_frame_width/max_frame_height",
                 total_mib, frame_work_mib(), queue_mib, receive_mib, worker_mib, frame_log_mib);
   return invalid_argument(text);
+}
+
+Status MemoryBudget::check_and_reserve() const {
+  if (Status st = check(); !st.is_ok()) return st;
+  reserve_heap(static_cast<size_t>(reserve_mib() * (1 << 20)));
+  return Status::ok();
 }
 
 }  // namespace depthfuse::fusiond

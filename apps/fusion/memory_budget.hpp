@@ -37,6 +37,9 @@ struct MemoryBudget {
   double reserve_mib() const { return std::min(total_mib, 2.0 * frame_work_mib()); }
   // An error naming the figures and the settings when the per-frame work leaves the map nothing.
   Status check() const;
+  // check(), then reserve_mib() taken from the kernel (reserve_heap()): what a process that runs
+  // the scan does before any of its threads starts.
+  Status check_and_reserve() const;
 };
 
 }  // namespace depthfuse::fusiond

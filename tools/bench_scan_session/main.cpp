@@ -27,7 +27,6 @@
 #include <thread>
 
 #include "depthfuse/app_config.hpp"
-#include "depthfuse/base/heap_reserve.hpp"
 #include "depthfuse/base/log.hpp"
 #include "depthfuse/source_factory.hpp"
 #include "depthfuse/synthetic/synthetic_sequence.hpp"
@@ -354,12 +353,10 @@ int run(const Options& o) {
   // The daemon's budget and its heap reserve, as depthfuse-fusion takes them before its first frame:
   // without the reserve, the first frame's allocations come from the kernel page by page, and a
   // paced run drops the frames behind it (which the rig does not).
-  const fusiond::MemoryBudget budget = fusiond::MemoryBudget::of(config);
-  if (auto st = budget.check(); !st.is_ok()) {
+  if (auto st = fusiond::MemoryBudget::of(config).check_and_reserve(); !st.is_ok()) {
     DF_LOG(BenchScanSession, Error) << st.message();
     return 2;
   }
-  reserve_heap(static_cast<size_t>(budget.reserve_mib() * (1 << 20)));
   const bool temporary = o.dir.empty();
   const std::string dir =
       temporary ? (std::filesystem::temp_directory_path() /
