@@ -203,13 +203,15 @@ void IncrementalReconstructor::register_frame(const Frame& frame,
   const bool hint = frame.T_world_cam_hint.has_value();
   // Without a hint: the tracking of a moving camera. From a prediction, a MAP estimate with the
   // motion model's prior; without one (the first frames, after a loss), the directions the view
-  // does not constrain keep the value of the pose the track starts from.
+  // does not constrain keep the value of the pose the track starts from, and the track looks
+  // further, since nothing has moved its start with the camera.
   const std::optional<MotionPrior> prior =
       hint ? std::nullopt : motion_prior(frame.utime, prediction);
   const std::optional<Pose> held = hint ? std::nullopt : std::optional<Pose>(T);
   auto track = [&](const auto& model, const Pose& start) {
-    return prior ? registrar_.track(scratch_, model, start, *prior)
-                 : registrar_.track(scratch_, model, start, held);
+    if (prior) return registrar_.track(scratch_, model, start, *prior);
+    if (!prediction) return registrar_.track_without_motion(scratch_, model, start);
+    return registrar_.track(scratch_, model, start, held);
   };
   const SurfaceView& last = registrar_.model();
   if (may_reuse(config_.registration, frames_since_model_, last, T)) {

@@ -25,7 +25,7 @@ void PhotometricSums::merge(const PhotometricSums& o) {
 
 PhotometricTerm::PhotometricTerm(const RegistrationConfig& config)
     : weight_(config.photometric_weight),
-      levels_(std::max(1, config.tracking_levels)),
+      levels_(std::max({1, config.tracking_levels, config.tracking_levels_without_motion})),
       threads_(config.threads) {}
 
 void PhotometricTerm::set_frame(const ColorImage& color, const MeasurementImage& m) {

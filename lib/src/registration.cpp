@@ -445,17 +445,26 @@ RegistrationResult Registrar::refine(const MeasurementImage& m, const SurfaceVie
              config_.iterations, config_.max_correspondence_m, min_pairs(0));
 }
 
-RegistrationResult Registrar::track(const MeasurementImage& m, const PointMap& map,
-                                    const Pose& T_world_cam_initial, const MotionPrior& prior) {
-  const int levels = std::max(1, config_.tracking_levels);
+int Registrar::tracking_levels() const { return std::max(1, config_.tracking_levels); }
+
+void Registrar::render_for_tracking(const MeasurementImage& m, const PointMap& map,
+                                    const Pose& T_world_cam_initial, int levels) {
+  // One rendering of the model, at the initial pose and wide enough for the coarsest gate, serves
+  // every level: associations go through the rendered camera whatever the current estimate.
   render_model(m, map, T_world_cam_initial, config_.tracking_model_band_m,
                config_.max_correspondence_m * (1 << (levels - 1)), config_.tracking_model_downsample);
+}
+
+RegistrationResult Registrar::track(const MeasurementImage& m, const PointMap& map,
+                                    const Pose& T_world_cam_initial, const MotionPrior& prior) {
+  render_for_tracking(m, map, T_world_cam_initial, tracking_levels());
   return track(m, view_, T_world_cam_initial, prior);
 }
 
 RegistrationResult Registrar::track(const MeasurementImage& m, const SurfaceView& model,
                                     const Pose& T_world_cam_initial, const MotionPrior& prior) {
-  return coarse_to_fine(m, model, T_world_cam_initial, Hold{nullptr, 0.0, &prior});
+  return coarse_to_fine(m, model, T_world_cam_initial, Hold{nullptr, 0.0, &prior},
+                        tracking_levels());
 }
 
 Registrar::Hold Registrar::hold_for(const std::optional<Pose>& T_world_cam_held) const {
@@ -466,23 +475,38 @@ Registrar::Hold Registrar::hold_for(const std::optional<Pose>& T_world_cam_held)
 RegistrationResult Registrar::track(const MeasurementImage& m, const PointMap& map,
                                     const Pose& T_world_cam_initial,
                                     const std::optional<Pose>& T_world_cam_held) {
-  // One rendering of the model, at the initial pose and wide enough for the coarsest gate, serves
-  // every level: associations go through the rendered camera whatever the current estimate.
-  const int levels = std::max(1, config_.tracking_levels);
-  render_model(m, map, T_world_cam_initial, config_.tracking_model_band_m,
-               config_.max_correspondence_m * (1 << (levels - 1)), config_.tracking_model_downsample);
-  return coarse_to_fine(m, view_, T_world_cam_initial, hold_for(T_world_cam_held));
+  render_for_tracking(m, map, T_world_cam_initial, tracking_levels());
+  return track(m, view_, T_world_cam_initial, T_world_cam_held);
 }
 
 RegistrationResult Registrar::track(const MeasurementImage& m, const SurfaceView& model,
                                     const Pose& T_world_cam_initial,
                                     const std::optional<Pose>& T_world_cam_held) {
-  return coarse_to_fine(m, model, T_world_cam_initial, hold_for(T_world_cam_held));
+  return coarse_to_fine(m, model, T_world_cam_initial, hold_for(T_world_cam_held),
+                        tracking_levels());
+}
+
+RegistrationResult Registrar::track_without_motion(const MeasurementImage& m, const PointMap& map,
+                                                   const Pose& T_world_cam_last) {
+  render_for_tracking(m, map, T_world_cam_last,
+                      std::max(1, config_.tracking_levels_without_motion));
+  return track_without_motion(m, view_, T_world_cam_last);
+}
+
+// The motion model's prediction is what keeps a step's start within the coarsest gate of the
+// steady levels. Without one the start is the last pose, and a camera that moved fast through a
+// gap (a scan's first frame takes longest) starts further away than those gates reach: the
+// coarsest level then pairs the wrong surfaces and the track takes a step the wrong way.
+RegistrationResult Registrar::track_without_motion(const MeasurementImage& m,
+                                                   const SurfaceView& model,
+                                                   const Pose& T_world_cam_last) {
+  return coarse_to_fine(m, model, T_world_cam_last, hold_for(T_world_cam_last),
+                        std::max(1, config_.tracking_levels_without_motion));
 }
 
 RegistrationResult Registrar::coarse_to_fine(const MeasurementImage& m, const SurfaceView& model,
-                                             const Pose& T_world_cam_initial, const Hold& hold) {
-  const int levels = std::max(1, config_.tracking_levels);
+                                             const Pose& T_world_cam_initial, const Hold& hold,
+                                             int levels) {
   RegistrationResult r;
   r.T_world_cam = T_world_cam_initial;
   Pose T = T_world_cam_initial;

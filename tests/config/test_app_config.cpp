@@ -63,6 +63,8 @@ void expect_config_eq(const AppConfig& a, const AppConfig& b) {
   EXPECT_EQ(ra.registration.model_downsample, rb.registration.model_downsample);
   EXPECT_EQ(ra.registration.tracking_model_downsample, rb.registration.tracking_model_downsample);
   EXPECT_EQ(ra.registration.tracking_levels, rb.registration.tracking_levels);
+  EXPECT_EQ(ra.registration.tracking_levels_without_motion,
+            rb.registration.tracking_levels_without_motion);
   EXPECT_EQ(ra.registration.tracking_retry_fitness, rb.registration.tracking_retry_fitness);
   EXPECT_EQ(ra.registration.tracking_degenerate_ratio, rb.registration.tracking_degenerate_ratio);
   EXPECT_EQ(ra.registration.tracking_lost_fitness, rb.registration.tracking_lost_fitness);
@@ -185,6 +187,7 @@ degenerate_ratio = 0.01
 model_band_m = 0.04
 tracking_model_band_m = 0.2
 tracking_levels = 2
+tracking_levels_without_motion = 4
 tracking_iterations_per_level = 5
 photometric_weight = 0.5
 tracking_retry_fitness = 0.25
@@ -280,6 +283,7 @@ publish_rate_hz = 0.5
   EXPECT_EQ(g.model_band_m, 0.04);
   EXPECT_EQ(g.tracking_model_band_m, 0.2);
   EXPECT_EQ(g.tracking_levels, 2);
+  EXPECT_EQ(g.tracking_levels_without_motion, 4);
   EXPECT_EQ(g.tracking_iterations_per_level, 5);
   EXPECT_EQ(g.photometric_weight, 0.5);
   EXPECT_EQ(g.tracking_retry_fitness, 0.25);
@@ -468,6 +472,7 @@ TEST(AppConfig, OutOfRangeValuesAreErrors) {
       {"registration", "tracking_model_band_m", "0", "must be > 0, got 0"},
       {"registration", "tracking_levels", "0", "must be in [1, 8], got 0"},
       {"registration", "tracking_levels", "9", "must be in [1, 8], got 9"},
+      {"registration", "tracking_levels_without_motion", "0", "must be in [1, 8], got 0"},
       {"registration", "tracking_iterations_per_level", "-2", "must be >= 0, got -2"},
       {"registration", "photometric_weight", "-0.1", "must be >= 0, got -0.1"},
       {"registration", "tracking_retry_fitness", "1.5", "must be in [0, 1], got 1.5"},

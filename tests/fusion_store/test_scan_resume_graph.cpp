@@ -49,6 +49,14 @@ AppConfig scan_config(const std::string& dir, bool frame_log) {
   // A short loop: the way back may close on keyframes a few keyframes and half a metre behind.
   config.reconstruction.loop_closure.min_keyframes_back = 3;
   config.reconstruction.loop_closure.min_path_m = 0.5;
+  // The correction these tests wait for comes from the drift of a track standing at azimuth 2
+  // degrees, where the wall y = 0 is seen edge on and nothing in the view fixes the position along
+  // the arc: the track runs on under the motion prior, swings out and back, and the closer's
+  // answer must come during the swing. Which frame it comes at depends on every earlier pose, so
+  // the walk's first step (the one frame tracked without a prediction) is tracked as these tests
+  // were written for. Without a drift of its own the corner walk tracks to within the 2 mm a
+  // correction must move, and no correction comes at all.
+  config.reconstruction.registration.tracking_levels_without_motion = 3;
   return config;
 }
 
@@ -99,6 +107,16 @@ class Walk {
  private:
   fusiond::ScanSession* session_;
 };
+
+// What the loop closer did, for a test that waited for a correction in vain.
+std::string closure_stats(fusiond::ScanSession& session) {
+  const LoopClosureStats st = session.path()->loop_closure_stats();
+  return std::to_string(session.path()->graph().keyframes().size()) + " keyframes, " +
+         std::to_string(st.keyframes_searched) + " searched, " + std::to_string(st.candidates) +
+         " candidates, " + std::to_string(st.aligned) + " aligned, " + std::to_string(st.gated) +
+         " gated, " + std::to_string(st.rejected) + " rejected, " +
+         std::to_string(st.optimisations) + " optimisations";
+}
 
 // Points waiting for their chunk to follow a correction: key and version -> points, coordinate sum.
 using PendingByKey = std::map<std::tuple<int, int, int, uint32_t>, std::pair<size_t, double>>;
@@ -414,20 +432,12 @@ TEST(ScanResume, KillAfterAClosureKeepsTheGraphAndTheCorrectedMap) {
   walk.sequence_ = held.next_sequence;
   ASSERT_TRUE(walk.go(2, 45, 0.75) && walk.go(45, 2, 0.75)) << walk.last_problem;
   EXPECT_GE(walk.fused, walk.processed * 9 / 10) << walk.last_problem;
-  const auto closure_stats = [&] {
-    const LoopClosureStats st = session.path()->loop_closure_stats();
-    return std::to_string(g.keyframes().size()) + " keyframes, " +
-           std::to_string(st.keyframes_searched) + " searched, " + std::to_string(st.candidates) +
-           " candidates, " + std::to_string(st.aligned) + " aligned, " + std::to_string(st.gated) +
-           " gated, " + std::to_string(st.rejected) + " rejected, " +
-           std::to_string(st.optimisations) + " optimisations";
-  };
   ASSERT_TRUE(walk.until_version_above(held.graph_version, 2))
-      << "no closure after the resume: " << closure_stats();
+      << "no closure after the resume: " << closure_stats(session);
   ASSERT_TRUE(walk.frame(2));
   for (int closures = 1; closures < 4 && largest_motion_m() <= 1e-4; ++closures) {
     ASSERT_TRUE(walk.until_version_above(g.version(), 2))
-        << "no further closure after the resume: " << closure_stats();
+        << "no further closure after the resume: " << closure_stats(session);
     ASSERT_TRUE(walk.frame(2));
   }
   EXPECT_GT(session.reconstructor()->deformation().version(), held.deformation_version);
@@ -580,7 +590,8 @@ TEST(ScanEnd, EvictedChunksFollowTheLastCorrection) {
   ASSERT_TRUE(session.start("loop").is_ok());
   Walk walk(&session);
   ASSERT_TRUE(walk.go(0, 1, 1) && walk.go(1, 45, 0.75) && walk.go(45, 2, 0.75)) << walk.last_problem;
-  ASSERT_TRUE(walk.until_version_above(0, 2)) << walk.last_problem;
+  ASSERT_TRUE(walk.until_version_above(0, 2))
+      << walk.last_problem << "; " << closure_stats(session);
   ASSERT_TRUE(walk.frame(2)) << walk.last_problem;
   const IncrementalReconstructor& r = *session.reconstructor();
   const uint32_t version = r.deformation().version();

@@ -124,6 +124,7 @@ void read_registration(TableReader& r, RegistrationConfig* g) {
   r.read("tracking_model_downsample", &g->tracking_model_downsample, closed(1, 8));
   r.read("threads", &g->threads, closed(1, 2));
   r.read("tracking_levels", &g->tracking_levels, closed(1, 8));  // pixel steps grow as 2^level
+  r.read("tracking_levels_without_motion", &g->tracking_levels_without_motion, closed(1, 8));
   r.read("tracking_iterations_per_level", &g->tracking_iterations_per_level, non_negative());
   r.read("photometric_weight", &g->photometric_weight, non_negative());
   r.read("tracking_retry_fitness", &g->tracking_retry_fitness, closed(0.0, 1.0));

@@ -85,6 +85,9 @@ struct RegistrationConfig {
   int threads = 2;                           // 1 or 2: model rendering and ICP in two halves
   // Tracking without a pose hint: coarse-to-fine levels (subsample 4, 2, 1 ...), iterations each.
   int tracking_levels = 3;
+  // The same where no motion model predicts the pose yet (a scan's first steps, the first after a
+  // loss): the track starts from the last pose, as far from the camera as it has moved since.
+  int tracking_levels_without_motion = 5;
   int tracking_iterations_per_level = 10;
   // Tracking: weight of the photometric term (intensity of the frame against the last fused
   // frame's, 0..1) per squared point-to-plane metre; 0 = off, and off without colour.

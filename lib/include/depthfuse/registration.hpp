@@ -125,6 +125,13 @@ class Registrar {
                            const std::optional<Pose>& T_world_cam_held = std::nullopt);
   RegistrationResult track(const MeasurementImage& m, const SurfaceView& model,
                            const Pose& T_world_cam_initial, const MotionPrior& prior);
+  // A track with no motion model to start it (a scan's first steps, the first after a loss): from
+  // the last pose, which is as far from the camera as it has moved since, with its unconstrained
+  // directions held there; registration.tracking_levels_without_motion levels, wider gates.
+  RegistrationResult track_without_motion(const MeasurementImage& m, const PointMap& map,
+                                          const Pose& T_world_cam_last);
+  RegistrationResult track_without_motion(const MeasurementImage& m, const SurfaceView& model,
+                                          const Pose& T_world_cam_last);
 
   // The model the last refine() or track() against the map rendered (empty before any).
   const SurfaceView& model() const { return view_; }
@@ -159,10 +166,14 @@ class Registrar {
                          size_t min_pairs, int photometric_level = -1);
   // Inlier pairs a level of coarse-to-fine needs (level 0: refine() and the finest level).
   size_t min_pairs(int level) const;
-  // Coarse to fine: every level halves the pixel step and the correspondence gate and needs four
-  // times the pairs (registration.min_correspondences at the finest).
+  // Renders the map for a track of `levels` levels: wide enough for the coarsest level's gate.
+  void render_for_tracking(const MeasurementImage& m, const PointMap& map,
+                           const Pose& T_world_cam_initial, int levels);
+  // Coarse to fine over `levels` levels: every level halves the pixel step and the correspondence
+  // gate and needs four times the pairs (registration.min_correspondences at the finest).
   RegistrationResult coarse_to_fine(const MeasurementImage& m, const SurfaceView& model,
-                                    const Pose& T_world_cam_initial, const Hold& hold);
+                                    const Pose& T_world_cam_initial, const Hold& hold, int levels);
+  int tracking_levels() const;
   RegistrationConfig config_;
   std::unique_ptr<ModelProjection> projection_;
   std::unique_ptr<PhotometricTerm> photometric_;
