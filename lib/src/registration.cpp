@@ -446,6 +446,9 @@ RegistrationResult Registrar::refine(const MeasurementImage& m, const SurfaceVie
 }
 
 int Registrar::tracking_levels() const { return std::max(1, config_.tracking_levels); }
+int Registrar::tracking_levels_without_motion() const {
+  return std::max(1, config_.tracking_levels_without_motion);
+}
 
 void Registrar::render_for_tracking(const MeasurementImage& m, const PointMap& map,
                                     const Pose& T_world_cam_initial, int levels) {
@@ -488,8 +491,7 @@ RegistrationResult Registrar::track(const MeasurementImage& m, const SurfaceView
 
 RegistrationResult Registrar::track_without_motion(const MeasurementImage& m, const PointMap& map,
                                                    const Pose& T_world_cam_last) {
-  render_for_tracking(m, map, T_world_cam_last,
-                      std::max(1, config_.tracking_levels_without_motion));
+  render_for_tracking(m, map, T_world_cam_last, tracking_levels_without_motion());
   return track_without_motion(m, view_, T_world_cam_last);
 }
 
@@ -501,7 +503,7 @@ RegistrationResult Registrar::track_without_motion(const MeasurementImage& m,
                                                    const SurfaceView& model,
                                                    const Pose& T_world_cam_last) {
   return coarse_to_fine(m, model, T_world_cam_last, hold_for(T_world_cam_last),
-                        std::max(1, config_.tracking_levels_without_motion));
+                        tracking_levels_without_motion());
 }
 
 RegistrationResult Registrar::coarse_to_fine(const MeasurementImage& m, const SurfaceView& model,

@@ -21,6 +21,16 @@ inline synthetic::SyntheticConfig perturbed_scan(synthetic::SceneKind scene, int
   return c;
 }
 
+// The furnished room's walk as the room-scale benchmark scans it: its layout depends on the walk's
+// length, so the benchmark's 1,200 frames and seed 1.
+inline Result<synthetic::SyntheticSequence> furnished_walk() {
+  synthetic::SyntheticConfig c;
+  c.scene = synthetic::SceneKind::kFurnished;
+  c.frames = 1200;
+  c.seed = 1;
+  return synthetic::SyntheticSequence::create(c);
+}
+
 struct RenderedScan {
   std::vector<Frame> frames;
   std::vector<Pose> perturbed, truth;

@@ -9,7 +9,7 @@
 #include <vector>
 
 #include "depthfuse/batch.hpp"
-#include "depthfuse/synthetic/synthetic_sequence.hpp"
+#include "pipeline_test_util.hpp"
 
 using namespace depthfuse;
 
@@ -19,11 +19,7 @@ namespace {
 // tracker, then `after` frames one by one. Returns the worst distance of a tracked camera from the
 // truth, both relative to the first frame.
 void check_first_step(size_t gap, size_t after, double max_worst_m) {
-  synthetic::SyntheticConfig c;
-  c.scene = synthetic::SceneKind::kFurnished;
-  c.frames = 1200;  // the walk's layout depends on its length: the benchmark's
-  c.seed = 1;
-  auto seq = synthetic::SyntheticSequence::create(c);
+  auto seq = test::furnished_walk();
   ASSERT_TRUE(seq.is_ok()) << seq.status().to_string();
   std::vector<Frame> frames;
   std::vector<Pose> truth;

@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "depthfuse/batch.hpp"
-#include "depthfuse/synthetic/synthetic_sequence.hpp"
+#include "pipeline_test_util.hpp"
 
 using namespace depthfuse;
 
@@ -29,11 +29,7 @@ double heading_deg(const Pose& T_world_cam) {
 void check_sliding_past_the_sofa(const std::vector<size_t>& dropped, double max_off_share,
                                  size_t lead_in = 30, size_t stride = 1,
                                  double max_worst_m = 0.05) {
-  synthetic::SyntheticConfig c;
-  c.scene = synthetic::SceneKind::kFurnished;
-  c.frames = 1200;  // the walk's layout depends on its length: the benchmark's
-  c.seed = 1;
-  auto seq = synthetic::SyntheticSequence::create(c);
+  auto seq = test::furnished_walk();
   ASSERT_TRUE(seq.is_ok()) << seq.status().to_string();
   // The first lap's stretch facing the sofa (north, within 25 degrees; LapWalk's test shows that
   // these views say nothing along it), and 30 frames before it, from which the tracker learns the

@@ -174,6 +174,7 @@ class Registrar {
   RegistrationResult coarse_to_fine(const MeasurementImage& m, const SurfaceView& model,
                                     const Pose& T_world_cam_initial, const Hold& hold, int levels);
   int tracking_levels() const;
+  int tracking_levels_without_motion() const;
   RegistrationConfig config_;
   std::unique_ptr<ModelProjection> projection_;
   std::unique_ptr<PhotometricTerm> photometric_;
