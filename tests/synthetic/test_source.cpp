@@ -39,7 +39,8 @@ TEST(SyntheticSpec, ErrorsNameTheKeyOrValue) {
         Case{"corner?pose_noise_deg=-2", "'pose_noise_deg'"},
         Case{"corner?pose_noise_m=nan", "'pose_noise_m'"}, Case{"corner?rate_hz=0", "'rate_hz'"},
         Case{"corner?noise=maybe", "'noise'"}, Case{"corner?bogus=1", "unknown key 'bogus'"},
-        Case{"corner?frames", "'frames' has no value"}}) {
+        Case{"corner?frames", "'frames' has no value"}, Case{"corner?first=-1", "'first'"},
+        Case{"corner?frames=5&first=5", "first frame must be in [0, frames - 1] = [0, 4]"}}) {
     auto c = parse_synthetic_spec(k.spec);
     ASSERT_FALSE(c.is_ok()) << "accepted '" << k.spec << "'";
     EXPECT_EQ(c.status().code(), StatusCode::kInvalidArgument);
@@ -83,6 +84,30 @@ TEST(SyntheticSource, StreamsRewindsAndCarriesPoseHints) {
   ASSERT_TRUE(again.is_ok());
   EXPECT_EQ(again->sequence, 0u);
   EXPECT_EQ(again->depth.depth_m, first.depth.depth_m);
+}
+
+// A stretch of a long walk on its own: the walk's own sequence numbers, stamps and poses.
+TEST(SyntheticSource, StartsAtTheFirstFrameAsked) {
+  auto opened = open_synthetic_source("furnished?frames=36000&first=35998&hints=0", AppConfig());
+  ASSERT_TRUE(opened.is_ok()) << opened.status().to_string();
+  FrameSource& src = *opened.value();
+  auto* synth = dynamic_cast<SyntheticSource*>(&src);
+  ASSERT_NE(synth, nullptr);
+  EXPECT_NE(src.describe().find("from frame 35998"), std::string::npos) << src.describe();
+  ASSERT_TRUE(src.frame_count().has_value());
+  EXPECT_EQ(*src.frame_count(), 2u);
+  for (uint32_t i = 35998; i < 36000; ++i) {
+    auto f = src.next();
+    ASSERT_TRUE(f.is_ok()) << f.status().to_string();
+    EXPECT_EQ(f->sequence, i);
+    EXPECT_EQ(f->utime, synth->sequence().utime(i));
+    EXPECT_FALSE(f->T_world_cam_hint.has_value());
+  }
+  EXPECT_EQ(src.next().status().code(), StatusCode::kEndOfStream);
+  ASSERT_TRUE(src.rewind().is_ok());
+  auto again = src.next();
+  ASSERT_TRUE(again.is_ok());
+  EXPECT_EQ(again->sequence, 35998u);
 }
 
 TEST(SyntheticSource, TakesIntrinsicsFromTheSyntheticCalibration) {

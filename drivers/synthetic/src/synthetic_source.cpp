@@ -10,7 +10,7 @@ namespace depthfuse {
 namespace synthetic {
 
 SyntheticSource::SyntheticSource(SyntheticSequence sequence, bool with_noise)
-    : sequence_(std::move(sequence)), with_noise_(with_noise) {}
+    : sequence_(std::move(sequence)), with_noise_(with_noise), next_index_(first_frame()) {}
 
 Result<Frame> SyntheticSource::next() {
   if (next_index_ >= sequence_.size()) return end_of_stream();
@@ -31,11 +31,12 @@ std::string SyntheticSource::describe() const {
   }
   if (!with_noise_ || !c.noise.enabled) s += ", no sensor noise";
   if (!c.pose_hints) s += ", no pose hints";
+  if (c.first_frame > 0) s += ", from frame " + std::to_string(c.first_frame);
   return s + ")";
 }
 
 Status SyntheticSource::rewind() {
-  next_index_ = 0;
+  next_index_ = first_frame();
   return Status::ok();
 }
 
@@ -84,6 +85,9 @@ Result<SyntheticConfig> parse_synthetic_spec(const std::string& arg, const Synth
       if (key == "frames") {
         if (!parse_number(value, &config.frames) || config.frames < 1)
           return bad("an integer >= 1");
+      } else if (key == "first") {
+        if (!parse_number(value, &config.first_frame) || config.first_frame < 0)
+          return bad("a non-negative integer");
       } else if (key == "seed") {
         if (!parse_number(value, &config.seed)) return bad("a non-negative integer");
       } else if (key == "pose_noise_m") {
@@ -106,7 +110,7 @@ Result<SyntheticConfig> parse_synthetic_spec(const std::string& arg, const Synth
       } else {
         return invalid_argument(context + ": unknown key '" + key +
                                 "' (expected frames, seed, pose_noise_m, pose_noise_deg, rate_hz, "
-                                "noise or hints)");
+                                "noise, hints or first)");
       }
     }
   }

@@ -35,6 +35,9 @@ struct SyntheticConfig {
   // Whether frames carry the perturbed pose as T_world_cam_hint; without, a consumer tracks them
   // as it does a Kinect's. Not part of the [generator] table: the written folder has the poses.
   bool pose_hints = true;
+  // The first frame a SyntheticSource streams: a stretch of a long walk on its own, to look at one
+  // place of a 20-minute scan without the frames before it. Not part of the [generator] table.
+  int first_frame = 0;
 
   Status validate() const;
 };
