@@ -140,6 +140,13 @@ double counter(const fusiond::CheckpointSink& sink, const std::string& name) {
   return 0.0;
 }
 
+// What became of a frame, in a word or three.
+const char* fate(const FrameReport& r) {
+  if (r.fused()) return "fused";
+  if (r.fusion_shed) return "tracked only";
+  return "lost";
+}
+
 // Figures since the last report: the frame's whole time and where it went.
 struct Block {
   long frames = 0;
@@ -322,11 +329,13 @@ class StepTrace {
     const Eigen::Vector3d q = T_true->translation() * 1e3;
     if (last_) {
       const Eigen::Vector3d dp = p - last_->first, dq = q - last_->second;
-      std::printf("# trace sequence %u (+%u): %s%s, %s, depth's share %.2f, %.1f mm from the "
-                  "truth; step %.1f %.1f %.1f, true %.1f %.1f %.1f\n",
-                  sequence, sequence - last_sequence_, r.fusion_shed ? "tracked only" : "fused",
+      std::printf("# trace sequence %u (+%u): %s%s, %s, depth's share %.2f, fitness %.2f, %.0f "
+                  "points added, %.1f mm from the truth; step %.1f %.1f %.1f, true %.1f %.1f "
+                  "%.1f\n",
+                  sequence, sequence - last_sequence_, fate(r),
                   correction ? " after a correction" : "", to_string(r.tracking),
-                  r.registration.data_share, error_mm, dp.x(), dp.y(), dp.z(), dq.x(), dq.y(),
+                  r.registration.data_share, r.registration.fitness,
+                  static_cast<double>(r.fusion.added), error_mm, dp.x(), dp.y(), dp.z(), dq.x(), dq.y(),
                   dq.z());
     }
     last_ = std::make_pair(p, q);
@@ -432,7 +441,7 @@ int run(const Options& o) {
                   r.deformation_ms, r.fusion_ms, process_s * 1e3 - in_process_ms,
                   (frame_s - process_s) * 1e3, outcome->correction ? "after a correction " : "",
                   outcome->keyframe ? "keyframe " : "",
-                  r.fusion_shed ? "tracked only" : r.fused() ? "" : "lost");
+                  r.fused() ? "" : fate(r));
     }
     if (++n % o.report_every == 0 || n == o.frames) {
       report(n, std::chrono::duration<double>(Clock::now() - t0).count(), block, session, sink,
