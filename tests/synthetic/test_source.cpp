@@ -40,7 +40,8 @@ TEST(SyntheticSpec, ErrorsNameTheKeyOrValue) {
         Case{"corner?pose_noise_m=nan", "'pose_noise_m'"}, Case{"corner?rate_hz=0", "'rate_hz'"},
         Case{"corner?noise=maybe", "'noise'"}, Case{"corner?bogus=1", "unknown key 'bogus'"},
         Case{"corner?frames", "'frames' has no value"}, Case{"corner?first=-1", "'first'"},
-        Case{"corner?frames=5&first=5", "first frame must be in [0, frames - 1] = [0, 4]"}}) {
+        Case{"corner?frames=5&first=5",
+             "first (the first frame streamed) must be in [0, frames - 1] = [0, 4]"}}) {
     auto c = parse_synthetic_spec(k.spec);
     ASSERT_FALSE(c.is_ok()) << "accepted '" << k.spec << "'";
     EXPECT_EQ(c.status().code(), StatusCode::kInvalidArgument);

@@ -335,8 +335,8 @@ class StepTrace {
                   sequence, sequence - last_sequence_, fate(r),
                   correction ? " after a correction" : "", to_string(r.tracking),
                   r.registration.data_share, r.registration.fitness,
-                  static_cast<double>(r.fusion.added), error_mm, dp.x(), dp.y(), dp.z(), dq.x(), dq.y(),
-                  dq.z());
+                  static_cast<double>(r.fusion.added), error_mm, dp.x(), dp.y(), dp.z(), dq.x(),
+                  dq.y(), dq.z());
     }
     last_ = std::make_pair(p, q);
     last_sequence_ = sequence;

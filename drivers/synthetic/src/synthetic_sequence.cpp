@@ -25,7 +25,7 @@ Status SyntheticConfig::validate() const {
     return invalid_argument("frames must be in [1, " + std::to_string(kMaxFrames) + "], got " +
                             std::to_string(frames));
   if (first_frame < 0 || first_frame >= frames)
-    return invalid_argument("first frame must be in [0, frames - 1] = [0, " +
+    return invalid_argument("first (the first frame streamed) must be in [0, frames - 1] = [0, " +
                             std::to_string(frames - 1) + "], got " + std::to_string(first_frame));
   if (!(pose_noise_m >= 0.0) || !std::isfinite(pose_noise_m))
     return invalid_argument("pose_noise_m must be finite and >= 0, got " +

@@ -21,9 +21,7 @@ class SyntheticSource : public FrameSource {
   Result<Frame> next() override;
   std::string describe() const override;  // "synthetic:corner (60 frames, seed 1)"
   std::optional<double> nominal_rate_hz() const override { return sequence_.config().rate_hz; }
-  std::optional<size_t> frame_count() const override {
-    return sequence_.size() - first_frame();
-  }
+  std::optional<size_t> frame_count() const override { return sequence_.size() - first_frame(); }
   Status rewind() override;
 
   const SyntheticSequence& sequence() const { return sequence_; }
@@ -40,7 +38,8 @@ class SyntheticSource : public FrameSource {
 // "?frames=N&seed=S&pose_noise_m=X&pose_noise_deg=Y&rate_hz=R&noise=0|1&hints=0|1&first=F" into
 // `base` (whose other fields are kept; the lap walks' frames default to default_frames()). hints=0:
 // no pose hints, as a Kinect. first=F: the stream starts at frame F of the walk (its sequence
-// numbers and stamps stay the walk's). Unknown keys and bad numbers are invalid_argument errors naming them.
+// numbers and stamps stay the walk's). Unknown keys and bad numbers are invalid_argument errors
+// naming them.
 Result<SyntheticConfig> parse_synthetic_spec(const std::string& arg,
                                              const SyntheticConfig& base = SyntheticConfig());
 
