@@ -161,10 +161,35 @@ TEST(Kinect2Sim, CachedPacketsAreReusedWhenTheSequenceLoops) {
   EXPECT_EQ(cached->second, 3);
 }
 
+// first=F, as the synthetic source takes it: the frames from F on, and a rewind back to F.
+TEST(Kinect2Sim, StartsAtTheFirstFrameAsked) {
+  auto whole = open_frame_source("kinect2sim:corner?frames=4&seed=3", AppConfig{});
+  auto tail = open_frame_source("kinect2sim:corner?frames=4&seed=3&first=2", AppConfig{});
+  ASSERT_TRUE(whole.is_ok() && tail.is_ok());
+  EXPECT_EQ(tail.value()->frame_count().value_or(0), 2u);
+  EXPECT_NE(tail.value()->describe().find("from frame 2"), std::string::npos)
+      << tail.value()->describe();
+  std::vector<Frame> all;
+  for (auto f = whole.value()->next(); f.is_ok(); f = whole.value()->next())
+    all.push_back(std::move(f).value());
+  ASSERT_EQ(all.size(), 4u);
+  for (int loop = 0; loop < 2; ++loop) {
+    for (size_t k = 2; k < 4; ++k) {
+      auto f = tail.value()->next();
+      ASSERT_TRUE(f.is_ok()) << f.status().to_string();
+      EXPECT_TRUE(f->T_world_cam_hint->isApprox(*all[k].T_world_cam_hint)) << k;
+      EXPECT_EQ(f->depth.depth_m, all[k].depth.depth_m) << k;
+    }
+    EXPECT_EQ(tail.value()->next().status().code(), StatusCode::kEndOfStream);
+    ASSERT_TRUE(tail.value()->rewind().is_ok());
+  }
+}
+
 TEST(Kinect2Sim, BadSpecsAreRefusedNamingTheProblem) {
   for (const char* spec : {"kinect2sim:attic", "kinect2sim:corner?frames=0",
                            "kinect2sim:corner?colour=1", "kinect2sim:corner?cache_mb=-1",
-                           "kinect2sim:corner?frames=3&cache_mb=lots"}) {
+                           "kinect2sim:corner?frames=3&cache_mb=lots",
+                           "kinect2sim:corner?frames=3&first=3"}) {
     auto source = open_frame_source(spec, AppConfig{});
     ASSERT_FALSE(source.is_ok()) << spec;
     EXPECT_EQ(source.status().code(), StatusCode::kInvalidArgument) << spec;

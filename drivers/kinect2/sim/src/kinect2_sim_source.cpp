@@ -95,7 +95,9 @@ class Kinect2SimSource final : public FrameSource {
         assembly_(std::move(assembly)),
         camera_(camera),
         cache_(sequence_.size()),
-        cache_capacity_(cache_bytes / kRawPacketBytes) {
+        cache_capacity_(cache_bytes / kRawPacketBytes),
+        next_index_(first_frame()),
+        produce_index_(first_frame()) {
     for (Slot& slot : slots_) free_.push_back(&slot);
     producer_ = std::thread([this] { produce(); });
   }
@@ -144,11 +146,12 @@ class Kinect2SimSource final : public FrameSource {
     const synthetic::SyntheticConfig& c = sequence_.config();
     return std::string("kinect2sim:") + synthetic::to_string(c.scene) + " (" +
            std::to_string(sequence_.size()) + " frames, seed " + std::to_string(c.seed) +
+           (c.first_frame > 0 ? ", from frame " + std::to_string(c.first_frame) : "") +
            ", simulated Kinect V2 packets through the depthfuse decoder)";
   }
 
   std::optional<double> nominal_rate_hz() const override { return sequence_.config().rate_hz; }
-  std::optional<size_t> frame_count() const override { return sequence_.size(); }
+  std::optional<size_t> frame_count() const override { return sequence_.size() - first_frame(); }
 
   Status rewind() override {
     {
@@ -156,10 +159,10 @@ class Kinect2SimSource final : public FrameSource {
       ++generation_;
       for (Slot* slot : ready_) free_.push_back(slot);
       ready_.clear();
-      produce_index_ = 0;
+      produce_index_ = first_frame();
     }
     changed_.notify_all();
-    next_index_ = 0;
+    next_index_ = first_frame();
     return Status::ok();
   }
 
@@ -248,6 +251,9 @@ class Kinect2SimSource final : public FrameSource {
       changed_.notify_all();
     }
   }
+
+  // The spec's first=F: the stream starts at frame F of the walk, and a rewind goes back there.
+  size_t first_frame() const { return static_cast<size_t>(sequence_.config().first_frame); }
 
   const synthetic::SyntheticSequence sequence_;
   const std::unique_ptr<PacketEncoder> encoder_;
