@@ -56,6 +56,8 @@ class ScanSession {
   // Null between scans.
   const IncrementalReconstructor* reconstructor() const { return reconstructor_.get(); }
   const std::vector<StampedPose>& trajectory() const { return trajectory_; }
+  // Each trajectory pose's frame sequence (0 where it is not known: fused before a resume).
+  const std::vector<int64_t>& trajectory_sequences() const { return trajectory_sequences_; }
   // Null between scans.
   const FramePath* path() const { return path_.get(); }
   // The sequence of a frame this scan fused (0 when it is not known: fused before a resume).

@@ -323,40 +323,35 @@ class TruthWitness {
 // The scan's trajectory as the loop closures left it, against the truth: per block of frames the
 // worst error of the poses as corrected beside the worst the track had live. A closure that takes
 // a blind stretch's keyframes back shows here and not in the live column; one that does not leaves
-// the two alike. `fused`: each trajectory pose's frame, in order; `live_worst`: per block.
-struct FusedFrame {
-  uint32_t sequence = 0;
-  size_t block = 0;  // of the report lines, each `frames_per_block` frames processed
-};
-
-void report_corrected(const fusiond::ScanSession& session, const std::vector<FusedFrame>& fused,
-                      const std::vector<double>& live_worst, long frames_per_block,
-                      TruthWitness* truth) {
-  if (fused.empty() || !truth->true_pose(fused.front().sequence)) return;  // no truth
+// the two alike. Per block (report line): `live_worst`, and `poses_by_block_end`, the trajectory's
+// size when the block ended, which says which poses were fused in it.
+void report_corrected(const fusiond::ScanSession& session, const std::vector<double>& live_worst,
+                      const std::vector<size_t>& poses_by_block_end, long frames_per_block,
+                      long frames, TruthWitness* truth) {
   const std::vector<StampedPose>& trajectory = session.trajectory();
-  if (trajectory.size() != fused.size()) {
-    std::printf("# the corrected trajectory has %zu poses for %zu fused frames: not compared\n",
-                trajectory.size(), fused.size());
-    return;
-  }
-  std::vector<double> worst(live_worst.size(), -1);
+  const std::vector<int64_t>& sequences = session.trajectory_sequences();
+  if (trajectory.empty() || !truth->true_pose(static_cast<uint32_t>(sequences.front())))
+    return;  // no truth
+  std::printf("# frames processed  worst live mm   worst corrected mm\n");
   double sum_sq = 0;
-  size_t n = 0;
-  for (size_t i = 0; i < fused.size(); ++i) {
-    const double e = truth->error_mm(fused[i].sequence, trajectory[i].T_world_cam);
-    if (e < 0) continue;  // a sequence past the truth's end
-    const size_t b = fused[i].block;
-    if (b < worst.size()) worst[b] = std::max(worst[b], e);
-    sum_sq += e * e;
-    ++n;
+  size_t n = 0, i = 0;
+  for (size_t b = 0; b < live_worst.size(); ++b) {
+    double worst = -1;
+    for (; i < poses_by_block_end[b]; ++i) {
+      const double e =
+          truth->error_mm(static_cast<uint32_t>(sequences[i]), trajectory[i].T_world_cam);
+      if (e < 0) continue;  // a sequence past the truth's end
+      worst = std::max(worst, e);
+      sum_sq += e * e;
+      ++n;
+    }
+    const long first = static_cast<long>(b) * frames_per_block;
+    std::printf("# %7ld-%-7ld %16.1f %20.1f\n", first,
+                std::min(first + frames_per_block, frames) - 1, live_worst[b], worst);
   }
   std::printf("# the trajectory as corrected, against the truth (aligned at the first frame): RMS "
               "%.1f mm over %zu poses\n",
               n ? std::sqrt(sum_sq / static_cast<double>(n)) : 0.0, n);
-  std::printf("# frames processed  worst live mm   worst corrected mm\n");
-  for (size_t b = 0; b < worst.size(); ++b)
-    std::printf("# %7ld-%-7ld %16.1f %20.1f\n", static_cast<long>(b) * frames_per_block,
-                static_cast<long>(b + 1) * frames_per_block - 1, live_worst[b], worst[b]);
 }
 
 // --trace: each frame's step since the frame before it, tracked and true, in the truth's world
@@ -434,8 +429,8 @@ int run(const Options& o) {
   FrameFeed feed(o, config);
   TruthWitness truth(o.source);
   StepTrace trace;
-  std::vector<FusedFrame> fused_frames;  // each trajectory pose's, for report_corrected()
-  std::vector<double> live_worst;         // per block
+  std::vector<double> live_worst;          // per block, for report_corrected()
+  std::vector<size_t> poses_by_block_end;  // the same
   for (long n = 0; n < o.frames;) {
     auto frame = feed.next();
     if (!frame) {
@@ -465,7 +460,6 @@ int run(const Options& o) {
       trace.frame(frame->sequence, outcome->report, outcome->correction.has_value(), &truth);
     if (outcome->report.fused()) {
       const FrameReport& r = outcome->report;
-      fused_frames.push_back({frame->sequence, static_cast<size_t>(n / o.report_every)});
       const double error_mm = truth.error_mm(frame->sequence, r.T_world_cam);
       block.error_mm = std::max(block.error_mm, error_mm);
       if (o.drift_mm > 0 && error_mm > o.drift_mm)
@@ -493,11 +487,12 @@ int run(const Options& o) {
       report(n, std::chrono::duration<double>(Clock::now() - t0).count(), block, session, sink,
              feed.dropped());
       live_worst.push_back(block.error_mm);
+      poses_by_block_end.push_back(session.trajectory().size());
       block = {};
       block.closer_before = session.path()->loop_closure_stats();
     }
   }
-  report_corrected(session, fused_frames, live_worst, o.report_every, &truth);
+  report_corrected(session, live_worst, poses_by_block_end, o.report_every, o.frames, &truth);
   auto saved = session.stop("final", progress);
   if (!saved) DF_LOG(BenchScanSession, Error) << "stop: " << saved.status().to_string();
   else std::printf("# %s\n", saved->message.c_str());
