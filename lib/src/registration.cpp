@@ -363,10 +363,13 @@ void set_uncertainty(const NormalEquations& eq, const Pose& T_world_cam, double 
     result->information = data_scale(eq, model_error_m) * (B.transpose() * H * B);
   }
   result->motion_prior = prior != nullptr;
-  if (prior)
+  if (prior) {
     posterior(result, prior->information);
-  else
+    result->prior_innovation = pose_delta(prior->T_world_cam, T_world_cam);
+    result->prior_chi2 = result->prior_innovation.dot(prior->information * result->prior_innovation);
+  } else {
     result->covariance = capped_inverse(result->information);
+  }
 }
 
 }  // namespace

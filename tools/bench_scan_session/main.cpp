@@ -79,7 +79,8 @@ void usage() {
       "  --queue N           that queue's frames (default 4, the daemon's queue_capacity_frames)\n"
       "  --trace FROM:TO     a synthetic source: a line for every frame whose sequence is in\n"
       "                      FROM..TO, fused or not: tracking, depth's share, error, and its step\n"
-      "                      since the frame before against the truth's (mm, world axes)\n"
+      "                      since the frame before against the truth's (mm, world axes), and\n"
+      "                      how far the depth moved it from the motion model's prediction\n"
       "A synthetic source's run ends with the worst error per block of the trajectory as the loop\n"
       "closures left it, beside the worst the track had live (err_mm); both aligned at the first\n"
       "frame.\n");
@@ -356,7 +357,9 @@ void report_corrected(const fusiond::ScanSession& session, const std::vector<dou
 
 // --trace: each frame's step since the frame before it, tracked and true, in the truth's world
 // frame. Through a stretch where the depth decides nothing of a direction, it shows what the
-// motion model carried on against what the camera did (a stop, a turn).
+// motion model carried on against what the camera did (a stop, a turn); and how far the depth
+// moved the pose from the motion model's prediction (0 without the prior): where a drift is taken
+// back, whether in one frame or over many.
 class StepTrace {
  public:
   void frame(uint32_t sequence, const FrameReport& r, bool correction, TruthWitness* truth) {
@@ -369,12 +372,13 @@ class StepTrace {
       const Eigen::Vector3d dp = p - last_->first, dq = q - last_->second;
       std::printf("# trace sequence %u (+%u): %s%s, %s, depth's share %.2f, fitness %.2f, %.0f "
                   "points added, %.1f mm from the truth; step %.1f %.1f %.1f, true %.1f %.1f "
-                  "%.1f\n",
+                  "%.1f; %.1f mm from the prediction (chi2 %.1f)\n",
                   sequence, sequence - last_sequence_, fate(r),
                   correction ? " after a correction" : "", to_string(r.tracking),
                   r.registration.data_share, r.registration.fitness,
                   static_cast<double>(r.fusion.added), error_mm, dp.x(), dp.y(), dp.z(), dq.x(),
-                  dq.y(), dq.z());
+                  dq.y(), dq.z(), r.registration.prior_innovation.tail<3>().norm() * 1e3,
+                  r.registration.prior_chi2);
     }
     last_ = std::make_pair(p, q);
     last_sequence_ = sequence;

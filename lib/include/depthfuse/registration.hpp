@@ -40,6 +40,11 @@ struct RegistrationResult {
   // the depth alone decided, 0: the motion model alone), 1 without one.
   bool motion_prior = false;
   double data_share = 1.0;
+  // With a motion prior: how far the depth moved the estimate from the prediction (pose_delta from
+  // the prediction, its camera frame) and that difference's chi-square under the prior; zero
+  // without one.
+  Vector6d prior_innovation = Vector6d::Zero();
+  double prior_chi2 = 0.0;
 };
 
 // The motion model's prediction of a frame's pose and how far to trust it: a Gaussian prior on the
